@@ -1,0 +1,44 @@
+"""The ``dishbot`` command line. Each verb lives in its own module under ``daemon.commands``."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Callable, Sequence
+
+from daemon.errors import ConfigError, UsageError
+
+# Each module defines ``register(subparsers)``, which adds its verbs and sets ``handler`` on the parser:
+# a callable taking the parsed namespace and returning the exit code.
+COMMAND_MODULES: tuple[str, ...] = ()
+
+Handler = Callable[[argparse.Namespace], int]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="dishbot",
+        description="Load the mugs on a kitchen counter into a dishwasher tray with a low-cost robot arm.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    handler: Handler = args.handler
+    try:
+        return handler(args)
+    except (UsageError, ConfigError) as e:
+        print(f"dishbot {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,159 @@
+"""The seams between the daemon and the devices: what an arm, a gripper, a force sensor and a camera offer.
+
+The statechart and the daemon depend only on these protocols. Real hardware (Dynamixel bus, Arduino FSR,
+depth camera) and the simulated cell implement them; nothing above ``drivers/`` imports a vendor SDK.
+Angles are radians, lengths metres, forces newtons, times seconds (monotonic clock unless stated).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True)
+class JointState:
+    """Present position, velocity and load of every arm joint (gripper excluded), in chain order."""
+
+    t: float
+    names: tuple[str, ...]
+    position_rad: tuple[float, ...]
+    velocity_rad_s: tuple[float, ...]
+    load: tuple[float, ...]  # signed fraction of the servo's torque limit, -1..1
+
+
+@dataclass(frozen=True, slots=True)
+class JointTrajectory:
+    """A time-parameterised joint-space path: ``positions[i]`` is reached at ``times[i]`` (from 0)."""
+
+    names: tuple[str, ...]
+    times: FloatArray  # shape (n,), non-decreasing, times[0] == 0
+    positions: FloatArray  # shape (n, len(names)), radians
+    label: str = ""
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1]) if len(self.times) else 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class GripperState:
+    """What the gripper knows about itself: opening and the servo's load."""
+
+    t: float
+    aperture_m: float
+    load: float
+
+
+@dataclass(frozen=True, slots=True)
+class ForceReading:
+    """One force-sensing-resistor sample from the gripper pad."""
+
+    t: float
+    force_n: float
+    raw: int  # ADC counts as the microcontroller read them
+    seq: int
+
+
+@dataclass(frozen=True, slots=True)
+class GraspResult:
+    """Outcome of closing the gripper on a mug: held when the force passed the threshold in time."""
+
+    held: bool
+    force_n: float
+    aperture_m: float
+    reason: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class CameraIntrinsics:
+    """Pinhole model: the camera looks along +z, x right, y down."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+
+@dataclass(frozen=True, slots=True)
+class RGBDFrame:
+    """One depth frame (metres, 0 = no reading), an optional colour image, and where the camera was."""
+
+    t: float
+    depth_m: npt.NDArray[np.float32]  # (height, width)
+    intrinsics: CameraIntrinsics
+    world_from_camera: FloatArray  # (4, 4)
+    color: npt.NDArray[np.uint8] | None = None  # (height, width, 3) RGB
+    meta: dict[str, str] = field(default_factory=dict)
+
+
+@runtime_checkable
+class ArmDriver(Protocol):
+    """The arm's joints (without the gripper)."""
+
+    @property
+    def joint_names(self) -> tuple[str, ...]: ...
+
+    async def read_joints(self) -> JointState:
+        """Latest joint state; raises a ``drivers.errors.DriverError`` subclass when the bus fails."""
+        ...
+
+    async def follow(self, trajectory: JointTrajectory) -> None:
+        """Execute a trajectory and return once it is done. Cancelling stops the arm where it is."""
+        ...
+
+    async def stop(self) -> None:
+        """Hold the present position now (used on pause, fault and cancellation)."""
+        ...
+
+    async def relax(self) -> None:
+        """Torque off (used on e-stop and shutdown after parking)."""
+        ...
+
+
+@runtime_checkable
+class GripperDriver(Protocol):
+    """The gripper servo."""
+
+    async def read(self) -> GripperState: ...
+
+    async def open(self) -> None: ...
+
+    async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
+        """Close until the force sensor passes the threshold; not held when the aperture gets too small."""
+        ...
+
+    async def stop(self) -> None: ...
+
+
+@runtime_checkable
+class ForceSensor(Protocol):
+    """The FSR in the gripper pad."""
+
+    def latest(self) -> ForceReading | None:
+        """Newest sample, or None before the first one arrived. Never blocks."""
+        ...
+
+    def holding(self) -> bool:
+        """True while the debounced force says a mug is in the gripper."""
+        ...
+
+
+@runtime_checkable
+class Camera(Protocol):
+    """An RGB-D camera."""
+
+    async def capture(self) -> RGBDFrame: ...
+
+
+def joint_vector(values: Sequence[float]) -> FloatArray:
+    """A float64 copy of a joint vector, for arithmetic on positions."""
+    return np.asarray(values, dtype=np.float64).copy()

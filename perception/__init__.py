@@ -1,0 +1,1 @@
+"""dishbot perception: depth-based mug detection, classification, calibration and lost-mug association."""

@@ -1,0 +1,51 @@
+"""The seam between perception and the rest: what the daemon asks of "seeing the counter"."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+import numpy.typing as npt
+
+
+@dataclass(frozen=True, slots=True)
+class Detection:
+    """One mug seen on the counter, in the world frame (x forward, y left, z up; metres, radians)."""
+
+    type: str  # a name from the configured mug catalogue
+    x_m: float  # mug axis on the table
+    y_m: float
+    upside_down: bool
+    handle_yaw_rad: float  # direction of the handle from the mug axis, about +z
+    confidence: float  # 0..1
+    mug_id: str = ""  # stable id once associated with a known mug
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "id": self.mug_id,
+            "type": self.type,
+            "x_m": round(self.x_m, 5),
+            "y_m": round(self.y_m, 5),
+            "upside_down": self.upside_down,
+            "handle_yaw_rad": round(self.handle_yaw_rad, 5),
+            "confidence": round(self.confidence, 4),
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class Observation:
+    """What one look at the counter produced."""
+
+    t: float
+    detections: tuple[Detection, ...]
+    # A small depth image (metres, float32) for monitoring and recording; None when the source has none.
+    depth_preview: npt.NDArray[np.float32] | None = None
+    meta: dict[str, str] = field(default_factory=dict)
+
+
+@runtime_checkable
+class MugObserver(Protocol):
+    """Looks at the counter and reports the mugs on it."""
+
+    async def observe(self) -> Observation: ...

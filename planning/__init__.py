@@ -1,0 +1,1 @@
+"""dishbot planning: placement planning (packing, costs, optimisers) and motion planning."""

@@ -1,0 +1,90 @@
+"""The seams between planning and the rest: placement problems go in, cycle plans of joint motions come out.
+
+The placement planner itself lives in ``planning.placement`` (problem and result formats are the JSON
+contract of ``dishbot plan``); the statechart depends only on the protocols below.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Protocol, runtime_checkable
+
+from drivers.interfaces import JointTrajectory
+
+
+@dataclass(frozen=True, slots=True)
+class MugPose:
+    """A mug on the counter as manipulation needs it (world frame, metres)."""
+
+    mug_id: str
+    type: str
+    x_m: float
+    y_m: float
+    handle_yaw_rad: float = 0.0
+    upside_down: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class TraySlot:
+    """Where a mug goes (or is) on the tray: its axis in the world frame, handle along +x unless rotated."""
+
+    mug_id: str
+    type: str
+    x_m: float
+    y_m: float
+    rotated: bool = False
+
+
+class StepKind(StrEnum):
+    MOVE = "move"  # follow ``trajectory``
+    CLOSE = "close"  # close the gripper on the mug and verify the grasp
+    OPEN = "open"  # release the mug
+
+
+@dataclass(frozen=True, slots=True)
+class Step:
+    """One action of a pick-flip-place cycle. ``phase`` is the statechart state it belongs to, e.g.
+    ``side_grasp.approach`` or ``place.release``."""
+
+    phase: str
+    kind: StepKind
+    trajectory: JointTrajectory | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class CyclePlan:
+    """Every action needed to take one mug from the counter to its tray slot, with predicted cost."""
+
+    mug_id: str
+    steps: tuple[Step, ...]
+    duration_s: float
+    energy_j: float
+
+    def steps_for(self, state: str) -> tuple[Step, ...]:
+        """The steps of one top-level state (``side_grasp``, ``flip`` or ``place``), in order."""
+        return tuple(s for s in self.steps if s.phase.split(".", 1)[0] == state)
+
+
+class MotionRefused(ValueError):
+    """No safe motion exists (unreachable target, joint limit, collision); the arm was not commanded."""
+
+
+@runtime_checkable
+class MotionPlanner(Protocol):
+    """Plans the joint motions of a pick-flip-place cycle."""
+
+    def plan_cycle(
+        self,
+        start_q: Sequence[float],
+        mug: MugPose,
+        slot: TraySlot,
+        on_tray: Sequence[TraySlot],
+    ) -> CyclePlan:
+        """Raises ``MotionRefused`` with the reason when any part of the cycle is impossible."""
+        ...
+
+    def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
+        """A joint-space move within the servo limits (used for parking and recovery)."""
+        ...

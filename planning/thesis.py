@@ -1,0 +1,112 @@
+"""Numbers taken from the reference thesis (Dagli, 2016), each with the section or table it comes from.
+
+This is the only place those figures live; config defaults, datasets, the arm model and the benchmarks all
+read them from here. Lengths are metres unless the name says ``_mm``; masses are kilograms.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Final
+
+
+@dataclass(frozen=True, slots=True)
+class MugSpec:
+    """One mug type of the catalogue (§5.3): brim diameter l, width with handle w."""
+
+    name: str
+    diameter_mm: int
+    width_mm: int
+    height_mm: int
+    mass_kg: float
+
+
+# §5.3: the two mug types used in every placement test.
+BIG_MUG: Final = MugSpec("big", diameter_mm=91, width_mm=120, height_mm=106, mass_kg=0.2)
+SMALL_MUG: Final = MugSpec("small", diameter_mm=74, width_mm=100, height_mm=80, mass_kg=0.1)
+MUG_TYPES: Final[dict[str, MugSpec]] = {m.name: m for m in (BIG_MUG, SMALL_MUG)}
+
+# §5.3.1, Table 5.19: the tolerance between footprints that gave no collisions.
+TOLERANCE_MM: Final = 10
+
+# §4.3, Eq 4.40-4.45: the tray the arm can serve; §5.3: the full-size dishwasher tray.
+ROBOT_TRAY_MM: Final = (332, 374)
+FULL_TRAY_MM: Final = (475, 520)
+
+
+@dataclass(frozen=True, slots=True)
+class Dataset:
+    """A placement test set of §5.3: how many big and small mugs, and on which tray."""
+
+    number: int
+    big: int
+    small: int
+    tray_mm: tuple[int, int]
+    # §5.3.2 (Tables 5.20-5.25), §5.2.3: best mugs placed by the thesis's methods; by people (mean).
+    thesis_best_placed: int
+    human_placed: float
+
+
+DATASETS: Final[dict[int, Dataset]] = {
+    1: Dataset(1, 6, 6, ROBOT_TRAY_MM, thesis_best_placed=10, human_placed=12),
+    2: Dataset(2, 8, 4, ROBOT_TRAY_MM, thesis_best_placed=8, human_placed=12),
+    3: Dataset(3, 4, 8, ROBOT_TRAY_MM, thesis_best_placed=10, human_placed=12),
+    4: Dataset(4, 20, 10, FULL_TRAY_MM, thesis_best_placed=17, human_placed=28.4),
+    5: Dataset(5, 15, 15, FULL_TRAY_MM, thesis_best_placed=18, human_placed=29.95),
+    6: Dataset(6, 10, 20, FULL_TRAY_MM, thesis_best_placed=20, human_placed=30),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class DHRow:
+    """One row of Table 3.1, read in the modified (Craig) convention: Rx(alpha)·Tx(a)·Rz(theta)·Tz(d)."""
+
+    joint: str
+    a_m: float
+    d_m: float
+    alpha_rad: float
+
+
+# §3.2.1, Table 3.1.
+DH_TABLE: Final[tuple[DHRow, ...]] = (
+    DHRow("shoulder_turn", -0.000075, 0.01, 0.0),
+    DHRow("shoulder_lift", -0.000465, -0.00000009, -math.pi / 2),
+    DHRow("elbow_lift", 0.294, 0.00000009, 0.0),
+    DHRow("wrist_lift", 0.2838, -0.00000003, 0.0),
+    DHRow("wrist_turn", -0.00003, 0.074, -math.pi / 2),
+    DHRow("gripper", -0.00001, 0.019, 0.0),
+)
+
+# §3.2.1: the servo driving each joint, in chain order; default bus ids 1-6 follow this order.
+JOINT_SERVOS: Final[tuple[tuple[str, str], ...]] = (
+    ("shoulder_turn", "MX-64T"),
+    ("shoulder_lift", "MX-106T"),
+    ("elbow_lift", "MX-64T"),
+    ("wrist_lift", "MX-28T"),
+    ("wrist_turn", "AX-12A"),
+    ("gripper", "AX-12A"),
+)
+
+# §3.2.1: rated payload 0.2 kg at 0.728 m from the shoulder.
+ARM_PAYLOAD_KG: Final = 0.2
+
+# §3.2.1: the FSR is read through a 10 kOhm pull-down divider from the Arduino's 5 V pin.
+FSR_PULLDOWN_OHM: Final = 10_000.0
+FSR_SUPPLY_V: Final = 5.0
+
+# §3.2.3 / §5.3.2: the depth camera's pose in the simulated cell.
+CAMERA_HEIGHT_M: Final = 1.70
+CAMERA_DISTANCE_TO_TABLE_M: Final = 0.70
+CAMERA_PITCH_RAD: Final = math.radians(55.0)
+
+# §4.3: gripper heights above the table for each phase.
+GRASP_HEIGHT_M: Final = 0.06
+CARRY_CLEARANCE_M: Final = 0.07  # above the tallest mug
+PLACE_HEIGHT_M: Final = 0.06
+
+# §3.1.1.2: at most 3 minutes per mug; §5.3.3, Table 5.26: the Gazebo runs took about 55 s per mug.
+MAX_SECONDS_PER_MUG: Final = 180.0
+THESIS_GAZEBO_SECONDS_PER_MUG: Final = 55.0
+
+GRAVITY_M_S2: Final = 9.81
