@@ -11,7 +11,7 @@ from daemon.errors import ConfigError, UsageError
 
 # Each module defines ``register(subparsers)``, which adds its verbs and sets ``handler`` on the parser:
 # a callable taking the parsed namespace and returning the exit code.
-COMMAND_MODULES: tuple[str, ...] = ()
+COMMAND_MODULES: tuple[str, ...] = ("daemon.commands.bench",)
 
 Handler = Callable[[argparse.Namespace], int]
 
