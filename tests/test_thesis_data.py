@@ -7,7 +7,8 @@ def test_datasets_hold_the_thesis_mug_counts() -> None:
 
 
 def test_robot_tray_datasets_use_the_robot_tray() -> None:
-    assert [d.tray_mm for d in thesis.DATASETS.values()] == [thesis.ROBOT_TRAY_MM] * 3 + [thesis.FULL_TRAY_MM] * 3
+    trays = [d.tray_mm for d in thesis.DATASETS.values()]
+    assert trays == [thesis.ROBOT_TRAY_MM] * 3 + [thesis.FULL_TRAY_MM] * 3
 
 
 def test_servo_per_joint_follows_the_chain_order() -> None:

@@ -29,7 +29,11 @@ def format_table(columns: Sequence[str], rows: Sequence[Sequence[object]]) -> st
     widths = [max(len(r[i]) for r in cells) for i in range(len(columns))]
     lines = []
     for n, row in enumerate(cells):
-        lines.append("  ".join(v.rjust(w) if n and _numeric(v) else v.ljust(w) for v, w in zip(row, widths)))
+        lines.append(
+            "  ".join(
+                v.rjust(w) if n and _numeric(v) else v.ljust(w) for v, w in zip(row, widths, strict=True)
+            )
+        )
         if n == 0:
             lines.append("  ".join("-" * w for w in widths))
     return "\n".join(line.rstrip() for line in lines)
@@ -45,7 +49,10 @@ def emit(
 ) -> None:
     """Print a benchmark's result: the table (with ``extra`` as key: value lines) or JSON."""
     if as_json:
-        doc: dict[str, object] = {"benchmark": title, "rows": [dict(zip(columns, r)) for r in rows]}
+        doc: dict[str, object] = {
+            "benchmark": title,
+            "rows": [dict(zip(columns, r, strict=True)) for r in rows],
+        }
         doc.update(extra or {})
         json.dump(doc, sys.stdout, indent=2)
         sys.stdout.write("\n")
