@@ -1,0 +1,476 @@
+"""A Dynamixel daisy chain on a pseudo-terminal, speaking Protocol 1.0 or 2.0 byte for byte.
+
+Each simulated servo owns a control table (the model's registers at their real addresses and sizes) and
+answers instruction packets the way the e-Manual describes: status packets with checksum or CRC and byte
+stuffing, the return delay, error bits, a torque limit that drops to 0 on a 1.0 overload, Hardware Error
+Status and reboot on 2.0, the moving flag and the present load. A :class:`~drivers.sim.plant.ServoPlant`
+supplies where the servos are. Fault hooks make a servo overload, fall silent or send corrupt bytes, and
+unplug the whole adapter.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from types import TracebackType
+
+import structlog
+
+from drivers.dynamixel import faults
+from drivers.dynamixel import protocol as p
+from drivers.dynamixel.tables import ModelSpec, baud_code, baud_from_code, model
+from drivers.sim.plant import FirstOrderPlant, ServoPlant
+from drivers.sim.pty_link import PtyLink
+from planning.thesis import JOINT_SERVOS
+
+log = structlog.get_logger("drivers.sim.servo_chain")
+
+_FACTORY_RETURN_DELAY = 250  # ticks of 2 µs: the factory setting of both protocols
+
+
+@dataclass(slots=True)
+class SimServo:
+    """One simulated servo: its control table and its injected faults."""
+
+    spec: ModelSpec
+    table: bytearray
+    silent: bool = False
+    corrupt_next: int = 0
+    overload_repeats: int = 0  # how many more times the servo trips when it is next driven
+    registered: list[tuple[int, bytes]] = field(default_factory=list)
+    hardware_error: int = 0  # 2.0 Hardware Error Status bits; 1.0 latched error bits
+
+    @property
+    def servo_id(self) -> int:
+        return self.get("id")
+
+    def get(self, name: str) -> int:
+        reg = self.spec.reg(name)
+        return p.from_le(bytes(self.table[reg.address : reg.address + reg.size]), signed=reg.signed)
+
+    def set(self, name: str, value: int) -> None:
+        reg = self.spec.reg(name)
+        self.table[reg.address : reg.address + reg.size] = p.le(value, reg.size)
+
+
+class ServoChainSimulator:
+    """A chain of simulated servos on a pty; use as a context manager and open :attr:`device_path`.
+
+    ``wire_timing`` makes answers take as long as their bytes would at ``baudrate`` (plus the return delay),
+    so cycle rates measured over the simulator are those of a real 1 Mbps bus rather than of a pty.
+    """
+
+    def __init__(
+        self,
+        servos: Sequence[tuple[int, str]],
+        *,
+        protocol: p.Protocol = 1,
+        baudrate: int = 1_000_000,
+        plant: ServoPlant | None = None,
+        return_delay_ticks: int = _FACTORY_RETURN_DELAY,
+        wire_timing: bool = True,
+        name: str = "ttyDXL",
+    ) -> None:
+        self.protocol: p.Protocol = protocol
+        self.baudrate = baudrate
+        self.plant: ServoPlant = plant if plant is not None else FirstOrderPlant()
+        self.wire_timing = wire_timing
+        self._servos: list[SimServo] = []
+        for servo_id, model_name in servos:
+            spec = model(model_name)
+            if spec.protocol != protocol:
+                raise ValueError(f"{model_name} speaks Protocol {spec.protocol}.0, the chain {protocol}.0")
+            self._servos.append(self._new_servo(spec, servo_id, baudrate, return_delay_ticks))
+        self._name = name
+        self._link: PtyLink | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._silent_all = False
+        self._garbage = b""
+        self.packets_seen = 0
+
+    @staticmethod
+    def _new_servo(spec: ModelSpec, servo_id: int, baudrate: int, return_delay: int) -> SimServo:
+        servo = SimServo(spec, bytearray(spec.control_table_size))
+        servo.set("model_number", spec.number)
+        servo.set("firmware", 41 if spec.protocol == 2 else 36)
+        servo.set("id", servo_id)
+        servo.set("baud_rate", baud_code(spec.protocol, baudrate))
+        servo.set("return_delay", return_delay)
+        servo.set("temperature_limit", 70 if spec.protocol == 1 else 80)
+        if spec.protocol == 1:
+            servo.set("cw_angle_limit", 0)
+            servo.set("ccw_angle_limit", spec.max_tick)
+            servo.set("max_torque", spec.default_torque_limit)
+            servo.set("torque_limit", spec.default_torque_limit)
+            servo.set("status_return_level", 2)
+            servo.set("alarm_led", 0x24)
+            servo.set("shutdown", 0x24)
+        else:
+            servo.set("operating_mode", 3)
+            servo.set("pwm_limit", spec.default_torque_limit)
+            servo.set("goal_pwm", spec.default_torque_limit)
+            servo.set("max_position", spec.max_tick)
+            servo.set("min_position", 0)
+            servo.set("status_return_level", 2)
+            servo.set("shutdown", 0x34)
+        servo.set("present_voltage", 120)
+        servo.set("present_temperature", 32)
+        servo.set("present_position", spec.center_tick)
+        servo.set("goal_position", spec.center_tick)
+        return servo
+
+    # ------------------------------------------------------------------------------------------ lifecycle
+
+    @property
+    def device_path(self) -> str:
+        if self._link is None:
+            raise RuntimeError("the simulator is not running; use it as a context manager first")
+        return self._link.device_path
+
+    def start(self) -> ServoChainSimulator:
+        self._link = PtyLink(self._name)
+        for servo in self._servos:
+            self._sync_from_plant(servo)
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._serve, name="servo-chain-sim", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2)
+        if self._link is not None:
+            self._link.close()
+            self._link = None
+
+    def __enter__(self) -> ServoChainSimulator:
+        return self.start()
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------------------------------ fault hooks
+
+    def servo(self, servo_id: int) -> SimServo:
+        for servo in self._servos:
+            if servo.servo_id == servo_id:
+                return servo
+        raise KeyError(f"no simulated servo with id {servo_id}")
+
+    def overload(self, servo_id: int, *, repeats: int = 0) -> None:
+        """Trip the servo's overload protection now, and ``repeats`` more times when it is driven again."""
+        with self._lock:
+            servo = self.servo(servo_id)
+            self._trip(servo)
+            servo.overload_repeats = repeats
+
+    def silence(self, servo_id: int | None = None, *, on: bool = True) -> None:
+        """Stop one servo (or, with None, the whole chain) from answering, as with a loose cable."""
+        with self._lock:
+            if servo_id is None:
+                self._silent_all = on
+            else:
+                self.servo(servo_id).silent = on
+
+    def corrupt(self, servo_id: int, *, packets: int = 1) -> None:
+        """Flip a bit in the next ``packets`` status packets of a servo, so their checksum fails."""
+        with self._lock:
+            self.servo(servo_id).corrupt_next = packets
+
+    def inject_garbage(self, data: bytes) -> None:
+        """Bytes sent to the host before the next answer, as electrical noise on the line would be."""
+        with self._lock:
+            self._garbage += data
+
+    def unplug(self) -> None:
+        """Pull the USB adapter: the host's port fails and the device path disappears."""
+        if self._link is not None:
+            self._link.unplug()
+
+    def replug(self) -> None:
+        if self._link is not None:
+            self._link.plug()
+
+    # ------------------------------------------------------------------------------------------ serving
+
+    def _serve(self) -> None:
+        framer = p.Framer(self.protocol)
+        assert self._link is not None
+        link = self._link
+        was_plugged = True
+        while not self._stop.is_set():
+            data = link.read(0.02)
+            if link.plugged != was_plugged:
+                was_plugged = link.plugged
+                framer = p.Framer(self.protocol)
+            if not data:
+                continue
+            for frame in framer.feed(data):
+                self.packets_seen += 1
+                try:
+                    self._handle(link, frame)
+                except Exception:  # the simulator must keep serving whatever the host sends
+                    log.exception("sim_packet_failed", servo_id=frame.servo_id, code=frame.code)
+
+    def _listening(self, link: PtyLink) -> list[SimServo]:
+        """Servos whose baud rate matches the host's; the others hear only noise."""
+        host = link.host_baudrate()
+        if self._silent_all:
+            return []
+        return [
+            s
+            for s in self._servos
+            if host is None or baud_from_code(self.protocol, s.get("baud_rate")) == host
+        ]
+
+    def _handle(self, link: PtyLink, frame: p.Frame) -> None:
+        with self._lock:
+            servos = self._listening(link)
+            replies = self._dispatch(frame, servos)
+            garbage, self._garbage = self._garbage, b""
+        if garbage:
+            link.write(garbage)
+        for servo, packet in replies:
+            if servo.silent:
+                # Daisy-chained reads wait for the previous answer; a silent servo stalls the rest.
+                if frame.code in (p.BULK_READ, p.SYNC_READ):
+                    return
+                continue
+            if servo.corrupt_next:
+                servo.corrupt_next -= 1
+                packet = packet[:-2] + bytes((packet[-2] ^ 0x10,)) + packet[-1:]
+            self._wire_delay(servo, len(packet))
+            link.write(packet)
+
+    def _wire_delay(self, servo: SimServo, nbytes: int) -> None:
+        if not self.wire_timing:
+            return
+        seconds = servo.get("return_delay") * 2e-6 + nbytes * 10 / self.baudrate
+        deadline = time.perf_counter() + seconds
+        if seconds > 0.002:
+            time.sleep(seconds - 0.001)
+        while time.perf_counter() < deadline:
+            time.sleep(0)
+
+    def _dispatch(self, frame: p.Frame, servos: list[SimServo]) -> list[tuple[SimServo, bytes]]:
+        by_id = {s.servo_id: s for s in servos}
+        code, params = frame.code, frame.params
+        if frame.servo_id == p.BROADCAST_ID:
+            if code == p.SYNC_WRITE:
+                self._sync_write(params, by_id)
+            elif code == p.BULK_READ and self.protocol == 1:
+                return self._bulk_read_1(params, by_id)
+            elif code == p.BULK_READ:
+                return self._bulk_read_2(params, by_id)
+            elif code == p.SYNC_READ and self.protocol == 2:
+                return self._sync_read_2(params, by_id)
+            elif code == p.PING and self.protocol == 2:
+                return [(s, self._status(s, 0, self._ping_data(s))) for s in sorted(servos, key=_id)]
+            elif code in (p.WRITE, p.ACTION):
+                for each in servos:
+                    self._single(each, code, params)
+            return []
+        target = by_id.get(frame.servo_id)
+        if target is None:
+            return []
+        return [(target, self._single(target, code, params))]
+
+    def _single(self, servo: SimServo, code: int, params: bytes) -> bytes:
+        if code == p.PING:
+            return self._status(servo, 0, self._ping_data(servo))
+        if code == p.READ:
+            address, length = self._address_length(params)
+            if address is None:
+                return self._status(servo, self._instruction_error())
+            return self._read(servo, address, length)
+        if code in (p.WRITE, p.REG_WRITE):
+            split = 1 if self.protocol == 1 else 2
+            if len(params) <= split:
+                return self._status(servo, self._instruction_error())
+            address = p.from_le(params[:split])
+            if code == p.REG_WRITE:
+                servo.registered.append((address, params[split:]))
+                return self._status(servo, 0)
+            return self._status(servo, self._write(servo, address, params[split:]))
+        if code == p.ACTION:
+            error = 0
+            for address, data in servo.registered:
+                error |= self._write(servo, address, data)
+            servo.registered.clear()
+            return self._status(servo, error)
+        if code == p.REBOOT:
+            self._reboot(servo)
+            return self._status(servo, 0)
+        return self._status(servo, self._instruction_error())
+
+    def _ping_data(self, servo: SimServo) -> bytes:
+        if self.protocol == 1:
+            return b""
+        return p.le(servo.spec.number, 2) + bytes((servo.get("firmware"),))
+
+    def _address_length(self, params: bytes) -> tuple[int | None, int]:
+        if self.protocol == 1:
+            return (params[0], params[1]) if len(params) == 2 else (None, 0)
+        return (p.from_le(params[:2]), p.from_le(params[2:4])) if len(params) == 4 else (None, 0)
+
+    def _instruction_error(self) -> int:
+        return 0x40 if self.protocol == 1 else 2
+
+    def _range_error(self) -> int:
+        return 0x08 if self.protocol == 1 else 4
+
+    def _error_byte(self, servo: SimServo) -> int:
+        if self.protocol == 1:
+            return servo.hardware_error
+        return faults.ALERT_2 if servo.hardware_error else 0
+
+    def _status(self, servo: SimServo, error: int, data: bytes = b"") -> bytes:
+        return p.encode_status(self.protocol, servo.servo_id, error | self._error_byte(servo), data)
+
+    def _read(self, servo: SimServo, address: int, length: int) -> bytes:
+        if length == 0 or address + length > len(servo.table):
+            return self._status(servo, self._range_error())
+        self._sync_from_plant(servo)
+        return self._status(servo, 0, bytes(servo.table[address : address + length]))
+
+    def _sync_write(self, params: bytes, by_id: dict[int, SimServo]) -> None:
+        head = 2 if self.protocol == 1 else 4
+        if len(params) < head:
+            return
+        address, length = self._address_length(params[:head])
+        if address is None or length == 0:
+            return
+        body = params[head:]
+        for i in range(0, len(body) - length, length + 1):
+            servo = by_id.get(body[i])
+            if servo is not None:
+                self._write(servo, address, body[i + 1 : i + 1 + length])
+
+    def _bulk_read_1(self, params: bytes, by_id: dict[int, SimServo]) -> list[tuple[SimServo, bytes]]:
+        replies = []
+        for i in range(1, len(params) - 2, 3):
+            length, servo_id, address = params[i], params[i + 1], params[i + 2]
+            servo = by_id.get(servo_id)
+            if servo is None:
+                break
+            replies.append((servo, self._read(servo, address, length)))
+        return replies
+
+    def _sync_read_2(self, params: bytes, by_id: dict[int, SimServo]) -> list[tuple[SimServo, bytes]]:
+        if len(params) < 5:
+            return []
+        address, length = p.from_le(params[:2]), p.from_le(params[2:4])
+        replies = []
+        for servo_id in params[4:]:
+            servo = by_id.get(servo_id)
+            if servo is None:
+                break
+            replies.append((servo, self._read(servo, address, length)))
+        return replies
+
+    def _bulk_read_2(self, params: bytes, by_id: dict[int, SimServo]) -> list[tuple[SimServo, bytes]]:
+        replies = []
+        for i in range(0, len(params) - 4, 5):
+            servo = by_id.get(params[i])
+            if servo is None:
+                break
+            address, length = p.from_le(params[i + 1 : i + 3]), p.from_le(params[i + 3 : i + 5])
+            replies.append((servo, self._read(servo, address, length)))
+        return replies
+
+    # ------------------------------------------------------------------------------------------ registers
+
+    def _write(self, servo: SimServo, address: int, data: bytes) -> int:
+        """Apply a write like the servo's firmware; the status error to answer with."""
+        spec = servo.spec
+        if address + len(data) > len(servo.table):
+            return self._range_error()
+        written = {
+            name
+            for name, reg in spec.registers.items()
+            if reg.address < address + len(data) and address < reg.address + reg.size
+        }
+        if (
+            self.protocol == 2
+            and servo.get("torque_enable")
+            and any(spec.registers[n].eeprom for n in written)
+        ):
+            return 7  # access error: EEPROM is locked while the torque is on
+        before_torque = servo.get("torque_enable")
+        saved = bytes(servo.table)
+        servo.table[address : address + len(data)] = data
+        if "goal_position" in written and not 0 <= servo.get("goal_position") <= spec.max_tick:
+            servo.table[:] = saved
+            return self._range_error()
+        if self.protocol == 1 and "torque_limit" in written and servo.get("torque_limit") > 0:
+            # Restoring the torque limit clears a latched overload on the 1.0 servos.
+            servo.hardware_error &= ~faults.bits_for(1, ("overload",))
+        if "torque_enable" in written:
+            on = bool(servo.get("torque_enable"))
+            if on and (self.protocol == 2 and servo.hardware_error):
+                servo.set("torque_enable", 0)  # a 2.0 servo in shutdown refuses torque until rebooted
+            elif on != bool(before_torque):
+                self.plant.set_torque(servo.servo_id, on)
+        limp = self.protocol == 1 and servo.get("torque_limit") == 0
+        if (
+            written & {"goal_position", "moving_speed", "profile_velocity"}
+            and servo.get("torque_enable")
+            and not limp
+        ):
+            if servo.overload_repeats and written & {"goal_position"}:
+                servo.overload_repeats -= 1
+                self._trip(servo)
+                return self._error_byte(servo) if self.protocol == 1 else 0
+            speed_reg = "moving_speed" if self.protocol == 1 else "profile_velocity"
+            speed_ticks = servo.get(speed_reg) or 1023
+            self.plant.set_goal(
+                servo.servo_id,
+                spec.rad_from_ticks(servo.get("goal_position")),
+                spec.velocity_from_ticks(speed_ticks & 0x3FF if self.protocol == 1 else speed_ticks),
+            )
+        return 0
+
+    def _trip(self, servo: SimServo) -> None:
+        """Overload shutdown: torque off; 1.0 also drops the torque limit to 0 until it is rewritten."""
+        servo.hardware_error |= faults.bits_for(self.protocol, ("overload",))
+        servo.set("torque_enable", 0)
+        if self.protocol == 1:
+            servo.set("torque_limit", 0)
+        self.plant.set_torque(servo.servo_id, False)
+        log.info("sim_overload", servo_id=servo.servo_id)
+
+    def _reboot(self, servo: SimServo) -> None:
+        servo.hardware_error = 0
+        servo.set("torque_enable", 0)
+        self.plant.set_torque(servo.servo_id, False)
+        if self.protocol == 1:
+            servo.set("torque_limit", servo.get("max_torque"))
+
+    def _sync_from_plant(self, servo: SimServo) -> None:
+        spec = servo.spec
+        position, velocity, load = self.plant.present(servo.servo_id)
+        servo.set("present_position", spec.ticks_from_rad(position))
+        servo.set(
+            "present_speed" if self.protocol == 1 else "present_velocity", spec.velocity_to_ticks(velocity)
+        )
+        load_name = "present_load" if "present_load" in spec.registers else "present_current"
+        servo.set(load_name, spec.load_to_ticks(load))
+        servo.set("moving", int(abs(servo.get("goal_position") - servo.get("present_position")) > 2))
+        if self.protocol == 2:
+            servo.set("hardware_error_status", servo.hardware_error)
+
+
+def _id(servo: SimServo) -> int:
+    return servo.servo_id
+
+
+def default_chain() -> tuple[tuple[int, str], ...]:
+    """The thesis arm's chain: ids 1-6 in joint order (§3.2.1)."""
+    return tuple((i, servo) for i, (_, servo) in enumerate(JOINT_SERVOS, start=1))
