@@ -110,3 +110,73 @@ MAX_SECONDS_PER_MUG: Final = 180.0
 THESIS_GAZEBO_SECONDS_PER_MUG: Final = 55.0
 
 GRAVITY_M_S2: Final = 9.81
+
+# --- Placement planning (§4.2, §5.2, §5.3) ---
+
+# §5.2.2, Table 5.2: answers of the 258-person survey ranking each parameter 1st..4th, or "not important".
+SURVEY_RANK_COUNTS: Final[dict[str, tuple[int, int, int, int]]] = {
+    "n": (133, 66, 36, 17),
+    "E": (43, 96, 66, 32),
+    "t": (52, 58, 101, 27),
+    "s": (26, 37, 36, 82),
+}
+SURVEY_NOT_IMPORTANT: Final[dict[str, int]] = {"n": 6, "E": 21, "t": 20, "s": 77}
+# §5.2.2, Table 5.3: the overall weights Eq 4.7 gives from Table 5.2.
+SURVEY_OVERALL_WEIGHTS: Final[dict[str, float]] = {"n": 0.338, "t": 0.252, "E": 0.258, "s": 0.152}
+
+# §5.2.5, Eq 5.2 (user preference-based cost) and Eq 5.3 (engineering cost): weighted-sum weights.
+UPC_WEIGHTS: Final[dict[str, float]] = {"n": 0.37, "E": 0.28, "t": 0.27, "s": 0.08}
+EC_WEIGHTS: Final[dict[str, float]] = {"n": 0.43, "E": 0.30, "t": 0.27, "s": 0.0}
+# §5.2.6, Eq 5.5: the ranking-fitness order (the covered area A breaks ties in n).
+RF_RANKING: Final[tuple[str, ...]] = ("n", "A", "E", "t", "s")
+
+
+@dataclass(frozen=True, slots=True)
+class SAParams:
+    """§5.3: simulated annealing."""
+
+    t_max: float = 1000.0
+    cooling_rate: float = 0.99
+    t_abs: float = 0.01
+
+
+@dataclass(frozen=True, slots=True)
+class GAParams:
+    """§5.3 (from Gehring and Bortfeldt): genetic algorithm."""
+
+    npop: int = 50
+    ngen: int = 30
+    nrep: int = 10
+    pc: float = 0.67
+    pm: float = 0.33
+
+
+@dataclass(frozen=True, slots=True)
+class PSOParams:
+    """§5.3: both particle swarm variants (ω falls linearly from w_max to w_min, Eq 4.20)."""
+
+    tau_max: int = 500
+    w_max: float = 0.9
+    w_min: float = 0.4
+    c1: float = 1.5
+    c2: float = 1.5
+    c3: float = 5.0
+    ps: float = 0.5
+
+
+SA_PARAMS: Final = SAParams()
+GA_PARAMS: Final = GAParams()
+PSO_PARAMS: Final = PSOParams()
+
+# §5.3.2, Table 5.21 (lowest bin-packing cost, ranking fitness): run time of each method's best combination,
+# in minutes, per dataset (C++, Intel i7-2600).
+THESIS_RUN_MINUTES: Final[dict[str, tuple[float, ...]]] = {
+    "sa": (0.1466, 0.1351, 0.2532, 0.6532, 0.6666, 0.5162),
+    "ga": (0.1926, 0.1644, 0.1815, 0.7174, 0.7239, 0.6635),
+    "psop-n": (0.5184, 0.6004, 0.5997, 1.0383, 1.0836, 1.2837),
+    "psop-i": (0.6699, 0.6490, 0.6850, 1.0621, 1.0841, 1.2448),
+    "psok-n": (0.2307, 0.2266, 0.2442, 0.8788, 0.9176, 0.6146),
+    "psok-i": (0.2309, 0.2301, 0.2349, 0.6919, 0.7330, 0.6221),
+    "bh": (0.0001, 0.0001, 0.0001, 0.0003, 0.0002, 0.0003),
+}
+# --- end of placement planning ---

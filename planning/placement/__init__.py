@@ -1,0 +1,27 @@
+"""Placement planning: where each mug goes on the tray (2D packing under preferences), and in which order.
+
+Every method of the thesis (§4.2: packing heuristics, SA, GA, PSOp, PSOk, best heuristic) plus an exact CP-SAT
+model that proves the largest number of mugs that fit, and ``auto``, which combines them within a time budget.
+"""
+
+from planning.placement.cost import MoveCost, ThesisMoveCost
+from planning.placement.datasets import dataset_problem
+from planning.placement.errors import InvalidProblem
+from planning.placement.planner import METHODS, PlacedMug, PlanOptions, PlanResult, plan
+from planning.placement.problem import CounterMug, MugType, Problem, TrayMug
+
+__all__ = [
+    "METHODS",
+    "CounterMug",
+    "InvalidProblem",
+    "MoveCost",
+    "MugType",
+    "PlacedMug",
+    "PlanOptions",
+    "PlanResult",
+    "Problem",
+    "ThesisMoveCost",
+    "TrayMug",
+    "dataset_problem",
+    "plan",
+]

@@ -1,0 +1,239 @@
+"""The cost model of §4.2.1: placement parameters, running normalisation, and the two fitness methods.
+
+Parameters of a placement (φ): number of mugs placed n, covered area A (footprints with tolerance, Eq 4.4),
+energy E (Eq 4.2) and time t (Eq 4.5) from a ``MoveCost``, and sortedness s. The computation time t_c of
+Eq 4.5 is the same for every candidate compared within one iteration, so comparisons use the motion part only
+and t_c is added once to the reported t; that also keeps a seeded run deterministic.
+
+Each parameter is normalised by the smallest and largest value seen so far in the run (Eq 4.2-4.5); costs are
+always recomputed from the raw parameters, so a widened range re-scores earlier solutions as the thesis does.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Protocol
+
+from planning import thesis
+from planning.placement.packing import Packing
+from planning.placement.problem import Problem
+
+
+class MoveCost(Protocol):
+    """Time and energy to carry one mug from the counter to its tray spot."""
+
+    def __call__(
+        self, mug_mass_kg: float, start_xy_m: tuple[float, float], goal_xy_m: tuple[float, float]
+    ) -> tuple[float, float]:
+        """Returns (seconds, joules)."""
+        ...
+
+
+@dataclass(frozen=True, slots=True)
+class ThesisMoveCost:
+    """The thesis's proxies: E = M·g·Δm (Eq 4.2) and time Δm / V_a (Eq 4.5), Δm the straight-line distance."""
+
+    arm_speed_m_s: float
+
+    def __call__(
+        self, mug_mass_kg: float, start_xy_m: tuple[float, float], goal_xy_m: tuple[float, float]
+    ) -> tuple[float, float]:
+        dm = math.dist(start_xy_m, goal_xy_m)
+        return dm / self.arm_speed_m_s, mug_mass_kg * thesis.GRAVITY_M_S2 * dm
+
+
+class FitnessMethod(StrEnum):
+    WS = "ws"  # weighted sum, Eq 4.6
+    RF = "rf"  # ranking fitness, Eq 4.11 / 5.4 / 5.5
+
+
+class CostFunction(StrEnum):
+    BPC = "bpc"  # bin-packing cost
+    UPC = "upc"  # user preference-based cost
+    EC = "ec"  # engineering cost (no sortedness)
+
+
+PARAMS = ("n", "A", "E", "t", "s")
+
+
+@dataclass(frozen=True, slots=True)
+class Metrics:
+    """Raw placement parameters φ of one layout (t without the computation time)."""
+
+    n: int
+    A: float
+    E: float
+    t: float
+    s: int
+
+
+def weights_from_ranks(counts: Mapping[str, Sequence[int]]) -> dict[str, float]:
+    """Eq 4.7: W_i = Σ_j R_ij (N - j + 1) / Σ_i Σ_j R_ij (N - j + 1); "not important" answers carry no weight.
+
+    ``counts[param][j]`` is the number of answers ranking ``param`` at rank j + 1."""
+    N = len(counts)
+    score = {p: sum(r * (N - j) for j, r in enumerate(ranks[:N])) for p, ranks in counts.items()}
+    total = sum(score.values())
+    if total <= 0:
+        raise ValueError("ranks: at least one parameter must be ranked")
+    return {p: v / total for p, v in score.items()}
+
+
+def default_weights(cost: CostFunction) -> dict[str, float]:
+    """Eq 5.1-5.3."""
+    if cost is CostFunction.BPC:
+        return {"n": 1.0, "E": 0.0, "t": 0.0, "s": 0.0}
+    return dict(thesis.UPC_WEIGHTS if cost is CostFunction.UPC else thesis.EC_WEIGHTS)
+
+
+def default_ranking(cost: CostFunction) -> tuple[str, ...]:
+    """§5.2.6: n (with A right after it), then E, t, s; BPC compares n and A only, EC drops s."""
+    if cost is CostFunction.BPC:
+        return ("n", "A")
+    return thesis.RF_RANKING if cost is CostFunction.UPC else tuple(p for p in thesis.RF_RANKING if p != "s")
+
+
+@dataclass
+class Normaliser:
+    """Running minimum and maximum of each parameter over every layout seen in one run."""
+
+    low: dict[str, float] = field(default_factory=dict)
+    high: dict[str, float] = field(default_factory=dict)
+
+    def observe(self, m: Metrics) -> None:
+        for p in ("n", "A", "E", "t"):
+            v = float(getattr(m, p))
+            if p not in self.low or v < self.low[p]:
+                self.low[p] = v
+            if p not in self.high or v > self.high[p]:
+                self.high[p] = v
+
+    def scaled(self, p: str, v: float) -> float:
+        lo, hi = self.low.get(p, v), self.high.get(p, v)
+        return 0.0 if hi <= lo else (v - lo) / (hi - lo)
+
+
+@dataclass
+class Fitness:
+    """Scores layouts under one fitness method and cost function; lower is better."""
+
+    method: FitnessMethod
+    cost: CostFunction
+    weights: dict[str, float]
+    ranking: tuple[str, ...]
+    norm: Normaliser = field(default_factory=Normaliser)
+
+    @classmethod
+    def build(
+        cls,
+        method: FitnessMethod,
+        cost: CostFunction,
+        *,
+        weights: Mapping[str, float] | None = None,
+        ranking: Sequence[str] | None = None,
+    ) -> Fitness:
+        w = default_weights(cost) if weights is None else {p: float(weights.get(p, 0.0)) for p in "nEts"}
+        if cost is CostFunction.EC:
+            w["s"] = 0.0
+        r = default_ranking(cost) if ranking is None else _with_area(tuple(ranking), cost)
+        return cls(method, cost, w, r)
+
+    def components(self, m: Metrics) -> dict[str, float]:
+        """The cost parameters C⃗: (1 - n'), (1 - A'), E', t', (1 - s)."""
+        nz = self.norm.scaled
+        return {
+            "n": 1.0 - nz("n", m.n),
+            "A": 1.0 - nz("A", m.A),
+            "E": nz("E", m.E),
+            "t": nz("t", m.t),
+            "s": 1.0 - m.s,
+        }
+
+    def key(self, m: Metrics) -> tuple[float, ...]:
+        """Sort key: the weighted cost (WS) or the cost parameters in rank order (RF)."""
+        c = self.components(m)
+        if self.method is FitnessMethod.WS:
+            return (sum(self.weights[p] * c[p] for p in "nEts"),)
+        return tuple(c[p] for p in self.ranking)
+
+    def value(self, m: Metrics) -> float:
+        """One number: the weighted cost (WS) or the mean ranked cost parameter (RF; SA's "energy")."""
+        k = self.key(m)
+        return k[0] if self.method is FitnessMethod.WS else sum(k) / len(k)
+
+    def better(self, a: Metrics, b: Metrics) -> bool:
+        """IsCostDecreased(a, b)."""
+        return self.key(a) < self.key(b)
+
+
+def _with_area(ranking: tuple[str, ...], cost: CostFunction) -> tuple[str, ...]:
+    for p in ranking:
+        if p not in PARAMS:
+            raise ValueError(f"ranking: unknown parameter {p!r} (known: {', '.join(PARAMS)})")
+    out = [p for p in ranking if p != "A" and not (cost is CostFunction.EC and p == "s")]
+    if "n" in out:
+        out.insert(out.index("n") + 1, "A")
+    return tuple(out)
+
+
+def sortedness(problem: Problem, mugs_in_order: Sequence[int]) -> int:
+    """1 if the placed mugs, in order, are sorted by width or by length (either direction), else 0."""
+    types = problem.mug_types
+    widths = [types[problem.mugs[i].type].width_mm for i in mugs_in_order]
+    lengths = [types[problem.mugs[i].type].diameter_mm for i in mugs_in_order]
+    for seq in (widths, lengths):
+        pairs = list(itertools.pairwise(seq))
+        if all(a >= b for a, b in pairs) or all(a <= b for a, b in pairs):
+            return 1
+    return 0
+
+
+class Evaluator:
+    """Computes the placement parameters of packings, caching each mug's move cost per tray spot."""
+
+    def __init__(self, problem: Problem, move_cost: MoveCost | None = None) -> None:
+        self.problem = problem
+        self.move_cost: MoveCost = move_cost or ThesisMoveCost(problem.arm_speed_m_s)
+        self._moves: dict[tuple[int, int, int, bool], tuple[float, float]] = {}
+        self._area = [math.prod(problem.footprint(m.type)) for m in problem.mugs]
+
+    def move(self, mug: int, x: int, y: int, rotated: bool) -> tuple[float, float]:
+        """(seconds, joules) to carry mug ``mug`` to the footprint corner (x, y)."""
+        key = (mug, x, y, rotated)
+        hit = self._moves.get(key)
+        if hit is None:
+            p = self.problem
+            m = p.mugs[mug]
+            cx, cy = p.to_world_mm(*p.brim_centre_on_tray(m.type, x, y))
+            hit = self.move_cost(
+                p.mug_types[m.type].mass_kg, (m.x_mm / 1000.0, m.y_mm / 1000.0), (cx / 1000.0, cy / 1000.0)
+            )
+            self._moves[key] = hit
+        return hit
+
+    def metrics(self, packing: Packing) -> Metrics:
+        seconds = joules = area = 0.0
+        placed = []
+        for mug, spot in zip(packing.order, packing.spots, strict=True):
+            if spot is None:
+                continue
+            placed.append(mug)
+            dt, de = self.move(mug, *spot)
+            seconds += dt
+            joules += de
+            area += self._area[mug]
+        return Metrics(len(placed), area, joules, seconds, sortedness(self.problem, placed))
+
+    def metrics_of_layout(self, layout: Sequence[tuple[int, int, int, bool]]) -> Metrics:
+        """Parameters of an explicit layout [(mug, x, y, rotated)] in execution order."""
+        seconds = joules = area = 0.0
+        for mug, x, y, rot in layout:
+            dt, de = self.move(mug, x, y, rot)
+            seconds += dt
+            joules += de
+            area += self._area[mug]
+        return Metrics(len(layout), area, joules, seconds, sortedness(self.problem, [m[0] for m in layout]))

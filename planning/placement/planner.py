@@ -1,0 +1,291 @@
+"""``plan()``: one entry point for every placement method; returns a layout, its cost and a placing order."""
+
+from __future__ import annotations
+
+import importlib
+import random
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import TypeVar
+
+import structlog
+
+from planning.placement.cost import CostFunction, Evaluator, Fitness, FitnessMethod, Metrics, MoveCost
+from planning.placement.errors import InvalidProblem
+from planning.placement.heuristics import Heuristic, parse_heuristic
+from planning.placement.order import execution_order
+from planning.placement.packing import Packer, Packing
+from planning.placement.problem import Problem
+from planning.placement.sorts import Sort, parse_sort, sorted_order
+
+log = structlog.get_logger(__name__)
+
+METHODS = ("auto", "exact", "bh", "sa", "ga", "psop-n", "psop-i", "psok-n", "psok-i")
+
+
+@dataclass(frozen=True)
+class PlanOptions:
+    """How to plan. ``sort`` None means the method's default (BH tries every deterministic sort; the
+    metaheuristics start from non-increasing length, the thesis's recommendation in §5.3.2)."""
+
+    method: str = "auto"
+    heuristic: str = "ltf"
+    sort: str | None = None
+    fitness: str = "rf"
+    cost: str = "upc"
+    seed: int = 0
+    time_limit_s: float = 1.0
+    weights: Mapping[str, float] | None = None
+    ranking: tuple[str, ...] | None = None
+    move_cost: MoveCost | None = field(default=None, compare=False)
+
+
+@dataclass(frozen=True, slots=True)
+class PlacedMug:
+    """A planned spot: footprint corner in tray coordinates; ``order`` is the 1-based placing order."""
+
+    id: str
+    type: str
+    x_mm: int
+    y_mm: int
+    rotated: bool
+    order: int
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    method: str
+    heuristic: str
+    sort: str | None
+    fitness: str
+    cost_function: str
+    seed: int
+    wall_time_s: float
+    placed: tuple[PlacedMug, ...]
+    unplaced: tuple[str, ...]
+    n: int
+    A_mm2: float
+    E_j: float
+    t_s: float
+    s: int
+    cost: float
+    optimal: bool | None = None
+    upper_bound: int | None = None
+    status: str = "feasible"
+    evaluations: int = 0
+    notes: tuple[str, ...] = ()
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "method": self.method,
+            "heuristic": self.heuristic,
+            "sort": self.sort,
+            "fitness": self.fitness,
+            "cost_function": self.cost_function,
+            "seed": self.seed,
+            "wall_time_s": round(self.wall_time_s, 6),
+            "placed": [
+                {
+                    "id": p.id,
+                    "type": p.type,
+                    "x_mm": p.x_mm,
+                    "y_mm": p.y_mm,
+                    "rotated": p.rotated,
+                    "order": p.order,
+                }
+                for p in self.placed
+            ],
+            "unplaced": list(self.unplaced),
+            "n": self.n,
+            "A": self.A_mm2,
+            "E": round(self.E_j, 6),
+            "t": round(self.t_s, 6),
+            "s": self.s,
+            "cost": round(self.cost, 6),
+            "optimal": self.optimal,
+            "upper_bound": self.upper_bound,
+            "gap": None if self.upper_bound is None else self.upper_bound - self.n,
+            "status": self.status,
+            "evaluations": self.evaluations,
+            "notes": list(self.notes),
+        }
+
+
+# (mug index, x, y, rotated) in the order the method packed them
+Layout = tuple[tuple[int, int, int, bool], ...]
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """What a method returns before it is turned into a ``PlanResult``."""
+
+    layout: Layout
+    optimal: bool | None = None
+    upper_bound: int | None = None
+    status: str = "feasible"
+    notes: tuple[str, ...] = ()
+
+    @staticmethod
+    def of(packing: Packing) -> Candidate:
+        spots = packing.spot_of()
+        return Candidate(tuple((m, *spots[m]) for m in packing.placed))
+
+
+class Context:
+    """Everything one planning run shares: the problem, a packer per heuristic, the fitness and the RNG."""
+
+    def __init__(self, problem: Problem, options: PlanOptions) -> None:
+        self.problem = problem
+        self.options = options
+        self.heuristic = _parse(parse_heuristic, options.heuristic, "heuristic")
+        self.sort = None if options.sort is None else _parse(parse_sort, options.sort, "sort")
+        self.fitness = Fitness.build(
+            _parse(_enum_parser(FitnessMethod, "fitness method"), options.fitness, "fitness"),
+            _parse(_enum_parser(CostFunction, "cost function"), options.cost, "cost"),
+            weights=options.weights,
+            ranking=options.ranking,
+        )
+        self.evaluator = Evaluator(problem, options.move_cost)
+        self.rng = random.Random(options.seed)
+        self.started = time.perf_counter()
+        self._packers: dict[Heuristic, Packer] = {}
+        self.evaluations = 0
+
+    def packer(self, heuristic: Heuristic | None = None) -> Packer:
+        h = heuristic or self.heuristic
+        if h not in self._packers:
+            self._packers[h] = Packer(self.problem, h)
+        return self._packers[h]
+
+    def evaluate(self, packing: Packing) -> Metrics:
+        """The packing's parameters, also widening the running normalisation."""
+        m = self.evaluator.metrics(packing)
+        self.fitness.norm.observe(m)
+        self.evaluations += 1
+        return m
+
+    def initial_order(self, default: Sort = Sort.NIS_L) -> list[int]:
+        return sorted_order(self.problem, self.sort or default, self.rng)
+
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.started
+
+
+def plan(problem: Problem, options: PlanOptions = PlanOptions()) -> PlanResult:
+    """Plan where each counter mug goes on the tray and in which order, with the chosen method."""
+    if options.method not in METHODS:
+        raise InvalidProblem(f"method: unknown method {options.method!r} (known: {', '.join(METHODS)})")
+    if not options.time_limit_s > 0:
+        raise InvalidProblem(f"time_limit_s: must be positive, got {options.time_limit_s}")
+    ctx = Context(problem, options)
+    candidate = _method(options.method)(ctx)
+    result = _result(ctx, candidate)
+    log.info(
+        "placement_planned",
+        method=options.method,
+        n=result.n,
+        total=len(problem.mugs),
+        optimal=result.optimal,
+        wall_time_s=round(result.wall_time_s, 4),
+    )
+    return result
+
+
+_METHOD_FUNCTIONS = {
+    "auto": ("planning.placement.auto", "run"),
+    "exact": ("planning.placement.exact", "run"),
+    "bh": ("planning.placement.planner", "best_heuristic"),
+    "sa": ("planning.placement.sa", "run"),
+    "ga": ("planning.placement.ga", "run"),
+    "psop-n": ("planning.placement.psop", "run_normal"),
+    "psop-i": ("planning.placement.psop", "run_improved"),
+    "psok-n": ("planning.placement.psok", "run_normal"),
+    "psok-i": ("planning.placement.psok", "run_improved"),
+}
+
+
+def _method(name: str) -> Callable[[Context], Candidate]:
+    # Imported on use: the optimiser modules import this one for Context and Candidate.
+    module, function = _METHOD_FUNCTIONS[name]
+    fn: Callable[[Context], Candidate] = getattr(importlib.import_module(module), function)
+    return fn
+
+
+def best_heuristic(ctx: Context) -> Candidate:
+    """BH (§5.3.2): each initial order packed once with the heuristic; the best under the fitness wins.
+
+    With no ``sort`` given every deterministic sort (CIF, NIS, NDS by length and width) is tried."""
+    sorts = [ctx.sort] if ctx.sort else [s for s in Sort if s is not Sort.RO]
+    packer = ctx.packer()
+    scored = []
+    for s in sorts:
+        packing = packer.pack(sorted_order(ctx.problem, s, ctx.rng))
+        scored.append((packing, ctx.evaluate(packing)))
+    best = scored[0]
+    for item in scored[1:]:
+        if ctx.fitness.better(item[1], best[1]):
+            best = item
+    return Candidate.of(best[0])
+
+
+def _result(ctx: Context, c: Candidate) -> PlanResult:
+    p = ctx.problem
+    ev = ctx.evaluator
+    metrics = ev.metrics_of_layout(c.layout)
+    ctx.fitness.norm.observe(metrics)
+    footprints = [(m, x, y, *p.footprint(p.mugs[m].type, r)) for m, x, y, r in c.layout]
+    order = {m: k + 1 for k, m in enumerate(execution_order(footprints))}
+    by_mug = {m: (x, y, r) for m, x, y, r in c.layout}
+    placed = tuple(
+        PlacedMug(p.mugs[m].id, p.mugs[m].type, by_mug[m][0], by_mug[m][1], by_mug[m][2], order[m])
+        for m in sorted(by_mug, key=order.__getitem__)
+    )
+    unplaced = tuple(mug.id for i, mug in enumerate(p.mugs) if i not in by_mug)
+    o = ctx.options
+    wall = ctx.elapsed()
+    return PlanResult(
+        method=o.method,
+        heuristic=ctx.heuristic.value,
+        sort=ctx.sort.value if ctx.sort else None,
+        fitness=ctx.fitness.method.value,
+        cost_function=ctx.fitness.cost.value,
+        seed=o.seed,
+        wall_time_s=wall,
+        placed=placed,
+        unplaced=unplaced,
+        n=metrics.n,
+        A_mm2=metrics.A,
+        E_j=metrics.E,
+        t_s=wall + metrics.t,
+        s=metrics.s,
+        cost=ctx.fitness.value(metrics),
+        optimal=c.optimal,
+        upper_bound=c.upper_bound,
+        status=c.status,
+        evaluations=ctx.evaluations,
+        notes=c.notes,
+    )
+
+
+_T = TypeVar("_T")
+_E = TypeVar("_E", bound=StrEnum)
+
+
+def _enum_parser(enum: type[_E], what: str) -> Callable[[str], _E]:
+    def parse(value: str) -> _E:
+        try:
+            return enum(value.lower())
+        except ValueError as e:
+            known = ", ".join(m.value for m in enum)
+            raise ValueError(f"unknown {what} {value!r} (known: {known})") from e
+
+    return parse
+
+
+def _parse(parser: Callable[[str], _T], value: str, name: str) -> _T:
+    try:
+        return parser(value)
+    except ValueError as e:
+        raise InvalidProblem(f"{name}: {e}") from e
