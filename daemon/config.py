@@ -1,0 +1,506 @@
+"""dishbot's configuration: embedded TOML defaults, optional overrides from a file, validated once at load.
+
+Every value is checked when the file is read, so a bad field fails at start-up with its dotted name and the
+allowed range (``ConfigError``, exit 2) instead of deep inside a running job. The result is a tree of frozen
+dataclasses; ``Config.to_dict()`` gives the effective values back (for ``dishbot config show`` and the
+recording's session header).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, is_dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from daemon.errors import ConfigError
+
+_ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
+_BACKENDS = ("sim", "hardware")
+_WORLDS = ("kinematic", "mujoco")
+_PLANNER_METHODS = (
+    "auto", "exact", "sa", "ga", "pso_p", "pso_p_improved", "pso_k", "pso_k_improved", "bh",
+    "blf", "lbf", "tlf", "ltf", "brf", "rbf", "trf", "rtf",
+)  # fmt: skip
+_FITNESS = ("rf", "ws")
+_COSTS = ("bpc", "upc", "ec")
+_ENERGY_MODELS = ("thesis", "dynamics")
+
+
+@dataclass(frozen=True, slots=True)
+class ZenohConfig:
+    """Where the daemon's single Zenoh session listens and which peers it connects to."""
+
+    listen: tuple[str, ...]
+    connect: tuple[str, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class RecordingConfig:
+    """One MCAP file per session goes to ``dir``; small chunks bound what a crash loses."""
+
+    dir: Path
+    chunk_size_bytes: int
+
+
+@dataclass(frozen=True, slots=True)
+class CellConfig:
+    """The work cell in the world frame (see the comments in ``default_config.toml``)."""
+
+    counter_region_m: tuple[float, float, float, float]
+    flip_area_center_m: tuple[float, float]
+    flip_area_radius_m: float
+    tray_origin_m: tuple[float, float]
+    tray_size_mm: tuple[int, int]
+    table_height_above_floor_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class CameraConfig:
+    """The depth camera: image size, vertical field of view and pose (or a calibration file overriding it)."""
+
+    width: int
+    height: int
+    fovy_deg: float
+    position_m: tuple[float, float, float]
+    yaw_rad: float
+    pitch_rad: float
+    calibration_file: Path | None
+
+
+@dataclass(frozen=True, slots=True)
+class MugTypeConfig:
+    """One entry of the mug catalogue: brim diameter l, width with handle w, height, mass."""
+
+    name: str
+    diameter_mm: int
+    width_mm: int
+    height_mm: int
+    mass_kg: float
+
+
+@dataclass(frozen=True, slots=True)
+class PlannerConfig:
+    """Placement planner settings; a ``start`` command may override method, fitness, cost and time limit."""
+
+    method: str
+    fitness: str
+    cost: str
+    time_limit_s: float
+    seed: int
+    tolerance_mm: int
+    allow_rotation: bool
+    energy_model: str
+
+
+@dataclass(frozen=True, slots=True)
+class DaemonConfig:
+    """Telemetry rates and command limits of the daemon process."""
+
+    state_rate_hz: float
+    joints_rate_hz: float
+    gripper_rate_hz: float
+    max_command_bytes: int
+    drop_check_period_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class GraspConfig:
+    """When a closed gripper counts as holding a mug (§4.3.1: a force threshold and a minimum aperture)."""
+
+    force_threshold_n: float
+    min_aperture_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class SimConfig:
+    """The simulated cell: which world, how fast against the wall clock, the detector's noise."""
+
+    world: str
+    speed: float
+    seed: int
+    detection_noise_m: float
+    joint_speed_rad_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class Config:
+    """The effective configuration of one daemon process."""
+
+    robot_id: str
+    backend: str
+    zenoh: ZenohConfig
+    recording: RecordingConfig
+    cell: CellConfig
+    camera: CameraConfig
+    mug_types: tuple[MugTypeConfig, ...]
+    planner: PlannerConfig
+    daemon: DaemonConfig
+    grasp: GraspConfig
+    sim: SimConfig
+
+    def mug_type(self, name: str) -> MugTypeConfig:
+        for mug in self.mug_types:
+            if mug.name == name:
+                return mug
+        raise KeyError(name)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The effective values as plain TOML/JSON types, in the file's layout."""
+        out: dict[str, Any] = _plain(self)
+        out["mug_types"] = {m["name"]: {k: v for k, v in m.items() if k != "name"} for m in out["mug_types"]}
+        return out
+
+
+def default_text() -> str:
+    """The embedded defaults, comments included."""
+    return resources.files("daemon").joinpath("default_config.toml").read_text(encoding="utf-8")
+
+
+def load_config(path: Path | None = None, *, overrides: Mapping[str, Any] | None = None) -> Config:
+    """The defaults, updated by the TOML file at ``path`` and then by ``overrides`` (nested tables merge)."""
+    data = tomllib.loads(default_text())
+    if path is not None:
+        try:
+            text = path.read_text(encoding="utf-8")
+        except OSError as e:
+            raise ConfigError(f"cannot read config file {path}: {e.strerror}") from e
+        try:
+            user = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as e:
+            raise ConfigError(f"config file {path} is not valid TOML: {e}") from e
+        data = _merge(data, user)
+    if overrides:
+        data = _merge(data, overrides)
+    return parse_config(data)
+
+
+def parse_config(data: Mapping[str, Any]) -> Config:
+    """Validate a complete configuration mapping (all sections present)."""
+    root = _Section(data, "")
+    robot_id = root.text("robot_id")
+    if not _ROBOT_ID.match(robot_id):
+        raise ConfigError(
+            f"robot_id: {robot_id!r} is not allowed; use 1-64 letters, digits, '_' or '-' (a Zenoh key chunk)"
+        )
+    config = Config(
+        robot_id=robot_id,
+        backend=root.choice("backend", _BACKENDS),
+        zenoh=_zenoh(root.section("zenoh")),
+        recording=_recording(root.section("recording")),
+        cell=_cell(root.section("cell")),
+        camera=_camera(root.section("camera")),
+        mug_types=_mug_types(root.section("mug_types")),
+        planner=_planner(root.section("planner")),
+        daemon=_daemon(root.section("daemon")),
+        grasp=_grasp(root.section("grasp")),
+        sim=_sim(root.section("sim")),
+    )
+    root.finish()
+    return config
+
+
+def to_toml(data: Mapping[str, Any]) -> str:
+    """A TOML document for a mapping of the types ``Config.to_dict`` produces."""
+    lines: list[str] = []
+    _emit_table(data, [], lines)
+    return "\n".join(lines).strip() + "\n"
+
+
+def _zenoh(s: _Section) -> ZenohConfig:
+    cfg = ZenohConfig(listen=s.endpoints("listen"), connect=s.endpoints("connect"))
+    s.finish()
+    return cfg
+
+
+def _recording(s: _Section) -> RecordingConfig:
+    cfg = RecordingConfig(
+        dir=Path(s.text("dir")),
+        chunk_size_bytes=s.integer("chunk_size_bytes", 1024, 16 * 1024 * 1024),
+    )
+    s.finish()
+    return cfg
+
+
+def _cell(s: _Section) -> CellConfig:
+    region = s.floats("counter_region_m", 4, -2.0, 2.0)
+    if not (region[0] < region[2] and region[1] < region[3]):
+        raise ConfigError(
+            f"cell.counter_region_m: {list(region)} is not [x_min, y_min, x_max, y_max] with min < max"
+        )
+    center = s.floats("flip_area_center_m", 2, -2.0, 2.0)
+    origin = s.floats("tray_origin_m", 2, -2.0, 2.0)
+    size = s.integers("tray_size_mm", 2, 50, 2000)
+    cfg = CellConfig(
+        counter_region_m=(region[0], region[1], region[2], region[3]),
+        flip_area_center_m=(center[0], center[1]),
+        flip_area_radius_m=s.number("flip_area_radius_m", 0.01, 1.0),
+        tray_origin_m=(origin[0], origin[1]),
+        tray_size_mm=(size[0], size[1]),
+        table_height_above_floor_m=s.number("table_height_above_floor_m", 0.3, 2.0),
+    )
+    s.finish()
+    return cfg
+
+
+def _camera(s: _Section) -> CameraConfig:
+    position = s.floats("position_m", 3, -5.0, 5.0)
+    calibration = s.string("calibration_file")
+    cfg = CameraConfig(
+        width=s.integer("width", 16, 4096),
+        height=s.integer("height", 16, 4096),
+        fovy_deg=s.number("fovy_deg", 10.0, 150.0),
+        position_m=(position[0], position[1], position[2]),
+        yaw_rad=s.number("yaw_rad", -2 * math.pi, 2 * math.pi),
+        pitch_rad=s.number("pitch_rad", -math.pi / 2, math.pi / 2),
+        calibration_file=Path(calibration) if calibration else None,
+    )
+    s.finish()
+    return cfg
+
+
+def _mug_types(s: _Section) -> tuple[MugTypeConfig, ...]:
+    mugs = []
+    for name in s.names():
+        if not re.match(r"^[a-z][a-z0-9_]{0,31}$", name):
+            raise ConfigError(f"mug_types.{name}: mug type names are 1-32 lower-case letters, digits or '_'")
+        m = s.section(name)
+        mug = MugTypeConfig(
+            name=name,
+            diameter_mm=m.integer("diameter_mm", 20, 300),
+            width_mm=m.integer("width_mm", 20, 400),
+            height_mm=m.integer("height_mm", 20, 400),
+            mass_kg=m.number("mass_kg", 0.01, 2.0),
+        )
+        if mug.width_mm < mug.diameter_mm:
+            raise ConfigError(
+                f"mug_types.{name}.width_mm: {mug.width_mm} is smaller than diameter_mm {mug.diameter_mm}; "
+                "the width includes the handle"
+            )
+        m.finish()
+        mugs.append(mug)
+    if not mugs:
+        raise ConfigError("mug_types: the catalogue is empty; define at least one [mug_types.NAME] table")
+    return tuple(mugs)
+
+
+def _planner(s: _Section) -> PlannerConfig:
+    cfg = PlannerConfig(
+        method=s.choice("method", _PLANNER_METHODS),
+        fitness=s.choice("fitness", _FITNESS),
+        cost=s.choice("cost", _COSTS),
+        time_limit_s=s.number("time_limit_s", 0.01, 600.0),
+        seed=s.integer("seed", 0, 2**31 - 1),
+        tolerance_mm=s.integer("tolerance_mm", 0, 100),
+        allow_rotation=s.flag("allow_rotation"),
+        energy_model=s.choice("energy_model", _ENERGY_MODELS),
+    )
+    s.finish()
+    return cfg
+
+
+def _daemon(s: _Section) -> DaemonConfig:
+    cfg = DaemonConfig(
+        state_rate_hz=s.number("state_rate_hz", 1.0, 100.0),
+        joints_rate_hz=s.number("joints_rate_hz", 20.0, 500.0),
+        gripper_rate_hz=s.number("gripper_rate_hz", 50.0, 500.0),
+        max_command_bytes=s.integer("max_command_bytes", 256, 1024 * 1024),
+        drop_check_period_s=s.number("drop_check_period_s", 0.001, 0.5),
+    )
+    s.finish()
+    return cfg
+
+
+def _grasp(s: _Section) -> GraspConfig:
+    cfg = GraspConfig(
+        force_threshold_n=s.number("force_threshold_n", 0.1, 50.0),
+        min_aperture_m=s.number("min_aperture_m", 0.0, 0.2),
+    )
+    s.finish()
+    return cfg
+
+
+def _sim(s: _Section) -> SimConfig:
+    cfg = SimConfig(
+        world=s.choice("world", _WORLDS),
+        speed=s.number("speed", 0.1, 1000.0),
+        seed=s.integer("seed", 0, 2**31 - 1),
+        detection_noise_m=s.number("detection_noise_m", 0.0, 0.05),
+        joint_speed_rad_s=s.number("joint_speed_rad_s", 0.05, 10.0),
+    )
+    s.finish()
+    return cfg
+
+
+class _Section:
+    """Typed, range-checked access to one TOML table; ``finish()`` rejects keys nobody asked for."""
+
+    def __init__(self, data: Mapping[str, Any], prefix: str) -> None:
+        self._data = data
+        self._prefix = prefix
+        self._seen: set[str] = set()
+
+    def _name(self, key: str) -> str:
+        return f"{self._prefix}{key}"
+
+    def _get(self, key: str) -> Any:
+        self._seen.add(key)
+        if key not in self._data:
+            raise ConfigError(f"{self._name(key)}: missing; add it to the config file")
+        return self._data[key]
+
+    def names(self) -> list[str]:
+        return list(self._data)
+
+    def section(self, key: str) -> _Section:
+        value = self._get(key)
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{self._name(key)}: expected a table, got {_show(value)}")
+        return _Section(value, f"{self._name(key)}.")
+
+    def text(self, key: str) -> str:
+        value = self._get(key)
+        if not isinstance(value, str) or not value:
+            raise ConfigError(f"{self._name(key)}: expected a non-empty string, got {_show(value)}")
+        return value
+
+    def string(self, key: str) -> str:
+        value = self._get(key)
+        if not isinstance(value, str):
+            raise ConfigError(f"{self._name(key)}: expected a string, got {_show(value)}")
+        return value
+
+    def choice(self, key: str, allowed: tuple[str, ...]) -> str:
+        value = self._get(key)
+        if value not in allowed:
+            raise ConfigError(f"{self._name(key)}: {_show(value)} is not one of {', '.join(allowed)}")
+        return str(value)
+
+    def flag(self, key: str) -> bool:
+        value = self._get(key)
+        if not isinstance(value, bool):
+            raise ConfigError(f"{self._name(key)}: expected true or false, got {_show(value)}")
+        return value
+
+    def number(self, key: str, lo: float, hi: float) -> float:
+        return _check_number(self._get(key), self._name(key), lo, hi)
+
+    def integer(self, key: str, lo: int, hi: int) -> int:
+        return _check_integer(self._get(key), self._name(key), lo, hi)
+
+    def floats(self, key: str, n: int, lo: float, hi: float) -> tuple[float, ...]:
+        items = self._list(key, n)
+        return tuple(_check_number(v, f"{self._name(key)}[{i}]", lo, hi) for i, v in enumerate(items))
+
+    def integers(self, key: str, n: int, lo: int, hi: int) -> tuple[int, ...]:
+        items = self._list(key, n)
+        return tuple(_check_integer(v, f"{self._name(key)}[{i}]", lo, hi) for i, v in enumerate(items))
+
+    def endpoints(self, key: str) -> tuple[str, ...]:
+        items = self._list(key, None)
+        for i, item in enumerate(items):
+            check_endpoint(item, f"{self._name(key)}[{i}]")
+        return tuple(items)
+
+    def _list(self, key: str, n: int | None) -> list[Any]:
+        value = self._get(key)
+        if not isinstance(value, list):
+            raise ConfigError(f"{self._name(key)}: expected a list, got {_show(value)}")
+        if n is not None and len(value) != n:
+            raise ConfigError(f"{self._name(key)}: expected {n} values, got {len(value)}")
+        return value
+
+    def finish(self) -> None:
+        unknown = sorted(set(self._data) - self._seen)
+        if unknown:
+            where = self._prefix.rstrip(".") or "the top level"
+            known = ", ".join(sorted(self._seen))
+            raise ConfigError(f"{self._name(unknown[0])}: unknown key in {where} (known keys: {known})")
+
+
+def check_endpoint(value: object, name: str) -> str:
+    """A Zenoh endpoint ``proto/host:port``; raises ``ConfigError`` naming ``name`` otherwise."""
+    match = _ENDPOINT.match(value) if isinstance(value, str) else None
+    if match is None or not 1 <= int(match.group(3)) <= 65535:
+        raise ConfigError(
+            f"{name}: {_show(value)} is not a Zenoh endpoint like tcp/127.0.0.1:7447 "
+            "(protocol tcp, udp, tls, quic or ws; port 1-65535)"
+        )
+    return str(value)
+
+
+def _check_number(value: object, name: str, lo: float, hi: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"{name}: expected a number in [{lo:g}, {hi:g}], got {_show(value)}")
+    if not math.isfinite(value) or not lo <= value <= hi:
+        raise ConfigError(f"{name}: {value!r} is out of range; allowed [{lo:g}, {hi:g}]")
+    return float(value)
+
+
+def _check_integer(value: object, name: str, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(f"{name}: expected an integer in [{lo}, {hi}], got {_show(value)}")
+    if not lo <= value <= hi:
+        raise ConfigError(f"{name}: {value} is out of range; allowed [{lo}, {hi}]")
+    return value
+
+
+def _show(value: object) -> str:
+    if isinstance(value, Mapping):
+        return "a table"
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return repr(value)
+
+
+def _merge(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in update.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _plain(value: Any) -> Any:
+    if is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _plain(getattr(value, f.name)) for f in fields(value)}
+    if isinstance(value, tuple | list):
+        return [_plain(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    if value is None:
+        return ""
+    return value
+
+
+def _emit_table(data: Mapping[str, Any], path: list[str], lines: list[str]) -> None:
+    scalars = {k: v for k, v in data.items() if not isinstance(v, Mapping)}
+    tables = {k: v for k, v in data.items() if isinstance(v, Mapping)}
+    if path and scalars:
+        lines.append("")
+        lines.append(f"[{'.'.join(path)}]")
+    for key, value in scalars.items():
+        lines.append(f"{key} = {_toml_value(value)}")
+    for key, value in tables.items():
+        _emit_table(value, [*path, key], lines)
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {type(value).__name__} as TOML")

@@ -1,0 +1,146 @@
+"""Config loading: defaults are valid, overrides merge, each class of bad value names field and range."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from daemon.cli import main
+from daemon.config import load_config, parse_config, to_toml
+from daemon.errors import ConfigError
+
+
+def test_the_embedded_defaults_load() -> None:
+    config = load_config()
+    assert config.robot_id == "dishbot"
+    assert config.zenoh.listen == ("tcp/127.0.0.1:7447",)
+    assert [m.name for m in config.mug_types] == ["big", "small"]
+    assert config.mug_type("big").diameter_mm == 91
+
+
+def test_a_file_overrides_only_the_keys_it_names(tmp_path: Path) -> None:
+    path = tmp_path / "robot.toml"
+    path.write_text('robot_id = "kitchen-2"\n[planner]\ntime_limit_s = 2.5\n')
+    config = load_config(path)
+    assert (config.robot_id, config.planner.time_limit_s, config.planner.cost) == ("kitchen-2", 2.5, "upc")
+
+
+def test_the_printed_config_reads_back_to_the_same_values() -> None:
+    config = load_config()
+    assert parse_config(tomllib.loads(to_toml(config.to_dict()))) == config
+
+
+BAD: list[tuple[dict[str, Any], str]] = [
+    ({"planner": {"time_limit_s": -1}}, "planner.time_limit_s: -1 is out of range; allowed [0.01, 600]"),
+    (
+        {"planner": {"time_limit_s": "fast"}},
+        "planner.time_limit_s: expected a number in [0.01, 600], got 'fast'",
+    ),
+    ({"planner": {"seed": 1.5}}, "planner.seed: expected an integer in [0, 2147483647], got 1.5"),
+    ({"planner": {"allow_rotation": 1}}, "planner.allow_rotation: expected true or false, got 1"),
+    ({"planner": {"cost": "cheap"}}, "planner.cost: 'cheap' is not one of bpc, upc, ec"),
+    ({"backend": "cloud"}, "backend: 'cloud' is not one of sim, hardware"),
+    (
+        {"robot_id": "a/b"},
+        "robot_id: 'a/b' is not allowed; use 1-64 letters, digits, '_' or '-' (a Zenoh key chunk)",
+    ),
+    (
+        {"zenoh": {"listen": ["127.0.0.1:7447"]}},
+        "zenoh.listen[0]: '127.0.0.1:7447' is not a Zenoh endpoint like tcp/127.0.0.1:7447 "
+        "(protocol tcp, udp, tls, quic or ws; port 1-65535)",
+    ),
+    (
+        {"zenoh": {"connect": ["tcp/127.0.0.1:70000"]}},
+        "zenoh.connect[0]: 'tcp/127.0.0.1:70000' is not a Zenoh endpoint like tcp/127.0.0.1:7447 "
+        "(protocol tcp, udp, tls, quic or ws; port 1-65535)",
+    ),
+    ({"zenoh": {"listen": "tcp/127.0.0.1:7447"}}, "zenoh.listen: expected a list, got 'tcp/127.0.0.1:7447'"),
+    ({"cell": {"tray_size_mm": [332]}}, "cell.tray_size_mm: expected 2 values, got 1"),
+    ({"cell": {"tray_size_mm": [332, 10]}}, "cell.tray_size_mm[1]: 10 is out of range; allowed [50, 2000]"),
+    (
+        {"cell": {"counter_region_m": [0.3, 0.2, 0.1, 0.5]}},
+        "cell.counter_region_m: [0.3, 0.2, 0.1, 0.5] is not [x_min, y_min, x_max, y_max] with min < max",
+    ),
+    ({"daemon": {"joints_rate_hz": 5}}, "daemon.joints_rate_hz: 5 is out of range; allowed [20, 500]"),
+    ({"sim": {"speed": float("inf")}}, "sim.speed: inf is out of range; allowed [0.1, 1000]"),
+    ({"sim": {"world": "gazebo"}}, "sim.world: 'gazebo' is not one of kinematic, mujoco"),
+    (
+        {"mug_types": {"tiny": {"diameter_mm": 80, "width_mm": 70, "height_mm": 50, "mass_kg": 0.1}}},
+        "mug_types.tiny.width_mm: 70 is smaller than diameter_mm 80; the width includes the handle",
+    ),
+    ({"mug_types": {"Big": {}}}, "mug_types.Big: mug type names are 1-32 lower-case letters, digits or '_'"),
+    (
+        {"grasp": {"force_threshold_n": True}},
+        "grasp.force_threshold_n: expected a number in [0.1, 50], got true",
+    ),
+    (
+        {"grasp": {"forse": 1.0}},
+        "grasp.forse: unknown key in grasp (known keys: force_threshold_n, min_aperture_m)",
+    ),
+    ({"camera": {"position_m": [1.0, 0.0]}}, "camera.position_m: expected 3 values, got 2"),
+    ({"camera": {"calibration_file": 3}}, "camera.calibration_file: expected a string, got 3"),
+    ({"recording": "here"}, "recording: expected a table, got 'here'"),
+]
+
+
+@pytest.mark.parametrize(
+    ("override", "message"), BAD, ids=[m.split(":")[0] + "-" + str(i) for i, (_, m) in enumerate(BAD)]
+)
+def test_a_bad_value_fails_with_its_field_and_allowed_range(override: dict[str, Any], message: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        load_config(overrides=override)
+    assert str(info.value) == message
+
+
+def test_a_missing_key_is_named() -> None:
+    data = tomllib.loads(to_toml(load_config().to_dict()))
+    del data["grasp"]["min_aperture_m"]
+    with pytest.raises(ConfigError, match=r"^grasp\.min_aperture_m: missing; add it to the config file$"):
+        parse_config(data)
+
+
+def test_an_unknown_top_level_section_is_refused() -> None:
+    with pytest.raises(ConfigError, match=r"^zenho: unknown key in the top level \(known keys: "):
+        load_config(overrides={"zenho": {"listen": []}})
+
+
+def test_an_empty_mug_catalogue_is_refused() -> None:
+    data = tomllib.loads(to_toml(load_config().to_dict()))
+    data["mug_types"] = {}
+    with pytest.raises(ConfigError, match=r"^mug_types: the catalogue is empty"):
+        parse_config(data)
+
+
+def test_a_file_that_is_not_toml_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text("robot_id = \n")
+    with pytest.raises(ConfigError, match=rf"^config file {path} is not valid TOML: "):
+        load_config(path)
+
+
+def test_a_missing_file_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "none.toml"
+    with pytest.raises(ConfigError, match=rf"^cannot read config file {path}: No such file or directory$"):
+        load_config(path)
+
+
+def test_config_show_exits_2_with_one_line_and_no_traceback(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text("[daemon]\ngripper_rate_hz = 10\n")
+    assert main(["config", "show", "--config", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err == "dishbot config: error: daemon.gripper_rate_hz: 10 is out of range; allowed [50, 500]\n"
+
+
+def test_config_show_prints_the_effective_toml(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "robot.toml"
+    path.write_text('robot_id = "r2"\n')
+    assert main(["config", "show", "--config", str(path)]) == 0
+    shown = tomllib.loads(capsys.readouterr().out)
+    assert shown["robot_id"] == "r2"
+    assert shown["mug_types"]["small"]["width_mm"] == 100
