@@ -11,7 +11,12 @@ from daemon.errors import ConfigError, UsageError
 
 # Each module defines ``register(subparsers)``, which adds its verbs and sets ``handler`` on the parser:
 # a callable taking the parsed namespace and returning the exit code.
-COMMAND_MODULES: tuple[str, ...] = ("daemon.commands.bench",)
+COMMAND_MODULES: tuple[str, ...] = (
+    "daemon.commands.bench",
+    "daemon.commands.config_cmd",
+    "daemon.commands.statechart_cmd",
+    "daemon.commands.record",
+)
 
 Handler = Callable[[argparse.Namespace], int]
 
