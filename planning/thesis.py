@@ -111,6 +111,27 @@ THESIS_GAZEBO_SECONDS_PER_MUG: Final = 55.0
 
 GRAVITY_M_S2: Final = 9.81
 
+# §3.2.1: the arm runs from a 12 V DC supply (the MX servos' recommended voltage, the AX-12A's maximum).
+SUPPLY_VOLTAGE_V: Final = 12.0
+# §3.2.1: the rated payload (ARM_PAYLOAD_KG) is held this far from the shoulder.
+ARM_PAYLOAD_REACH_M: Final = 0.728
+# §3.1.1.1: the gripper must open at least 10 cm to take a mug.
+GRIPPER_MIN_OPENING_M: Final = 0.10
+# §4.3: a carried mug passes at least 3 cm above the mugs below it.
+TRANSIT_CLEARANCE_M: Final = 0.03
+# §4.3, Eq 4.43: the tray's lower y limit was fixed at 13.2 cm.
+TRAY_Y_LOWER_M: Final = 0.132
+# §4.3: the side-grasp workspace the thesis found in Gazebo: 22 cm along x, 82 cm along y.
+THESIS_SIDE_GRASP_RANGE_M: Final = (0.22, 0.82)
+# Appendix A: worst position error of the 6-DOF solver on the 5-DOF arm, before and after the fitted correction.
+THESIS_IK_ERROR_BEFORE_M: Final = 0.177
+THESIS_IK_ERROR_AFTER_M: Final = 0.032
+# Appendix A, Eq A.1-A.3: the averaged quadratic error models in (x, |y|), coefficients of
+# (1, x, |y|, x², x|y|, y²); the reached x, |y| and the z offset for a commanded (x, y).
+THESIS_ERROR_FIT_X: Final = (0.034652, 0.84905, 0.3283, 0.146775, -0.437175, 0.1592)
+THESIS_ERROR_FIT_Y: Final = (-0.037373, 0.0927725, 0.5603, -0.04269, 0.1567, 0.450425)
+THESIS_ERROR_FIT_Z: Final = (0.0, 0.007373, -0.001207, -0.03678, 0.002317, -0.040748)
+
 # --- Placement planning (§4.2, §5.2, §5.3) ---
 
 # §5.2.2, Table 5.2: answers of the 258-person survey ranking each parameter 1st..4th, or "not important".

@@ -1,0 +1,356 @@
+"""The arm as Pinocchio sees it: forward kinematics of the grasp point, and damped-least-squares inverse
+kinematics with joint limits and several seeds.
+
+Only the five arm joints are planned; the gripper joint is locked open in the kinematic model (the gripper
+is driven on its own by ``drivers.interfaces.GripperDriver``). For the thesis arm the solver starts from a
+closed-form guess (turn towards the target, solve the shoulder-elbow triangle, set the wrist pitch and
+roll) and lets Pinocchio remove what the small offsets of Table 3.1 leave; any other URDF falls back to a
+fixed fan of seeds. An ``ArmModel`` owns one Pinocchio ``Data`` and is not thread-safe: use ``copy()``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import structlog
+
+from drivers.interfaces import FloatArray
+from planning import thesis
+from planning.arm.description import BUNDLED_URDF, GRASP_FRAME, GripperGeometry
+from planning.arm.errors import ArmModelError, InvalidTarget
+from planning.arm.servos import SERVO_MODELS, ServoModel
+from planning.arm.targets import GraspKind, GraspTarget, IkResult
+
+log = structlog.get_logger(__name__)
+
+THESIS_ARM_JOINTS = tuple(j for j, _ in thesis.JOINT_SERVOS[:5])
+
+# Joint angles as callers hold them: a list, a tuple or a float array, in ``ArmModel.joint_names`` order.
+JointValues = Sequence[float] | FloatArray
+
+# Weight of one radian of orientation error against one metre of position error in the solver.
+_ROTATION_WEIGHT_M = 0.1
+_POSITION_TOL_M = 1e-3
+_ROTATION_TOL_RAD = 2e-3
+_CONVERGED_M = 2e-6
+
+
+@dataclass(frozen=True, slots=True)
+class _PlanarArm:
+    """The thesis arm's shoulder-elbow-wrist triangle, measured at q = 0, for closed-form seeds."""
+
+    shoulder_z_m: float
+    upper_m: float
+    fore_m: float
+    tool_m: float  # wrist-lift axis to grasp point, along the approach
+
+
+class ArmModel:
+    """Kinematics and dynamics of the arm's five joints, from a URDF."""
+
+    def __init__(
+        self,
+        model: pin.Model,
+        *,
+        source: Path,
+        servo_models: tuple[ServoModel, ...],
+        tool_frame: str,
+        gripper: GripperGeometry,
+    ) -> None:
+        self.model = model
+        self.data = model.createData()
+        self.source = source
+        self.servo_models = servo_models
+        self.gripper = gripper
+        self.tool_frame = tool_frame
+        self.joint_names: tuple[str, ...] = tuple(model.names[1:])
+        self.lower = np.asarray(model.lowerPositionLimit, dtype=np.float64).copy()
+        self.upper = np.asarray(model.upperPositionLimit, dtype=np.float64).copy()
+        self.max_velocity = np.array([s.max_speed_rad_s for s in servo_models])
+        self.max_acceleration = np.array([s.max_accel_rad_s2 for s in servo_models])
+        self._tool_id = model.getFrameId(tool_frame)
+        self._planar = self._measure_planar() if self.joint_names == THESIS_ARM_JOINTS else None
+
+    @classmethod
+    def load(
+        cls,
+        urdf_path: Path | None = None,
+        *,
+        servos: Mapping[str, str] | None = None,
+        tool_frame: str = GRASP_FRAME,
+        locked_joints: Sequence[str] = ("gripper",),
+        gripper: GripperGeometry | None = None,
+    ) -> ArmModel:
+        """Build the model from a URDF (None: the bundled thesis arm). ``servos`` maps each joint to a servo
+        type of ``SERVO_MODELS`` (default: the thesis's assignment); ``locked_joints`` are held at 0."""
+        path = urdf_path or BUNDLED_URDF
+        try:
+            text = path.read_text(encoding="utf-8")
+        except OSError as e:
+            raise ArmModelError(f"cannot read the arm URDF {path}: {e.strerror}") from e
+        try:
+            full = pin.buildModelFromXML(text)
+        except (RuntimeError, ValueError) as e:
+            raise ArmModelError(f"{path} is not a usable URDF: {e}") from e
+        if not full.existFrame(tool_frame):
+            raise ArmModelError(f"{path} has no frame {tool_frame!r} to use as the grasp point")
+        lock_ids = []
+        for name in locked_joints:
+            if not full.existJointName(name):
+                raise ArmModelError(f"{path} has no joint {name!r} to lock (locked_joints)")
+            lock_ids.append(full.getJointId(name))
+        model = pin.buildReducedModel(full, lock_ids, pin.neutral(full)) if lock_ids else full
+        if model.nq != model.nv or any(model.joints[i].nq != 1 for i in range(1, model.njoints)):
+            raise ArmModelError(f"{path}: only revolute or prismatic joints are supported")
+        assignment = dict(servos) if servos is not None else dict(thesis.JOINT_SERVOS)
+        models = []
+        for name in model.names[1:]:
+            servo = assignment.get(name)
+            if servo not in SERVO_MODELS:
+                raise ArmModelError(
+                    f"joint {name!r} of {path} has servo {servo!r}; map it to one of {sorted(SERVO_MODELS)}"
+                )
+            models.append(SERVO_MODELS[servo])
+        arm = cls(
+            model,
+            source=path,
+            servo_models=tuple(models),
+            tool_frame=tool_frame,
+            gripper=gripper or GripperGeometry(),
+        )
+        log.debug("arm_model_loaded", urdf=str(path), joints=arm.joint_names)
+        return arm
+
+    def copy(self) -> ArmModel:
+        """An independent model (own Pinocchio data) for use on another thread."""
+        return ArmModel(
+            self.model,
+            source=self.source,
+            servo_models=self.servo_models,
+            tool_frame=self.tool_frame,
+            gripper=self.gripper,
+        )
+
+    @property
+    def dof(self) -> int:
+        return len(self.joint_names)
+
+    def joint_vector(self, q: JointValues) -> FloatArray:
+        """``q`` as a float array, checked for length and finiteness (raises ``InvalidTarget``)."""
+        arr = np.array(q, dtype=np.float64).reshape(-1)
+        if arr.shape != (self.dof,):
+            raise InvalidTarget(
+                f"expected {self.dof} joint angles ({', '.join(self.joint_names)}), got {arr.size}"
+            )
+        if not np.all(np.isfinite(arr)):
+            raise InvalidTarget(f"joint angles must be finite, got {[float(v) for v in arr]}")
+        return arr
+
+    def limit_violations(self, q: JointValues, *, tol: float = 1e-9) -> list[str]:
+        """One line per joint outside its limits (empty when ``q`` is inside)."""
+        out = []
+        for name, v, lo, hi in zip(self.joint_names, q, self.lower, self.upper, strict=True):
+            if not lo - tol <= v <= hi + tol:
+                out.append(f"{name}={v:.4f} rad is outside [{lo:.4f}, {hi:.4f}]")
+        return out
+
+    def fk(self, q: JointValues) -> tuple[FloatArray, FloatArray]:
+        """World position (3,) and rotation (3, 3) of the grasp point at joint angles ``q``."""
+        qv = self.joint_vector(q)
+        pin.framesForwardKinematics(self.model, self.data, qv)
+        placement = self.data.oMf[self._tool_id]
+        return placement.translation.copy(), placement.rotation.copy()
+
+    def frame_position(self, name: str) -> FloatArray:
+        """World position of a frame after the last ``fk``/``frames_at`` call."""
+        return np.asarray(self.data.oMf[self.model.getFrameId(name)].translation).copy()
+
+    def joint_positions(self, q: JointValues) -> FloatArray:
+        """World positions (n, 3) of every joint axis origin, base first, at ``q``."""
+        qv = self.joint_vector(q)
+        pin.forwardKinematics(self.model, self.data, qv)
+        return np.array([self.data.oMi[i].translation for i in range(1, self.model.njoints)])
+
+    def jacobian(self, q: JointValues) -> FloatArray:
+        """6 x n Jacobian of the grasp point (linear rows first), world-aligned axes."""
+        qv = self.joint_vector(q)
+        return np.asarray(
+            pin.computeFrameJacobian(self.model, self.data, qv, self._tool_id, pin.LOCAL_WORLD_ALIGNED)
+        ).copy()
+
+    def ik(
+        self,
+        target: GraspTarget,
+        *,
+        seeds: Sequence[JointValues] = (),
+        max_iters: int = 60,
+        damping: float = 1e-3,
+    ) -> IkResult:
+        """Joint angles that put the grasp point on ``target``, inside the joint limits.
+
+        Seeds are tried in order (the caller's first, then closed-form guesses, then a fixed fan); the first
+        solution within 1 mm and 2 mrad wins, so a seed near the current pose gives a nearby solution."""
+        if not target.is_finite:
+            return IkResult(
+                False, None, math.inf, f"target position is not finite: {list(target.position_m)}"
+            )
+        goal_p = np.asarray(target.position_m, dtype=np.float64)
+        goal_r = target.rotation()
+        unreachable = self._out_of_reach(goal_p, target)
+        if unreachable:
+            return IkResult(False, None, math.inf, unreachable)
+        best: IkResult | None = None
+        total_iters = 0
+        for seed in self._seeds(goal_p, goal_r, target.kind, seeds):
+            q, pos_err, rot_err, iters = self._solve(
+                seed, goal_p, goal_r, max_iters=max_iters, damping=damping
+            )
+            total_iters += iters
+            ok = pos_err <= _POSITION_TOL_M and rot_err <= _ROTATION_TOL_RAD
+            result = IkResult(ok, tuple(float(v) for v in q), pos_err, "", rot_err, total_iters)
+            if ok:
+                return result
+            if best is None or pos_err + rot_err * _ROTATION_WEIGHT_M < best.residual_m + (
+                best.orientation_error_rad * _ROTATION_WEIGHT_M
+            ):
+                best = result
+        assert best is not None
+        reason = (
+            f"no solution within the joint limits: best residual {best.residual_m * 1000:.1f} mm, "
+            f"{math.degrees(best.orientation_error_rad):.1f} deg"
+        )
+        return IkResult(False, None, best.residual_m, reason, best.orientation_error_rad, total_iters)
+
+    def _solve(
+        self,
+        seed: FloatArray,
+        goal_p: FloatArray,
+        goal_r: FloatArray | None,
+        *,
+        max_iters: int,
+        damping: float,
+    ) -> tuple[FloatArray, float, float, int]:
+        q = np.clip(seed, self.lower, self.upper)
+        rows = slice(0, 3) if goal_r is None else slice(0, 6)
+        lam2 = damping * damping
+        pos_err = rot_err = math.inf
+        for it in range(1, max_iters + 1):
+            pin.computeJointJacobians(self.model, self.data, q)
+            pin.updateFramePlacements(self.model, self.data)
+            placement = self.data.oMf[self._tool_id]
+            err = np.empty(6)
+            err[:3] = goal_p - placement.translation
+            if goal_r is None:
+                err[3:] = 0.0
+            else:
+                err[3:] = pin.log3(goal_r @ placement.rotation.T) * _ROTATION_WEIGHT_M
+            pos_err = float(np.linalg.norm(err[:3]))
+            rot_err = float(np.linalg.norm(err[3:])) / _ROTATION_WEIGHT_M
+            if pos_err < _CONVERGED_M and rot_err < _CONVERGED_M / _ROTATION_WEIGHT_M:
+                return q, pos_err, rot_err, it
+            J = pin.getFrameJacobian(self.model, self.data, self._tool_id, pin.LOCAL_WORLD_ALIGNED)
+            J = J[rows].copy()
+            J[3:] *= _ROTATION_WEIGHT_M
+            e = err[rows]
+            dq = J.T @ np.linalg.solve(J @ J.T + lam2 * np.eye(J.shape[0]), e)
+            step = float(np.max(np.abs(dq)))
+            if step > 0.5:
+                dq *= 0.5 / step
+            q_next = np.clip(q + dq, self.lower, self.upper)
+            if float(np.max(np.abs(q_next - q))) < 1e-10:
+                break
+            q = q_next
+        return q, pos_err, rot_err, max_iters
+
+    def _seeds(
+        self,
+        goal_p: FloatArray,
+        goal_r: FloatArray | None,
+        kind: GraspKind,
+        user: Sequence[JointValues],
+    ) -> Iterable[FloatArray]:
+        for s in user:
+            yield self.joint_vector(s)
+        if self._planar is not None:
+            pitches = (0.0,) if goal_r is not None else (0.0, -math.pi / 4, -math.pi / 2, math.pi / 4)
+            for pitch in pitches:
+                for elbow_up in (True, False):
+                    yield self._closed_form_seed(goal_p, goal_r, pitch, elbow_up=elbow_up)
+        mid = (self.lower + self.upper) / 2
+        yield mid
+        yield np.clip(np.zeros(self.dof), self.lower, self.upper)
+        rng = np.random.default_rng(0)
+        for _ in range(4):
+            yield rng.uniform(self.lower, self.upper)
+
+    def _closed_form_seed(
+        self, goal_p: FloatArray, goal_r: FloatArray | None, pitch: float, *, elbow_up: bool
+    ) -> FloatArray:
+        """Shoulder turn towards the target, the shoulder-elbow triangle for the wrist centre, the wrist
+        pitch for the approach, and the wrist roll that matches the target's x axis."""
+        g = self._planar
+        assert g is not None
+        psi = math.atan2(goal_p[1], goal_p[0])
+        radial = np.array([math.cos(psi), math.sin(psi), 0.0])
+        approach = math.cos(pitch) * radial + np.array([0.0, 0.0, math.sin(pitch)])
+        wrist = goal_p - g.tool_m * approach
+        r_w = float(wrist @ radial)
+        z_w = float(wrist[2]) - g.shoulder_z_m
+        cos_delta = (r_w * r_w + z_w * z_w - g.upper_m**2 - g.fore_m**2) / (2 * g.upper_m * g.fore_m)
+        delta = math.acos(max(-1.0, min(1.0, cos_delta)))
+        if elbow_up:
+            delta = -delta
+        e1 = math.atan2(z_w, r_w) - math.atan2(
+            g.fore_m * math.sin(delta), g.upper_m + g.fore_m * math.cos(delta)
+        )
+        sl, el = -e1, -delta
+        wl = -math.pi / 2 - pitch - sl - el
+        q = np.array([psi, sl, el, wl, -math.pi / 2])
+        if goal_r is not None:
+            q[4] = 0.0
+            _, rot = self.fk(q)
+            x0, z0 = rot[:, 0], rot[:, 2]
+            x_goal = goal_r[:, 0]
+            q[4] = math.atan2(float(np.cross(x0, x_goal) @ z0), float(x0 @ x_goal))
+        return q
+
+    def _out_of_reach(self, goal_p: FloatArray, target: GraspTarget) -> str:
+        """Why a target is plainly beyond the thesis arm's reach, or '' (other URDFs: always '')."""
+        g = self._planar
+        if g is None:
+            return ""
+        reach = g.upper_m + g.fore_m
+        shoulder = np.array([0.0, 0.0, g.shoulder_z_m])
+        if target.kind is GraspKind.POSITION:
+            dist = float(np.linalg.norm(goal_p - shoulder))
+            if dist > reach + g.tool_m + 1e-3:
+                return (
+                    f"out of reach: {dist:.3f} m from the shoulder, the arm reaches {reach + g.tool_m:.3f} m"
+                )
+            return ""
+        approach = target.approach()
+        assert approach is not None
+        wrist = goal_p - g.tool_m * approach
+        dist = float(np.linalg.norm(wrist - shoulder))
+        if dist > reach + 1e-3:
+            return (
+                f"out of reach for a {target.kind} grasp: the wrist would be {dist:.3f} m from the shoulder, "
+                f"the arm reaches {reach:.3f} m"
+            )
+        return ""
+
+    def _measure_planar(self) -> _PlanarArm:
+        zero = np.zeros(self.dof)
+        joints = self.joint_positions(zero)
+        tool, _ = self.fk(zero)
+        return _PlanarArm(
+            shoulder_z_m=float(joints[1][2]),
+            upper_m=float(np.linalg.norm(joints[2] - joints[1])),
+            fore_m=float(np.linalg.norm(joints[3] - joints[2])),
+            tool_m=float(np.linalg.norm(tool - joints[3])),
+        )

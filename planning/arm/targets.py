@@ -1,0 +1,65 @@
+"""What inverse kinematics is asked for and what it answers."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+
+from drivers.interfaces import FloatArray
+
+
+class GraspKind(StrEnum):
+    """How the gripper meets the target. ``side`` grasps approach horizontally along the line from the
+    shoulder axis (thesis Eq 4.28: the arm has no wrist yaw), thumb on the left and fingers closing
+    horizontally; ``side-upside-down`` is the same with the wrist turned by pi (the mug hangs inverted)."""
+
+    POSITION = "position"
+    SIDE = "side"
+    SIDE_UPSIDE_DOWN = "side-upside-down"
+
+
+@dataclass(frozen=True, slots=True)
+class GraspTarget:
+    """A grasp point in the world frame (metres) and the gripper orientation its kind implies."""
+
+    position_m: tuple[float, float, float]
+    kind: GraspKind = GraspKind.POSITION
+
+    @property
+    def is_finite(self) -> bool:
+        return all(math.isfinite(v) for v in self.position_m)
+
+    def approach(self) -> FloatArray | None:
+        """Unit approach direction: horizontal and radial for side grasps (Eq 4.28); None: position only."""
+        if self.kind is GraspKind.POSITION:
+            return None
+        x, y, _ = self.position_m
+        alpha = math.atan2(y, x)
+        return np.array([math.cos(alpha), math.sin(alpha), 0.0])
+
+    def rotation(self) -> FloatArray | None:
+        """World rotation of the grasp frame (columns x, y, z; z = approach, y = closing side), or None.
+
+        Upright: x points up, so y (towards the mug axis) points to the right of the approach. Upside down:
+        the wrist is turned by pi about the approach, x points down and y to the left."""
+        z = self.approach()
+        if z is None:
+            return None
+        x = np.array([0.0, 0.0, 1.0 if self.kind is GraspKind.SIDE else -1.0])
+        y = np.cross(z, x)
+        return np.column_stack([x, y, z])
+
+
+@dataclass(frozen=True, slots=True)
+class IkResult:
+    """A joint solution with its residuals, or why there is none (``ok`` False, ``q`` None)."""
+
+    ok: bool
+    q: tuple[float, ...] | None
+    residual_m: float
+    reason: str = ""
+    orientation_error_rad: float = 0.0
+    iterations: int = 0
