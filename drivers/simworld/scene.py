@@ -1,0 +1,407 @@
+"""The static simulated cell as MJCF: counter, tray, flip area, mugs with real shapes and the depth camera.
+
+The world frame is the daemon's: origin on the arm's shoulder-turn axis at counter height (z = 0 is the
+counter top), x forward, y to the robot's left, z up. ``build_mjcf`` returns one self-contained MJCF document;
+the physical world (``drivers.simworld``'s arm and stepping) splices the arm in through the ``arm_*``
+parameters. Every name is prefixed (``table/``, ``tray/``, ``flip_area``, ``mug/<id>/``) so contact accounting
+can tell who touched whom.
+
+A mug is an open cup: the rendered shell is a generated, watertight mesh (outer wall, rim, inner wall and
+inner bottom), so the camera sees into an upright mug and sees a closed bottom on an upside-down one. Its
+collision shape is a cylinder (hidden, geom group 3) plus the capsules of the handle, which are drawn as they
+are.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from drivers.interfaces import CameraIntrinsics, FloatArray
+from planning.thesis import (
+    CAMERA_DISTANCE_TO_TABLE_M,
+    CAMERA_HEIGHT_M,
+    CAMERA_PITCH_RAD,
+    MugSpec,
+)
+
+CAMERA_NAME: Final = "depth_camera"
+MUG_PREFIX: Final = "mug/"
+TRAY_PREFIX: Final = "tray/"
+TABLE_GEOM: Final = "table/top"
+FLIP_AREA_GEOM: Final = "flip_area"
+BOARD_GEOM: Final = "calibration/board"
+
+# Shape of the generated mugs (not thesis figures: the thesis gives only the outer dimensions of §5.3).
+MUG_WALL_M: Final = 0.004
+MUG_BOTTOM_M: Final = 0.006
+MUG_SEGMENTS: Final = 48
+HANDLE_RADIUS_M: Final = 0.005
+# Height of the handle's lower and upper arms as a fraction of the mug height; symmetric, so an upside-down
+# mug keeps its handle at the same heights, well below the brim band the detector fits.
+HANDLE_ARM_FRACTIONS: Final = (0.28, 0.72)
+
+TRAY_BASE_M: Final = 0.006
+TRAY_WALL_HEIGHT_M: Final = 0.025
+TRAY_WALL_THICKNESS_M: Final = 0.008
+# How far the table top reaches past everything placed on it.
+TABLE_MARGIN_M: Final = 0.05
+
+
+@dataclass(frozen=True, slots=True)
+class CameraSpec:
+    """Where the depth camera is and what it sees: image size, vertical field of view and pose.
+
+    ``yaw_rad`` is the heading of the optical axis about +z (0 looks along +x); ``pitch_rad`` tilts it below
+    the horizon. Pixels are square and the principal point is the image centre, as MuJoCo renders them.
+    """
+
+    width: int
+    height: int
+    fovy_deg: float
+    position_m: tuple[float, float, float]
+    yaw_rad: float
+    pitch_rad: float
+
+    def __post_init__(self) -> None:
+        if self.width < 16 or self.height < 16:
+            raise ValueError(f"camera width/height {self.width}x{self.height}: use at least 16x16 pixels")
+        if not 10.0 <= self.fovy_deg <= 120.0:
+            raise ValueError(f"camera fovy_deg {self.fovy_deg}: use a value in [10, 120] degrees")
+        if not 0.0 < self.pitch_rad < math.pi / 2:
+            raise ValueError(f"camera pitch_rad {self.pitch_rad}: it must look down, in (0, pi/2)")
+
+    def intrinsics(self) -> CameraIntrinsics:
+        """The pinhole model of the rendered image (pixel indices: the first pixel's centre is (0, 0))."""
+        f = (self.height / 2.0) / math.tan(math.radians(self.fovy_deg) / 2.0)
+        return CameraIntrinsics(
+            width=self.width,
+            height=self.height,
+            fx=f,
+            fy=f,
+            cx=(self.width - 1) / 2.0,
+            cy=(self.height - 1) / 2.0,
+        )
+
+    def world_from_camera(self) -> FloatArray:
+        """4×4 pose of the pinhole camera frame (z along the optical axis, x right, y down) in the world."""
+        cy, sy = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
+        cp, sp = math.cos(self.pitch_rad), math.sin(self.pitch_rad)
+        forward = np.array([cp * cy, cp * sy, -sp])
+        right = np.array([sy, -cy, 0.0])
+        down = np.cross(forward, right)
+        T = np.eye(4)
+        T[:3, 0], T[:3, 1], T[:3, 2] = right, down, forward
+        T[:3, 3] = self.position_m
+        return T
+
+    def mjcf(self) -> str:
+        """The ``<camera>`` element; MuJoCo cameras look along their -z with y up."""
+        T = self.world_from_camera()
+        x_axis, up = T[:3, 0], -T[:3, 1]
+        return (
+            f'<camera name="{CAMERA_NAME}" mode="fixed" pos="{_v(self.position_m)}" '
+            f'xyaxes="{_v(x_axis)} {_v(up)}" fovy="{self.fovy_deg:.6g}"/>'
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class SceneMug:
+    """A mug placed in the scene: its axis at (x_m, y_m) on what it stands on, handle towards ``yaw_rad``."""
+
+    mug_id: str
+    spec: MugSpec
+    x_m: float
+    y_m: float
+    yaw_rad: float = 0.0
+    upside_down: bool = False
+
+    @property
+    def body_name(self) -> str:
+        return f"{MUG_PREFIX}{self.mug_id}"
+
+
+@dataclass(frozen=True, slots=True)
+class SceneLayout:
+    """The cell: counter region (x_min, y_min, x_max, y_max), flip area, tray corner and size, camera."""
+
+    counter_region_m: tuple[float, float, float, float]
+    flip_area_center_m: tuple[float, float]
+    flip_area_radius_m: float
+    tray_origin_m: tuple[float, float]
+    tray_size_mm: tuple[int, int]
+    camera: CameraSpec
+    table_height_above_floor_m: float = 0.90
+
+    def tray_region_m(self) -> tuple[float, float, float, float]:
+        """The tray's inner area (x_min, y_min, x_max, y_max)."""
+        x0, y0 = self.tray_origin_m
+        return x0, y0, x0 + self.tray_size_mm[0] / 1000.0, y0 + self.tray_size_mm[1] / 1000.0
+
+    def table_region_m(self) -> tuple[float, float, float, float]:
+        """The table top: everything on it (counter, flip area, tray with walls, arm base) plus a margin."""
+        cx0, cy0, cx1, cy1 = self.counter_region_m
+        tx0, ty0, tx1, ty1 = self.tray_region_m()
+        fx, fy = self.flip_area_center_m
+        fr = self.flip_area_radius_m
+        w = TRAY_WALL_THICKNESS_M
+        x0 = min(cx0, tx0 - w, fx - fr, -0.08)
+        y0 = min(cy0, ty0 - w, fy - fr, -0.08)
+        x1 = max(cx1, tx1 + w, fx + fr, 0.08)
+        y1 = max(cy1, ty1 + w, fy + fr, 0.08)
+        m = TABLE_MARGIN_M
+        return x0 - m, y0 - m, x1 + m, y1 + m
+
+    def mug_base_z_m(self, x_m: float, y_m: float) -> float:
+        """Height of the surface a mug standing at (x, y) rests on: the tray base inside the tray, else 0."""
+        x0, y0, x1, y1 = self.tray_region_m()
+        return TRAY_BASE_M if x0 <= x_m <= x1 and y0 <= y_m <= y1 else 0.0
+
+    @classmethod
+    def from_config(cls, cell: Mapping[str, object], camera: Mapping[str, object]) -> SceneLayout:
+        """Build the layout from the config's ``[cell]`` and ``[camera]`` tables; ValueError names the key."""
+        region = _floats(cell, "cell.counter_region_m", 4)
+        flip = _floats(cell, "cell.flip_area_center_m", 2)
+        tray_origin = _floats(cell, "cell.tray_origin_m", 2)
+        tray_size = _floats(cell, "cell.tray_size_mm", 2)
+        pos = _floats(camera, "camera.position_m", 3)
+        spec = CameraSpec(
+            width=int(_number(camera, "camera.width")),
+            height=int(_number(camera, "camera.height")),
+            fovy_deg=_number(camera, "camera.fovy_deg"),
+            position_m=(pos[0], pos[1], pos[2]),
+            yaw_rad=_number(camera, "camera.yaw_rad"),
+            pitch_rad=_number(camera, "camera.pitch_rad"),
+        )
+        return cls(
+            counter_region_m=(region[0], region[1], region[2], region[3]),
+            flip_area_center_m=(flip[0], flip[1]),
+            flip_area_radius_m=_number(cell, "cell.flip_area_radius_m"),
+            tray_origin_m=(tray_origin[0], tray_origin[1]),
+            tray_size_mm=(int(tray_size[0]), int(tray_size[1])),
+            camera=spec,
+            table_height_above_floor_m=_number(cell, "cell.table_height_above_floor_m"),
+        )
+
+
+def thesis_camera_pose(layout: SceneLayout) -> tuple[float, float, float]:
+    """(height above the floor, horizontal distance to the nearest table edge, pitch) of the layout's camera,
+    for checking it against §5.3.3 (170 cm, 70 cm, 55°)."""
+    x, y, z = layout.camera.position_m
+    x0, y0, x1, y1 = layout.table_region_m()
+    dx = max(x0 - x, 0.0, x - x1)
+    dy = max(y0 - y, 0.0, y - y1)
+    return z + layout.table_height_above_floor_m, math.hypot(dx, dy), layout.camera.pitch_rad
+
+
+THESIS_CAMERA_POSE: Final = (CAMERA_HEIGHT_M, CAMERA_DISTANCE_TO_TABLE_M, CAMERA_PITCH_RAD)
+
+
+def build_mjcf(
+    layout: SceneLayout,
+    mugs: Sequence[SceneMug],
+    *,
+    arm_body_xml: str = "",
+    arm_actuator_xml: str = "",
+    extra_assets: str = "",
+    extra_body_xml: str = "",
+    timestep_s: float = 0.002,
+) -> str:
+    """A complete MJCF document of the cell with these mugs (each on a free joint, at rest on its surface).
+
+    ``arm_body_xml`` goes into the worldbody, ``arm_actuator_xml`` into ``<actuator>``, ``extra_assets`` into
+    ``<asset>`` and ``extra_body_xml`` (e.g. a calibration board) into the worldbody.
+    """
+    ids = [m.mug_id for m in mugs]
+    if len(set(ids)) != len(ids):
+        raise ValueError(f"mug ids must be unique, got {sorted(ids)}")
+    specs = {m.spec.name: m.spec for m in mugs}
+    assets = "\n".join(_mug_mesh_asset(s) for s in specs.values())
+    cam = layout.camera
+    x0, y0, x1, y1 = layout.table_region_m()
+    table_h = layout.table_height_above_floor_m
+    centre = ((x0 + x1) / 2, (y0 + y1) / 2, 0.0)
+    bodies = "\n".join(_mug_body(m, layout.mug_base_z_m(m.x_m, m.y_m)) for m in mugs)
+    fx, fy = layout.flip_area_center_m
+    actuators = f"<actuator>\n{arm_actuator_xml}\n</actuator>" if arm_actuator_xml else ""
+    return f"""<mujoco model="dishbot_cell">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{timestep_s:.6g}" gravity="0 0 -9.81" cone="elliptic" impratio="10"/>
+  <statistic extent="2.5" center="{_v(centre)}"/>
+  <visual>
+    <global offwidth="{max(cam.width, 640)}" offheight="{max(cam.height, 480)}"/>
+    <map znear="0.02" zfar="4"/>
+    <quality shadowsize="2048"/>
+  </visual>
+  <asset>
+    <material name="table" rgba="0.72 0.62 0.50 1"/>
+    <material name="tray" rgba="0.55 0.40 0.25 1"/>
+    <material name="flip" rgba="0.25 0.55 0.30 1"/>
+    <material name="floor" rgba="0.35 0.35 0.38 1"/>
+    <material name="mug_big" rgba="0.85 0.20 0.15 1"/>
+    <material name="mug_small" rgba="0.20 0.35 0.85 1"/>
+    <material name="mug_other" rgba="0.85 0.85 0.80 1"/>
+{assets}
+{extra_assets}
+  </asset>
+  <worldbody>
+    <light name="key" pos="{_v((centre[0], centre[1], 2.0))}" dir="0 0 -1" diffuse="0.8 0.8 0.8"/>
+    <geom name="floor" type="plane" pos="0 0 {-table_h:.6g}" size="5 5 0.1" material="floor"/>
+    <geom name="{TABLE_GEOM}" type="box" pos="{_v((centre[0], centre[1], -table_h / 2))}"
+          size="{_v(((x1 - x0) / 2, (y1 - y0) / 2, table_h / 2))}" material="table"
+          friction="0.8 0.01 0.001"/>
+    <geom name="{FLIP_AREA_GEOM}" type="cylinder" pos="{_v((fx, fy, 0.0005))}"
+          size="{layout.flip_area_radius_m:.6g} 0.0005" material="flip" contype="0" conaffinity="0"/>
+{_tray_xml(layout)}
+    {cam.mjcf()}
+{bodies}
+{extra_body_xml}
+{arm_body_xml}
+  </worldbody>
+  {actuators}
+</mujoco>
+"""
+
+
+def mug_mesh(spec: MugSpec, *, segments: int = MUG_SEGMENTS) -> tuple[FloatArray, npt.NDArray[np.int64]]:
+    """Vertices (n, 3) and outward-facing triangles (m, 3) of the open cup, origin at its bottom centre."""
+    r_out = spec.diameter_mm / 2000.0
+    r_in = r_out - MUG_WALL_M
+    h = spec.height_mm / 1000.0
+    a = np.linspace(0.0, 2 * math.pi, segments, endpoint=False)
+    c, s = np.cos(a), np.sin(a)
+    rings = [
+        (r_out, 0.0),  # 0: outer bottom
+        (r_out, h),  # 1: outer top
+        (r_in, h),  # 2: inner top
+        (r_in, MUG_BOTTOM_M),  # 3: inner bottom
+    ]
+    verts = [np.stack([r * c, r * s, np.full(segments, z)], axis=1) for r, z in rings]
+    vertices = np.concatenate([*verts, [[0.0, 0.0, 0.0], [0.0, 0.0, MUG_BOTTOM_M]]])
+    bottom_centre, inner_centre = 4 * segments, 4 * segments + 1
+    faces: list[tuple[int, int, int]] = []
+    for i in range(segments):
+        j = (i + 1) % segments
+        for ring in range(3):
+            a0, a1 = ring * segments + i, ring * segments + j
+            b0, b1 = (ring + 1) * segments + i, (ring + 1) * segments + j
+            # Outer wall faces out, rim up, inner wall in: one winding serves all three ring pairs.
+            faces.append((a0, a1, b1))
+            faces.append((a0, b1, b0))
+        faces.append((bottom_centre, j, i))  # outer bottom, facing down
+        faces.append((inner_centre, 3 * segments + i, 3 * segments + j))  # inner bottom, facing up
+    return vertices, np.asarray(faces, dtype=np.int64)
+
+
+def _mug_mesh_asset(spec: MugSpec) -> str:
+    vertices, faces = mug_mesh(spec)
+    vtext = " ".join(f"{v:.6g}" for v in vertices.ravel())
+    ftext = " ".join(str(int(f)) for f in faces.ravel())
+    return f'    <mesh name="mug_shell_{spec.name}" vertex="{vtext}" face="{ftext}"/>'
+
+
+def mug_inertia(spec: MugSpec) -> tuple[float, tuple[float, float, float]]:
+    """Centre-of-mass height and principal moments of a cup: thin wall plus bottom disc (handle ignored)."""
+    m = spec.mass_kg
+    r = spec.diameter_mm / 2000.0
+    h = spec.height_mm / 1000.0
+    wall_area = 2 * math.pi * r * h
+    disc_area = math.pi * r * r
+    m_wall = m * wall_area / (wall_area + disc_area)
+    m_disc = m - m_wall
+    z_com = (m_wall * h / 2) / m
+    izz = m_wall * r * r + m_disc * r * r / 2
+    ixx = (
+        m_wall * (r * r / 2 + h * h / 12)
+        + m_wall * (h / 2 - z_com) ** 2
+        + m_disc * r * r / 4
+        + m_disc * z_com**2
+    )
+    return z_com, (ixx, ixx, izz)
+
+
+def _mug_body(mug: SceneMug, base_z: float) -> str:
+    spec = mug.spec
+    r = spec.diameter_mm / 2000.0
+    h = spec.height_mm / 1000.0
+    reach = (spec.width_mm - spec.diameter_mm) / 1000.0  # how far the handle sticks out of the wall
+    hr = HANDLE_RADIUS_M
+    z_lo, z_hi = (f * h for f in HANDLE_ARM_FRACTIONS)
+    x_out = r + reach - hr
+    x_in = r - MUG_WALL_M / 2
+    half = mug.yaw_rad / 2
+    if mug.upside_down:
+        quat = (0.0, math.cos(half), math.sin(half), 0.0)
+        z = base_z + h
+    else:
+        quat = (math.cos(half), 0.0, 0.0, math.sin(half))
+        z = base_z
+    z_com, (ixx, iyy, izz) = mug_inertia(spec)
+    material = f"mug_{spec.name}" if spec.name in ("big", "small") else "mug_other"
+    n = mug.body_name
+    return f"""    <body name="{n}" pos="{_v((mug.x_m, mug.y_m, z + 0.0002))}" quat="{_v(quat)}">
+      <freejoint name="{n}/joint"/>
+      <inertial pos="0 0 {z_com:.6g}" mass="{spec.mass_kg:.6g}" diaginertia="{_v((ixx, iyy, izz))}"/>
+      <geom name="{n}/shell" type="mesh" mesh="mug_shell_{spec.name}" material="{material}"
+            contype="0" conaffinity="0" group="1" mass="0"/>
+      <geom name="{n}/body" type="cylinder" size="{r:.6g} {h / 2:.6g}" pos="0 0 {h / 2:.6g}" group="3"
+            mass="0" friction="0.9 0.01 0.001"/>
+      <geom name="{n}/handle_low" type="capsule" size="{hr:.6g}" material="{material}" mass="0"
+            fromto="{_v((x_in, 0, z_lo))} {_v((x_out, 0, z_lo))}"/>
+      <geom name="{n}/handle_high" type="capsule" size="{hr:.6g}" material="{material}" mass="0"
+            fromto="{_v((x_in, 0, z_hi))} {_v((x_out, 0, z_hi))}"/>
+      <geom name="{n}/handle_grip" type="capsule" size="{hr:.6g}" material="{material}" mass="0"
+            fromto="{_v((x_out, 0, z_lo))} {_v((x_out, 0, z_hi))}"/>
+    </body>"""
+
+
+def _tray_xml(layout: SceneLayout) -> str:
+    x0, y0, x1, y1 = layout.tray_region_m()
+    t, hw = TRAY_WALL_THICKNESS_M, TRAY_WALL_HEIGHT_M
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    lx, ly = (x1 - x0) / 2, (y1 - y0) / 2
+    walls = {
+        "wall_near": ((x0 - t / 2, cy), (t / 2, ly + t)),
+        "wall_far": ((x1 + t / 2, cy), (t / 2, ly + t)),
+        "wall_right": ((cx, y0 - t / 2), (lx, t / 2)),
+        "wall_left": ((cx, y1 + t / 2), (lx, t / 2)),
+    }
+    lines = [
+        '    <body name="tray">',
+        f'      <geom name="{TRAY_PREFIX}base" type="box" pos="{_v((cx, cy, TRAY_BASE_M / 2))}" '
+        f'size="{_v((lx, ly, TRAY_BASE_M / 2))}" material="tray"/>',
+    ]
+    for name, ((px, py), (sx, sy)) in walls.items():
+        lines.append(
+            f'      <geom name="{TRAY_PREFIX}{name}" type="box" pos="{_v((px, py, hw / 2))}" '
+            f'size="{_v((sx, sy, hw / 2))}" material="tray"/>'
+        )
+    lines.append("    </body>")
+    return "\n".join(lines)
+
+
+def _v(values: Sequence[float] | FloatArray) -> str:
+    return " ".join(f"{float(v):.6g}" for v in values)
+
+
+def _number(table: Mapping[str, object], key: str) -> float:
+    value = table.get(key.split(".")[-1])
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"config {key}: expected a number, got {value!r}")
+    return float(value)
+
+
+def _floats(table: Mapping[str, object], key: str, n: int) -> list[float]:
+    value = table.get(key.split(".")[-1])
+    if (
+        not isinstance(value, list | tuple)
+        or len(value) != n
+        or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+    ):
+        raise ValueError(f"config {key}: expected a list of {n} numbers, got {value!r}")
+    return [float(v) for v in value]
