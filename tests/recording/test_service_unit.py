@@ -1,4 +1,4 @@
-"""The systemd unit asks for notify, watchdog and a clean stop, and still lets the daemon reach its devices."""
+"""The systemd unit asks for notify, watchdog and a clean stop, and still lets the daemon reach devices."""
 
 from __future__ import annotations
 
