@@ -113,8 +113,9 @@ class Normaliser:
                 self.high[p] = v
 
     def scaled(self, p: str, v: float) -> float:
-        lo, hi = self.low.get(p, v), self.high.get(p, v)
-        return 0.0 if hi <= lo else (v - lo) / (hi - lo)
+        lo = self.low.get(p, v)
+        span = self.high.get(p, v) - lo
+        return 0.0 if span <= 0 else (v - lo) / span
 
 
 @dataclass
@@ -154,16 +155,31 @@ class Fitness:
         }
 
     def key(self, m: Metrics) -> tuple[float, ...]:
-        """Sort key: the weighted cost (WS) or the cost parameters in rank order (RF)."""
-        c = self.components(m)
+        """Sort key, lower is better: the weighted cost (WS), or the ranked parameters (RF).
+
+        Normalisation is monotone, so ranking the raw parameters (signed so that lower is better) orders
+        layouts exactly as ranking the normalised cost parameters does, without rescaling on every compare."""
         if self.method is FitnessMethod.WS:
-            return (sum(self.weights[p] * c[p] for p in "nEts"),)
-        return tuple(c[p] for p in self.ranking)
+            return (self.weighted(m),)
+        raw = {"n": -m.n, "A": -m.A, "E": m.E, "t": m.t, "s": -m.s}
+        return tuple(raw[p] for p in self.ranking)
+
+    def weighted(self, m: Metrics) -> float:
+        """Eq 4.6 (with Eq 4.8-4.10 as weight choices)."""
+        w, nz = self.weights, self.norm.scaled
+        return (
+            w["n"] * (1.0 - nz("n", m.n))
+            + w["E"] * nz("E", m.E)
+            + w["t"] * nz("t", m.t)
+            + w["s"] * (1.0 - m.s)
+        )
 
     def value(self, m: Metrics) -> float:
         """One number: the weighted cost (WS) or the mean ranked cost parameter (RF; SA's "energy")."""
-        k = self.key(m)
-        return k[0] if self.method is FitnessMethod.WS else sum(k) / len(k)
+        if self.method is FitnessMethod.WS:
+            return self.weighted(m)
+        c = self.components(m)
+        return sum(c[p] for p in self.ranking) / len(self.ranking)
 
     def better(self, a: Metrics, b: Metrics) -> bool:
         """IsCostDecreased(a, b)."""
@@ -200,6 +216,10 @@ class Evaluator:
         self.move_cost: MoveCost = move_cost or ThesisMoveCost(problem.arm_speed_m_s)
         self._moves: dict[tuple[int, int, int, bool], tuple[float, float]] = {}
         self._area = [math.prod(problem.footprint(m.type)) for m in problem.mugs]
+
+    def area(self, mug: int) -> float:
+        """The mug's footprint area with tolerance (mm²), the same in both orientations."""
+        return self._area[mug]
 
     def move(self, mug: int, x: int, y: int, rotated: bool) -> tuple[float, float]:
         """(seconds, joules) to carry mug ``mug`` to the footprint corner (x, y)."""
