@@ -1,0 +1,491 @@
+"""The Dynamixel bus: the one place that talks to dynamixel-sdk. Blocking; confine it to one thread.
+
+The SDK opens the port, sets the baud rate and runs single-servo transactions and sync writes. Reading the
+whole chain is done here instead, with this package's codec: dynamixel-sdk 4.1's GroupBulkRead is broken on
+Protocol 1.0 and GroupSyncRead drops each servo's status error byte, which would hide an overload. Waiting
+for those answers sleeps in ``select`` rather than spinning, so the bus thread leaves the GIL to the event
+loop. Timeouts and corrupt packets are retried a bounded number of times with per-servo counters; a
+servo's fault bits become a :class:`ServoFault`; a vanished adapter is closed, reopened and, when that fails,
+reported as :class:`BusLost`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import select
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+import serial
+import structlog
+from dynamixel_sdk import PacketHandler, PortHandler
+
+from drivers.dynamixel import faults
+from drivers.dynamixel import protocol as p
+from drivers.dynamixel.config import BusConfig
+from drivers.dynamixel.tables import MODELS_BY_NUMBER, ModelSpec, model, volts_from_ticks
+from drivers.errors import BusLost, ServoFault
+
+log = structlog.get_logger("drivers.dynamixel")
+
+_COMM_SUCCESS = 0
+_COMM_RX_TIMEOUT = -3001
+_COMM_RX_CORRUPT = -3002
+_COMM_PORT_BUSY = -1000
+
+T = TypeVar("T")
+
+
+class ChainMismatch(ServoFault):
+    """The servos found on the bus are not the configured ones; torque was not enabled."""
+
+    def __init__(self, message: str, *, problems: tuple[str, ...]) -> None:
+        super().__init__(message)
+        self.problems = problems
+
+
+class BusTimeout(ServoFault):
+    """A servo did not answer (or only with corrupt packets) after every retry."""
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceEvent:
+    """A fault appearing or clearing, as the daemon publishes it: ``kind`` is e.g. ``servo_fault``."""
+
+    kind: str
+    device: str
+    detail: dict[str, object] = field(default_factory=dict)
+    t: float = field(default_factory=time.monotonic)
+
+
+@dataclass(frozen=True, slots=True)
+class ServoReading:
+    """One servo's present state in SI units, and the fault names its status carried."""
+
+    servo_id: int
+    position_rad: float
+    velocity_rad_s: float
+    load: float
+    voltage_v: float
+    temperature_c: int
+    errors: tuple[str, ...] = ()
+
+
+@dataclass(slots=True)
+class ServoCounters:
+    """Per-servo communication statistics since the bus was opened."""
+
+    timeouts: int = 0
+    corrupt: int = 0
+    retries: int = 0
+    faults: int = 0
+
+
+EventSink = Callable[[DeviceEvent], None]
+
+
+class DynamixelBus:
+    """A serial Dynamixel bus on dynamixel-sdk. Not thread-safe: one thread owns it."""
+
+    def __init__(
+        self,
+        config: BusConfig,
+        *,
+        retries: int = 2,
+        read_timeout_s: float = 0.02,
+        reopen_attempts: int = 2,
+        on_event: EventSink | None = None,
+    ) -> None:
+        self.config = config
+        self.retries = retries
+        self.read_timeout_s = read_timeout_s
+        self.reopen_attempts = reopen_attempts
+        self._on_event = on_event
+        self._port: Any = None
+        self._packets: Any = PacketHandler(float(config.protocol))
+        self.models: dict[int, ModelSpec] = {}
+        self.counters: dict[int, ServoCounters] = {}
+        self._faulted: dict[int, tuple[str, ...]] = {}
+        self._lost = False
+        self._log = log.bind(port=config.port)
+
+    # ------------------------------------------------------------------------------------------ lifecycle
+
+    @property
+    def is_open(self) -> bool:
+        return self._port is not None
+
+    def open(self) -> None:
+        """Open the port at the configured baud rate; BusLost names the port when it cannot."""
+        port = PortHandler(self.config.port)
+        try:
+            opened = port.openPort() and port.setBaudRate(self.config.baudrate)
+        except (serial.SerialException, OSError) as e:
+            raise BusLost(
+                f"cannot open servo bus {self.config.port}: {e}; check the USB cable and the udev rule",
+                port=self.config.port,
+            ) from e
+        if not opened:
+            raise BusLost(
+                f"cannot open servo bus {self.config.port} at {self.config.baudrate} bps",
+                port=self.config.port,
+            )
+        self._port = port
+        self._log.info("bus_open", baudrate=self.config.baudrate, protocol=self.config.protocol)
+
+    def close(self) -> None:
+        if self._port is None:
+            return
+        with contextlib.suppress(serial.SerialException, OSError):
+            self._port.closePort()
+        self._port = None
+        self._log.info("bus_closed")
+
+    def __enter__(self) -> DynamixelBus:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------------------------------ chain
+
+    def register(self, servo_id: int, model_name: str) -> None:
+        """Tell the bus which model sits at an id (``verify`` does this after checking)."""
+        self.models[servo_id] = model(model_name)
+        self.counters.setdefault(servo_id, ServoCounters())
+
+    def ping(self, servo_id: int, *, attempts: int = 1) -> int | None:
+        """The model number of the servo at ``servo_id``, or None when nothing answers."""
+        for _ in range(attempts):
+            number, result, _error = self._io(lambda: self._packets.ping(self._port, servo_id))
+            if result == _COMM_SUCCESS:
+                return int(number)
+        return None
+
+    def scan(self, ids: Iterable[int] = range(p.MAX_ID + 1)) -> dict[int, int]:
+        """Every id in ``ids`` that answers a ping, with its model number."""
+        found = {}
+        for servo_id in ids:
+            number = self.ping(servo_id)
+            if number is not None:
+                found[servo_id] = number
+        return found
+
+    def verify(self, expected: Sequence[tuple[int, str]]) -> None:
+        """Check every configured id answers with the configured model; one ChainMismatch lists all problems.
+
+        Nothing is written to the servos, so the torque stays off when this fails.
+        """
+        problems: list[str] = []
+        for servo_id, model_name in expected:
+            want = model(model_name)
+            number = self.ping(servo_id, attempts=1 + self.retries)
+            if number is None:
+                problems.append(f"servo {servo_id} ({model_name}) does not answer")
+            elif number != want.number:
+                found = MODELS_BY_NUMBER.get(number)
+                name = found.name if found else f"unknown model {number}"
+                problems.append(f"servo {servo_id} is a {name}, configured as {model_name}")
+        if problems:
+            raise ChainMismatch(
+                f"servo chain on {self.config.port} does not match the config: "
+                + "; ".join(problems)
+                + ". Fix the ids with `dishbot servo scan` / `dishbot servo set-id`; torque was not enabled",
+                problems=tuple(problems),
+            )
+        for servo_id, model_name in expected:
+            self.register(servo_id, model_name)
+
+    # ------------------------------------------------------------------------------------------ registers
+
+    def read_register(self, servo_id: int, name: str, *, check: bool = True) -> int:
+        """A named register's value; with ``check=False`` fault bits in the answer do not raise."""
+        spec = self._model(servo_id)
+        reg = spec.reg(name)
+        packet = p.read(self.config.protocol, servo_id, reg.address, reg.size)
+        data = self._transact(servo_id, packet, expect_data=reg.size, check=check)
+        return p.from_le(data, signed=reg.signed)
+
+    def write_register(self, servo_id: int, name: str, value: int, *, check: bool = True) -> None:
+        """Write a named register and wait for the acknowledgement (``check`` as in ``read_register``)."""
+        spec = self._model(servo_id)
+        reg = spec.reg(name)
+        packet = p.write(self.config.protocol, servo_id, reg.address, p.le(value, reg.size))
+        self._transact(servo_id, packet, check=check)
+
+    def reboot(self, servo_id: int, *, settle_s: float = 0.1) -> None:
+        """Protocol 2.0 reboot (clears a hardware error shutdown); waits for the servo to come back."""
+        result, _error = self._io(lambda: self._packets.reboot(self._port, servo_id))
+        if result != _COMM_SUCCESS:
+            raise BusTimeout(
+                f"servo {servo_id} did not acknowledge the reboot on {self.config.port}", servo_id=servo_id
+            )
+        time.sleep(settle_s)
+
+    # ------------------------------------------------------------------------------------------ hot path
+
+    def write_goals(self, goals: Mapping[int, tuple[float, float]]) -> None:
+        """Goal positions (rad) and speeds (rad/s) of several servos in one sync write; no status comes back.
+
+        Callers check software limits first (see ``DynamixelArm``); ticks are clamped to the servo range.
+        """
+        if not goals:
+            return
+        first = self._model(next(iter(goals)))
+        address, length = first.goal_block
+        param = bytearray()
+        for servo_id, (position, speed) in goals.items():
+            spec = self._model(servo_id)
+            speed_ticks, pos_ticks = spec.speed_ticks_from_rad_s(speed), spec.ticks_from_rad(position)
+            half = length // 2
+            block = p.le(pos_ticks, half) + p.le(speed_ticks, half)
+            if self.config.protocol == 2:  # 2.0: profile velocity (112) comes before goal position (116)
+                block = p.le(speed_ticks, half) + p.le(pos_ticks, half)
+            param += bytes((servo_id,)) + block
+        result = self._io(
+            lambda: self._packets.syncWriteTxOnly(self._port, address, length, list(param), len(param))
+        )
+        if result != _COMM_SUCCESS:
+            raise BusLost(f"sync write failed on {self.config.port} (result {result})", port=self.config.port)
+
+    def read_states(self, servo_ids: Sequence[int]) -> dict[int, ServoReading]:
+        """Present position, speed, load, voltage and temperature of every listed servo, in one request.
+
+        Protocol 1.0 uses a bulk read, 2.0 a sync read, both parsed here so every status error byte is seen.
+        Missing or corrupt answers are retried ``retries`` times; a shutdown fault raises ServoFault.
+        """
+        statuses: dict[int, p.Status] = {}
+        for attempt in range(1 + self.retries):
+            missing = [i for i in servo_ids if i not in statuses]
+            statuses.update(self._read_block(missing))
+            still = [i for i in servo_ids if i not in statuses]
+            if not still:
+                break
+            for servo_id in still:
+                self._counters(servo_id).retries += 1
+            self._log.debug("read_retry", attempt=attempt + 1, missing=still)
+        else:
+            # A daisy chain stalls behind a silent servo: blame only those that miss a ping too.
+            missing = [i for i in servo_ids if i not in statuses]
+            silent = [i for i in missing if self.ping(i) is None] or missing
+            for servo_id in silent:
+                self._mark_fault(servo_id, ("no_status",))
+            raise BusTimeout(
+                f"servo(s) {', '.join(map(str, silent))} did not answer on {self.config.port} after "
+                f"{1 + self.retries} tries; check the cable and power of the chain",
+                servo_id=silent[0],
+                bits=("no_status",),
+            )
+        return {i: self._reading(statuses[i]) for i in servo_ids}
+
+    # ------------------------------------------------------------------------------------------ internals
+
+    def _model(self, servo_id: int) -> ModelSpec:
+        try:
+            return self.models[servo_id]
+        except KeyError:
+            raise ServoFault(
+                f"servo {servo_id} is not registered on {self.config.port}; verify the chain first",
+                servo_id=servo_id,
+            ) from None
+
+    def _counters(self, servo_id: int) -> ServoCounters:
+        return self.counters.setdefault(servo_id, ServoCounters())
+
+    def _read_block(self, servo_ids: Sequence[int]) -> dict[int, p.Status]:
+        if not servo_ids:
+            return {}
+        specs = [self._model(i) for i in servo_ids]
+        address, length = specs[0].state_block
+        if self.config.protocol == 1:
+            packet = p.bulk_read_1(
+                [(i, s.state_block[0], s.state_block[1]) for i, s in zip(servo_ids, specs, strict=True)]
+            )
+        else:
+            packet = p.sync_read_2(address, length, servo_ids)
+        expected = {i: s.state_block[1] for i, s in zip(servo_ids, specs, strict=True)}
+        return self._exchange(packet, expected)
+
+    def _exchange(self, packet: bytes, expected: Mapping[int, int]) -> dict[int, p.Status]:
+        """Send one instruction and collect the statuses of ``expected`` (id -> data length) until timeout."""
+        got: dict[int, p.Status] = {}
+        framer = p.Framer(self.config.protocol)
+        timeout = self.read_timeout_s + len(expected) * 0.002
+
+        def io() -> None:
+            port = self._port
+            port.clearPort()
+            port.writePort(packet)
+            fd = port.ser.fileno()
+            deadline = time.monotonic() + timeout
+            while len(got) < len(expected):
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return
+                if not select.select([fd], [], [], remaining)[0]:
+                    return
+                data = port.ser.read(port.ser.in_waiting or 1)
+                if not data:
+                    raise serial.SerialException("device reports readiness to read but returned no data")
+                for frame in framer.feed(data):
+                    status = p.as_status(self.config.protocol, frame)
+                    if status is None or status.servo_id not in expected or status.servo_id in got:
+                        continue
+                    if len(status.data) != expected[status.servo_id]:
+                        self._counters(status.servo_id).corrupt += 1
+                        continue
+                    got[status.servo_id] = status
+
+        self._io(io)
+        if framer.corrupt:
+            for servo_id in expected:
+                if servo_id not in got:
+                    self._counters(servo_id).corrupt += 1
+        for servo_id in expected:
+            if servo_id not in got and not framer.corrupt:
+                self._counters(servo_id).timeouts += 1
+        return got
+
+    def _transact(self, servo_id: int, packet: bytes, *, expect_data: int = 0, check: bool = True) -> bytes:
+        """One instruction to one servo with retries; its status data, after checking the error byte."""
+        for attempt in range(1 + self.retries):
+            got = self._exchange(packet, {servo_id: expect_data})
+            if servo_id in got:
+                status = got[servo_id]
+                if check:
+                    self._check_error(servo_id, status.error)
+                return status.data
+            self._counters(servo_id).retries += 1
+            self._log.debug("transaction_retry", servo_id=servo_id, attempt=attempt + 1)
+        self._mark_fault(servo_id, ("no_status",))
+        raise BusTimeout(
+            f"servo {servo_id} did not answer on {self.config.port} after {1 + self.retries} tries; "
+            "check its cable and power",
+            servo_id=servo_id,
+            bits=("no_status",),
+        )
+
+    def _reading(self, status: p.Status) -> ServoReading:
+        servo_id = status.servo_id
+        errors = self._check_error(servo_id, status.error)
+        spec = self._model(servo_id)
+        data = status.data
+        if self.config.protocol == 1:  # 36: position, 38: speed, 40: load, 42: voltage, 43: temperature
+            position, speed = p.from_le(data[0:2]), p.from_le(data[2:4])
+            load, volts, temp = p.from_le(data[4:6]), data[6], data[7]
+        else:  # 126: load/current, 128: velocity, 132: position, 144: voltage, 146: temperature
+            load = p.from_le(data[0:2], signed=True)
+            speed = p.from_le(data[2:6], signed=True)
+            position = p.from_le(data[6:10], signed=True)
+            volts, temp = p.from_le(data[18:20]), data[20]
+        return ServoReading(
+            servo_id=servo_id,
+            position_rad=spec.rad_from_ticks(position),
+            velocity_rad_s=spec.velocity_from_ticks(speed),
+            load=spec.load_from_ticks(load),
+            voltage_v=volts_from_ticks(volts),
+            temperature_c=temp,
+            errors=errors,
+        )
+
+    def _check_error(self, servo_id: int, error: int) -> tuple[str, ...]:
+        """Decode a status error byte; raise ServoFault on a shutdown fault, else return the names."""
+        names = faults.error_names(self.config.protocol, error)
+        if "alert" in names:
+            status = self._read_hardware_error(servo_id)
+            names = tuple(n for n in names if n != "alert") + faults.hardware_error_names(status)
+        shutdown = tuple(n for n in names if n in faults.SHUTDOWN_FAULTS)
+        if shutdown:
+            self._mark_fault(servo_id, shutdown)
+            raise ServoFault(
+                f"servo {servo_id} on {self.config.port} reports {', '.join(shutdown)}; "
+                "its torque is off until the fault is cleared",
+                servo_id=servo_id,
+                bits=shutdown,
+            )
+        self._mark_clear(servo_id)
+        return names
+
+    def _read_hardware_error(self, servo_id: int) -> int:
+        reg = self._model(servo_id).reg("hardware_error_status")
+        got = self._exchange(p.read(2, servo_id, reg.address, reg.size), {servo_id: reg.size})
+        return got[servo_id].data[0] if servo_id in got else 0
+
+    def _mark_fault(self, servo_id: int, names: tuple[str, ...]) -> None:
+        self._counters(servo_id).faults += 1
+        if self._faulted.get(servo_id) == names:
+            return
+        self._faulted[servo_id] = names
+        self._log.warning("servo_fault", servo_id=servo_id, faults=list(names))
+        self.emit("servo_fault", f"servo/{servo_id}", servo_id=servo_id, faults=list(names))
+
+    def _mark_clear(self, servo_id: int) -> None:
+        if self._faulted.pop(servo_id, None) is None:
+            return
+        self._log.info("servo_recovered", servo_id=servo_id)
+        self.emit("servo_recovered", f"servo/{servo_id}", servo_id=servo_id)
+
+    def clear_fault(self, servo_id: int) -> None:
+        """Forget a servo's fault after a recovery step, logging that it cleared."""
+        self._mark_clear(servo_id)
+
+    def faulted(self) -> dict[int, tuple[str, ...]]:
+        return dict(self._faulted)
+
+    def emit(self, kind: str, device: str, **detail: object) -> None:
+        """Report an event to the listener (recovery policies above the bus use it too)."""
+        if self._on_event is not None:
+            self._on_event(DeviceEvent(kind, device, dict(detail)))
+
+    def _io(self, call: Callable[[], T]) -> T:
+        """Run port I/O; an unplugged adapter is closed, reopened once per attempt, and else BusLost."""
+        if self._port is None:
+            self._reopen(RuntimeError("port closed"))
+        try:
+            result = call()
+        except (serial.SerialException, OSError, TypeError, AttributeError) as e:
+            # pyserial raises inside the SDK and leaves the port marked in use; TypeError/AttributeError come
+            # from the SDK touching a serial object whose file descriptor is already gone.
+            self._reopen(e)
+            try:
+                result = call()
+            except (serial.SerialException, OSError, TypeError, AttributeError) as again:
+                self._drop_port()
+                raise BusLost(
+                    f"servo bus {self.config.port} failed again after reopening: {again}",
+                    port=self.config.port,
+                ) from again
+        if self._lost:
+            self._lost = False
+            self._log.info("bus_restored")
+            self.emit("bus_restored", "bus", port=self.config.port)
+        return result
+
+    def _drop_port(self) -> None:
+        if self._port is not None:
+            self._port.is_using = False
+            with contextlib.suppress(serial.SerialException, OSError, TypeError, AttributeError):
+                self._port.closePort()
+        self._port = None
+
+    def _reopen(self, cause: BaseException) -> None:
+        if not self._lost:
+            self._lost = True
+            self._log.warning("bus_lost", error=str(cause))
+            self.emit("bus_lost", "bus", port=self.config.port, error=str(cause))
+        self._drop_port()
+        last: BaseException = cause
+        for _ in range(self.reopen_attempts):
+            try:
+                self.open()
+                return
+            except BusLost as e:
+                last = e
+                time.sleep(0.05)
+        raise BusLost(
+            f"servo bus {self.config.port} is gone ({last}); plug the USB adapter back in to reconnect",
+            port=self.config.port,
+        ) from cause

@@ -1,0 +1,72 @@
+"""Stand-ins for the physical world in driver tests (the devices themselves speak the real wire protocol)."""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import threading
+from collections.abc import Callable, Coroutine
+from typing import Any, ParamSpec
+
+from drivers.interfaces import ForceReading
+from drivers.sim.plant import FirstOrderPlant
+
+P = ParamSpec("P")
+
+
+def async_test(fn: Callable[P, Coroutine[Any, Any, None]]) -> Callable[P, None]:
+    """Run an async test body on a fresh event loop (the suite has no asyncio plugin)."""
+
+    @functools.wraps(fn)
+    def run(*args: P.args, **kwargs: P.kwargs) -> None:
+        asyncio.run(fn(*args, **kwargs))
+
+    return run
+
+
+class MugBetweenPads(FirstOrderPlant):
+    """The physical world of a grasp: a mug stops the gripper's pads at its diameter and pushes back.
+
+    The force on the pad grows with how far the servo's goal lies beyond the contact angle, as a stiff mug
+    compressing the FSR would make it; without a mug the pads close freely.
+    """
+
+    def __init__(
+        self, gripper_id: int, contact_rad: float | None, *, stiffness_n_per_rad: float = 60.0
+    ) -> None:
+        super().__init__(tau_s=0.02)
+        self.gripper_id = gripper_id
+        self.contact_rad = contact_rad
+        self.stiffness = stiffness_n_per_rad
+        self._goal_rad = 0.0
+        self._mug_lock = threading.Lock()
+
+    def set_goal(self, servo_id: int, position_rad: float, speed_rad_s: float) -> None:
+        if servo_id == self.gripper_id:
+            with self._mug_lock:
+                self._goal_rad = position_rad
+            if self.contact_rad is not None:
+                position_rad = min(position_rad, self.contact_rad)
+        super().set_goal(servo_id, position_rad, speed_rad_s)
+
+    def force_n(self) -> float:
+        with self._mug_lock:
+            if self.contact_rad is None:
+                return 0.0
+            return max(0.0, (self._goal_rad - self.contact_rad) * self.stiffness)
+
+
+class PlantForceSensor:
+    """A ForceSensor reading the stand-in world directly (the FSR wire path has its own tests)."""
+
+    def __init__(self, plant: MugBetweenPads, threshold_n: float = 1.0) -> None:
+        self.plant = plant
+        self.threshold_n = threshold_n
+        self.seq = 0
+
+    def latest(self) -> ForceReading | None:
+        self.seq += 1
+        return ForceReading(0.0, self.plant.force_n(), 0, self.seq)
+
+    def holding(self) -> bool:
+        return self.plant.force_n() >= self.threshold_n
