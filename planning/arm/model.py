@@ -220,9 +220,16 @@ class ArmModel:
             ):
                 best = result
         assert best is not None
+        assert best.q is not None
+        at_limit = [
+            f"{name} at {'lower' if abs(v - lo) < 1e-6 else 'upper'} limit"
+            for name, v, lo, hi in zip(self.joint_names, best.q, self.lower, self.upper, strict=True)
+            if abs(v - lo) < 1e-6 or abs(v - hi) < 1e-6
+        ]
         reason = (
             f"no solution within the joint limits: best residual {best.residual_m * 1000:.1f} mm, "
             f"{math.degrees(best.orientation_error_rad):.1f} deg"
+            + (f" ({', '.join(at_limit)})" if at_limit else "")
         )
         return IkResult(False, None, best.residual_m, reason, best.orientation_error_rad, total_iters)
 
