@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import select
+import termios
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -29,6 +30,9 @@ from drivers.dynamixel.tables import MODELS_BY_NUMBER, ModelSpec, model, volts_f
 from drivers.errors import BusLost, ServoFault
 
 log = structlog.get_logger("drivers.dynamixel")
+
+# What a vanished adapter raises from inside pyserial (termios.error is not an OSError).
+_PORT_ERRORS = (serial.SerialException, OSError, termios.error)
 
 _COMM_SUCCESS = 0
 _COMM_RX_TIMEOUT = -3001
@@ -446,13 +450,12 @@ class DynamixelBus:
             self._reopen(RuntimeError("port closed"))
         try:
             result = call()
-        except (serial.SerialException, OSError, TypeError, AttributeError) as e:
-            # pyserial raises inside the SDK and leaves the port marked in use; TypeError/AttributeError come
-            # from the SDK touching a serial object whose file descriptor is already gone.
+        except _PORT_ERRORS as e:
+            # pyserial raises inside the SDK and leaves the port marked in use: start from a fresh port.
             self._reopen(e)
             try:
                 result = call()
-            except (serial.SerialException, OSError, TypeError, AttributeError) as again:
+            except _PORT_ERRORS as again:
                 self._drop_port()
                 raise BusLost(
                     f"servo bus {self.config.port} failed again after reopening: {again}",
@@ -467,7 +470,7 @@ class DynamixelBus:
     def _drop_port(self) -> None:
         if self._port is not None:
             self._port.is_using = False
-            with contextlib.suppress(serial.SerialException, OSError, TypeError, AttributeError):
+            with contextlib.suppress(*_PORT_ERRORS):
                 self._port.closePort()
         self._port = None
 

@@ -37,6 +37,7 @@ class SimServo:
     spec: ModelSpec
     table: bytearray
     silent: bool = False
+    drop_next: int = 0
     corrupt_next: int = 0
     overload_repeats: int = 0  # how many more times the servo trips when it is next driven
     registered: list[tuple[int, bytes]] = field(default_factory=list)
@@ -164,11 +165,13 @@ class ServoChainSimulator:
                 return servo
         raise KeyError(f"no simulated servo with id {servo_id}")
 
-    def overload(self, servo_id: int, *, repeats: int = 0) -> None:
-        """Trip the servo's overload protection now, and ``repeats`` more times when it is driven again."""
+    def overload(self, servo_id: int, *, now: bool = True, repeats: int = 0) -> None:
+        """Trip the servo's overload protection (now, unless ``now=False``) and ``repeats`` more times, each
+        time a goal position reaches it while it is powered, as a gripper squeezing a jam would."""
         with self._lock:
             servo = self.servo(servo_id)
-            self._trip(servo)
+            if now:
+                self._trip(servo)
             servo.overload_repeats = repeats
 
     def silence(self, servo_id: int | None = None, *, on: bool = True) -> None:
@@ -178,6 +181,11 @@ class ServoChainSimulator:
                 self._silent_all = on
             else:
                 self.servo(servo_id).silent = on
+
+    def drop(self, servo_id: int, *, packets: int = 1) -> None:
+        """Swallow the servo's next ``packets`` answers: a transient 'no status packet'."""
+        with self._lock:
+            self.servo(servo_id).drop_next = packets
 
     def corrupt(self, servo_id: int, *, packets: int = 1) -> None:
         """Flip a bit in the next ``packets`` status packets of a servo, so their checksum fails."""
@@ -238,7 +246,9 @@ class ServoChainSimulator:
         if garbage:
             link.write(garbage)
         for servo, packet in replies:
-            if servo.silent:
+            dropped = servo.drop_next > 0
+            servo.drop_next -= dropped
+            if servo.silent or dropped:
                 # Daisy-chained reads wait for the previous answer; a silent servo stalls the rest.
                 if frame.code in (p.BULK_READ, p.SYNC_READ):
                     return
@@ -410,7 +420,9 @@ class ServoChainSimulator:
             servo.table[:] = saved
             return self._range_error()
         if self.protocol == 1 and "torque_limit" in written and servo.get("torque_limit") > 0:
-            # Restoring the torque limit clears a latched overload on the 1.0 servos.
+            # Restoring the torque limit clears a latched overload on the 1.0 servos and powers them again.
+            if servo.hardware_error & faults.bits_for(1, ("overload",)) and servo.get("torque_enable"):
+                self.plant.set_torque(servo.servo_id, True)
             servo.hardware_error &= ~faults.bits_for(1, ("overload",))
         if "torque_enable" in written:
             on = bool(servo.get("torque_enable"))
@@ -438,11 +450,13 @@ class ServoChainSimulator:
         return 0
 
     def _trip(self, servo: SimServo) -> None:
-        """Overload shutdown: torque off; 1.0 also drops the torque limit to 0 until it is rewritten."""
+        """Overload shutdown: 1.0 drops the torque limit to 0 until it is rewritten, 2.0 clears Torque Enable
+        and refuses it until a reboot."""
         servo.hardware_error |= faults.bits_for(self.protocol, ("overload",))
-        servo.set("torque_enable", 0)
         if self.protocol == 1:
             servo.set("torque_limit", 0)
+        else:
+            servo.set("torque_enable", 0)
         self.plant.set_torque(servo.servo_id, False)
         log.info("sim_overload", servo_id=servo.servo_id)
 

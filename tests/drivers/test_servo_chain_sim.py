@@ -82,8 +82,9 @@ def test_protocol_1_overload_latches_the_error_bit_and_zeroes_the_torque_limit()
         packets = PacketHandler(1.0)
         sim.overload(6)
         assert packets.read2ByteTxRx(port, 6, 34) == (0, COMM_SUCCESS, 0x20)
+        assert packets.read2ByteTxRx(port, 6, 34) == (0, COMM_SUCCESS, 0x20)
         assert packets.write2ByteTxRx(port, 6, 34, 1023) == (COMM_SUCCESS, 0)
-        assert packets.read1ByteTxRx(port, 6, 24) == (0, COMM_SUCCESS, 0)
+        assert packets.read2ByteTxRx(port, 6, 34) == (1023, COMM_SUCCESS, 0)
         port.closePort()
 
 
