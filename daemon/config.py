@@ -115,6 +115,7 @@ class GraspConfig:
 
     force_threshold_n: float
     min_aperture_m: float
+    max_attempts: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -320,6 +321,7 @@ def _grasp(s: _Section) -> GraspConfig:
     cfg = GraspConfig(
         force_threshold_n=s.number("force_threshold_n", 0.1, 50.0),
         min_aperture_m=s.number("min_aperture_m", 0.0, 0.2),
+        max_attempts=s.integer("max_attempts", 1, 10),
     )
     s.finish()
     return cfg

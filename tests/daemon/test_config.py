@@ -78,7 +78,7 @@ BAD: list[tuple[dict[str, Any], str]] = [
     ),
     (
         {"grasp": {"forse": 1.0}},
-        "grasp.forse: unknown key in grasp (known keys: force_threshold_n, min_aperture_m)",
+        "grasp.forse: unknown key in grasp (known keys: force_threshold_n, max_attempts, min_aperture_m)",
     ),
     ({"camera": {"position_m": [1.0, 0.0]}}, "camera.position_m: expected 3 values, got 2"),
     ({"camera": {"calibration_file": 3}}, "camera.calibration_file: expected a string, got 3"),

@@ -1,0 +1,221 @@
+"""Stand-ins for the physical world in job tests: a counter of mugs, an arm that takes time to move, a gripper
+whose grasps can be made to fail, a force sensor whose mug can be made to drop, and a motion planner test
+double whose trajectories name the mug and phase they belong to."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from daemon.backend import Backend, Tray
+from drivers.errors import BusLost
+from drivers.interfaces import ForceReading, GraspResult, GripperState, JointState, JointTrajectory
+from perception.interfaces import Detection, Observation
+from planning.interfaces import CyclePlan, MotionRefused, MugPose, Step, StepKind, TraySlot
+from statechart.chart import CYCLE_PHASES
+
+NAMES = ("j1", "j2", "j3", "j4", "j5")
+MOVE_S = 0.004  # each planned move takes this long
+
+
+@dataclass
+class FakeWorld:
+    counter: dict[str, Detection]
+    held: str | None = None
+    loose: str | None = None
+    placed: list[str] = field(default_factory=list)
+    target: str | None = None
+    fail_grasps: int = 0
+    always_fail: set[str] = field(default_factory=set)
+    drop_in_phase: str | None = None
+    bus_lost_in_phase: str | None = None
+    phase: str = ""
+    q: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    log: list[str] = field(default_factory=list)
+    original: dict[str, Detection] = field(default_factory=dict)
+    hold_in_phase: str | None = None
+    holding_still: asyncio.Event = field(default_factory=asyncio.Event)
+
+    def __post_init__(self) -> None:
+        self.original = dict(self.counter)
+
+
+class FakeArm:
+    joint_names = NAMES
+
+    def __init__(self, world: FakeWorld) -> None:
+        self.w = world
+
+    async def read_joints(self) -> JointState:
+        q = tuple(float(v) for v in self.w.q)
+        return JointState(0.0, NAMES, q, (0.0,) * 5, (0.0,) * 5)
+
+    async def follow(self, trajectory: JointTrajectory) -> None:
+        self.w.phase = trajectory.label
+        self.w.log.append(f"follow:{trajectory.label}")
+        n = len(trajectory.times)
+        for i in range(n):
+            if self.w.bus_lost_in_phase and trajectory.label.startswith(self.w.bus_lost_in_phase):
+                raise BusLost("bus on /dev/fake is gone", port="/dev/fake")
+            if self.w.drop_in_phase and trajectory.label.startswith(self.w.drop_in_phase) and i == n // 2:
+                self.w.drop_in_phase = None
+                self.w.counter[self.w.held or ""] = self.w.original[self.w.held or ""]
+                self.w.held = None
+            self.w.q = np.array(trajectory.positions[i], dtype=np.float64)
+            if self.w.hold_in_phase and trajectory.label.startswith(self.w.hold_in_phase) and i == n // 2:
+                self.w.hold_in_phase = None
+                self.w.holding_still.set()
+                await asyncio.Event().wait()  # until cancelled
+            await asyncio.sleep(MOVE_S / n)
+
+    async def stop(self) -> None:
+        self.w.log.append("arm.stop")
+
+    async def relax(self) -> None:
+        self.w.log.append("arm.relax")
+
+
+class FakeGripper:
+    def __init__(self, world: FakeWorld) -> None:
+        self.w = world
+
+    async def read(self) -> GripperState:
+        return GripperState(0.0, 0.05 if self.w.held else 0.12, 0.0)
+
+    async def open(self) -> None:
+        self.w.log.append(f"open:{self.w.phase}")
+        await asyncio.sleep(0.001)
+        if self.w.held is not None:
+            if self.w.phase.startswith("place"):
+                self.w.placed.append(self.w.held)
+            else:
+                self.w.loose = self.w.held
+            self.w.held = None
+
+    async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
+        self.w.log.append(f"close:{self.w.phase}")
+        await asyncio.sleep(0.001)
+        mug = self.w.loose or self.w.target
+        if mug is None or self.w.fail_grasps > 0 or mug in self.w.always_fail:
+            self.w.fail_grasps = max(0, self.w.fail_grasps - 1)
+            return GraspResult(False, 0.0, min_aperture_m, "closed on nothing")
+        self.w.held, self.w.loose = mug, None
+        self.w.counter.pop(mug, None)
+        return GraspResult(True, force_threshold_n + 1.0, 0.07)
+
+    async def stop(self) -> None:
+        self.w.log.append("gripper.stop")
+
+
+class FakeForce:
+    def __init__(self, world: FakeWorld) -> None:
+        self.w = world
+
+    def latest(self) -> ForceReading | None:
+        return ForceReading(0.0, 3.0 if self.w.held else 0.0, 0, 0)
+
+    def holding(self) -> bool:
+        return self.w.held is not None
+
+
+class FakeObserver:
+    def __init__(self, world: FakeWorld) -> None:
+        self.w = world
+
+    async def observe(self) -> Observation:
+        await asyncio.sleep(0)
+        seen = [d for k, d in self.w.counter.items() if k != self.w.held]
+        return Observation(0.0, tuple(Detection(d.type, d.x_m, d.y_m, False, 0.0, 0.9) for d in seen))
+
+
+class FakeMotion:
+    """A motion planner test double: one short joint move per manipulation phase, a CLOSE at each close
+    phase, an OPEN at each release phase. ``refuse`` lists mug ids it cannot reach."""
+
+    def __init__(self, world: FakeWorld, refuse: Sequence[str] = ()) -> None:
+        self.w = world
+        self.refuse = set(refuse)
+        self.bridges: list[str] = []
+
+    def plan_cycle(
+        self, start_q: Sequence[float], mug: MugPose, slot: TraySlot, on_tray: Sequence[TraySlot]
+    ) -> CyclePlan:
+        true_id = min(
+            self.w.counter,
+            key=lambda k: math.hypot(self.w.counter[k].x_m - mug.x_m, self.w.counter[k].y_m - mug.y_m),
+        )
+        if true_id in self.refuse:
+            raise MotionRefused(f"{mug.mug_id} at ({mug.x_m:.3f}, {mug.y_m:.3f}) is out of reach")
+        self.w.target = true_id
+        steps = []
+        q = np.asarray(start_q, dtype=np.float64)
+        for k, phase in enumerate(CYCLE_PHASES):
+            leaf = phase.split(".")[1]
+            if leaf == "close":
+                steps.append(Step(phase, StepKind.CLOSE))
+            elif leaf == "release":
+                steps.append(Step(phase, StepKind.OPEN))
+            elif leaf != "verify":
+                goal = np.full(5, 0.1 * (k % 7))
+                steps.append(Step(phase, StepKind.MOVE, self._line(q, goal, label=f"{phase}:{mug.mug_id}")))
+                q = goal
+        return CyclePlan(mug.mug_id, tuple(steps), duration_s=1.0, energy_j=1.0)
+
+    def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
+        self.bridges.append(label)
+        return self._line(np.asarray(start_q), np.asarray(goal_q), label=label)
+
+    @staticmethod
+    def _line(a: np.ndarray, b: np.ndarray, *, label: str) -> JointTrajectory:
+        s = np.linspace(0.0, 1.0, 20)
+        return JointTrajectory(NAMES, s * 0.1, a + np.outer(s, b - a), label=label)
+
+
+def nearest_association(known: Sequence[Detection], seen: Sequence[Detection]) -> list[Detection]:
+    """Association test double: a seen mug is the known mug of its type within 3 cm."""
+    out = []
+    free = list(known)
+    for d in seen:
+        match = min(
+            (k for k in free if k.type == d.type and math.hypot(k.x_m - d.x_m, k.y_m - d.y_m) < 0.03),
+            key=lambda k: math.hypot(k.x_m - d.x_m, k.y_m - d.y_m),
+            default=None,
+        )
+        if match is not None:
+            free.remove(match)
+        out.append(
+            Detection(
+                d.type,
+                d.x_m,
+                d.y_m,
+                d.upside_down,
+                d.handle_yaw_rad,
+                d.confidence,
+                match.mug_id if match else "",
+            )
+        )
+    return out
+
+
+def make_world(n: int = 3) -> FakeWorld:
+    counter = {
+        f"true{i}": Detection("big" if i % 2 else "small", -0.1 * i, 0.3 + 0.01 * i, False, 0.0, 1.0)
+        for i in range(n)
+    }
+    return FakeWorld(counter=counter)
+
+
+def make_backend(world: FakeWorld, *, refuse: Sequence[str] = ()) -> Backend:
+    return Backend(
+        name="fake",
+        arm=FakeArm(world),
+        gripper=FakeGripper(world),
+        force=FakeForce(world),
+        observer=FakeObserver(world),
+        motion=FakeMotion(world, refuse),
+        tray=Tray(origin_m=(0.15, -0.187), size_mm=(332, 374)),
+    )

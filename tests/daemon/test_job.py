@@ -1,0 +1,243 @@
+"""The job runner on stand-ins for the world: whole jobs, lost mugs, pause/resume, stop, estop, faults."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Awaitable, Callable, Mapping
+from typing import Any
+
+import pytest
+
+from daemon.config import load_config
+from daemon.job import CommandRefused, Job, StartRequest
+from tests.daemon.fakes import FakeMotion, FakeWorld, make_backend, make_world, nearest_association
+
+Published = list[tuple[str, dict[str, Any]]]
+
+
+def _job(world: FakeWorld, *, refuse: tuple[str, ...] = ()) -> tuple[Job, Published]:
+    published: Published = []
+
+    def publish(topic: str, payload: Mapping[str, object]) -> None:
+        published.append((topic, dict(payload)))
+
+    config = load_config(overrides={"planner": {"method": "bh", "time_limit_s": 0.2}})
+    return Job(make_backend(world, refuse=refuse), config, publish, nearest_association), published
+
+
+def _run(world: FakeWorld, scenario: Callable[[Job], Awaitable[None]], **kw: Any) -> tuple[Job, Published]:
+    job, published = _job(world, **kw)
+
+    async def go() -> None:
+        control = asyncio.create_task(job.run())
+        try:
+            await asyncio.wait_for(scenario(job), timeout=20)
+        finally:
+            await job.shutdown()
+            control.cancel()
+
+    asyncio.run(go())
+    return job, published
+
+
+def _states(published: Published) -> list[str]:
+    return [p["dest"] for t, p in published if t == "events" and p["kind"] == "transition"]
+
+
+async def _until(job: Job, condition: Callable[[], bool]) -> None:
+    """Wait for a transition after which ``condition`` holds."""
+    reached = asyncio.Event()
+    job.chart.subscribe(lambda _: reached.set() if condition() else None)
+    if not condition():
+        await reached.wait()
+
+
+async def _start_and_finish(job: Job) -> None:
+    await job.command("start", StartRequest())
+    await job.finished.wait()
+
+
+def test_a_whole_job_places_every_mug_and_ends_done() -> None:
+    world = make_world(3)
+    job, published = _run(world, _start_and_finish)
+    assert job.chart.state == "done"
+    assert sorted(world.placed) == ["true0", "true1", "true2"]
+    s = job.summary
+    assert (s.detected, s.planned, s.placed, s.failed) == (3, 3, 3, 0)
+    states = _states(published)
+    assert states[:4] == ["detect", "plan", "side_grasp.approach", "side_grasp.close"]
+    assert states.count("detect") == 4  # once at the start and once after each mug
+    assert states[-2:] == ["detect", "done"]
+    plan = next(p for t, p in published if t == "plan")
+    assert len(plan["slots"]) == 3
+    final = [p for t, p in published if t == "state"][-1]
+    assert (final["state"], final["mugs_placed"], final["mugs_total"]) == ("done", 3, 3)
+
+
+def test_a_failed_grasp_recovers_the_mug_and_grasps_it_again() -> None:
+    world = make_world(2)
+    world.fail_grasps = 1
+    job, published = _run(world, _start_and_finish)
+    states = _states(published)
+    i = states.index("recover_lost_mug")
+    assert states[i - 1] == "side_grasp.verify"
+    assert states[i + 1] == "side_grasp.approach"
+    assert (job.summary.placed, job.summary.grasp_failures, job.summary.failed) == (2, 1, 0)
+
+
+def test_a_mug_that_never_holds_is_left_after_the_configured_attempts_and_the_rest_replanned() -> None:
+    world = make_world(3)
+    world.always_fail = {"true1"}
+    job, published = _run(world, _start_and_finish)
+    assert job.chart.state == "done"
+    assert job.summary.failed == 1
+    assert job.summary.grasp_failures == 3  # grasp.max_attempts
+    assert sorted(world.placed) == ["true0", "true2"]
+    given_up = [p for t, p in published if t == "events" and p["kind"] == "mug_given_up"]
+    assert [g["reason"] for g in given_up] == ["given up after 3 attempts"]
+    states = _states(published)
+    last = len(states) - 1 - states[::-1].index("recover_lost_mug")
+    assert states[last + 1] == "plan"  # the rest is replanned without the mug
+
+
+def test_a_mug_dropped_while_carrying_is_detected_by_force_and_recovered() -> None:
+    world = make_world(1)
+    world.drop_in_phase = "place.transit"
+    job, published = _run(world, _start_and_finish)
+    states = _states(published)
+    i = states.index("recover_lost_mug")
+    assert states[i - 1] == "place.transit"
+    assert "arm.stop" in world.log[world.log.index("follow:place.transit:m1") :]
+    assert (job.summary.drops, job.summary.placed) == (1, 1)
+
+
+def test_a_mug_the_arm_cannot_reach_is_skipped_and_counted_failed() -> None:
+    world = make_world(3)
+    job, published = _run(world, _start_and_finish, refuse=("true2",))
+    assert sorted(world.placed) == ["true0", "true1"]
+    assert (job.summary.failed, job.chart.state) == (1, "done")
+    refused = [p for t, p in published if t == "events" and p["kind"] == "motion_refused"]
+    assert [r["reason"] for r in refused] == ["m3 at (-0.200, 0.320) is out of reach"]
+
+
+def test_pause_stops_the_arm_mid_move_and_resume_rejoins_the_move() -> None:
+    world = make_world(1)
+    world.hold_in_phase = "flip.transit"
+
+    async def scenario(job: Job) -> None:
+        await job.command("start", StartRequest())
+        await world.holding_still.wait()
+        await job.command("pause")
+        assert job.chart.state == "paused"
+        assert world.log[-2:] == ["arm.stop", "gripper.stop"]
+        moves = len([e for e in world.log if e.startswith("follow")])
+        await asyncio.sleep(0.02)
+        assert len([e for e in world.log if e.startswith("follow")]) == moves  # nothing moves while paused
+        world.q[0] += 0.05  # the arm was pushed off its path while paused
+        await job.command("resume")
+        assert job.chart.state == "flip.transit"
+        await job.finished.wait()
+
+    job, _ = _run(world, scenario)
+    motion = job.backend.motion
+    assert isinstance(motion, FakeMotion)
+    assert motion.bridges == ["flip.transit:m1:bridge"]
+    assert (job.chart.state, world.placed) == ("done", ["true0"])
+
+
+def test_stop_ends_the_job_in_idle_with_the_arm_stopped() -> None:
+    world = make_world(2)
+
+    async def scenario(job: Job) -> None:
+        await job.command("start", StartRequest())
+        await _until(job, lambda: job.chart.state.startswith("side_grasp"))
+        await job.command("stop")
+        assert job.chart.state == "idle"
+        assert "arm.stop" in world.log
+        assert job.finished.is_set()
+
+    _run(world, scenario)
+
+
+def test_estop_stops_then_relaxes_the_arm_and_only_reset_leaves() -> None:
+    world = make_world(2)
+
+    async def scenario(job: Job) -> None:
+        await job.command("start", StartRequest())
+        await _until(job, lambda: job.chart.state.startswith("flip"))
+        await job.command("estop")
+        tail = world.log[-3:]
+        assert tail == ["arm.stop", "gripper.stop", "arm.relax"]
+        for verb in ("start", "resume", "pause", "stop"):
+            with pytest.raises(CommandRefused, match=f"^cannot {verb} in state estop$"):
+                await job.command(verb)
+        await job.command("reset")
+        assert job.chart.state == "idle"
+
+    _run(world, scenario)
+
+
+def test_a_lost_bus_during_a_move_enters_fault_with_the_reason() -> None:
+    world = make_world(1)
+    world.bus_lost_in_phase = "side_grasp.lift"
+
+    async def scenario(job: Job) -> None:
+        await job.command("start", StartRequest())
+        await job.finished.wait()
+        assert job.chart.state == "fault"
+        with pytest.raises(CommandRefused, match=r"^cannot start in state fault$"):
+            await job.command("start")
+        world.bus_lost_in_phase = None
+        await job.command("reset")
+        assert job.chart.state == "idle"
+
+    _, published = _run(world, scenario)
+    faults = [p for t, p in published if t == "events" and p["kind"] == "fault"]
+    assert faults[0]["reason"] == "BusLost: bus on /dev/fake is gone"
+
+
+def test_a_telemetry_fault_while_idle_enters_fault() -> None:
+    async def scenario(job: Job) -> None:
+        await job.fault("SensorFault: FSR stream stopped on /dev/ttyACM0")
+        assert job.chart.state == "fault"
+
+    _, published = _run(make_world(1), scenario)
+    assert [p["dest"] for t, p in published if t == "events" and p["kind"] == "transition"] == ["fault"]
+
+
+def test_commands_not_allowed_in_the_current_state_are_refused_and_change_nothing() -> None:
+    async def scenario(job: Job) -> None:
+        for verb in ("pause", "resume", "stop", "reset"):
+            with pytest.raises(CommandRefused, match=f"^cannot {verb} in state idle$"):
+                await job.command(verb)
+        assert job.chart.state == "idle"
+
+    _, published = _run(make_world(1), scenario)
+    assert published == []
+
+
+def test_setting_up_a_counter_on_a_backend_without_one_is_refused() -> None:
+    async def scenario(job: Job) -> None:
+        with pytest.raises(CommandRefused, match=r"^dataset and mugs set up a simulated counter"):
+            await job.command("start", StartRequest(dataset=1))
+        assert job.chart.state == "idle"
+
+    _run(make_world(1), scenario)
+
+
+def test_a_mug_added_to_the_counter_during_the_job_is_planned_and_placed() -> None:
+    world = make_world(2)
+
+    async def scenario(job: Job) -> None:
+        await job.command("start", StartRequest())
+        await _until(job, lambda: job.summary.placed >= 1)
+        extra = world.original["true0"]
+        world.counter["extra"] = type(extra)("small", -0.35, 0.45, False, 0.0, 1.0)
+        world.original["extra"] = world.counter["extra"]
+        await job.finished.wait()
+
+    _, published = _run(world, scenario)
+    assert sorted(world.placed) == ["extra", "true0", "true1"]
+    changed = [p for t, p in published if t == "events" and p["kind"] == "counter_changed"]
+    assert [c["came"] for c in changed] == [["m3"]]
+    assert len([p for t, p in published if t == "plan"]) == 2
