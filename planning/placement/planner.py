@@ -152,6 +152,11 @@ class Context:
         self.started = time.perf_counter()
         self._packers: dict[Heuristic, Packer] = {}
         self.evaluations = 0
+        # When set (by ``auto``), iterative optimisers stop at this ``time.perf_counter()`` instant.
+        self.deadline: float | None = None
+
+    def out_of_time(self) -> bool:
+        return self.deadline is not None and time.perf_counter() > self.deadline
 
     def packer(self, heuristic: Heuristic | None = None) -> Packer:
         h = heuristic or self.heuristic
@@ -179,8 +184,9 @@ def plan(problem: Problem, options: PlanOptions = PlanOptions()) -> PlanResult:
         raise InvalidProblem(f"method: unknown method {options.method!r} (known: {', '.join(METHODS)})")
     if not options.time_limit_s > 0:
         raise InvalidProblem(f"time_limit_s: must be positive, got {options.time_limit_s}")
+    method = _method(options.method)  # imported before the clock starts: a one-off cost per process
     ctx = Context(problem, options)
-    candidate = _method(options.method)(ctx)
+    candidate = method(ctx)
     result = _result(ctx, candidate)
     log.info(
         "placement_planned",

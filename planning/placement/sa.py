@@ -40,7 +40,7 @@ def run(ctx: Context) -> Candidate:
             current, m_current = new, m_new
         if m_new.n > m_most.n or (m_new.n == m_most.n and fitness.better(m_new, m_most)):
             most, m_most = new, m_new
-        if m_current.n == n_total:
+        if m_current.n == n_total or ctx.out_of_time():
             break
         temperature *= params.cooling_rate
     return Candidate.of(most if _fewer(m_best, m_most) else best)

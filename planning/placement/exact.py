@@ -1,0 +1,283 @@
+"""``exact``: the largest number of mugs that fit, proven with OR-Tools CP-SAT, then the largest covered area.
+
+Any packing can be pushed left and down until every footprint touches the tray edge, a mug already on the
+tray, or another footprint on both its low sides; its corners then lie on "normal patterns": an edge (0 or a
+fixed mug's far edge) plus a sum of footprint extents (Herz 1972; Christofides and Whitlock 1977). So a model
+that chooses footprints on normal-pattern corners loses no packing. Two chosen footprints overlap exactly when
+both cover the corner point (max x, max y) of their overlap, which is itself a normal-pattern point, so one
+"at most one footprint covers this point" constraint per point makes the set-packing model exact.
+
+Phase 1 maximises the number of mugs (and proves it); phase 2 keeps that number and maximises the covered
+area (the ranking fitness's next criterion). Which counter mug takes which chosen spot is then an assignment
+problem per mug type, solved exactly for the move energy (then time). Every solve is single-threaded and
+seeded, so a run is deterministic for a seed when the solver finishes within its time limit.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+from ortools.sat.python import cp_model
+from scipy.optimize import linear_sum_assignment
+
+from planning.placement.order import execution_order
+from planning.placement.planner import Candidate, Context, Layout
+from planning.placement.problem import Problem
+
+# Beyond this many (choice, covered point) pairs the set-packing model takes longer to build than to solve.
+_MAX_POINT_MODEL_SIZE = 100_000
+
+
+@dataclass(frozen=True, slots=True)
+class _Shape:
+    type: str
+    rotated: bool
+    fx: int
+    fy: int
+
+
+@dataclass(frozen=True)
+class ExactOutcome:
+    """The chosen spots [(type, x, y, rotated)], whether n is proven largest, and the proven bound on n."""
+
+    spots: tuple[tuple[str, int, int, bool], ...]
+    optimal: bool
+    upper_bound: int
+    status: str
+
+
+def run(ctx: Context) -> Candidate:
+    outcome = solve(
+        ctx.problem, time_limit_s=max(ctx.options.time_limit_s - ctx.elapsed(), 0.05), seed=ctx.options.seed
+    )
+    return Candidate(
+        assign(ctx, outcome.spots),
+        optimal=outcome.optimal,
+        upper_bound=outcome.upper_bound,
+        status=outcome.status,
+    )
+
+
+def normal_patterns(edges: Iterable[int], extents: Iterable[int], limit: int) -> list[int]:
+    """Every edge + (non-negative integer combination of extents) that is at most ``limit``."""
+    reach = [False] * (limit + 1)
+    for e in edges:
+        if 0 <= e <= limit:
+            reach[e] = True
+    sizes = sorted(set(extents))
+    for v in range(limit + 1):
+        if reach[v]:
+            for s in sizes:
+                if v + s <= limit:
+                    reach[v + s] = True
+    return [v for v in range(limit + 1) if reach[v]]
+
+
+def solve(problem: Problem, *, time_limit_s: float, seed: int = 0) -> ExactOutcome:
+    """Place as many counter mugs as possible around the mugs already on the tray; see the module doc."""
+    tx, ty = problem.tray_size_mm
+    counts: dict[str, int] = defaultdict(int)
+    for m in problem.mugs:
+        counts[m.type] += 1
+    rotations = (False, True) if problem.allow_rotation else (False,)
+    shapes = [
+        _Shape(t, r, *problem.footprint(t, r))
+        for t in sorted(counts)
+        for r in rotations
+        if problem.footprint(t, r)[0] <= tx and problem.footprint(t, r)[1] <= ty
+    ]
+    if not shapes:
+        return ExactOutcome((), True, 0, "optimal")
+    fixed = [(q.x_mm, q.y_mm, *problem.footprint(q.type, q.rotated)) for q in problem.placed]
+    xs = normal_patterns([0, *(x + fx for x, _, fx, _ in fixed)], [s.fx for s in shapes], tx)
+    ys = normal_patterns([0, *(y + fy for _, y, _, fy in fixed)], [s.fy for s in shapes], ty)
+
+    if _point_model_size(shapes, xs, ys, tx, ty) <= _MAX_POINT_MODEL_SIZE:
+        return _solve_points(problem, shapes, counts, fixed, xs, ys, time_limit_s=time_limit_s, seed=seed)
+    return _solve_boxes(problem, shapes, counts, fixed, xs, ys, time_limit_s=time_limit_s, seed=seed)
+
+
+def _point_model_size(shapes: list[_Shape], xs: list[int], ys: list[int], tx: int, ty: int) -> int:
+    """How many (choice, covered point) pairs the set-packing model would hold."""
+    ax, ay = np.array(xs), np.array(ys)
+    total = 0
+    for s in shapes:
+        cx, cy = ax[ax + s.fx <= tx], ay[ay + s.fy <= ty]
+        per_x = np.searchsorted(ax, cx + s.fx) - np.searchsorted(ax, cx)
+        per_y = np.searchsorted(ay, cy + s.fy) - np.searchsorted(ay, cy)
+        total += int(per_x.sum()) * int(per_y.sum())
+    return total
+
+
+def _solver(time_limit_s: float, seed: int) -> cp_model.CpSolver:
+    solver = cp_model.CpSolver()
+    solver.parameters.num_workers = 1
+    solver.parameters.random_seed = seed
+    solver.parameters.max_time_in_seconds = max(time_limit_s, 0.01)
+    return solver
+
+
+def _solve_points(
+    problem: Problem,
+    shapes: list[_Shape],
+    counts: dict[str, int],
+    fixed: list[tuple[int, int, int, int]],
+    xs: list[int],
+    ys: list[int],
+    *,
+    time_limit_s: float,
+    seed: int,
+) -> ExactOutcome:
+    """The set-packing model over normal-pattern corners (see the module doc)."""
+    tx, ty = problem.tray_size_mm
+    model = cp_model.CpModel()
+    choices: list[tuple[_Shape, int, int, cp_model.IntVar]] = []
+    for s in shapes:
+        for x in xs:
+            if x + s.fx > tx:
+                break
+            for y in ys:
+                if y + s.fy > ty:
+                    break
+                if any(_overlap((x, y, s.fx, s.fy), f) for f in fixed):
+                    continue
+                choices.append((s, x, y, model.new_bool_var(f"{s.type}{'r' if s.rotated else ''}_{x}_{y}")))
+    covering: dict[tuple[int, int], list[cp_model.IntVar]] = defaultdict(list)
+    x_index = np.array(xs)
+    y_index = np.array(ys)
+    for s, x, y, var in choices:
+        for px in x_index[(x_index >= x) & (x_index < x + s.fx)]:
+            for py in y_index[(y_index >= y) & (y_index < y + s.fy)]:
+                covering[(int(px), int(py))].append(var)
+    for group in covering.values():
+        if len(group) > 1:
+            model.add_at_most_one(group)
+    for t, c in counts.items():
+        model.add(sum(v for s, _, _, v in choices if s.type == t) <= c)
+    n_expr = sum(v for *_, v in choices)
+    model.maximize(n_expr)
+
+    solver = _solver(time_limit_s, seed)
+    status = solver.solve(model)
+    if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+        return ExactOutcome((), False, _area_bound(problem, counts), "unknown")
+    n_best = round(solver.objective_value)
+    proven = status == cp_model.OPTIMAL
+    bound = (
+        n_best
+        if proven
+        else min(math.floor(solver.best_objective_bound + 1e-6), _area_bound(problem, counts))
+    )
+    chosen = [(s, x, y) for s, x, y, v in choices if solver.value(v)]
+
+    # Phase 2: the same number of mugs, as much covered area as possible (bigger mugs first).
+    remaining = time_limit_s - solver.wall_time
+    if proven and remaining > 0.01:
+        model.add(n_expr == n_best)
+        model.maximize(sum(s.fx * s.fy * v for s, _, _, v in choices))
+        for s, x, y, v in choices:
+            model.add_hint(v, (s, x, y) in chosen)
+        solver = _solver(remaining, seed)
+        if solver.solve(model) in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+            chosen = [(s, x, y) for s, x, y, v in choices if solver.value(v)]
+    spots = tuple((s.type, x, y, s.rotated) for s, x, y in chosen)
+    return ExactOutcome(spots, proven, bound, "optimal" if proven else "feasible")
+
+
+def _solve_boxes(
+    problem: Problem,
+    shapes: list[_Shape],
+    counts: dict[str, int],
+    fixed: list[tuple[int, int, int, int]],
+    xs: list[int],
+    ys: list[int],
+    *,
+    time_limit_s: float,
+    seed: int,
+) -> ExactOutcome:
+    """For instances whose point model is too big (rotation multiplies the normal patterns): one optional box
+    per counter mug and orientation under CP-SAT's 2D no-overlap, corners restricted to normal patterns."""
+    tx, ty = problem.tray_size_mm
+    model = cp_model.CpModel()
+    x_boxes, y_boxes = [], []
+    for x, y, fx, fy in fixed:
+        x_boxes.append(model.new_fixed_size_interval_var(x, fx, "fixed_x"))
+        y_boxes.append(model.new_fixed_size_interval_var(y, fy, "fixed_y"))
+    placed_terms = []
+    slots: list[tuple[_Shape, cp_model.IntVar, cp_model.IntVar, cp_model.IntVar]] = []
+    for t in sorted(counts):
+        previous: cp_model.IntVar | None = None
+        for k in range(counts[t]):
+            present = model.new_bool_var(f"{t}{k}")
+            options = []
+            for s in (s for s in shapes if s.type == t):
+                lit = model.new_bool_var(f"{t}{k}_{'r' if s.rotated else 'u'}")
+                x_var = model.new_int_var_from_domain(
+                    cp_model.Domain.from_values([v for v in xs if v + s.fx <= tx]), f"x_{t}{k}{s.rotated}"
+                )
+                y_var = model.new_int_var_from_domain(
+                    cp_model.Domain.from_values([v for v in ys if v + s.fy <= ty]), f"y_{t}{k}{s.rotated}"
+                )
+                x_boxes.append(model.new_optional_fixed_size_interval_var(x_var, s.fx, lit, "bx"))
+                y_boxes.append(model.new_optional_fixed_size_interval_var(y_var, s.fy, lit, "by"))
+                options.append(lit)
+                slots.append((s, x_var, y_var, lit))
+            model.add(sum(options) == present)
+            if previous is not None:
+                model.add_implication(present, previous)  # identical mugs: fill slots in order
+            previous = present
+            placed_terms.append(present)
+    model.add_no_overlap_2d(x_boxes, y_boxes)
+    model.maximize(sum(placed_terms))
+    solver = _solver(time_limit_s, seed)
+    status = solver.solve(model)
+    area_bound = _area_bound(problem, counts)
+    if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+        return ExactOutcome((), False, area_bound, "unknown")
+    proven = status == cp_model.OPTIMAL
+    n_best = round(solver.objective_value)
+    bound = n_best if proven else min(math.floor(solver.best_objective_bound + 1e-6), area_bound)
+    spots = tuple(
+        (s.type, solver.value(x), solver.value(y), s.rotated) for s, x, y, lit in slots if solver.value(lit)
+    )
+    return ExactOutcome(spots, proven, bound, "optimal" if proven else "feasible")
+
+
+def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
+    return a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]
+
+
+def _area_bound(problem: Problem, counts: dict[str, int]) -> int:
+    """How many mugs the free tray area could hold at most, smallest footprints first."""
+    free = problem.tray_size_mm[0] * problem.tray_size_mm[1]
+    free -= sum(math.prod(problem.footprint(q.type, q.rotated)) for q in problem.placed)
+    n = 0
+    for t in sorted(counts, key=lambda t: math.prod(problem.footprint(t))):
+        a = math.prod(problem.footprint(t))
+        take = min(counts[t], max(free, 0) // a)
+        n += take
+        free -= take * a
+    return n
+
+
+def assign(ctx: Context, spots: Iterable[tuple[str, int, int, bool]]) -> Layout:
+    """Which counter mug goes to which spot: per type, the assignment with the least move energy (then
+    time). The layout comes in placing order, so its sortedness is that of the order the arm follows."""
+    by_type: dict[str, list[tuple[int, int, bool]]] = defaultdict(list)
+    for t, x, y, r in spots:
+        by_type[t].append((x, y, r))
+    layout = []
+    ev = ctx.evaluator
+    for t, places in sorted(by_type.items()):
+        mugs = [i for i, m in enumerate(ctx.problem.mugs) if m.type == t]
+        cost = np.array([[ev.move(i, *pl)[1] + 1e-6 * ev.move(i, *pl)[0] for pl in places] for i in mugs])
+        rows, cols = linear_sum_assignment(cost)
+        layout += [(mugs[r], *places[c]) for r, c in zip(rows, cols, strict=True)]
+    p = ctx.problem
+    by_mug = {e[0]: e for e in layout}
+    order = execution_order([(m, x, y, *p.footprint(p.mugs[m].type, r)) for m, x, y, r in layout])
+    return tuple(by_mug[m] for m in order)
