@@ -4,8 +4,10 @@ A session is one MCAP file with one JSON channel per topic (the topic is the Zen
 channel carries a JSON Schema derived from its first message, so generic MCAP tools can lay the fields out.
 
 Writing happens on a background thread fed by a bounded queue: ``Recorder.write`` only serialises the
-payload and enqueues it, so the daemon's event loop never waits for the disk. When the queue is full the
-message is dropped and counted (``Recorder.stats().dropped``) rather than stalling the robot. Chunks are
+payload and appends it, so the daemon's event loop never waits for the disk; the thread wakes every
+``drain_interval_s`` and writes the batch (one wake-up per batch keeps GIL hand-offs with the loop rare).
+When the queue is full the message is dropped and counted (``Recorder.stats().dropped``) rather than
+stalling the robot. Chunks are
 small and the file is flushed after every chunk and at least every ``flush_interval_s``, so a crash or a
 ``kill -9`` loses only the last fraction of a second.
 
@@ -16,12 +18,12 @@ are read the same way, so there is one code path for both.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import io
 import json
 import mmap
 import os
-import queue
 import struct
 import threading
 import time
@@ -54,12 +56,12 @@ _RECORD_PREFIX = struct.Struct("<BQ")  # opcode, record length
 
 @dataclass(frozen=True, slots=True)
 class RecorderStats:
-    """What a recorder has done so far: messages on disk, messages lost, bytes handed to the OS."""
+    """What a recorder has done so far; after ``close`` every accepted message is written or dropped."""
 
-    written: int
-    dropped: int
-    bytes_written: int
-    queued: int
+    written: int  # messages in the file (handed to the OS)
+    dropped: int  # messages lost (queue full) or not confirmed in the file (the disk failed)
+    bytes_written: int  # size of the file
+    queued: int  # accepted, not yet in the file (in the queue or the open chunk)
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,9 +70,6 @@ class _Item:
     log_time_ns: int
     data: bytes
     flush_now: bool = False
-
-
-_CLOSE: Final = object()
 
 
 class Recorder:
@@ -90,6 +89,7 @@ class Recorder:
         compression: str | None = None,
         flush_interval_s: float = 0.5,
         queue_size: int = 8192,
+        drain_interval_s: float = 0.05,
     ) -> None:
         if compression not in COMPRESSIONS:
             raise RecordingError(
@@ -99,6 +99,10 @@ class Recorder:
             raise RecordingError(f"recording chunk_size {chunk_size} is too small; use at least 1024 bytes")
         if not 0.0 < flush_interval_s <= 10.0:
             raise RecordingError(f"recording flush_interval_s {flush_interval_s} is out of range (0, 10] s")
+        if not 0.0 < drain_interval_s <= flush_interval_s:
+            raise RecordingError(
+                f"recording drain_interval_s {drain_interval_s} is out of range (0, flush_interval_s]"
+            )
         if queue_size < 1:
             raise RecordingError(f"recording queue_size {queue_size} must be at least 1")
         self.path = Path(path)
@@ -112,11 +116,15 @@ class Recorder:
         self._writer.start(profile=PROFILE, library="dishbot")
         self._file.flush()
         self._flush_interval_s = flush_interval_s
-        self._queue: queue.Queue[_Item | object] = queue.Queue(maxsize=queue_size)
+        self._drain_interval_s = drain_interval_s
+        self._queue_size = queue_size
+        self._pending: collections.deque[_Item] = collections.deque()
+        self._wake = threading.Event()
         self._lock = threading.Lock()
         self._closed = False
         self._header_written = False
         self._written = 0
+        self._unflushed = 0  # messages given to the MCAP writer but not yet to the OS (writer thread only)
         self._dropped = 0
         self.failure: BaseException | None = None
         self._sequence: dict[int, int] = {}
@@ -161,7 +169,7 @@ class Recorder:
                 written=self._written,
                 dropped=self._dropped,
                 bytes_written=self._bytes_on_disk(),
-                queued=self._queue.qsize(),
+                queued=len(self._pending) + self._unflushed,
             )
 
     def close(self) -> RecorderStats:
@@ -169,8 +177,7 @@ class Recorder:
         with self._lock:
             already = self._closed
             self._closed = True
-        if not already:
-            self._queue.put(_CLOSE)
+        self._wake.set()
         self._thread.join()
         stats = self.stats()
         if not already:
@@ -205,13 +212,14 @@ class Recorder:
             if self.failure is not None:
                 self._dropped += 1
                 return False
-            try:
-                self._queue.put_nowait(_Item(topic, log_time_ns, data, flush_now))
-            except queue.Full:
+            if len(self._pending) >= self._queue_size:
                 self._dropped += 1
                 if self._dropped == 1 or self._dropped % 1000 == 0:
                     log.warning("recording_queue_full", path=str(self.path), dropped=self._dropped)
                 return False
+            self._pending.append(_Item(topic, log_time_ns, data, flush_now))
+        if flush_now:
+            self._wake.set()
         return True
 
     def _bytes_on_disk(self) -> int:
@@ -221,32 +229,46 @@ class Recorder:
             return 0
 
     def _run(self) -> None:
+        """Write pending messages in batches, one wake-up per ``drain_interval_s`` rather than per message."""
         channel_ids: dict[str, int] = {}
         last_flush = time.monotonic()
         dirty = False
         while True:
-            timeout = max(0.0, last_flush + self._flush_interval_s - time.monotonic()) if dirty else None
-            try:
-                item = self._queue.get(timeout=timeout)
-            except queue.Empty:
-                item = None
-            if item is _CLOSE:
-                break
-            if self.failure is not None:
-                continue
-            try:
-                flush_now = False
-                if isinstance(item, _Item):
-                    self._write_item(item, channel_ids)
+            self._wake.wait(timeout=self._drain_interval_s)
+            self._wake.clear()
+            with self._lock:
+                closing = self._closed  # nothing is appended after this turns True
+            flush_now = False
+            while self._pending:
+                item = self._pending.popleft()
+                if self._write_or_drop(item, channel_ids):
                     dirty = True
-                    flush_now = item.flush_now
-                if dirty and (flush_now or time.monotonic() - last_flush >= self._flush_interval_s):
+                    flush_now = flush_now or item.flush_now
+            due = flush_now or time.monotonic() - last_flush >= self._flush_interval_s
+            if dirty and due and self.failure is None:
+                try:
                     self._writer.flush()  # type: ignore[no-untyped-call]  # mcap leaves it unannotated
-                    dirty = False
-                    last_flush = time.monotonic()
-            except Exception as e:  # the disk or the encoder failed: keep the robot running, say so once
-                self._fail(e)
+                    self._settle()
+                except Exception as e:  # the disk failed: keep the robot running, say so once
+                    self._fail(e)
+                dirty = False
+                last_flush = time.monotonic()
+            if closing:
+                break
         self._finish()
+
+    def _write_or_drop(self, item: _Item, channel_ids: dict[str, int]) -> bool:
+        """Write one message; after a disk failure count it as dropped instead. True when written."""
+        if self.failure is not None:
+            with self._lock:
+                self._dropped += 1
+            return False
+        try:
+            self._write_item(item, channel_ids)
+        except Exception as e:  # the disk or the encoder failed: keep the robot running, say so once
+            self._fail(e)
+            return False
+        return True
 
     def _write_item(self, item: _Item, channel_ids: dict[str, int]) -> None:
         """Add one message, registering its channel first; flush the file when a chunk was just emitted."""
@@ -262,6 +284,7 @@ class Recorder:
         sequence = self._sequence.get(channel_id, 0)
         self._sequence[channel_id] = sequence + 1
         before = self._file.tell()
+        self._unflushed += 1
         self._writer.add_message(
             channel_id=channel_id,
             log_time=item.log_time_ns,
@@ -269,14 +292,22 @@ class Recorder:
             publish_time=item.log_time_ns,
             sequence=sequence,
         )
-        with self._lock:
-            self._written += 1
         if self._file.tell() != before:  # a chunk was finished and handed to the file
             self._file.flush()
+            self._settle()
+
+    def _settle(self) -> None:
+        """Everything given to the MCAP writer so far is now in the file: count it as written."""
+        with self._lock:
+            self._written += self._unflushed
+            self._unflushed = 0
 
     def _fail(self, error: BaseException) -> None:
+        """Stop writing after a disk or encoder error; messages not yet in the file count as dropped."""
         with self._lock:
             self.failure = error
+            self._dropped += self._unflushed
+            self._unflushed = 0
         log.error("recording_failed", path=str(self.path), error=str(error))
         with contextlib.suppress(OSError, ValueError):
             self._file.flush()
@@ -285,6 +316,7 @@ class Recorder:
         try:
             if self.failure is None:
                 self._writer.finish()  # type: ignore[no-untyped-call]  # mcap leaves it unannotated
+                self._settle()
         except Exception as e:  # a failing disk at the very end still leaves a readable, truncated file
             self._fail(e)
         finally:

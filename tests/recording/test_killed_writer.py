@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -66,3 +67,37 @@ def test_sigkilled_writer_loses_at_most_about_a_second(tmp_path: Path) -> None:
     assert recovered == list(range(len(recovered)))
     assert len(recovered) - 1 >= last_sent - RATE_HZ * 1.0
     assert rec.cut_after_ns == rec.end_ns
+
+
+FULL_DISK = textwrap.dedent(
+    """
+    import json, resource, signal, sys
+    from pathlib import Path
+    from daemon.recording import Recorder
+
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # writes past the limit fail with EFBIG instead
+    resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, 20_000))
+    rec = Recorder(Path(sys.argv[1]), chunk_size=2048)
+    accepted = sum(rec.write("dishbot/r1/joints", {"i": i}, log_time_ns=i) for i in range(3000))
+    stats = rec.close()
+    print(json.dumps({"accepted": accepted, "written": stats.written, "dropped": stats.dropped,
+                      "failure": repr(rec.failure)}))
+    """
+)
+
+
+def test_a_full_disk_counts_the_lost_messages_and_leaves_a_readable_file(tmp_path: Path) -> None:
+    path = tmp_path / "full.mcap"
+    result = subprocess.run(
+        [sys.executable, "-c", FULL_DISK, str(path)], capture_output=True, text=True, timeout=60, check=True
+    )
+    report = json.loads(result.stdout.splitlines()[-1])
+    assert "File too large" in report["failure"]
+    assert report["written"] + report["dropped"] == 3000
+    assert report["dropped"] > 0
+    rec = read_messages(path)
+    assert rec.truncated
+    assert path.stat().st_size <= 20_000
+    recovered = [m.payload["i"] for m in rec]
+    assert recovered == list(range(len(recovered)))
+    assert 0 < report["written"] <= len(recovered) <= report["written"] + report["dropped"]

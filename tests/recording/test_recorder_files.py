@@ -193,6 +193,10 @@ def test_recorder_refuses_to_overwrite_an_existing_file(tmp_path: Path) -> None:
         ({"chunk_size": 100}, "recording chunk_size 100 is too small; use at least 1024 bytes"),
         ({"flush_interval_s": 0.0}, "recording flush_interval_s 0.0 is out of range (0, 10] s"),
         ({"queue_size": 0}, "recording queue_size 0 must be at least 1"),
+        (
+            {"drain_interval_s": 1.0},
+            "recording drain_interval_s 1.0 is out of range (0, flush_interval_s]",
+        ),
     ],
 )
 def test_recorder_rejects_bad_settings_before_creating_the_file(
