@@ -1,0 +1,221 @@
+"""The FSR line protocol, and the asyncio reader against the simulated Arduino on a pty."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drivers.dynamixel import DeviceEvent
+from drivers.errors import SensorFault
+from drivers.fsr import FsrReader
+from drivers.fsr import protocol as fp
+from drivers.interfaces import ForceSensor
+from drivers.sim.fsr import FsrSimulator
+from tests.drivers.fakes import async_test
+
+
+class Pad:
+    """The force the world puts on the pad, settable from the test."""
+
+    def __init__(self, force_n: float = 0.0) -> None:
+        self.force_n = force_n
+        self._lock = threading.Lock()
+
+    def __call__(self) -> float:
+        with self._lock:
+            return self.force_n
+
+    def set(self, force_n: float) -> None:
+        with self._lock:
+            self.force_n = force_n
+
+
+async def until(predicate: object, timeout_s: float = 2.0) -> None:
+    deadline = asyncio.get_running_loop().time() + timeout_s
+    while not predicate():  # type: ignore[operator]
+        if asyncio.get_running_loop().time() > deadline:
+            raise AssertionError("condition not reached in time")
+        await asyncio.sleep(0.01)
+
+
+def test_sample_line_has_the_sketch_format_and_xor_checksum() -> None:
+    assert fp.sample_line(7, 512) == b"$FSR,7,512*46\r\n"
+    assert fp.parse_line(b"$FSR,7,512*46") == fp.Sample(7, 512)
+    assert fp.parse_line(
+        b"$VER,dishbot_fsr,1*" + f"{fp.checksum('VER,dishbot_fsr,1'):02X}".encode()
+    ) == fp.Version("dishbot_fsr", "1")
+
+
+@pytest.mark.parametrize(
+    "line",
+    [
+        b"$FSR,7,512*47",
+        b"$FSR,7,1024*" + f"{fp.checksum('FSR,7,1024'):02X}".encode(),
+        b"FSR,7,512*7B",
+        b"$FSR,7*00",
+        b"$FSR,-1,5*" + f"{fp.checksum('FSR,-1,5'):02X}".encode(),
+        b"\xff\xfe",
+        b"",
+    ],
+)
+def test_invalid_lines_are_rejected(line: bytes) -> None:
+    assert fp.parse_line(line) is None
+
+
+def test_force_model_round_trips_within_one_adc_count() -> None:
+    for force in (0.5, 2.0, 10.0, 20.0):
+        raw = fp.raw_from_force(force)
+        assert fp.raw_from_force(fp.force_from_raw(raw)) == raw
+        assert fp.force_from_raw(raw) == pytest.approx(force, rel=0.05)
+    assert fp.force_from_raw(0) == 0.0
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.binary(max_size=80))
+def test_parse_line_never_crashes_and_only_accepts_checksummed_lines(line: bytes) -> None:
+    parsed = fp.parse_line(line)
+    if isinstance(parsed, fp.Sample):
+        assert fp.sample_line(parsed.seq, parsed.raw).strip() == line.strip()
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 65535), st.integers(0, 1023), st.integers(0, 14), st.integers(1, 255))
+def test_a_corrupted_sample_line_is_never_accepted(seq: int, raw: int, index: int, flip: int) -> None:
+    line = bytearray(fp.sample_line(seq, raw).strip())
+    index %= len(line)
+    line[index] ^= flip
+    parsed = fp.parse_line(bytes(line))
+    assert (
+        parsed is None
+        or (parsed == fp.Sample(seq, raw)
+        and bytes(line).strip() == fp.sample_line(seq, raw).strip())
+    )
+
+
+def test_reader_rejects_a_release_level_above_the_threshold() -> None:
+    with pytest.raises(ValueError, match=r"^fsr\.release_n 3\.0 must be in \[0, threshold_n=2\.0\)$"):
+        FsrReader("/dev/null", threshold_n=2.0, release_n=3.0)
+
+
+@async_test
+async def test_reader_detects_a_grasp_after_the_debounce_and_releases_with_hysteresis() -> None:
+    pad = Pad()
+    with FsrSimulator(pad) as sim:
+        async with FsrReader(sim.device_path, threshold_n=2.0, release_n=1.0, debounce_s=0.05) as reader:
+            assert isinstance(reader, ForceSensor)
+            assert reader.firmware_version == "1"
+            await until(lambda: reader.latest() is not None)
+            assert not reader.holding()
+            pad.set(3.0)
+            await until(reader.holding)
+            pad.set(1.5)  # between release and threshold: still holding
+            await asyncio.sleep(0.15)
+            assert reader.holding()
+            pad.set(0.2)
+            await until(lambda: not reader.holding())
+            assert reader.counters.bad_lines == 0
+
+
+@async_test
+async def test_a_drop_while_carrying_is_reported_once() -> None:
+    pad = Pad(5.0)
+    events: list[DeviceEvent] = []
+    with FsrSimulator(pad) as sim:
+        async with FsrReader(sim.device_path, on_event=events.append) as reader:
+            await until(reader.holding)
+            reader.set_carrying(True)
+            sim.drop_force()
+            await until(lambda: reader.dropped)
+            await asyncio.sleep(0.05)
+    assert [e.kind for e in events] == ["mug_dropped"]
+
+
+@async_test
+async def test_a_single_sample_spike_neither_grasps_nor_drops() -> None:
+    pad = Pad(0.0)
+    with FsrSimulator(pad) as sim:
+        async with FsrReader(sim.device_path, debounce_s=0.0) as reader:
+            await until(lambda: reader.latest() is not None)
+            sim.spike(25.0)
+            await until(lambda: reader.counters.spikes >= 1)
+            assert not reader.holding()
+            pad.set(5.0)
+            await until(reader.holding)
+            reader.set_carrying(True)
+            sim.spike(0.0)
+            spikes = reader.counters.spikes
+            await until(lambda: reader.counters.spikes > spikes)
+            assert reader.holding()
+            assert not reader.dropped
+
+
+@async_test
+async def test_garbage_torn_lines_and_bad_checksums_are_skipped() -> None:
+    pad = Pad(3.0)
+    with FsrSimulator(pad) as sim:
+        async with FsrReader(sim.device_path) as reader:
+            await until(reader.holding)
+            sim.inject_garbage(b"\x00\xff$FSR,1,2*\r\nnoise\n")
+            sim.bad_checksums(3)
+            sim.tear_lines(2)
+            await until(lambda: reader.counters.bad_lines >= 5)
+            await asyncio.sleep(0.05)
+            assert reader.holding()
+            latest = reader.latest()
+            assert latest is not None
+            assert latest.force_n == pytest.approx(3.0, rel=0.05)
+            assert reader.counters.lost_samples >= 3  # the bad and torn lines are gaps in the sequence
+
+
+@async_test
+async def test_unplug_is_reported_and_the_reader_reconnects_on_replug() -> None:
+    pad = Pad(3.0)
+    events: list[DeviceEvent] = []
+    with FsrSimulator(pad) as sim:
+        async with FsrReader(sim.device_path, on_event=events.append, reconnect_period_s=0.05) as reader:
+            await until(reader.holding)
+            sim.unplug()
+            await until(lambda: [e.kind for e in events] == ["fsr_lost"])
+            with pytest.raises(
+                SensorFault, match=rf"^the FSR Arduino on {sim.device_path} is unplugged; reconnecting$"
+            ):
+                reader.check()
+            sim.replug()
+            await until(lambda: "fsr_restored" in [e.kind for e in events])
+            reader.check()
+            assert reader.counters.reconnects == 1
+
+
+@async_test
+async def test_a_silent_stream_is_reported_stale_and_check_raises() -> None:
+    pad = Pad(0.0)
+    events: list[DeviceEvent] = []
+    with FsrSimulator(pad) as sim:
+        async with FsrReader(sim.device_path, on_event=events.append, stale_after_s=0.1) as reader:
+            await until(lambda: reader.latest() is not None)
+            sim.silence()
+            await until(lambda: [e.kind for e in events] == ["fsr_stale"])
+            with pytest.raises(
+                SensorFault, match=r"^no valid FSR sample from .* \(the last one is .* s old\); check"
+            ):
+                reader.check()
+            sim.silence(on=False)
+            await until(lambda: [e.kind for e in events] == ["fsr_stale", "fsr_restored"])
+
+
+@async_test
+async def test_a_port_without_the_sketch_fails_to_start_with_a_clear_error() -> None:
+    pad = Pad(0.0)
+    with FsrSimulator(pad, version="") as sim:  # answers no version: not our sketch
+        sim.silence()
+        with pytest.raises(SensorFault) as raised:
+            async with FsrReader(sim.device_path, version_timeout_s=0.2):
+                pass
+        assert str(raised.value) == (
+            f"no dishbot_fsr sketch answered on {sim.device_path} within 0.2 s; "
+            "flash drivers/fsr/arduino/dishbot_fsr.ino and check the baud rate"
+        )
