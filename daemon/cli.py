@@ -16,6 +16,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "daemon.commands.config_cmd",
     "daemon.commands.statechart_cmd",
     "daemon.commands.record",
+    "daemon.commands.plan",
 )
 
 Handler = Callable[[argparse.Namespace], int]

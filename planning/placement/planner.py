@@ -1,4 +1,7 @@
-"""``plan()``: one entry point for every placement method; returns a layout, its cost and a placing order."""
+"""``plan()``: one entry point for every placement method; returns a layout, its cost and a placing order.
+
+A pure computation: it logs nothing (the caller, e.g. the daemon's ``plan`` state, logs the outcome with its
+own context) and so never writes to stdout, which ``dishbot plan --json`` reserves for the result."""
 
 from __future__ import annotations
 
@@ -10,8 +13,6 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import TypeVar
 
-import structlog
-
 from planning.placement.cost import CostFunction, Evaluator, Fitness, FitnessMethod, Metrics, MoveCost
 from planning.placement.errors import InvalidProblem
 from planning.placement.heuristics import Heuristic, parse_heuristic
@@ -19,8 +20,6 @@ from planning.placement.order import execution_order
 from planning.placement.packing import Packer, Packing
 from planning.placement.problem import Problem
 from planning.placement.sorts import Sort, parse_sort, sorted_order
-
-log = structlog.get_logger(__name__)
 
 METHODS = ("auto", "exact", "bh", "sa", "ga", "psop-n", "psop-i", "psok-n", "psok-i")
 
@@ -187,16 +186,7 @@ def plan(problem: Problem, options: PlanOptions = PlanOptions()) -> PlanResult:
     method = _method(options.method)  # imported before the clock starts: a one-off cost per process
     ctx = Context(problem, options)
     candidate = method(ctx)
-    result = _result(ctx, candidate)
-    log.info(
-        "placement_planned",
-        method=options.method,
-        n=result.n,
-        total=len(problem.mugs),
-        optimal=result.optimal,
-        wall_time_s=round(result.wall_time_s, 4),
-    )
-    return result
+    return _result(ctx, candidate)
 
 
 _METHOD_FUNCTIONS = {

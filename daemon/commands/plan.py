@@ -1,0 +1,168 @@
+"""``dishbot plan``: plan where each mug goes on the tray, from a problem file or a built-in dataset."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+from daemon.errors import UsageError
+from planning import thesis
+from planning.placement import (
+    METHODS,
+    InvalidProblem,
+    PlanOptions,
+    PlanResult,
+    Problem,
+    dataset_problem,
+    plan,
+)
+from planning.placement.heuristics import Heuristic
+from planning.placement.render import to_png, to_svg
+from planning.placement.sorts import Sort
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser(
+        "plan",
+        help="plan the mugs' tray positions and placing order",
+        description=(
+            "Plan where each counter mug goes on the dishwasher tray and in which order the arm places them. "
+            "The problem is a JSON file (format in the README) or one of the thesis's datasets 1-6. "
+            "Prints a summary, or the result as JSON with --json; --svg/--png also draw the tray."
+        ),
+    )
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument(
+        "problem", nargs="?", metavar="PROBLEM.json", help="the placement problem ('-' = stdin)"
+    )
+    source.add_argument("--dataset", type=int, metavar="N", help="a built-in dataset of the thesis (1-6)")
+    parser.add_argument(
+        "--method",
+        default="auto",
+        choices=METHODS,
+        help="placement method (default auto: best within the time limit)",
+    )
+    parser.add_argument(
+        "--heuristic",
+        default="ltf",
+        choices=[h.value for h in Heuristic],
+        help="packing heuristic, the fill order (default ltf, left-top fill)",
+    )
+    parser.add_argument(
+        "--sort",
+        choices=[s.value for s in Sort],
+        help="initial order (default: every sort for bh/auto, nis-l for the optimisers)",
+    )
+    parser.add_argument(
+        "--fitness", default="rf", choices=["ws", "rf"], help="weighted sum or ranking (default rf)"
+    )
+    parser.add_argument(
+        "--cost",
+        default="upc",
+        choices=["bpc", "upc", "ec"],
+        help="bin-packing, user-preference or engineering cost (default upc)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument(
+        "--time-limit", type=float, default=1.0, metavar="SEC", help="budget for auto and exact (default 1.0)"
+    )
+    parser.add_argument("--json", action="store_true", help="print the result as one JSON document")
+    parser.add_argument("--svg", type=Path, metavar="FILE", help="also draw the plan as SVG")
+    parser.add_argument("--png", type=Path, metavar="FILE", help="also draw the plan as PNG")
+    parser.set_defaults(handler=run)
+
+
+def load_problem(args: argparse.Namespace) -> Problem:
+    if args.dataset is not None:
+        if args.dataset not in thesis.DATASETS:
+            raise UsageError(f"--dataset: unknown dataset {args.dataset} (known: 1-{len(thesis.DATASETS)})")
+        return dataset_problem(args.dataset)
+    name = args.problem
+    try:
+        text = sys.stdin.read() if name == "-" else Path(name).read_text(encoding="utf-8")
+    except FileNotFoundError as e:
+        raise UsageError(f"{name}: no such file") from e
+    except (OSError, UnicodeDecodeError) as e:
+        raise UsageError(f"{name}: cannot read: {e}") from e
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise UsageError(f"{name}: not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from e
+    try:
+        return Problem.from_json(doc)
+    except InvalidProblem as e:
+        raise UsageError(f"{name}: {e}") from e
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.time_limit > 0:
+        raise UsageError(f"--time-limit: must be positive, got {args.time_limit}")
+    for flag, path in (("--svg", args.svg), ("--png", args.png)):
+        if path is not None and not path.parent.resolve().is_dir():
+            raise UsageError(f"{flag}: directory {str(path.parent)!r} does not exist")
+    problem = load_problem(args)
+    options = PlanOptions(
+        method=args.method,
+        heuristic=args.heuristic,
+        sort=args.sort,
+        fitness=args.fitness,
+        cost=args.cost,
+        seed=args.seed,
+        time_limit_s=args.time_limit,
+    )
+    try:
+        result = plan(problem, options)
+    except InvalidProblem as e:
+        raise UsageError(str(e)) from e
+    # Render everything before writing anything, so a failure leaves no half-written output.
+    outputs: list[tuple[Path, bytes]] = []
+    if args.svg is not None:
+        outputs.append((args.svg, to_svg(problem, result).encode()))
+    if args.png is not None:
+        outputs.append((args.png, to_png(problem, result)))
+    for path, data in outputs:
+        _write_atomically(path, data)
+    if args.json:
+        json.dump(result.to_json(), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        print(summary(result))
+    return 0
+
+
+def summary(result: PlanResult) -> str:
+    total = result.n + len(result.unplaced)
+    proof = ""
+    if result.optimal:
+        proof = " (proven optimal)"
+    elif result.upper_bound is not None:
+        proof = f" (at most {result.upper_bound} fit)"
+    lines = [
+        f"{result.method}: {result.n} of {total} mugs placed{proof} in {result.wall_time_s:.3f} s",
+        f"area {result.A_mm2:.0f} mm², energy {result.E_j:.2f} J, time {result.t_s:.1f} s, sorted {result.s},"
+        f" cost {result.cost:.4f}",
+        "order  id        type    x_mm  y_mm  rotated",
+    ]
+    lines += [
+        f"{p.order:5d}  {p.id:<8}  {p.type:<6}  {p.x_mm:4d}  {p.y_mm:4d}  {str(p.rotated).lower()}"
+        for p in result.placed
+    ]
+    if result.unplaced:
+        lines.append("left on the counter: " + ", ".join(result.unplaced))
+    lines += [f"note: {n}" for n in result.notes]
+    return "\n".join(lines)
+
+
+def _write_atomically(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent.resolve())
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

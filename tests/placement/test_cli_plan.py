@@ -1,0 +1,125 @@
+"""``dishbot plan``: output formats, pictures written whole, and one exact line for each kind of bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from daemon.cli import main
+from tests.placement.test_problem import EXAMPLE
+
+
+def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    code = main(["plan", *argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_dataset_plan_prints_json_with_the_proven_optimum(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = run(capsys, "--dataset", "2", "--json")
+    assert code == 0
+    doc = json.loads(out)
+    assert (doc["n"], doc["optimal"], doc["upper_bound"], doc["method"]) == (8, True, 8, "auto")
+    assert [p["order"] for p in doc["placed"]] == list(range(1, 9))
+
+
+def test_problem_file_with_the_documented_format_plans_around_the_mug_on_the_tray(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    problem = tmp_path / "problem.json"
+    problem.write_text(json.dumps(EXAMPLE))
+    code, out, _ = run(capsys, str(problem), "--method", "bh", "--json")
+    assert code == 0
+    placed = json.loads(out)["placed"]
+    assert [p["id"] for p in placed] == ["m1"]
+
+
+def test_summary_names_what_is_left_on_the_counter(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = run(capsys, "--dataset", "1", "--method", "bh", "--heuristic", "tlf", "--sort", "cif")
+    assert code == 0
+    assert out.splitlines()[0].startswith("bh: 8 of 12 mugs placed in ")
+    assert "left on the counter: " in out
+
+
+def test_pictures_are_written(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    svg, png = tmp_path / "plan.svg", tmp_path / "plan.png"
+    code, _, _ = run(capsys, "--dataset", "6", "--svg", str(svg), "--png", str(png))
+    assert code == 0
+    assert svg.read_text().startswith("<svg ")
+    assert svg.read_text().count("<circle") == 23
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plan.png", "plan.svg"]
+
+
+@pytest.mark.parametrize(
+    ("content", "extra", "message"),
+    [
+        (
+            "{nope",
+            [],
+            "{path}: not valid JSON: Expecting property name enclosed in double quotes at line 1 column 2",
+        ),
+        (
+            json.dumps({**EXAMPLE, "mugs": [{"id": "m1", "type": "huge", "x_mm": 0, "y_mm": 0}]}),
+            [],
+            "{path}: mugs[0].type: unknown mug type 'huge' (known: big, small)",
+        ),
+        (
+            json.dumps({**EXAMPLE, "tray": {"size_mm": [475, -5]}}),
+            [],
+            "{path}: tray.size_mm[1]: must be positive, got -5",
+        ),
+        (
+            json.dumps({**EXAMPLE, "tray": {"size_mm": ["wide", 520]}}),
+            [],
+            "{path}: tray.size_mm[0]: expected a number, got a string ('wide')",
+        ),
+        (
+            json.dumps({**EXAMPLE, "tray": {"size_mm": [100, 100]}}),
+            [],
+            "{path}: mugs[0].type: a 'big' mug (130 x 101 mm with tolerance) is larger than the tray"
+            " (100 x 100 mm)",
+        ),
+        (
+            json.dumps({**EXAMPLE, "placed": EXAMPLE["placed"] * 2}),
+            [],
+            "{path}: placed[1].id: duplicate mug id 'p1'",
+        ),
+        (
+            json.dumps({**EXAMPLE, "placed": [{"id": "p1", "type": "big", "x_mm": 400, "y_mm": 0}]}),
+            [],
+            "{path}: placed[0]: footprint [400, 530] x [0, 101] mm leaves the tray (475 x 520 mm)",
+        ),
+        (json.dumps(EXAMPLE), ["--time-limit", "0"], "--time-limit: must be positive, got 0.0"),
+    ],
+)
+def test_bad_input_exits_2_with_one_line_and_writes_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], content: str, extra: list[str], message: str
+) -> None:
+    problem = tmp_path / "problem.json"
+    problem.write_text(content)
+    svg = tmp_path / "out.svg"
+    code, out, err = run(capsys, str(problem), "--svg", str(svg), *extra)
+    assert code == 2
+    assert out == ""
+    assert err == f"dishbot plan: error: {message.format(path=problem)}\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["problem.json"]
+
+
+def test_missing_file_and_unknown_dataset_are_usage_errors(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert (
+        run(capsys, str(tmp_path / "absent.json"))[2]
+        == f"dishbot plan: error: {tmp_path / 'absent.json'}: no such file\n"
+    )
+    assert (
+        run(capsys, "--dataset", "9")[2] == "dishbot plan: error: --dataset: unknown dataset 9 (known: 1-6)\n"
+    )
+    code, _, err = run(capsys, "--dataset", "1", "--png", str(tmp_path / "no" / "dir.png"))
+    assert (code, err) == (
+        2,
+        f"dishbot plan: error: --png: directory {str(tmp_path / 'no')!r} does not exist\n",
+    )
