@@ -1,15 +1,14 @@
 """Replaying a recorded session: its driver-boundary inputs as a timeline, faults injected, served back.
 
-A recording holds what the drivers handed the daemon (servo feedback, force readings, camera detections).
-``Timeline.from_recording`` pulls those inputs out as named streams ordered in time (seconds from the start
-of the recording). ``FaultPlan`` rewrites a timeline deterministically — drop a window, delay it, spike or
-corrupt a field, add seeded noise, cut a stream or the whole session — so a test can ask "what does the
-daemon do when the force sensor goes quiet during the flip?" against a real session. ``ReplayForceSensor``
-and ``ReplayMugObserver`` implement the driver and perception seams over a timeline and a ``ReplayClock``
-that the test (or a replay runner) steps.
+A recording holds what the drivers handed the daemon (servo feedback, force readings, grasp results,
+observations of the counter). ``Timeline.from_recording`` pulls those inputs out as named streams ordered
+in time (seconds from the start of the recording). ``FaultPlan`` rewrites a timeline deterministically —
+drop a window, delay it, spike or corrupt a field, add seeded noise, cut a stream or the whole session — so
+a test can ask "what does the daemon do when the force sensor goes quiet during the flip?" against a real
+session. ``ReplayForceSensor`` and ``ReplayMugObserver`` implement the driver and perception seams over a
+timeline and a ``ReplayClock`` that the test (or a replay runner) steps.
 
-The record formats at the driver boundary are defined here too (``encode_force``, ``encode_observation``,
-``encode_joints``), so the daemon records exactly what the replay sources read back.
+The decoders read the record formats ``daemon.backend.recorded`` writes; a test holds the two together.
 """
 
 from __future__ import annotations
@@ -32,67 +31,39 @@ from drivers.errors import SensorFault
 from drivers.interfaces import ForceReading, JointState
 from perception.interfaces import Detection, Observation
 
-# Stream name -> Zenoh key expression selecting its topics. The daemon records driver inputs under these keys.
+# Stream name -> Zenoh key expression selecting its topics. The daemon records what crosses the driver
+# boundary under ``dishbot/<robot_id>/input/<kind>`` (see ``daemon.backend.recorded``).
 DEFAULT_STREAMS: Final[Mapping[str, str]] = {
-    "joints": "dishbot/*/driver/joints",
-    "force": "dishbot/*/driver/force",
-    "detections": "dishbot/*/detections",
+    "joints": "dishbot/*/input/joints",
+    "force": "dishbot/*/input/force",
+    "holding": "dishbot/*/input/holding",
+    "grasp": "dishbot/*/input/grasp",
+    "observations": "dishbot/*/input/observation",
 }
 
 
-# --- record formats at the driver boundary ----------------------------------------------------------------
+# --- record formats at the driver boundary (written by ``daemon.backend.recorded``) -------------------------
 
 
-def encode_force(reading: ForceReading, *, holding: bool) -> dict[str, object]:
-    """The recorded form of one force sample and the driver's debounced holding decision."""
-    return {
-        "t": reading.t,
-        "force_n": reading.force_n,
-        "raw": reading.raw,
-        "seq": reading.seq,
-        "holding": holding,
-    }
-
-
-def encode_observation(observation: Observation) -> dict[str, object]:
-    """The recorded form of one look at the counter (the depth preview is not recorded)."""
-    return {"t": observation.t, "detections": [d.to_json() for d in observation.detections]}
-
-
-def encode_joints(state: JointState) -> dict[str, object]:
-    """The recorded form of one servo feedback read."""
-    return {
-        "t": state.t,
-        "names": list(state.names),
-        "position_rad": list(state.position_rad),
-        "velocity_rad_s": list(state.velocity_rad_s),
-        "load": list(state.load),
-    }
-
-
-def decode_force(payload: Mapping[str, object], *, t: float) -> tuple[ForceReading, bool | None]:
-    """A force sample and its recorded holding flag (None when not recorded), stamped with replay time ``t``.
+def decode_force(payload: Mapping[str, object], *, t: float) -> ForceReading:
+    """A force sample stamped with replay time ``t``.
 
     Raises ``ValueError`` naming the field when the payload is not a force sample (a corrupted record).
     """
-    force = _number(payload, "force_n")
-    raw = _integer(payload, "raw")
-    seq = _integer(payload, "seq")
-    holding = payload.get("holding")
-    if holding is not None and not isinstance(holding, bool):
-        raise ValueError(f"holding is {holding!r}, not a boolean")
-    return ForceReading(t=t, force_n=force, raw=raw, seq=seq), holding
+    return ForceReading(
+        t=t, force_n=_number(payload, "force_n"), raw=_integer(payload, "raw"), seq=_integer(payload, "seq")
+    )
 
 
 def decode_observation(payload: Mapping[str, object], *, t: float) -> Observation:
     """An observation stamped with replay time ``t``; ``ValueError`` naming the field when malformed."""
-    items = payload.get("detections")
+    items = payload.get("mugs")
     if not isinstance(items, list):
-        raise ValueError(f"detections is {items!r}, not a list")
+        raise ValueError(f"mugs is {items!r}, not a list")
     detections = []
     for i, item in enumerate(items):
         if not isinstance(item, Mapping):
-            raise ValueError(f"detections.{i} is {item!r}, not an object")
+            raise ValueError(f"mugs.{i} is {item!r}, not an object")
         try:
             detections.append(
                 Detection(
@@ -106,8 +77,11 @@ def decode_observation(payload: Mapping[str, object], *, t: float) -> Observatio
                 )
             )
         except ValueError as e:
-            raise ValueError(f"detections.{i}.{e}") from e
-    return Observation(t=t, detections=tuple(detections))
+            raise ValueError(f"mugs.{i}.{e}") from e
+    meta = payload.get("meta", {})
+    if not isinstance(meta, Mapping):
+        raise ValueError(f"meta is {meta!r}, not an object")
+    return Observation(t=t, detections=tuple(detections), meta={str(k): str(v) for k, v in meta.items()})
 
 
 def decode_joints(payload: Mapping[str, object], *, t: float) -> JointState:
@@ -478,9 +452,7 @@ def _check_window(start_s: float, end_s: float) -> None:
 
 def _check_field(path: str) -> None:
     if not path or any(not part for part in path.split(".")):
-        raise ReplayError(
-            f"fault field {path!r} must be a dotted path such as 'force_n' or 'detections.0.x_m'"
-        )
+        raise ReplayError(f"fault field {path!r} must be a dotted path such as 'force_n' or 'mugs.0.x_m'")
 
 
 def _stream_of(streams: Streams, name: str) -> tuple[TimedInput, ...]:
@@ -580,9 +552,11 @@ class _Decoded(Generic[T]):
 class ReplayForceSensor:
     """A ``drivers.interfaces.ForceSensor`` serving recorded force samples as the clock passes them.
 
-    Inputs that do not parse (a corrupted field) are rejected as the live serial reader would reject a
-    garbled line; ``rejected`` lists why. ``holding`` follows the recorded driver's decision when the
-    recording has it, else the force against ``hold_threshold_n`` debounced over ``debounce_samples``.
+    ``holding`` is recomputed from the (possibly faulted) force with the live FSR reader's rule: it turns
+    on after the force has stayed at or above ``threshold_n`` for ``debounce_s``, and off after it has
+    stayed below ``release_n`` as long; so a fault injected into the force reaches the holding decision as
+    it would live. Inputs that do not parse (a corrupted field) are rejected as the live serial reader
+    rejects a garbled line; ``rejected`` says why.
     """
 
     def __init__(
@@ -590,31 +564,35 @@ class ReplayForceSensor:
         inputs: Sequence[TimedInput],
         clock: ReplayClock,
         *,
-        hold_threshold_n: float,
-        debounce_samples: int = 3,
+        threshold_n: float,
+        release_n: float,
+        debounce_s: float,
     ) -> None:
-        if debounce_samples < 1:
-            raise ReplayError(f"debounce_samples must be at least 1, got {debounce_samples}")
+        if not 0.0 <= release_n < threshold_n:
+            raise ReplayError(f"release_n {release_n!r} must be in [0, threshold_n={threshold_n!r})")
+        if not (math.isfinite(debounce_s) and debounce_s >= 0.0):
+            raise ReplayError(f"debounce_s must be a time in seconds >= 0, got {debounce_s!r}")
         self._clock = clock
         times: list[float] = []
         readings: list[tuple[ForceReading, bool]] = []
         rejected: list[str] = []
-        run_above = run_below = 0
         holding = False
+        pending_since: float | None = None
         for item in inputs:
             try:
-                reading, recorded = decode_force(item.payload, t=item.t_s)
+                reading = decode_force(item.payload, t=item.t_s)
             except ValueError as e:
                 rejected.append(f"force at {item.t_s:g} s: {e}")
                 continue
-            above = reading.force_n >= hold_threshold_n
-            run_above, run_below = (run_above + 1, 0) if above else (0, run_below + 1)
-            if run_above >= debounce_samples:
-                holding = True
-            elif run_below >= debounce_samples:
-                holding = False
+            crossing = reading.force_n < release_n if holding else reading.force_n >= threshold_n
+            if not crossing:
+                pending_since = None
+            elif pending_since is None and debounce_s > 0.0:
+                pending_since = item.t_s
+            elif pending_since is None or item.t_s - pending_since >= debounce_s:
+                holding, pending_since = not holding, None
             times.append(item.t_s)
-            readings.append((reading, holding if recorded is None else recorded))
+            readings.append((reading, holding))
         self._decoded = _Decoded(tuple(times), tuple(readings), tuple(rejected))
 
     @property
@@ -650,7 +628,7 @@ class ReplayMugObserver:
             try:
                 observations.append(decode_observation(item.payload, t=item.t_s))
             except ValueError as e:
-                rejected.append(f"detections at {item.t_s:g} s: {e}")
+                rejected.append(f"observation at {item.t_s:g} s: {e}")
                 continue
             times.append(item.t_s)
         self._decoded = _Decoded(tuple(times), tuple(observations), tuple(rejected))
@@ -665,6 +643,6 @@ class ReplayMugObserver:
         if i is None or now - self._decoded.times[i] > self._max_age_s:
             raise SensorFault(
                 f"replayed camera: no observation in the {self._max_age_s:g} s before t={now:g} s; "
-                "the detections stream was dropped, cut or has not started"
+                "the observations stream was dropped, cut or has not started"
             )
         return self._decoded.values[i]

@@ -10,7 +10,7 @@ from daemon.recording import Recorder
 
 
 class RecordingFactory:
-    """Builds finished recordings of a 50 Hz session: joints and force every 20 ms, detections at 2 Hz.
+    """Builds finished recordings of a 50 Hz session: joints and force every 20 ms, observations at 2 Hz.
 
     Force is 2 N (a mug held) from sample 50 to 149 and 0.1 N otherwise; times start at ``t0_ns``.
     """
@@ -40,17 +40,18 @@ class RecordingFactory:
                 t_ns = T0_NS + i * 20_000_000
                 t = i * 0.02
                 rec.write(
-                    "dishbot/r1/driver/joints",
+                    "dishbot/r1/input/joints",
                     {
                         "t": t,
                         "names": ["j1", "j2"],
                         "position_rad": [0.01 * i, -0.5],
                         "velocity_rad_s": [0.5, 0.0],
+                        "load": [0.1, 0.2],
                     },
                     log_time_ns=t_ns,
                 )
                 rec.write(
-                    "dishbot/r1/driver/force",
+                    "dishbot/r1/input/force",
                     {
                         "t": t,
                         "force_n": 2.0 if 50 <= i < 150 else 0.1,
@@ -61,10 +62,11 @@ class RecordingFactory:
                 )
                 if i % 25 == 0:
                     rec.write(
-                        "dishbot/r1/detections",
+                        "dishbot/r1/input/observation",
                         {
                             "t": t,
-                            "detections": [
+                            "meta": {},
+                            "mugs": [
                                 {
                                     "id": "m0",
                                     "type": "big",

@@ -26,7 +26,7 @@ WRITER = textwrap.dedent(
     start = time.monotonic()
     i = 0
     while True:
-        rec.write("dishbot/r1/driver/force", {{"i": i, "force_n": 0.5}}, log_time_ns=time.time_ns())
+        rec.write("dishbot/r1/input/force", {{"i": i, "force_n": 0.5}}, log_time_ns=time.time_ns())
         if i % 10 == 0:
             print(f"sent {{i}}", flush=True)
         i += 1
@@ -63,7 +63,7 @@ def test_sigkilled_writer_loses_at_most_about_a_second(tmp_path: Path) -> None:
     rec = read_messages(path)
     assert rec.truncated
     assert rec.header == {"config": {"robot_id": "r1"}, "scene": {"dataset": 3}}
-    recovered = [m.payload["i"] for m in rec if m.topic == "dishbot/r1/driver/force"]
+    recovered = [m.payload["i"] for m in rec if m.topic == "dishbot/r1/input/force"]
     assert recovered == list(range(len(recovered)))
     assert len(recovered) - 1 >= last_sent - RATE_HZ * 1.0
     assert rec.cut_after_ns == rec.end_ns

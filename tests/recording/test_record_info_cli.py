@@ -31,12 +31,12 @@ def test_info_summarises_a_finished_recording(
         "",
     ]
     assert out.splitlines()[9:] == [
-        "topic                     messages",
-        "------------------------  --------",
-        "dishbot/r1/detections            4",
-        "dishbot/r1/driver/force        100",
-        "dishbot/r1/driver/joints       100",
-        "session/header                   1",
+        "topic                         messages",
+        "----------------------------  --------",
+        "dishbot/r1/input/force             100",
+        "dishbot/r1/input/joints            100",
+        "dishbot/r1/input/observation         4",
+        "session/header                       1",
     ]
 
 

@@ -30,15 +30,15 @@ def test_finished_file_reads_back_every_message_in_order(
     assert rec.cut_after_ns is None
     assert rec.topic_counts == {
         HEADER_TOPIC: 1,
-        "dishbot/r1/driver/joints": 100,
-        "dishbot/r1/driver/force": 100,
-        "dishbot/r1/detections": 4,
+        "dishbot/r1/input/joints": 100,
+        "dishbot/r1/input/force": 100,
+        "dishbot/r1/input/observation": 4,
     }
     assert rec.header == {
         "config": {"robot_id": "r1", "backend": "sim"},
         "scene": {"dataset": 1, "mugs": [{"id": "m0", "type": "big", "x_m": 0.1, "y_m": 0.3}]},
     }
-    force = [m for m in rec if m.topic == "dishbot/r1/driver/force"]
+    force = [m for m in rec if m.topic == "dishbot/r1/input/force"]
     assert [m.payload["seq"] for m in force] == list(range(100))
     assert [m.log_time_ns for m in force] == [t0_ns + i * 20_000_000 + 1_000_000 for i in range(100)]
     assert rec.start_ns == t0_ns
@@ -54,12 +54,12 @@ def test_finished_file_opens_with_the_standard_mcap_reader(make_recording: Recor
         topics = {c.topic: c for c in summary.channels.values()}
         assert set(topics) == {
             HEADER_TOPIC,
-            "dishbot/r1/driver/joints",
-            "dishbot/r1/driver/force",
-            "dishbot/r1/detections",
+            "dishbot/r1/input/joints",
+            "dishbot/r1/input/force",
+            "dishbot/r1/input/observation",
         }
         assert all(c.message_encoding == "json" for c in topics.values())
-        schema = summary.schemas[topics["dishbot/r1/driver/force"].schema_id]
+        schema = summary.schemas[topics["dishbot/r1/input/force"].schema_id]
         assert schema.encoding == "jsonschema"
         assert json.loads(schema.data)["properties"] == {
             "t": {"type": "number"},

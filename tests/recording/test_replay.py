@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from daemon.backend import joints_payload, observation_payload
 from daemon.errors import ReplayError
 from daemon.replay import (
     FaultPlan,
@@ -18,9 +19,6 @@ from daemon.replay import (
     decode_force,
     decode_joints,
     decode_observation,
-    encode_force,
-    encode_joints,
-    encode_observation,
 )
 from drivers.errors import SensorFault
 from drivers.interfaces import ForceReading, ForceSensor, JointState
@@ -42,25 +40,31 @@ def test_timeline_splits_driver_inputs_into_time_ordered_streams(timeline: Timel
     assert {name: len(items) for name, items in timeline.streams.items()} == {
         "joints": 200,
         "force": 200,
-        "detections": 8,
+        "holding": 0,
+        "grasp": 0,
+        "observations": 8,
     }
     assert times(timeline, "force")[:3] == [0.001, 0.021, 0.041]
-    assert times(timeline, "detections") == [0.002 + 0.5 * k for k in range(8)]
+    assert times(timeline, "observations") == [0.002 + 0.5 * k for k in range(8)]
     assert timeline.end_s == pytest.approx(3.981)
     assert not timeline.truncated
     assert timeline.header is not None
     assert timeline.header["config"] == {"robot_id": "r1", "backend": "sim"}
     merged = timeline.merged()
     assert [item.t_s for _, item in merged] == sorted(item.t_s for _, item in merged)
-    assert [name for name, _ in merged[:3]] == ["joints", "force", "detections"]
+    assert [name for name, _ in merged[:3]] == ["joints", "force", "observations"]
 
 
 def test_stream_filters_are_key_expressions(make_recording: RecordingFactory) -> None:
     tl = Timeline.from_recording(
-        make_recording(seconds=1.0), streams={"driver": "dishbot/r1/driver/**", "nothing": "dishbot/r2/**"}
+        make_recording(seconds=1.0), streams={"driver": "dishbot/r1/input/**", "nothing": "dishbot/r2/**"}
     )
-    assert len(tl.stream("driver")) == 100
-    assert {x.topic for x in tl.stream("driver")} == {"dishbot/r1/driver/joints", "dishbot/r1/driver/force"}
+    assert len(tl.stream("driver")) == 102
+    assert {x.topic for x in tl.stream("driver")} == {
+        "dishbot/r1/input/joints",
+        "dishbot/r1/input/force",
+        "dishbot/r1/input/observation",
+    }
     assert tl.stream("nothing") == ()
 
 
@@ -88,7 +92,7 @@ def full_plan(seed: int = 7) -> FaultPlan:
         .drop("force", 1.5, 2.0)
         .delay("joints", 0.5, 0.6, by_s=0.25)
         .spike("force", 1.0, "force_n", 50.0)
-        .corrupt("detections", 3.0, 3.6, "detections.0.x_m", "garbage")
+        .corrupt("observations", 3.0, 3.6, "mugs.0.x_m", "garbage")
         .noise("joints", 0.0, 1.0, "position_rad.0", sigma=0.01, seed=seed)
         .cut(3.5, "joints")
     )
@@ -107,7 +111,7 @@ def test_fault_plan_gives_the_same_timeline_every_time_and_leaves_the_input_alon
         "drop force [1.5, 2) s",
         "delay joints [0.5, 0.6) s by 0.25 s",
         "spike force.force_n=50.0 at 1 s",
-        "corrupt detections.detections.0.x_m='garbage' [3, 3.6) s",
+        "corrupt observations.mugs.0.x_m='garbage' [3, 3.6) s",
         "noise joints.position_rad.0 sigma=0.01 seed=7 [0, 1) s",
         "cut joints at 3.5 s",
     )
@@ -152,7 +156,7 @@ def test_cut_of_everything_ends_the_session_there(timeline: Timeline) -> None:
     [
         (
             lambda: FaultPlan().drop("torque", 0, 1),
-            "fault names stream 'torque'; the timeline has: joints, force, detections",
+            "fault names stream 'torque'; the timeline has: joints, force, holding, grasp, observations",
         ),
         (
             lambda: FaultPlan().drop("force", 9, 10),
@@ -167,13 +171,12 @@ def test_cut_of_everything_ends_the_session_there(timeline: Timeline) -> None:
             "spike force.torque_n=0 at 1 s: the input at 1.001 s has no field 'torque_n'",
         ),
         (
-            lambda: FaultPlan().corrupt("detections", 0, 1, "detections.3.x_m", None),
-            "corrupt detections.detections.3.x_m=None [0, 1) s: "
-            "the input at 0.002 s has no field 'detections.3'",
+            lambda: FaultPlan().corrupt("observations", 0, 1, "mugs.3.x_m", None),
+            "corrupt observations.mugs.3.x_m=None [0, 1) s: the input at 0.002 s has no field 'mugs.3'",
         ),
         (
-            lambda: FaultPlan().noise("detections", 0, 1, "detections.0.type", sigma=1.0, seed=0),
-            "noise detections.detections.0.type sigma=1 seed=0 [0, 1) s: "
+            lambda: FaultPlan().noise("observations", 0, 1, "mugs.0.type", sigma=1.0, seed=0),
+            "noise observations.mugs.0.type sigma=1 seed=0 [0, 1) s: "
             "cannot add noise to 'big', which is not a number",
         ),
     ],
@@ -204,7 +207,7 @@ def test_faults_that_miss_or_name_unknown_things_are_refused(
         (lambda: FaultPlan().cut(float("nan")), "cut at_s must be a time in seconds >= 0, got nan"),
         (
             lambda: FaultPlan().spike("force", 1.0, "a..b", 1),
-            "fault field 'a..b' must be a dotted path such as 'force_n' or 'detections.0.x_m'",
+            "fault field 'a..b' must be a dotted path such as 'force_n' or 'mugs.0.x_m'",
         ),
         (
             lambda: FaultPlan().noise("force", 0, 1, "force_n", sigma=-1.0, seed=0),
@@ -220,7 +223,9 @@ def test_malformed_faults_are_refused_when_built(build: Callable[[], FaultPlan],
 
 def test_replayed_force_sensor_serves_samples_as_the_clock_passes_them(timeline: Timeline) -> None:
     clock = ReplayClock()
-    sensor = ReplayForceSensor(timeline.stream("force"), clock, hold_threshold_n=1.0, debounce_samples=3)
+    sensor = ReplayForceSensor(
+        timeline.stream("force"), clock, threshold_n=1.0, release_n=0.5, debounce_s=0.03
+    )
     assert isinstance(sensor, ForceSensor)
     assert sensor.latest() is None
     assert not sensor.holding()
@@ -228,13 +233,13 @@ def test_replayed_force_sensor_serves_samples_as_the_clock_passes_them(timeline:
     reading = sensor.latest()
     assert reading is not None
     assert (reading.seq, reading.force_n, reading.t) == (24, 0.1, pytest.approx(0.481))
-    clock.set(1.03)  # two samples above the threshold: not yet debounced
+    clock.set(1.03)  # above the threshold for 20 ms: not yet debounced
     assert sensor.latest().force_n == 2.0  # type: ignore[union-attr]
     assert not sensor.holding()
     clock.advance(0.02)
     assert sensor.holding()
     clock.set(3.03)
-    assert sensor.holding()  # released two samples ago; still debouncing
+    assert sensor.holding()  # below the release force for 20 ms: still debouncing
     clock.advance(0.02)
     assert not sensor.holding()
 
@@ -244,7 +249,9 @@ def test_force_sensor_goes_quiet_through_a_drop_and_rejects_corrupt_samples(time
         FaultPlan().drop("force", 1.5, 2.0).corrupt("force", 2.5, 2.55, "force_n", "NaN?").apply(timeline)
     )
     clock = ReplayClock(1.9)
-    sensor = ReplayForceSensor(faulted.stream("force"), clock, hold_threshold_n=1.0)
+    sensor = ReplayForceSensor(
+        faulted.stream("force"), clock, threshold_n=1.0, release_n=0.5, debounce_s=0.03
+    )
     assert sensor.latest().t == pytest.approx(1.481)  # type: ignore[union-attr]
     assert sensor.rejected == (
         "force at 2.501 s: force_n is 'NaN?', not a finite number",
@@ -258,9 +265,9 @@ def test_force_sensor_goes_quiet_through_a_drop_and_rejects_corrupt_samples(time
 def test_replayed_observer_serves_the_newest_observation_and_faults_when_the_camera_stops(
     timeline: Timeline,
 ) -> None:
-    faulted = FaultPlan().cut(2.0, "detections").apply(timeline)
+    faulted = FaultPlan().cut(2.0, "observations").apply(timeline)
     clock = ReplayClock()
-    observer = ReplayMugObserver(faulted.stream("detections"), clock, max_age_s=1.0)
+    observer = ReplayMugObserver(faulted.stream("observations"), clock, max_age_s=1.0)
     assert isinstance(observer, MugObserver)
     with pytest.raises(SensorFault, match=r"no observation in the 1 s before t=0 s"):
         asyncio.run(observer.observe())
@@ -271,7 +278,7 @@ def test_replayed_observer_serves_the_newest_observation_and_faults_when_the_cam
     clock.set(2.4)
     assert asyncio.run(observer.observe()).t == pytest.approx(1.502)  # the last one before the cut
     clock.advance(0.7)
-    with pytest.raises(SensorFault, match=r"before t=3.1 s; the detections stream was dropped, cut"):
+    with pytest.raises(SensorFault, match=r"before t=3.1 s; the observations stream was dropped, cut"):
         asyncio.run(observer.observe())
 
 
@@ -285,14 +292,20 @@ def test_replay_clock_only_moves_forward() -> None:
     assert clock.now() == 1.0
 
 
-def test_driver_boundary_records_round_trip() -> None:
-    reading = ForceReading(t=1.25, force_n=2.5, raw=512, seq=9)
-    assert decode_force(encode_force(reading, holding=True), t=1.25) == (reading, True)
-    obs = Observation(t=3.0, detections=(Detection("small", 0.12345, -0.2, True, 3.1, 0.75, "m4"),))
-    assert decode_observation(encode_observation(obs), t=3.0) == obs
+def test_replay_decodes_what_the_backend_records() -> None:
     joints = JointState(
         t=0.5, names=("a", "b"), position_rad=(0.1, 0.2), velocity_rad_s=(0.0, 1.0), load=(0.5, -0.5)
     )
-    assert decode_joints(encode_joints(joints), t=0.5) == joints
+    assert decode_joints(joints_payload(joints), t=0.5) == joints
+    obs = Observation(
+        t=3.0,
+        detections=(Detection("small", 0.12345, -0.2, True, 3.1, 0.75, "m4"),),
+        meta={"source": "truth"},
+    )
+    assert decode_observation(observation_payload(obs), t=3.0) == obs
+    reading = ForceReading(t=1.25, force_n=2.5, raw=512, seq=9)
+    assert decode_force({"t": 7.0, "force_n": 2.5, "raw": 512, "seq": 9}, t=1.25) == reading
     with pytest.raises(ValueError, match=r"^position_rad is \[0.1\], not a list of 2 numbers$"):
-        decode_joints({**encode_joints(joints), "position_rad": [0.1]}, t=0.5)
+        decode_joints({**joints_payload(joints), "position_rad": [0.1]}, t=0.5)
+    with pytest.raises(ValueError, match=r"^mugs.0.confidence is None, not a finite number$"):
+        decode_observation({"mugs": [{**obs.detections[0].to_json(), "confidence": None}]}, t=0.0)
