@@ -1,6 +1,21 @@
 """Motion planning of the pick-flip-place cycle: cell, trajectories, collision checks, time and energy."""
 
 from planning.motion.cell import CellLayout, carry_height_m
+from planning.motion.energy import DynamicsEnergyModel, DynamicsMoveCost, EnergyBreakdown, thesis_energy_j
 from planning.motion.errors import InvalidCell, UnknownMugType
+from planning.motion.planner import CyclePlanner
+from planning.motion.trajectory import JointPath, plan_path
 
-__all__ = ["CellLayout", "InvalidCell", "UnknownMugType", "carry_height_m"]
+__all__ = [
+    "CellLayout",
+    "CyclePlanner",
+    "DynamicsEnergyModel",
+    "DynamicsMoveCost",
+    "EnergyBreakdown",
+    "InvalidCell",
+    "JointPath",
+    "UnknownMugType",
+    "carry_height_m",
+    "plan_path",
+    "thesis_energy_j",
+]

@@ -1,0 +1,197 @@
+"""Time and energy of arm motions: joint torques from Pinocchio's RNEA (with the held mug as a payload on the
+gripper) turned into electrical power by a DC-motor model of each servo, beside the thesis's proxy.
+
+Servo model, output-referred, gearbox included: current I = tau / k_t, terminal voltage V = R I + k_e omega,
+electrical power P = V I = R I^2 + k_e omega I. A servo's H-bridge does not return braking energy to the
+supply, so negative power counts as zero. k_t, k_e and R come from the datasheet's stall torque, stall
+current and no-load speed at the supply voltage (``ServoModel``). While the arm is still, the joints still
+draw the copper loss of holding it against gravity, and every servo's electronics draw standby current.
+
+The thesis estimated energy as the potential-energy-like proxy E = M_m g Δm (Eq 4.1-4.2), Δm the straight
+distance from the counter to the tray; ``thesis_energy_j`` gives it for comparison.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from drivers.interfaces import FloatArray
+from planning import thesis
+from planning.arm.grasp import lateral_offset_m, side_grasp
+from planning.arm.model import ArmModel
+from planning.arm.servos import SERVO_MODELS
+from planning.arm.targets import GraspKind, GraspTarget
+from planning.motion.cell import CellLayout, carry_height_m
+from planning.motion.trajectory import JointPath
+from planning.thesis import MugSpec
+
+
+@dataclass(frozen=True, slots=True)
+class EnergyBreakdown:
+    """Electrical energy of a motion (joules) drawn from the supply, and the part lost in the windings."""
+
+    total_j: float
+    copper_j: float
+
+
+def thesis_energy_j(
+    mug_mass_kg: float, start_xy_m: tuple[float, float], goal_xy_m: tuple[float, float]
+) -> float:
+    """The thesis's energy proxy for one mug, F Δm with F = M_m g (Eq 4.1-4.2)."""
+    return mug_mass_kg * thesis.GRAVITY_M_S2 * math.dist(start_xy_m, goal_xy_m)
+
+
+class DynamicsEnergyModel:
+    """Electrical energy of joint trajectories from RNEA torques and the servo motor model."""
+
+    def __init__(self, arm: ArmModel, *, supply_v: float = thesis.SUPPLY_VOLTAGE_V) -> None:
+        self.arm = arm
+        self.supply_v = supply_v
+        servos = arm.servo_models
+        self.k_t = np.array([s.torque_constant_nm_per_a for s in servos])
+        self.k_e = np.array([s.back_emf_v_s_per_rad(supply_v) for s in servos])
+        self.resistance = np.array([s.winding_resistance_ohm(supply_v) for s in servos])
+        # The gripper servo is not in the kinematic model but draws standby current all the same.
+        gripper = SERVO_MODELS[dict(thesis.JOINT_SERVOS)["gripper"]]
+        self.standby_w = supply_v * (sum(s.standby_current_a for s in servos) + gripper.standby_current_a)
+        self._models: dict[tuple[float, float], tuple[pin.Model, pin.Data]] = {}
+
+    def torques(
+        self,
+        q: FloatArray,
+        qd: FloatArray,
+        qdd: FloatArray,
+        *,
+        payload_kg: float = 0.0,
+        payload_lateral_m: float = 0.0,
+    ) -> FloatArray:
+        """Joint torques (n_samples, n_joints) along sampled states, with a point-like mug held at the grasp
+        point (its axis ``payload_lateral_m`` beside it)."""
+        model, data = self._model(payload_kg, payload_lateral_m)
+        out = np.empty_like(q)
+        for i in range(len(q)):
+            out[i] = pin.rnea(model, data, q[i], qd[i], qdd[i])
+        return out
+
+    def power_w(self, tau: FloatArray, qd: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Supply power and copper loss (each (n_samples,)) of the arm's joint motors, standby excluded.
+        Per joint P = R I^2 + k_e omega I, floored at zero (no regeneration)."""
+        current = tau / self.k_t
+        copper = self.resistance * current**2
+        supply = np.maximum(copper + self.k_e * qd * current, 0.0)
+        return np.sum(supply, axis=1), np.sum(copper, axis=1)
+
+    def path_energy(
+        self, path: JointPath, rate_hz: float, *, payload_kg: float = 0.0, payload_lateral_m: float = 0.0
+    ) -> EnergyBreakdown:
+        """Energy of one time-parameterised path, integrated at ``rate_hz`` (standby excluded)."""
+        if path.duration == 0.0:
+            return EnergyBreakdown(0.0, 0.0)
+        n = max(2, math.ceil(path.duration * rate_hz) + 1)
+        times = np.linspace(0.0, path.duration, n)
+        q, qd, qdd = path.state_at(times)
+        tau = self.torques(q, qd, qdd, payload_kg=payload_kg, payload_lateral_m=payload_lateral_m)
+        supply, copper = self.power_w(tau, qd)
+        return EnergyBreakdown(float(np.trapezoid(supply, times)), float(np.trapezoid(copper, times)))
+
+    def hold_energy_j(
+        self, q: FloatArray, seconds: float, *, payload_kg: float = 0.0, payload_lateral_m: float = 0.0
+    ) -> float:
+        """Copper loss of holding pose ``q`` against gravity for ``seconds``."""
+        zero = np.zeros((1, len(q)))
+        tau = self.torques(q[None, :], zero, zero, payload_kg=payload_kg, payload_lateral_m=payload_lateral_m)
+        return float(np.sum(self.resistance * (tau[0] / self.k_t) ** 2)) * seconds
+
+    def idle_energy_j(self, seconds: float) -> float:
+        """Standby draw of every servo's electronics over ``seconds``."""
+        return self.standby_w * max(0.0, seconds)
+
+    def _model(self, payload_kg: float, lateral_m: float) -> tuple[pin.Model, pin.Data]:
+        key = (round(payload_kg, 4), round(lateral_m, 4))
+        cached = self._models.get(key)
+        if cached is not None:
+            return cached
+        model = self.arm.model.copy()
+        if payload_kg > 0:
+            frame = model.frames[model.getFrameId(self.arm.tool_frame)]
+            local = frame.placement.act(np.array([0.0, lateral_m, 0.0]))
+            model.appendBodyToJoint(
+                frame.parentJoint, pin.Inertia.FromSphere(payload_kg, 0.04), pin.SE3(np.eye(3), local)
+            )
+        cached = (model, model.createData())
+        self._models[key] = cached
+        return cached
+
+
+@dataclass
+class DynamicsMoveCost:
+    """Time and electrical energy of one mug's cycle for the placement planner (``MoveCost``), from the
+    arm model: joint moves between the cycle's key poses (pick, flip, place at carry height) timed within
+    the servo limits and costed with RNEA and the servo model, plus the fine moves and gripper waits.
+
+    Collision checks are left to the cycle planner; poses are cached on a 5 mm grid so thousands of
+    candidate spots cost milliseconds each."""
+
+    arm: ArmModel
+    cell: CellLayout
+    catalogue: Mapping[str, MugSpec] = field(default_factory=lambda: dict(thesis.MUG_TYPES))
+    rate_hz: float = 25.0
+    gripper_s: float = 3.2  # two closes, two opens (CyclePlanner defaults)
+    fine_s: float = 8.0  # approach, lift, set-down, regrasp, descend, retreat at fine speed
+    _energy: DynamicsEnergyModel = field(init=False)
+    _ik: dict[tuple[int, int, str, str], FloatArray | None] = field(init=False, default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self._energy = DynamicsEnergyModel(self.arm)
+        tallest = max(m.height_mm for m in self.catalogue.values()) / 1000.0
+        self._carry = carry_height_m(tallest)
+
+    def __call__(
+        self, mug_mass_kg: float, start_xy_m: tuple[float, float], goal_xy_m: tuple[float, float]
+    ) -> tuple[float, float]:
+        spec = min(self.catalogue.values(), key=lambda m: abs(m.mass_kg - mug_mass_kg))
+        pick = self._pose(start_xy_m, spec, GraspKind.SIDE)
+        flip_up = self._pose(self.cell.flip_area_center_m, spec, GraspKind.SIDE, flip=True)
+        flip_down = self._pose(self.cell.flip_area_center_m, spec, GraspKind.SIDE_UPSIDE_DOWN)
+        place = self._pose(goal_xy_m, spec, GraspKind.SIDE_UPSIDE_DOWN)
+        if pick is None or flip_up is None or flip_down is None or place is None:
+            return math.inf, math.inf
+        lateral = lateral_offset_m(spec, self.arm.gripper)
+        seconds = self.gripper_s + self.fine_s
+        joules = 0.0
+        for a, b in ((pick, flip_up), (flip_up, flip_down), (flip_down, place)):
+            path = JointPath(np.array([a, b]), self.arm.max_velocity, self.arm.max_acceleration)
+            seconds += path.duration
+            joules += self._energy.path_energy(
+                path, self.rate_hz, payload_kg=mug_mass_kg, payload_lateral_m=lateral
+            ).total_j
+        joules += self._energy.hold_energy_j(pick, self.gripper_s + self.fine_s, payload_kg=mug_mass_kg)
+        joules += self._energy.idle_energy_j(seconds)
+        return seconds, joules
+
+    def _pose(
+        self, xy: tuple[float, float], spec: MugSpec, kind: GraspKind, *, flip: bool = False
+    ) -> FloatArray | None:
+        key = (round(xy[0] * 200), round(xy[1] * 200), spec.name, f"{kind}{flip}")
+        if key in self._ik:
+            return self._ik[key]
+        try:
+            if flip:
+                g = side_grasp(
+                    xy[0], xy[1], spec, self.arm.gripper, z_m=self._carry, kind=GraspKind.SIDE_UPSIDE_DOWN
+                ).target
+                target = GraspTarget(g.position_m, kind)
+            else:
+                target = side_grasp(xy[0], xy[1], spec, self.arm.gripper, z_m=self._carry, kind=kind).target
+        except ValueError:
+            self._ik[key] = None
+            return None
+        result = self.arm.ik(target)
+        q = np.asarray(result.q) if result.ok and result.q is not None else None
+        self._ik[key] = q
+        return q

@@ -1,0 +1,229 @@
+"""The pick-flip-place cycle: phases, continuity, servo limits, geometry at the key poses, and refusals."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planning import thesis
+from planning.arm import ArmModel
+from planning.arm.grasp import lateral_offset_m
+from planning.interfaces import CyclePlan, MotionPlanner, MotionRefused, MugPose, StepKind, TraySlot
+from planning.motion import CellLayout, CyclePlanner
+from planning.thesis import MUG_TYPES
+
+DEFAULT_CONFIG = Path(__file__).parents[2] / "daemon" / "default_config.toml"
+START_Q = (0.0, -1.2, 1.7, -2.0, -math.pi / 2)
+PHASES = [
+    ("side_grasp.approach", StepKind.MOVE),
+    ("side_grasp.approach", StepKind.MOVE),
+    ("side_grasp.approach", StepKind.MOVE),
+    ("side_grasp.close", StepKind.CLOSE),
+    ("side_grasp.lift", StepKind.MOVE),
+    ("flip.transit", StepKind.MOVE),
+    ("flip.turn", StepKind.MOVE),
+    ("flip.set_down", StepKind.MOVE),
+    ("flip.release", StepKind.OPEN),
+    ("flip.regrasp", StepKind.MOVE),
+    ("flip.regrasp", StepKind.MOVE),
+    ("flip.regrasp", StepKind.MOVE),
+    ("flip.close", StepKind.CLOSE),
+    ("flip.lift", StepKind.MOVE),
+    ("place.transit", StepKind.MOVE),
+    ("place.descend", StepKind.MOVE),
+    ("place.release", StepKind.OPEN),
+    ("place.retreat", StepKind.MOVE),
+    ("place.retreat", StepKind.MOVE),
+]
+
+
+@pytest.fixture(scope="module")
+def arm() -> ArmModel:
+    return ArmModel.load()
+
+
+@pytest.fixture(scope="module")
+def cell() -> CellLayout:
+    with DEFAULT_CONFIG.open("rb") as f:
+        return CellLayout.from_mapping(tomllib.load(f)["cell"])
+
+
+@pytest.fixture(scope="module")
+def planner(arm: ArmModel, cell: CellLayout) -> CyclePlanner:
+    return CyclePlanner(arm, cell, MUG_TYPES)
+
+
+MUG = MugPose("m1", "big", -0.10, 0.45)
+NEIGHBOURS = [MugPose("m2", "small", 0.08, 0.45), MugPose("m3", "big", -0.10, 0.58)]
+SLOT = TraySlot("m1", "big", 0.45, 0.05)
+PLACED = [TraySlot("m4", "small", 0.45, -0.06), TraySlot("m5", "big", 0.60, 0.05)]
+
+
+@pytest.fixture(scope="module")
+def plan(planner: CyclePlanner) -> CyclePlan:
+    return planner.plan_cycle(START_Q, MUG, SLOT, PLACED, counter=NEIGHBOURS)
+
+
+def test_planner_implements_the_motion_planner_protocol(planner: CyclePlanner) -> None:
+    assert isinstance(planner, MotionPlanner)
+
+
+def test_cycle_steps_follow_the_statechart_substates(plan: CyclePlan) -> None:
+    assert [(s.phase, s.kind) for s in plan.steps] == PHASES
+    assert all((s.trajectory is None) == (s.kind is not StepKind.MOVE) for s in plan.steps)
+    assert plan.steps_for("flip")[0].phase == "flip.transit"
+
+
+def test_moves_are_continuous_from_the_start_pose(plan: CyclePlan) -> None:
+    q = np.array(START_Q)
+    for step in plan.steps:
+        if step.trajectory is None:
+            continue
+        assert np.allclose(step.trajectory.positions[0], q, atol=1e-9), step.phase
+        q = step.trajectory.positions[-1]
+
+
+def test_trajectories_are_sampled_at_the_control_rate_within_the_servo_limits(
+    plan: CyclePlan, arm: ArmModel
+) -> None:
+    for step in plan.steps:
+        traj = step.trajectory
+        if traj is None:
+            continue
+        assert traj.names == arm.joint_names
+        assert traj.times[0] == 0.0
+        dt = np.diff(traj.times)
+        assert np.allclose(dt[:-1], 1 / 50.0)
+        assert 0 < dt[-1] <= 1 / 50.0 + 1e-9
+        assert np.all(traj.positions >= arm.lower - 1e-9)
+        assert np.all(traj.positions <= arm.upper + 1e-9)
+        v = np.diff(traj.positions, axis=0) / dt[:, None]
+        assert np.all(np.abs(v) <= arm.max_velocity * 1.02), step.phase
+        if len(dt) > 2:
+            a = np.diff(v[:-1], axis=0) / dt[1:-1, None]
+            assert np.all(np.abs(a) <= arm.max_acceleration * 1.05), step.phase
+
+
+def _end_of(plan: CyclePlan, phase: str) -> np.ndarray:
+    moves = [s for s in plan.steps if s.phase == phase and s.trajectory is not None]
+    assert moves[-1].trajectory is not None
+    return moves[-1].trajectory.positions[-1]
+
+
+def test_grasp_pose_holds_the_mug_axis_six_centimetres_up(plan: CyclePlan, arm: ArmModel) -> None:
+    position, rotation = arm.fk(_end_of(plan, "side_grasp.approach"))
+    axis = position[:2] + lateral_offset_m(MUG_TYPES["big"], arm.gripper) * rotation[:2, 1]
+    assert np.allclose(axis, [MUG.x_m, MUG.y_m], atol=1e-3)
+    assert position[2] == pytest.approx(thesis.GRASP_HEIGHT_M, abs=1e-3)
+    assert rotation[2, 0] == pytest.approx(1.0, abs=1e-3)  # upright
+
+
+def test_flip_turns_the_wrist_by_half_a_turn_above_the_flip_area(plan: CyclePlan, arm: ArmModel) -> None:
+    turn = next(s for s in plan.steps if s.phase == "flip.turn").trajectory
+    assert turn is not None
+    before, after = turn.positions[0], turn.positions[-1]
+    assert after[4] - before[4] == pytest.approx(math.pi, abs=2e-3)
+    assert np.allclose(before[:4], after[:4], atol=2e-3)
+    position, _ = arm.fk(after)
+    assert position[2] == pytest.approx(0.106 + 0.03 + 0.06, abs=1e-3)
+
+
+def test_release_on_the_tray_puts_the_inverted_mug_on_its_slot(plan: CyclePlan, arm: ArmModel) -> None:
+    position, rotation = arm.fk(_end_of(plan, "place.descend"))
+    axis = position[:2] + lateral_offset_m(MUG_TYPES["big"], arm.gripper) * rotation[:2, 1]
+    assert np.allclose(axis, [SLOT.x_m, SLOT.y_m], atol=1e-3)
+    assert rotation[2, 0] == pytest.approx(-1.0, abs=1e-3)  # upside down
+    # The brim, 6 cm below the grasp point, hangs just above the tray floor.
+    assert 0.0 < position[2] - thesis.PLACE_HEIGHT_M <= 0.01
+
+
+def test_carried_mug_stays_at_carry_height_in_transit(plan: CyclePlan, arm: ArmModel) -> None:
+    for phase in ("flip.transit", "place.transit"):
+        traj = next(s for s in plan.steps if s.phase == phase).trajectory
+        assert traj is not None
+        heights = [arm.fk(q)[0][2] for q in traj.positions[::5]]
+        assert np.allclose(heights, 0.196, atol=3e-3), phase
+
+
+def test_cycle_time_and_energy_are_predicted(plan: CyclePlan) -> None:
+    moving = sum(s.trajectory.duration for s in plan.steps if s.trajectory is not None)
+    assert plan.duration_s == pytest.approx(moving + 2 * 1.0 + 2 * 0.6)
+    assert plan.duration_s < thesis.MAX_SECONDS_PER_MUG
+    standby_w = thesis.SUPPLY_VOLTAGE_V * (4 * 0.1 + 2 * 0.05)
+    assert plan.energy_j > standby_w * plan.duration_s
+
+
+def test_nan_start_pose_is_refused(planner: CyclePlanner) -> None:
+    with pytest.raises(MotionRefused, match=r"^start_q: joint angles must be finite, got \[nan, "):
+        planner.plan_cycle((math.nan, -1.2, 1.7, -2.0, 0.0), MUG, SLOT, [])
+
+
+def test_start_pose_beyond_a_joint_limit_is_refused(planner: CyclePlanner) -> None:
+    with pytest.raises(
+        MotionRefused, match=r"^start_q: shoulder_lift=1.0000 rad is outside \[-2.0000, 0.3000\]$"
+    ):
+        planner.plan_cycle((0.0, 1.0, 1.7, -2.0, 0.0), MUG, SLOT, [])
+
+
+def test_unknown_mug_type_is_refused(planner: CyclePlanner) -> None:
+    with pytest.raises(MotionRefused, match=r"^mug m9: unknown mug type 'teacup' \(catalogue: big, small\)$"):
+        planner.plan_cycle(
+            START_Q, MugPose("m9", "teacup", 0.0, 0.45), TraySlot("m9", "teacup", 0.45, 0.0), []
+        )
+
+
+def test_slot_outside_the_tray_is_refused(planner: CyclePlanner) -> None:
+    with pytest.raises(
+        MotionRefused, match=r"^slot of m1 at \(0.700, 0.000\) m puts the mug outside the tray"
+    ):
+        planner.plan_cycle(START_Q, MUG, TraySlot("m1", "big", 0.70, 0.0), [])
+
+
+def test_rotated_slot_is_refused_because_the_arm_has_no_wrist_yaw(planner: CyclePlanner) -> None:
+    with pytest.raises(MotionRefused, match=r"^slot for m1 is rotated: the arm has no wrist yaw"):
+        planner.plan_cycle(START_Q, MUG, TraySlot("m1", "big", 0.45, 0.0, rotated=True), [])
+
+
+def test_mug_beyond_reach_is_refused_with_the_reason(planner: CyclePlanner) -> None:
+    with pytest.raises(
+        MotionRefused, match=r"^side_grasp.approach: \(.*\) m unreachable: out of reach for a side"
+    ):
+        planner.plan_cycle(START_Q, MugPose("m1", "big", 0.0, 0.85), SLOT, [])
+
+
+def test_slot_on_top_of_a_placed_mug_is_refused_as_a_collision(planner: CyclePlanner) -> None:
+    with pytest.raises(MotionRefused, match=r"^place\.(transit|descend): the held mug m1 would hit mug m4"):
+        planner.plan_cycle(START_Q, MUG, SLOT, [TraySlot("m4", "small", 0.45, 0.05)])
+
+
+def test_a_mug_in_the_approach_path_is_refused_as_a_collision(planner: CyclePlanner) -> None:
+    blocker = MugPose("m7", "big", -0.085, 0.36)  # on the line from the base to the target, 9 cm closer
+    with pytest.raises(MotionRefused, match=r"^side_grasp.approach: the gripper would hit mug m7"):
+        planner.plan_cycle(START_Q, MUG, SLOT, [], counter=[blocker])
+
+
+def test_plan_move_stays_within_limits_and_ends_on_the_goal(planner: CyclePlanner, arm: ArmModel) -> None:
+    goal = (0.5, -1.0, 1.5, -2.0, -1.0)
+    traj = planner.plan_move(START_Q, goal, label="park")
+    assert traj.label == "park"
+    assert np.allclose(traj.positions[-1], goal)
+    v = np.diff(traj.positions, axis=0) / np.diff(traj.times)[:, None]
+    assert np.all(np.abs(v) <= arm.max_velocity * 1.02)
+
+
+def test_plan_move_refuses_a_goal_beyond_the_limits(planner: CyclePlanner) -> None:
+    with pytest.raises(
+        MotionRefused, match=r"^goal_q: wrist_turn=3.0000 rad is outside \[-2.6180, 2.6180\]$"
+    ):
+        planner.plan_move(START_Q, (0.0, -1.2, 1.7, -2.0, 3.0), label="park")
+
+
+def test_plan_move_refuses_a_pose_below_the_counter(planner: CyclePlanner) -> None:
+    with pytest.raises(
+        MotionRefused, match=r"^park: the (gripper would touch the counter|.* joint would go below)"
+    ):
+        planner.plan_move(START_Q, (0.0, 0.3, 0.5, 0.0, 0.0), label="park")
