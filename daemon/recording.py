@@ -113,8 +113,12 @@ class Recorder:
         except OSError as e:
             raise RecordingError(f"cannot create recording {self.path}: {e.strerror}") from e
         self._writer = Writer(self._file, chunk_size=chunk_size, compression=COMPRESSIONS[compression])
-        self._writer.start(profile=PROFILE, library="dishbot")
-        self._file.flush()
+        try:
+            self._writer.start(profile=PROFILE, library="dishbot")
+            self._file.flush()
+        except OSError as e:
+            self._file.close()
+            raise RecordingError(f"cannot write recording {self.path}: {e.strerror}") from e
         self._flush_interval_s = flush_interval_s
         self._drain_interval_s = drain_interval_s
         self._queue_size = queue_size

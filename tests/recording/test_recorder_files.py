@@ -173,6 +173,13 @@ def test_full_queue_drops_and_counts_every_lost_message(tmp_path: Path) -> None:
     assert read_messages(path).message_count == stats.written
 
 
+def test_recorder_in_a_missing_directory_fails_with_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "nowhere" / "x.mcap"
+    with pytest.raises(RecordingError) as err:
+        Recorder(path)
+    assert str(err.value) == f"cannot create recording {path}: No such file or directory"
+
+
 def test_recorder_refuses_to_overwrite_an_existing_file(tmp_path: Path) -> None:
     path = tmp_path / "exists.mcap"
     path.write_bytes(b"keep me")
