@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Protocol
@@ -127,6 +127,10 @@ class Fitness:
     weights: dict[str, float]
     ranking: tuple[str, ...]
     norm: Normaliser = field(default_factory=Normaliser)
+    _raw: tuple[Callable[[Metrics], float], ...] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._raw = tuple(_RAW_COST[p] for p in self.ranking)
 
     @classmethod
     def build(
@@ -161,8 +165,7 @@ class Fitness:
         layouts exactly as ranking the normalised cost parameters does, without rescaling on every compare."""
         if self.method is FitnessMethod.WS:
             return (self.weighted(m),)
-        raw = {"n": -m.n, "A": -m.A, "E": m.E, "t": m.t, "s": -m.s}
-        return tuple(raw[p] for p in self.ranking)
+        return tuple([get(m) for get in self._raw])
 
     def weighted(self, m: Metrics) -> float:
         """Eq 4.6 (with Eq 4.8-4.10 as weight choices)."""
@@ -184,6 +187,16 @@ class Fitness:
     def better(self, a: Metrics, b: Metrics) -> bool:
         """IsCostDecreased(a, b)."""
         return self.key(a) < self.key(b)
+
+
+# Each parameter signed so that lower is better, for ranking comparisons.
+_RAW_COST: dict[str, Callable[[Metrics], float]] = {
+    "n": lambda m: -m.n,
+    "A": lambda m: -m.A,
+    "E": lambda m: m.E,
+    "t": lambda m: m.t,
+    "s": lambda m: -m.s,
+}
 
 
 def _with_area(ranking: tuple[str, ...], cost: CostFunction) -> tuple[str, ...]:

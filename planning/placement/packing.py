@@ -12,14 +12,17 @@ prefix is cached too: a metaheuristic's neighbour that changes position i of the
 
 from __future__ import annotations
 
+import bisect
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 from planning.placement.heuristics import FRAMES, Heuristic
 from planning.placement.problem import Problem
 
-# (a0, a1, b0, b1): a placed footprint in the canonical frame, half-open.
+# (b0, b1, a0, a1): a placed footprint in the canonical frame, half-open.
 Rect = tuple[int, int, int, int]
+# rectangles sorted by b0, candidate rows ascending, bitmask of shapes that no longer fit, spots so far
+_State = tuple[tuple[Rect, ...], tuple[int, ...], int, tuple["Spot | None", ...]]
 # x, y (footprint corner, tray coordinates), rotated
 Spot = tuple[int, int, bool]
 
@@ -51,20 +54,24 @@ class Packing:
         return {m: s for m, s in zip(self.order, self.spots, strict=True) if s is not None}
 
 
-def first_fit(rects: Sequence[Rect], size_a: int, size_b: int, da: int, db: int) -> tuple[int, int] | None:
-    """The lowest (a, b) at which a ``da`` x ``db`` footprint fits among ``rects``, or None."""
-    rows = sorted({0, *(r[1] for r in rects)})
+def first_fit(
+    by_b: Sequence[Rect], rows: Sequence[int], size_a: int, size_b: int, da: int, db: int
+) -> tuple[int, int] | None:
+    """The lowest (a, b) at which a ``da`` x ``db`` footprint fits.
+
+    ``by_b`` holds the placed rectangles as (b0, b1, a0, a1) sorted by b0; ``rows`` the ascending candidate
+    rows (0 and every a1)."""
     for a in rows:
         a_end = a + da
         if a_end > size_a:
             return None
-        blocks = sorted([(r[2], r[3]) for r in rects if r[0] < a_end and r[1] > a])
         b = 0
-        for b0, b1 in blocks:
-            if b + db <= b0:
-                break
-            if b1 > b:
-                b = b1
+        for b0, b1, a0, a1 in by_b:
+            if a0 < a_end and a1 > a:
+                if b + db <= b0:
+                    break
+                if b1 > b:
+                    b = b1
         if b + db <= size_b:
             return a, b
     return None
@@ -89,11 +96,15 @@ class Packer:
                 shapes.append(options)
             self._code.append(shape_index[options])
         self._shapes = shapes
-        self._base: tuple[Rect, ...] = tuple(
+        base = sorted(
             self._rect_of(q.x_mm, q.y_mm, *problem.footprint(q.type, q.rotated)) for q in problem.placed
         )
-        # prefix of shape codes -> (rects, failed-shape bitmask, spots)
-        self._cache: dict[bytes, tuple[tuple[Rect, ...], int, tuple[Spot | None, ...]]] = {}
+        self._base: tuple[tuple[Rect, ...], tuple[int, ...]] = (
+            tuple(base),
+            tuple(sorted({0, *(r[3] for r in base)})),
+        )
+        # prefix of shape codes -> state after packing it
+        self._cache: dict[bytes, _State] = {}
         self.placements_computed = 0
 
     def shape_code(self, mug: int) -> int:
@@ -103,7 +114,7 @@ class Packer:
     def _rect_of(self, x: int, y: int, fx: int, fy: int) -> Rect:
         a, b = self._frame.to_canonical(self.problem.tray_size_mm, x, y, fx, fy)
         da, db = self._frame.dims(fx, fy)
-        return (a, a + da, b, b + db)
+        return (b, b + db, a, a + da)
 
     def pack(self, order: Sequence[int]) -> Packing:
         """Place ``order`` one mug at a time; a mug that does not fit is skipped and later mugs still try."""
@@ -111,9 +122,9 @@ class Packer:
         hit = self._cache.get(key)
         if hit is None:
             hit = self._pack_codes(key)
-        return Packing(tuple(order), hit[2])
+        return Packing(tuple(order), hit[3])
 
-    def _pack_codes(self, key: bytes) -> tuple[tuple[Rect, ...], int, tuple[Spot | None, ...]]:
+    def _pack_codes(self, key: bytes) -> _State:
         cache = self._cache
         if len(cache) > _CACHE_LIMIT:
             cache.clear()
@@ -126,10 +137,10 @@ class Packer:
             else:
                 hi = mid - 1
         if lo:
-            rects_t, failed, spots_t = cache[key[:lo]]
-            rects, spots = list(rects_t), list(spots_t)
+            rects_t, rows_t, failed, spots_t = cache[key[:lo]]
         else:
-            rects, failed, spots = list(self._base), 0, []
+            (rects_t, rows_t), failed, spots_t = self._base, 0, ()
+        rects, rows, spots = list(rects_t), list(rows_t), list(spots_t)
         tray = self.problem.tray_size_mm
         frame = self._frame
         size_a, size_b = self._size
@@ -140,7 +151,7 @@ class Packer:
                 best: tuple[int, int, int, int, bool] | None = None
                 for fx, fy, rot in self._shapes[code]:
                     da, db = (fx, fy) if frame.primary_is_x else (fy, fx)
-                    corner = first_fit(rects, size_a, size_b, da, db)
+                    corner = first_fit(rects, rows, size_a, size_b, da, db)
                     self.placements_computed += 1
                     if corner is not None and (best is None or corner < best[:2]):
                         best = (corner[0], corner[1], fx, fy, rot)
@@ -149,9 +160,12 @@ class Packer:
                 else:
                     a, b, fx, fy, rot = best
                     da, db = frame.dims(fx, fy)
-                    rects.append((a, a + da, b, b + db))
+                    bisect.insort(rects, (b, b + db, a, a + da))
+                    k_row = bisect.bisect_left(rows, a + da)
+                    if k_row == len(rows) or rows[k_row] != a + da:
+                        rows.insert(k_row, a + da)
                     x, y = frame.from_canonical(tray, a, b, fx, fy)
                     spot = (x, y, rot)
             spots.append(spot)
-            cache[key[: k + 1]] = (tuple(rects), failed, tuple(spots))
-        return cache[key] if key else (tuple(rects), failed, ())
+            cache[key[: k + 1]] = (tuple(rects), tuple(rows), failed, tuple(spots))
+        return cache[key] if key else (tuple(rects), tuple(rows), failed, ())

@@ -18,7 +18,7 @@ from planning.placement import (
 )
 from planning.placement.order import blocking_violations
 
-FAST_METHODS = ("bh", "sa", "ga", "exact", "auto")
+FAST_METHODS = ("bh", "sa", "ga", "psok-n", "psok-i", "exact", "auto")
 
 
 def assert_valid(problem: Problem, result: PlanResult) -> None:
@@ -59,7 +59,7 @@ def test_optimum_beats_the_thesis_best_on_the_full_tray() -> None:
     assert [plan(dataset_problem(n), PlanOptions(method="exact")).n for n in (4, 5, 6)] == [18, 20, 23]
 
 
-@pytest.mark.parametrize("method", ["sa", "ga"])
+@pytest.mark.parametrize("method", ["sa", "ga", "psok-n", "psok-i"])
 def test_seeded_runs_repeat_exactly(method: str) -> None:
     problem = dataset_problem(2)
     a = plan(problem, PlanOptions(method=method, sort="ro", seed=7))
