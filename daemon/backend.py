@@ -8,10 +8,15 @@ is also handed to the recording, which is what a replay needs.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Protocol
 
+import numpy as np
+
+from daemon.config import Config
+from daemon.errors import UsageError
 from drivers.interfaces import (
     ArmDriver,
     ForceReading,
@@ -22,8 +27,16 @@ from drivers.interfaces import (
     JointState,
     JointTrajectory,
 )
-from perception.interfaces import MugObserver, Observation
+from drivers.simcell import MugGeometry, SimMug, open_kinematic_cell
+from perception.interfaces import Detection, MugObserver, Observation
+from perception.truth import TruthObserver
+from planning import thesis
+from planning.arm import ArmModel
 from planning.interfaces import MotionPlanner
+from planning.motion import CellLayout
+from planning.motion.planner import CyclePlanner
+from planning.placement import Problem, dataset_problem
+from planning.thesis import MugSpec
 
 
 @dataclass(frozen=True, slots=True)
@@ -195,3 +208,106 @@ class _RecordedObserver:
         obs = await self._inner.observe()
         self._sink("input/observation", observation_payload(obs))
         return obs
+
+
+def open_sim_backend(config: Config, *, world: str, dataset: int, speed: float, seed: int) -> Backend:
+    """The simulated cell with dataset ``dataset``'s mugs on its counter, ``speed`` times real time.
+
+    ``world`` is ``kinematic`` (the placeholder cell of ``drivers.simcell``) or ``mujoco`` (the physics
+    simulation, once it is wired)."""
+    if world != "kinematic":
+        raise UsageError(
+            f"--world {world}: the MuJoCo cell is not wired into the daemon yet; use --world kinematic"
+        )
+    arm_model = ArmModel.load()
+    counter = _KinematicCounter(config, arm_model, speed=speed)
+    tray = counter.set_counter(dataset=dataset, mugs=None)
+    cell = counter.cell
+    catalogue = {
+        m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in config.mug_types
+    }
+    observer = TruthObserver(counter.visible_mugs, noise_m=config.sim.detection_noise_m, seed=seed)
+    motion = counter.motion_planner(catalogue)
+    backend = Backend(
+        name="sim-kinematic",
+        arm=cell.arm,
+        gripper=cell.gripper,
+        force=cell.force,
+        observer=observer,
+        motion=motion,
+        tray=tray,
+        counter=counter,
+    )
+    counter.on_tray_change = lambda t: setattr(backend, "motion", counter.motion_planner(catalogue))
+    return backend
+
+
+class _KinematicCounter:
+    """Sets the kinematic cell's counter up for a job: a placement dataset or an explicit list of mugs."""
+
+    def __init__(self, config: Config, arm: ArmModel, *, speed: float) -> None:
+        self._config = config
+        self._arm = arm
+        self._geometry = {
+            m.name: MugGeometry(m.diameter_mm / 1000.0, m.height_mm / 1000.0) for m in config.mug_types
+        }
+        self.tray = Tray(config.cell.tray_origin_m, config.cell.tray_size_mm)
+        self.cell = open_kinematic_cell(
+            [],
+            self._geometry,
+            tray_origin_m=self.tray.origin_m,
+            tray_size_m=(self.tray.size_mm[0] / 1000.0, self.tray.size_mm[1] / 1000.0),
+            speed=speed,
+            joint_speed_rad_s=config.sim.joint_speed_rad_s,
+            holding_threshold_n=config.grasp.force_threshold_n / 2.0,
+            arm=arm,
+            q0=np.asarray(config.sim.start_q_rad, dtype=np.float64),
+        )
+        self.on_tray_change: Callable[[Tray], None] | None = None
+
+    def set_counter(self, *, dataset: int | None, mugs: Sequence[CounterMug] | None) -> Tray:
+        if mugs is not None:
+            sim_mugs = [SimMug(m.mug_id, m.type, m.x_m, m.y_m) for m in mugs]
+            tray = Tray(self._config.cell.tray_origin_m, self._config.cell.tray_size_mm)
+        else:
+            problem = self._dataset(dataset or 1)
+            sim_mugs = [SimMug(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs]
+            origin = (problem.tray_origin_mm[0] / 1000.0, problem.tray_origin_mm[1] / 1000.0)
+            tray = Tray(origin, problem.tray_size_mm)
+        unknown = sorted({m.type for m in sim_mugs} - set(self._geometry))
+        if unknown:
+            raise ValueError(f"mug types {', '.join(unknown)} are not in the configured catalogue")
+        world = self.cell.world
+        world.set_mugs(sim_mugs)
+        world.tray_origin_m = tray.origin_m
+        world.tray_size_m = (tray.size_mm[0] / 1000.0, tray.size_mm[1] / 1000.0)
+        changed = tray != self.tray
+        self.tray = tray
+        if changed and self.on_tray_change is not None:
+            self.on_tray_change(tray)
+        return tray
+
+    def _dataset(self, n: int) -> Problem:
+        ds = thesis.DATASETS[n]
+        robot_tray = ds.tray_mm == thesis.ROBOT_TRAY_MM
+        return dataset_problem(
+            n,
+            counter_region_m=self._config.cell.counter_region_m,
+            tray_origin_m=self._config.cell.tray_origin_m if robot_tray else None,
+        )
+
+    def motion_planner(self, catalogue: Mapping[str, MugSpec]) -> MotionPlanner:
+        layout = CellLayout.from_config(self._config.cell)
+        layout = dataclasses.replace(layout, tray_origin_m=self.tray.origin_m, tray_size_mm=self.tray.size_mm)
+        planner: MotionPlanner = CyclePlanner(self._arm, layout, catalogue)
+        return planner
+
+    def visible_mugs(self) -> list[Detection]:
+        return [
+            Detection(m.type, m.x_m, m.y_m, m.upside_down, m.handle_yaw_rad, 1.0)
+            for m in self.cell.world.mugs.values()
+            if m.where == "counter"
+        ]
+
+    def scene(self) -> dict[str, object]:
+        return self.cell.world.scene()

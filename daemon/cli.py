@@ -17,6 +17,9 @@ COMMAND_MODULES: tuple[str, ...] = (
     "daemon.commands.statechart_cmd",
     "daemon.commands.record",
     "daemon.commands.plan",
+    "daemon.commands.run",
+    "daemon.commands.client",
+    "daemon.commands.monitor",
 )
 
 Handler = Callable[[argparse.Namespace], int]

@@ -18,17 +18,14 @@ from pathlib import Path
 from typing import Any
 
 from daemon.errors import ConfigError
+from planning.placement import METHODS
 
 _ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 _BACKENDS = ("sim", "hardware")
 _WORLDS = ("kinematic", "mujoco")
-_PLANNER_METHODS = (
-    "auto", "exact", "sa", "ga", "pso_p", "pso_p_improved", "pso_k", "pso_k_improved", "bh",
-    "blf", "lbf", "tlf", "ltf", "brf", "rbf", "trf", "rtf",
-)  # fmt: skip
-_FITNESS = ("rf", "ws")
-_COSTS = ("bpc", "upc", "ec")
+PLANNER_FITNESS = ("rf", "ws")
+PLANNER_COSTS = ("bpc", "upc", "ec")
 _ENERGY_MODELS = ("thesis", "dynamics")
 
 
@@ -127,6 +124,7 @@ class SimConfig:
     seed: int
     detection_noise_m: float
     joint_speed_rad_s: float
+    start_q_rad: tuple[float, ...]
 
 
 @dataclass(frozen=True, slots=True)
@@ -292,9 +290,9 @@ def _mug_types(s: _Section) -> tuple[MugTypeConfig, ...]:
 
 def _planner(s: _Section) -> PlannerConfig:
     cfg = PlannerConfig(
-        method=s.choice("method", _PLANNER_METHODS),
-        fitness=s.choice("fitness", _FITNESS),
-        cost=s.choice("cost", _COSTS),
+        method=s.choice("method", METHODS),
+        fitness=s.choice("fitness", PLANNER_FITNESS),
+        cost=s.choice("cost", PLANNER_COSTS),
         time_limit_s=s.number("time_limit_s", 0.01, 600.0),
         seed=s.integer("seed", 0, 2**31 - 1),
         tolerance_mm=s.integer("tolerance_mm", 0, 100),
@@ -334,6 +332,7 @@ def _sim(s: _Section) -> SimConfig:
         seed=s.integer("seed", 0, 2**31 - 1),
         detection_noise_m=s.number("detection_noise_m", 0.0, 0.05),
         joint_speed_rad_s=s.number("joint_speed_rad_s", 0.05, 10.0),
+        start_q_rad=s.floats("start_q_rad", 5, -math.pi, math.pi),
     )
     s.finish()
     return cfg

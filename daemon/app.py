@@ -1,0 +1,260 @@
+"""The daemon process: one event loop running the job, the telemetry, the command server and the recording.
+
+``serve`` opens the recording and the Zenoh session, wires the backend's driver-boundary inputs into the
+recording, starts the job's control task and the telemetry loops (state, joints, gripper), answers commands,
+pings the systemd watchdog from the loop, and on SIGTERM/SIGINT (or, with ``once``, when the job ends) stops
+motion, finishes the recording and closes the session.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import signal
+import time
+from collections.abc import Awaitable, Callable, Iterator, Mapping
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+import structlog
+import zenoh
+
+from daemon import commands_handler
+from daemon.backend import Backend, joints_payload, recorded
+from daemon.config import Config
+from daemon.errors import RecordingError, UsageError
+from daemon.job import Associate, Job, JobSummary, StartRequest
+from daemon.recording import Recorder
+from daemon.sdnotify import SdNotifier
+from daemon.zenoh_io import Bus
+from drivers.errors import BusLost, DriverError
+
+log = structlog.get_logger("daemon")
+
+
+@dataclass(frozen=True, slots=True)
+class RunOptions:
+    """How ``dishbot run`` was asked to run."""
+
+    listen: tuple[str, ...]
+    connect: tuple[str, ...]
+    record_dir: Path
+    once: StartRequest | None = None  # run this one job at once, then exit
+
+
+@dataclass(frozen=True, slots=True)
+class RunResult:
+    summary: JobSummary
+    recording: Path
+    end_state: str
+
+
+def recording_path(record_dir: Path, robot_id: str) -> Path:
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+    return record_dir / f"{robot_id}-{stamp}-{os.getpid()}.mcap"
+
+
+async def serve(
+    config: Config,
+    backend: Backend,
+    associate: Associate,
+    options: RunOptions,
+    *,
+    notifier: SdNotifier,
+    on_ready: Callable[[Bus, Path], None] | None = None,
+    stop: asyncio.Event | None = None,
+) -> RunResult:
+    """Run the daemon until SIGTERM/SIGINT or ``stop`` is set (or the ``once`` job ends); returns the last
+    job's summary."""
+    try:
+        options.record_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UsageError(f"cannot create the recording directory {options.record_dir}: {e.strerror}") from e
+    path = recording_path(options.record_dir, config.robot_id)
+    try:
+        recorder = Recorder(path, chunk_size=config.recording.chunk_size_bytes)
+    except RecordingError as e:
+        raise UsageError(str(e)) from e
+    try:
+        bus = Bus.open(
+            config.robot_id,
+            listen=options.listen,
+            connect=options.connect,
+            max_command_bytes=config.daemon.max_command_bytes,
+        )
+    except zenoh.ZError as e:
+        recorder.close()
+        raise UsageError(f"cannot open the Zenoh session (listen {list(options.listen)}): {e}") from e
+    bus.attach_recorder(recorder)
+    with _logs_published(bus):
+        return await _run(
+            config,
+            backend,
+            associate,
+            options,
+            notifier,
+            bus,
+            recorder,
+            path,
+            on_ready,
+            stop or asyncio.Event(),
+        )
+
+
+async def _run(
+    config: Config,
+    backend: Backend,
+    associate: Associate,
+    options: RunOptions,
+    notifier: SdNotifier,
+    bus: Bus,
+    recorder: Recorder,
+    path: Path,
+    on_ready: Callable[[Bus, Path], None] | None,
+    stop: asyncio.Event,
+) -> RunResult:
+    loop = asyncio.get_running_loop()
+    job = Job(recorded(backend, bus.record), config, bus.publish, associate)
+    recorder.write_header(config.to_dict(), backend.scene())
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, stop.set)
+    tasks = [
+        asyncio.create_task(job.run(), name="job"),
+        asyncio.create_task(
+            _every(1.0 / config.daemon.state_rate_hz, lambda: _state(bus, job)), name="state"
+        ),
+        asyncio.create_task(_joints_loop(bus, backend, job, config.daemon.joints_rate_hz), name="joints"),
+        asyncio.create_task(_gripper_loop(bus, backend, job, config.daemon.gripper_rate_hz), name="gripper"),
+    ]
+    if notifier.watchdog_interval_s is not None:
+        interval = notifier.watchdog_interval_s / 2.0
+        tasks.append(asyncio.create_task(_every(interval, _ping(notifier)), name="watchdog"))
+    bus.serve(loop, lambda verb, payload: commands_handler.handle(job, verb, payload))
+    bus.publish("state", job.status())
+    notifier.ready(f"robot {config.robot_id} idle")
+    log.info("daemon_ready", robot_id=config.robot_id, listen=list(options.listen), recording=str(path))
+    if on_ready is not None:
+        on_ready(bus, path)
+    try:
+        if options.once is not None:
+            await job.command("start", options.once)
+            finished = asyncio.create_task(job.finished.wait())
+            stopped = asyncio.create_task(stop.wait())
+            await asyncio.wait({finished, stopped}, return_when=asyncio.FIRST_COMPLETED)
+            finished.cancel()
+            stopped.cancel()
+        else:
+            await stop.wait()
+    finally:
+        notifier.stopping("stopping motion and finishing the recording")
+        log.info("daemon_stopping")
+        await job.shutdown()
+        bus.publish("state", job.status())
+        for task in tasks:
+            task.cancel()
+        for task in tasks:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.remove_signal_handler(sig)
+        bus.attach_recorder(None)
+        bus.close()
+        await asyncio.to_thread(recorder.close)
+        await backend.close()
+    return RunResult(job.summary, path, job.chart.state)
+
+
+def _state(bus: Bus, job: Job) -> None:
+    bus.publish("state", job.status())
+
+
+def _ping(notifier: SdNotifier) -> Callable[[], None]:
+    def ping() -> None:
+        notifier.watchdog()
+
+    return ping
+
+
+async def _every(period_s: float, action: Callable[[], None]) -> None:
+    """Run ``action`` every ``period_s`` on the loop's clock, without drifting."""
+    next_t = time.monotonic()
+    while True:
+        action()
+        next_t += period_s
+        await asyncio.sleep(max(0.0, next_t - time.monotonic()))
+
+
+async def _polled(period_s: float, read: Callable[[], Awaitable[None]], job: Job, what: str) -> None:
+    """Call ``read`` every ``period_s``; a device failure faults the job once and is logged once, then
+    reading resumes quietly until it works again (logged once more)."""
+    next_t = time.monotonic()
+    failing = False
+    while True:
+        try:
+            await read()
+            if failing:
+                log.info("telemetry_recovered", source=what)
+                failing = False
+        except (DriverError, BusLost) as e:
+            if not failing:
+                failing = True
+                log.error("telemetry_failed", source=what, error=str(e))
+                asyncio.get_running_loop().create_task(job.fault(f"{type(e).__name__}: {e}"))
+        next_t += period_s
+        await asyncio.sleep(max(0.0, next_t - time.monotonic()))
+
+
+async def _joints_loop(bus: Bus, backend: Backend, job: Job, rate_hz: float) -> None:
+    async def read() -> None:
+        bus.publish("joints", joints_payload(await backend.arm.read_joints()))
+
+    await _polled(1.0 / rate_hz, read, job, "joints")
+
+
+async def _gripper_loop(bus: Bus, backend: Backend, job: Job, rate_hz: float) -> None:
+    async def read() -> None:
+        gs = await backend.gripper.read()
+        reading = backend.force.latest()
+        bus.publish(
+            "gripper",
+            {
+                "t": gs.t,
+                "aperture_m": round(gs.aperture_m, 5),
+                "load": round(gs.load, 4),
+                "force_n": None if reading is None else round(reading.force_n, 4),
+                "raw": None if reading is None else reading.raw,
+                "seq": None if reading is None else reading.seq,
+                "holding": backend.force.holding(),
+            },
+        )
+
+    await _polled(1.0 / rate_hz, read, job, "gripper")
+
+
+class _LogForwarder:
+    """A structlog processor publishing every record on ``log`` (and so recording it)."""
+
+    def __init__(self, bus: Bus) -> None:
+        self.bus = bus
+
+    def __call__(self, logger: object, method: str, event: Mapping[str, object]) -> Mapping[str, object]:
+        record = {
+            k: v if isinstance(v, str | int | float | bool | None) else str(v) for k, v in event.items()
+        }
+        record.setdefault("level", method)
+        with contextlib.suppress(Exception):  # logging must never take the daemon down
+            self.bus.publish("log", record)
+        return event
+
+
+@contextlib.contextmanager
+def _logs_published(bus: Bus) -> Iterator[None]:
+    """While active, structlog records are also published on ``log`` (before the final renderer)."""
+    before = list(structlog.get_config()["processors"])
+    structlog.configure(processors=[*before[:-1], _LogForwarder(bus), *before[-1:]])
+    try:
+        yield
+    finally:
+        structlog.configure(processors=before)

@@ -1,0 +1,128 @@
+"""``dishbot run``: the daemon. It waits in idle for ``start``; with ``--once`` it runs one job and exits."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+from pathlib import Path
+
+import structlog
+
+from daemon.app import RunOptions, RunResult, serve
+from daemon.backend import Backend, open_sim_backend
+from daemon.config import Config, check_endpoint, load_config
+from daemon.errors import ConfigError, UsageError
+from daemon.job import Associate, StartRequest
+from daemon.sdnotify import SdNotifier
+from planning import thesis
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser(
+        "run",
+        help="run the daemon (simulated cell with --sim); --once runs one loading job and exits",
+        description=(
+            "Run the dishbot daemon: publish state, joints, gripper force, detections, plan, events and logs "
+            "on Zenoh under dishbot/<robot_id>/, answer cmd/<verb> queries, record the session to MCAP. "
+            "Without --once it waits in idle for a start command (dishbot start). SIGTERM or Ctrl-C stops "
+            "motion safely, finishes the recording and exits 0."
+        ),
+    )
+    parser.add_argument(
+        "--sim", action="store_true", help="run on the simulated cell (default: config backend)"
+    )
+    parser.add_argument(
+        "--world",
+        choices=("kinematic", "mujoco"),
+        help="simulated cell: the kinematic placeholder or the MuJoCo physics (default: config sim.world)",
+    )
+    parser.add_argument(
+        "--dataset",
+        type=int,
+        default=1,
+        metavar="N",
+        help=f"simulation: put the mugs of placement dataset N (1-{len(thesis.DATASETS)}) on the counter",
+    )
+    parser.add_argument(
+        "--once", action="store_true", help="start at once, run one job, print a summary, exit"
+    )
+    parser.add_argument(
+        "--speed",
+        type=float,
+        metavar="X",
+        help="simulation: X simulated seconds per second (default: config)",
+    )
+    parser.add_argument("--seed", type=int, default=None, metavar="S", help="simulation: detector noise seed")
+    parser.add_argument("--record-dir", type=Path, metavar="DIR", help="where the session's MCAP file goes")
+    parser.add_argument("--config", type=Path, metavar="FILE", help="TOML file overriding the defaults")
+    parser.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable; default: config)",
+    )
+    parser.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="Zenoh endpoint of a peer to connect to (repeatable; default: config)",
+    )
+    parser.set_defaults(handler=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    # Logs go to stderr: stdout carries the --once summary.
+    structlog.configure(logger_factory=structlog.PrintLoggerFactory(sys.stderr))
+    config = load_config(args.config)
+    listen = tuple(_endpoints(args.listen, "--listen")) if args.listen else config.zenoh.listen
+    connect = tuple(_endpoints(args.connect, "--connect")) if args.connect else config.zenoh.connect
+    if not 1 <= args.dataset <= len(thesis.DATASETS):
+        raise UsageError(f"--dataset {args.dataset}: choose a dataset 1-{len(thesis.DATASETS)}")
+    speed = config.sim.speed if args.speed is None else args.speed
+    if not 0.1 <= speed <= 1000.0:
+        raise UsageError(f"--speed {speed:g}: choose 0.1-1000 simulated seconds per second")
+    options = RunOptions(
+        listen=listen,
+        connect=connect,
+        record_dir=args.record_dir or config.recording.dir,
+        once=StartRequest() if args.once else None,
+    )
+    backend = _backend(args, config, speed)
+    with SdNotifier.from_env() as notifier:
+        result = asyncio.run(serve(config, backend, _association(), options, notifier=notifier))
+    if args.once:
+        _print_summary(result)
+        return 0 if result.end_state == "done" else 1
+    return 0
+
+
+def _backend(args: argparse.Namespace, config: Config, speed: float) -> Backend:
+    if not args.sim and config.backend != "sim":
+        raise UsageError("the hardware backend is not wired into dishbot run yet; use --sim")
+    world = args.world or config.sim.world
+    seed = config.sim.seed if args.seed is None else args.seed
+    return open_sim_backend(config, world=world, dataset=args.dataset, speed=speed, seed=seed)
+
+
+def _association() -> Associate:
+    from perception import associate  # type: ignore[attr-defined]
+
+    fn: Associate = associate
+    return fn
+
+
+def _endpoints(values: list[str], flag: str) -> list[str]:
+    try:
+        return [check_endpoint(v, flag) for v in values]
+    except ConfigError as e:
+        raise UsageError(str(e)) from e
+
+
+def _print_summary(result: RunResult) -> None:
+    s = result.summary
+    out = sys.stdout
+    out.write(f"job ended in state {result.end_state}\n")
+    out.write(f"detected {s.detected}, planned {s.planned}, placed {s.placed}, failed {s.failed}\n")
+    out.write(f"grasp failures {s.grasp_failures}, drops {s.drops}, duration {s.duration_s:.1f} s\n")
+    out.write(f"recording {result.recording}\n")

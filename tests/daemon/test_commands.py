@@ -1,0 +1,224 @@
+"""Commands over a real loopback Zenoh session: each class of bad command is refused and changes nothing."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from daemon.app import RunOptions, serve
+from daemon.cli import main
+from daemon.commands.client import request
+from daemon.commands_handler import BadCommand, parse
+from daemon.config import load_config
+from daemon.sdnotify import SdNotifier
+from daemon.zenoh_io import session_config
+from tests.daemon.conftest import free_port
+from tests.daemon.fakes import make_backend, make_world, nearest_association
+
+ROBOT = "cmdtest"
+
+Client = Callable[[str, bytes], Awaitable[dict[str, Any]]]
+
+
+def _with_daemon(tmp_path: Path, scenario: Callable[[str, Client], Awaitable[None]]) -> None:
+    """Run an in-process daemon on a free port, then ``scenario(endpoint, send)`` against it."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    config = load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}})
+    options = RunOptions(listen=(endpoint,), connect=(), record_dir=tmp_path)
+
+    async def go() -> None:
+        stop = asyncio.Event()
+        ready = asyncio.Event()
+        daemon = asyncio.create_task(
+            serve(
+                config,
+                make_backend(make_world(2)),
+                nearest_association,
+                options,
+                notifier=SdNotifier(None),
+                on_ready=lambda bus, path: ready.set(),
+                stop=stop,
+            )
+        )
+        await asyncio.wait_for(ready.wait(), 10)
+        with zenoh.open(session_config(listen=[], connect=[endpoint])) as session:
+
+            def query(verb: str, payload: bytes) -> dict[str, Any]:
+                replies = list(session.get(f"dishbot/{ROBOT}/cmd/{verb}", payload=payload, timeout=5.0))
+                assert len(replies) == 1
+                ok = replies[0].ok
+                assert ok is not None
+                result: dict[str, Any] = json.loads(ok.payload.to_bytes())
+                return result
+
+            async def send(verb: str, payload: bytes) -> dict[str, Any]:
+                return await asyncio.to_thread(query, verb, payload)
+
+            try:
+                await scenario(endpoint, send)
+            finally:
+                stop.set()
+                await asyncio.wait_for(daemon, 20)
+
+    asyncio.run(go())
+
+
+BAD = [
+    ("fly", b"", "unknown command 'fly' (known: status, start, pause, resume, stop, estop, reset)"),
+    (
+        "start",
+        b"{dataset: 1}",
+        "payload is not valid JSON: Expecting property name enclosed in double quotes at line 1 column 2",
+    ),
+    ("start", b"\xff\xfe", "payload is not UTF-8 text: invalid start byte at byte 0"),
+    ("start", b"[1, 2]", "payload must be a JSON object, got a list"),
+    ("start", b'{"dataset": "one"}', "dataset: expected an integer 1-6, got 'one'"),
+    ("start", b'{"dataset": true}', "dataset: expected an integer 1-6, got true"),
+    ("start", b'{"dataset": 9}', "dataset: 9 is out of range 1-6"),
+    ("start", b'{"dataset": 1, "mugs": []}', "give either dataset or mugs, not both"),
+    ("start", b'{"speed": 2}', "start: unknown field 'speed' (known: dataset, mugs, planner)"),
+    (
+        "start",
+        b'{"planner": {"method": "magic"}}',
+        "planner.method: 'magic' is not one of auto, exact, bh, sa, ga, psop-n, psop-i, psok-n, psok-i",
+    ),
+    ("start", b'{"planner": {"time_limit_s": 0}}', "planner.time_limit_s: 0 is out of range [0.01, 600]"),
+    ("start", b'{"planner": {"time_limit_s": NaN}}', "planner.time_limit_s: nan is out of range [0.01, 600]"),
+    (
+        "start",
+        b'{"mugs": [{"id": "a", "type": "huge", "x_m": 0, "y_m": 0.3}]}',
+        "mugs[0].type: 'huge' is not a configured mug type (big, small)",
+    ),
+    ("start", b'{"mugs": [{"id": "a", "type": "big", "x_m": 0}]}', "mugs[0].y_m: missing"),
+    (
+        "start",
+        b'{"mugs": [{"id": "a", "type": "big", "x_m": 5, "y_m": 0.3}]}',
+        "mugs[0].x_m: 5 is out of range [-2, 2]",
+    ),
+    (
+        "start",
+        b'{"mugs": [{"id": "a", "type": "big", "x_m": 0, "y_m": 0.3},'
+        b' {"id": "a", "type": "big", "x_m": 0.2, "y_m": 0.3}]}',
+        "mugs: id 'a' is used twice",
+    ),
+    ("pause", b'{"now": true}', "pause takes no arguments, got 'now'"),
+    ("pause", b"", "cannot pause in state idle"),
+    ("resume", b"", "cannot resume in state idle"),
+    ("reset", b"", "cannot reset in state idle"),
+    (
+        "start",
+        b'{"dataset": 2}',
+        "dataset and mugs set up a simulated counter; this backend is real hardware",
+    ),
+    ("start", b"x" * 5000, "payload of 5000 bytes is larger than the limit of 4096 bytes"),
+]
+
+
+def test_each_class_of_bad_command_is_refused_with_its_reason_and_changes_nothing(tmp_path: Path) -> None:
+    async def scenario(endpoint: str, send: Client) -> None:
+        before = await send("status", b"")
+        assert before["ok"] is True
+        for verb, payload, error in BAD:
+            assert await send(verb, payload) == {"ok": False, "error": error}, (verb, payload)
+        after = await send("status", b"")
+        assert (after["state"], after["transitions"]) == ("idle", 0)
+        assert after["allowed"] == ["status", "start", "estop"]
+
+    _with_daemon(tmp_path, scenario)
+
+
+def test_a_good_command_sequence_runs_a_job_over_zenoh(tmp_path: Path) -> None:
+    async def scenario(endpoint: str, send: Client) -> None:
+        assert await send("start", b'{"planner": {"method": "bh", "time_limit_s": 0.5}}') == {
+            "ok": True,
+            "state": "detect",
+        }
+        for _ in range(400):
+            status = await send("status", b"")
+            if status["state"] == "done":
+                break
+            await asyncio.sleep(0.01)
+        assert status["state"] == "done"
+        assert status["summary"]["placed"] == 2
+        assert (await send("estop", b""))["state"] == "estop"
+        assert (await send("reset", b""))["state"] == "idle"
+
+    _with_daemon(tmp_path, scenario)
+
+
+def test_the_daemon_announces_itself_with_a_liveliness_token(tmp_path: Path) -> None:
+    async def scenario(endpoint: str, send: Client) -> None:
+        def alive() -> list[str]:
+            with zenoh.open(session_config(listen=[], connect=[endpoint])) as s:
+                return [
+                    str(r.ok.key_expr) for r in s.liveliness().get("dishbot/*/alive", timeout=2.0) if r.ok
+                ]
+
+        assert await asyncio.to_thread(alive) == [f"dishbot/{ROBOT}/alive"]
+
+    _with_daemon(tmp_path, scenario)
+
+
+def test_the_client_verbs_print_the_reply_and_exit_by_its_outcome(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    async def scenario(endpoint: str, send: Client) -> None:
+        base = ["--connect", endpoint, "--robot", ROBOT]
+        assert await asyncio.to_thread(main, ["status", *base]) == 0
+        assert await asyncio.to_thread(main, ["pause", *base]) == 1
+        assert await asyncio.to_thread(main, ["status", *base, "--json"]) == 0
+
+    _with_daemon(tmp_path, scenario)
+    out, err = capsys.readouterr()
+    printed = "".join(line for line in out.splitlines(keepends=True) if not line.startswith("20"))  # not logs
+    assert printed.startswith("state: idle\nmugs: 0 placed of 0 planned, 0 seen, 0 failed; current -\n")
+    assert "dishbot pause: refused: cannot pause in state idle\n" in err
+    assert json.loads(printed[printed.index("{") :])["state"] == "idle"
+
+
+def test_a_client_with_no_daemon_says_so_and_exits_1(capsys: pytest.CaptureFixture[str]) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    assert main(["status", "--connect", endpoint, "--robot", "nobody", "--timeout", "0.5"]) == 1
+    assert capsys.readouterr().err == (
+        f"dishbot status: no daemon answered for robot 'nobody' at {endpoint} within 0.5 s\n"
+    )
+
+
+def test_a_bad_client_endpoint_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["status", "--connect", "127.0.0.1:7447"]) == 2
+    assert capsys.readouterr().err == (
+        "dishbot status: error: --connect: '127.0.0.1:7447' is not a Zenoh endpoint like tcp/127.0.0.1:7447 "
+        "(protocol tcp, udp, tls, quic or ws; port 1-65535)\n"
+    )
+
+
+def test_request_returns_none_when_nobody_answers() -> None:
+    assert request(f"tcp/127.0.0.1:{free_port()}", "ghost", "status", {}, timeout_s=0.3) is None
+
+
+_json = st.recursive(
+    st.none() | st.booleans() | st.integers(-10, 10) | st.floats(allow_nan=False) | st.text(max_size=5),
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=8), inner, max_size=3),
+    max_leaves=10,
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(verb=st.sampled_from(["start", "pause", "status", "nope"]), body=_json)
+def test_the_parser_accepts_or_refuses_any_json_with_a_bad_command_error(verb: str, body: object) -> None:
+    config = load_config()
+    message = "accepted"
+    try:
+        parse(verb, json.dumps(body).encode(), config)
+    except BadCommand as e:
+        message = str(e)
+    assert message
+    assert "\n" not in message
