@@ -27,7 +27,7 @@ def small_camera() -> CameraSpec:
     return CameraSpec(64, 48, 60.0, (1.24, 0.07, 0.80), math.pi, math.radians(55.0))
 
 
-def test_layout() -> SceneLayout:
+def cell_layout() -> SceneLayout:
     """The default cell (tray in the arm's reach), with a tiny camera since these tests do not render."""
     return SceneLayout(
         counter_region_m=(-0.30, 0.20, 0.25, 0.52),
@@ -56,7 +56,7 @@ Vector: TypeAlias = Sequence[float] | np.ndarray
 @pytest.fixture
 def make_world(arm_mjcf: ArmMjcf) -> WorldFactory:
     def build(mugs: Sequence[SceneMug], *, physics: PhysicsConfig | None = None) -> SimWorld:
-        layout = test_layout()
+        layout = cell_layout()
         xml = build_mjcf(layout, mugs, arm_body_xml=arm_mjcf.body_xml, arm_actuator_xml=arm_mjcf.actuator_xml)
         return SimWorld(xml, arm_mjcf, mug_ids=[m.mug_id for m in mugs], physics=physics)
 
@@ -120,23 +120,42 @@ class Hand:
         g = side_grasp(x, y, spec, self.model.gripper, z_m=z, kind=kind)
         alpha = g.alpha_rad
         along = np.array([math.cos(alpha), math.sin(alpha), 0.0])
-        thumb_side = np.array([math.sin(alpha), -math.cos(alpha), 0.0]) * (
+        thumb_side = np.array([-math.sin(alpha), math.cos(alpha), 0.0]) * (
             1.0 if kind is GraspKind.SIDE else -1.0
         )
         target = np.asarray(g.target.position_m)
         self.open()
-        pre = self.ik(target - 0.06 * along + 0.008 * thumb_side, kind)
-        self.move(pre)
-        q = self.ik(target, kind, seed=pre)
+        # Come in along the approach line with the mug centred between thumb and finger, then slide the
+        # thumb sideways onto it: its face ends tangent to the mug (Eq 4.30); a straight approach brushes it.
+        slack = (self.model.gripper.aperture_m(GRIPPER_OPEN_RAD) - spec.diameter_mm / 1000.0) / 2.0
+        clear = target + slack * thumb_side
+        q = self.ik(clear - 0.06 * along + np.array([0.0, 0.0, 0.15]), kind)
+        self.move(q)
+        q = self.ik(clear - 0.06 * along, kind, seed=q)
         self.move(q, speed_rad_s=0.5)
+        for step in (0.03, 0.0):
+            q = self.ik(clear - step * along, kind, seed=q)
+            self.move(q, speed_rad_s=0.4, settle_s=0.2)
+        q = self.ik(target, kind, seed=q)
+        self.move(q, speed_rad_s=0.3)
         return q
 
-    def lift_to(self, position: Sequence[float], kind: GraspKind, seed: Vector) -> np.ndarray:
-        q = self.ik(position, kind, seed=seed)
-        self.move(q, speed_rad_s=0.6)
+    def lift_to(self, position: Vector, kind: GraspKind, seed: Vector, *, step_m: float = 0.02) -> np.ndarray:
+        """Move the grasp point along a straight line to ``position`` (IK every ``step_m``); joint-space
+        interpolation alone would swing the gripper through whatever stands beside the line."""
+        start = np.asarray(self.model.fk(np.asarray(seed))[0])
+        goal = np.asarray(position, dtype=np.float64)
+        n = max(1, int(np.ceil(np.linalg.norm(goal - start) / step_m)))
+        q = np.asarray(seed)
+        for k in range(1, n + 1):
+            q = self.ik(start + (goal - start) * k / n, kind, seed=q)
+            self.move(q, speed_rad_s=0.6, settle_s=0.0 if k < n else 0.4)
         return q
+
+
+HandFor = Callable[[SimWorld], "Hand"]
 
 
 @pytest.fixture
-def hand_for(arm_model: ArmModel) -> Callable[[SimWorld], Hand]:
+def hand_for(arm_model: ArmModel) -> HandFor:
     return lambda world: Hand(world, arm_model)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import mujoco
@@ -19,9 +18,7 @@ from planning.arm.grasp import side_grasp
 from planning.arm.model import ArmModel
 from planning.arm.targets import GraspKind
 from planning.thesis import BIG_MUG, SMALL_MUG, MugSpec
-from tests.simworld.conftest import ARM_IDS, GRIPPER_ID, Hand, WorldFactory, mug_facing_arm
-
-HandFor = Callable[[SimWorld], Hand]
+from tests.simworld.conftest import ARM_IDS, GRIPPER_ID, HandFor, WorldFactory, mug_facing_arm
 
 
 def test_physics_arm_puts_the_grasp_point_where_the_planner_says(
