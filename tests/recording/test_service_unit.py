@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from daemon.cli import build_parser
+
 UNIT = Path(__file__).resolve().parents[2] / "systemd" / "dishbot.service"
 
 
@@ -73,6 +75,13 @@ def test_unit_runs_the_hardware_daemon_from_the_system_config(service: dict[str,
     assert Path(command[0]).name == "dishbot"
     assert command[1:] == ["run", "--config", "/etc/dishbot/dishbot.toml"]
     assert one(service, "ConfigurationDirectory") == "dishbot"
+
+
+def test_the_unit_command_line_is_one_the_cli_accepts(service: dict[str, list[str]]) -> None:
+    args = build_parser().parse_args(one(service, "ExecStart").split()[1:])
+    assert args.command == "run"
+    assert str(args.config) == "/etc/dishbot/dishbot.toml"
+    assert not args.sim  # the backend comes from the config file: hardware on the robot
 
 
 def test_dedicated_user_keeps_the_serial_ports_and_camera_reachable(service: dict[str, list[str]]) -> None:
