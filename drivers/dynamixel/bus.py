@@ -162,11 +162,20 @@ class DynamixelBus:
         self.counters.setdefault(servo_id, ServoCounters())
 
     def ping(self, servo_id: int, *, attempts: int = 1) -> int | None:
-        """The model number of the servo at ``servo_id``, or None when nothing answers."""
+        """The model number of the servo at ``servo_id``, or None when nothing answers.
+
+        Fault bits in the answer are ignored here: a servo in overload still tells what it is.
+        """
+        protocol = self.config.protocol
         for _ in range(attempts):
-            number, result, _error = self._io(lambda: self._packets.ping(self._port, servo_id))
-            if result == _COMM_SUCCESS:
-                return int(number)
+            got = self._exchange(p.ping(protocol, servo_id), {servo_id: 0 if protocol == 1 else 3})
+            if servo_id not in got:
+                continue
+            if protocol == 2:
+                return p.from_le(got[servo_id].data[:2])
+            model_reply = self._exchange(p.read(1, servo_id, 0, 2), {servo_id: 2})
+            if servo_id in model_reply:
+                return p.from_le(model_reply[servo_id].data)
         return None
 
     def scan(self, ids: Iterable[int] = range(p.MAX_ID + 1)) -> dict[int, int]:
@@ -219,6 +228,32 @@ class DynamixelBus:
         reg = spec.reg(name)
         packet = p.write(self.config.protocol, servo_id, reg.address, p.le(value, reg.size))
         self._transact(servo_id, packet, check=check)
+
+    def set_id(self, servo_id: int, new_id: int) -> None:
+        """Move a servo to another id (EEPROM; torque is turned off first) and check it answers there."""
+        protocol = self.config.protocol
+        reg = self._model(servo_id).reg("id")
+        self.write_register(servo_id, "torque_enable", 0, check=False)
+        # The acknowledgement may come from either id depending on the firmware.
+        self._exchange(p.write(protocol, servo_id, reg.address, bytes((new_id,))), {servo_id: 0, new_id: 0})
+        if self.ping(new_id, attempts=1 + self.retries) is None:
+            raise BusTimeout(
+                f"servo {servo_id} did not answer at its new id {new_id} on {self.config.port}",
+                servo_id=servo_id,
+            )
+        self.models[new_id] = self.models.pop(servo_id)
+
+    def set_baud(self, servo_id: int, code: int, baudrate: int) -> None:
+        """Switch a servo's baud rate register to ``code``, follow it with the port, check it answers."""
+        protocol = self.config.protocol
+        reg = self._model(servo_id).reg("baud_rate")
+        self.write_register(servo_id, "torque_enable", 0, check=False)
+        self._exchange(p.write(protocol, servo_id, reg.address, bytes((code,))), {servo_id: 0})
+        self._io(lambda: self._port.setBaudRate(baudrate))
+        if self.ping(servo_id, attempts=1 + self.retries) is None:
+            raise BusTimeout(
+                f"servo {servo_id} did not answer at {baudrate} bps on {self.config.port}", servo_id=servo_id
+            )
 
     def reboot(self, servo_id: int, *, settle_s: float = 0.1) -> None:
         """Protocol 2.0 reboot (clears a hardware error shutdown); waits for the servo to come back."""

@@ -13,6 +13,10 @@ from drivers.sim.plant import FirstOrderPlant
 
 P = ParamSpec("P")
 
+# Status timeout for tests: long enough that a loaded 2-core CI machine never turns a slow answer into a
+# retry, so retry counters stay exact; it only costs time when a test drops packets on purpose.
+PATIENT_S = 0.2
+
 
 def async_test(fn: Callable[P, Coroutine[Any, Any, None]]) -> Callable[P, None]:
     """Run an async test body on a fresh event loop (the suite has no asyncio plugin)."""

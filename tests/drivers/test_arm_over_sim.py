@@ -23,7 +23,7 @@ from drivers.interfaces import ArmDriver, GripperDriver, JointTrajectory
 from drivers.sim.plant import FirstOrderPlant
 from drivers.sim.servo_chain import ServoChainSimulator, default_chain
 from planning.thesis import JOINT_SERVOS
-from tests.drivers.fakes import MugBetweenPads, PlantForceSensor, async_test
+from tests.drivers.fakes import PATIENT_S, MugBetweenPads, PlantForceSensor, async_test
 
 X_CHAIN = ((1, "XL430-W250"), (2, "XM430-W350"), (3, "XL330-M288"))
 
@@ -43,7 +43,10 @@ async def test_arm_follows_a_trajectory_and_reads_back_the_final_pose(protocol: 
     joints = thesis_joints() if protocol == 1 else x_joints()
     with ServoChainSimulator(chain_models, protocol=protocol, plant=FirstOrderPlant(tau_s=0.02)) as sim:  # type: ignore[arg-type]
         config = BusConfig(sim.device_path, protocol=protocol)  # type: ignore[arg-type]
-        async with ServoChain(config, chain_models) as chain, DynamixelArm(chain, joints) as arm:
+        async with (
+            ServoChain(config, chain_models, read_timeout_s=PATIENT_S) as chain,
+            DynamixelArm(chain, joints) as arm,
+        ):
             assert isinstance(arm, ArmDriver)
             n = len(joints)
             goal = np.linspace(0.2, -0.3, n)
@@ -61,7 +64,7 @@ async def test_a_goal_outside_the_software_limits_is_refused_before_anything_mov
     joints = (JointSpec("shoulder_turn", 1, "MX-64T", -0.5, 0.5),)
     with ServoChainSimulator([(1, "MX-64T")]) as sim:
         async with (
-            ServoChain(BusConfig(sim.device_path), [(1, "MX-64T")]) as chain,
+            ServoChain(BusConfig(sim.device_path), [(1, "MX-64T")], read_timeout_s=PATIENT_S) as chain,
             DynamixelArm(chain, joints) as arm,
         ):
             seen = sim.packets_seen
@@ -82,7 +85,7 @@ async def test_every_chain_mismatch_is_reported_in_one_error_and_torque_stays_of
     chain_models = ((1, "MX-64T"), (2, "MX-28T"), (3, "AX-12A"))
     with ServoChainSimulator([(1, "MX-64T"), (2, "MX-106T"), (4, "AX-12A")]) as sim:
         with pytest.raises(ChainMismatch) as raised:
-            async with ServoChain(BusConfig(sim.device_path), chain_models):
+            async with ServoChain(BusConfig(sim.device_path), chain_models, read_timeout_s=PATIENT_S):
                 pass
         assert str(raised.value) == (
             f"servo chain on {sim.device_path} does not match the config: servo 2 is a MX-106T, "
@@ -97,7 +100,7 @@ async def test_shutdown_parks_the_arm_then_turns_the_torque_off() -> None:
     chain_models = default_chain()[:5]
     park = (0.0, -0.4, 0.6, 0.3, 0.0)
     with ServoChainSimulator(chain_models, plant=FirstOrderPlant(tau_s=0.02)) as sim:
-        async with ServoChain(BusConfig(sim.device_path), chain_models) as chain:
+        async with ServoChain(BusConfig(sim.device_path), chain_models, read_timeout_s=PATIENT_S) as chain:
             async with DynamixelArm(chain, thesis_joints(), park_rad=park, park_speed_rad_s=3.0) as arm:
                 assert all(sim.servo(i).get("torque_enable") == 1 for i in range(1, 6))
             np.testing.assert_allclose(arm.last_state.position_rad, park, atol=0.03)  # type: ignore[union-attr]
@@ -110,7 +113,7 @@ async def test_cancelling_a_trajectory_holds_the_arm_where_it_is() -> None:
     joints = (JointSpec("shoulder_turn", 1, "MX-64T", -3.0, 3.0),)
     with ServoChainSimulator(chain_models, plant=FirstOrderPlant(tau_s=0.02)) as sim:
         async with (
-            ServoChain(BusConfig(sim.device_path), chain_models) as chain,
+            ServoChain(BusConfig(sim.device_path), chain_models, read_timeout_s=PATIENT_S) as chain,
             DynamixelArm(chain, joints) as arm,
         ):
             trajectory = JointTrajectory(arm.joint_names, np.array([0.0, 2.0]), np.array([[0.0], [2.0]]))
@@ -137,7 +140,7 @@ async def test_gripper_holds_a_mug_when_the_force_passes_the_threshold() -> None
     spec, plant = gripper_setup(0.074)  # small mug's brim diameter, §5.3
     with ServoChainSimulator([(6, "AX-12A")], plant=plant) as sim:
         async with (
-            ServoChain(BusConfig(sim.device_path), [(6, "AX-12A")]) as chain,
+            ServoChain(BusConfig(sim.device_path), [(6, "AX-12A")], read_timeout_s=PATIENT_S) as chain,
             DynamixelGripper(chain, spec, PlantForceSensor(plant)) as gripper,
         ):
             assert isinstance(gripper, GripperDriver)
@@ -153,7 +156,7 @@ async def test_gripper_reports_a_missed_grasp_when_the_aperture_gets_too_small()
     spec, plant = gripper_setup(None)
     with ServoChainSimulator([(6, "AX-12A")], plant=plant) as sim:
         async with (
-            ServoChain(BusConfig(sim.device_path), [(6, "AX-12A")]) as chain,
+            ServoChain(BusConfig(sim.device_path), [(6, "AX-12A")], read_timeout_s=PATIENT_S) as chain,
             DynamixelGripper(chain, spec, PlantForceSensor(plant)) as gripper,
         ):
             await gripper.open()
@@ -168,7 +171,9 @@ async def test_gripper_reports_a_missed_grasp_when_the_aperture_gets_too_small()
 async def test_fault_events_reach_the_event_loop_listener() -> None:
     events: list[DeviceEvent] = []
     with ServoChainSimulator([(1, "MX-28T")]) as sim:
-        async with ServoChain(BusConfig(sim.device_path), [(1, "MX-28T")], on_event=events.append) as chain:
+        async with ServoChain(
+            BusConfig(sim.device_path), [(1, "MX-28T")], on_event=events.append, read_timeout_s=PATIENT_S
+        ) as chain:
             sim.overload(1)
             with pytest.raises(Exception, match="overload"):
                 await chain.call(lambda bus: bus.read_states([1]))

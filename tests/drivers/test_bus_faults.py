@@ -19,14 +19,14 @@ from drivers.dynamixel import (
 from drivers.dynamixel.faults import error_names, hardware_error_names
 from drivers.errors import BusLost, DriverError, ServoFault
 from drivers.sim.servo_chain import ServoChainSimulator, default_chain
-from tests.drivers.fakes import MugBetweenPads, PlantForceSensor, async_test
+from tests.drivers.fakes import PATIENT_S, MugBetweenPads, PlantForceSensor, async_test
 
 
 @pytest.fixture
 def chain_1() -> Iterator[tuple[ServoChainSimulator, DynamixelBus, list[DeviceEvent]]]:
     events: list[DeviceEvent] = []
     with ServoChainSimulator(default_chain()) as sim:
-        bus = DynamixelBus(BusConfig(sim.device_path), on_event=events.append)
+        bus = DynamixelBus(BusConfig(sim.device_path), on_event=events.append, read_timeout_s=PATIENT_S)
         with bus:
             bus.verify(default_chain())
             yield sim, bus, events
@@ -80,7 +80,7 @@ def test_sync_read_on_protocol_2_never_loses_the_error_byte() -> None:
     chain = ((1, "XL430-W250"), (2, "XM430-W350"), (3, "XL330-M288"))
     with (
         ServoChainSimulator(chain, protocol=2) as sim,
-        DynamixelBus(BusConfig(sim.device_path, protocol=2)) as bus,
+        DynamixelBus(BusConfig(sim.device_path, protocol=2), read_timeout_s=PATIENT_S) as bus,
     ):
         bus.verify(chain)
         assert set(bus.read_states([1, 2, 3])) == {1, 2, 3}
@@ -175,7 +175,7 @@ async def test_gripper_overload_is_recovered_and_the_grasp_retried_at_a_lower_li
     with ServoChainSimulator([(6, model)], protocol=protocol, plant=plant) as sim:  # type: ignore[arg-type]
         config = BusConfig(sim.device_path, protocol=protocol)  # type: ignore[arg-type]
         async with (
-            ServoChain(config, [(6, model)], on_event=events.append) as chain,
+            ServoChain(config, [(6, model)], on_event=events.append, read_timeout_s=PATIENT_S) as chain,
             DynamixelGripper(chain, spec, PlantForceSensor(plant)) as gripper,
         ):
             await gripper.open()
@@ -197,7 +197,7 @@ async def test_gripper_faults_after_the_allowed_overload_recoveries() -> None:
     spec, plant = gripper_world(0.074)
     with ServoChainSimulator([(6, "AX-12A")], plant=plant) as sim:
         async with (
-            ServoChain(BusConfig(sim.device_path), [(6, "AX-12A")]) as chain,
+            ServoChain(BusConfig(sim.device_path), [(6, "AX-12A")], read_timeout_s=PATIENT_S) as chain,
             DynamixelGripper(chain, spec, PlantForceSensor(plant)) as gripper,
         ):
             await gripper.open()

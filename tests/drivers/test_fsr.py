@@ -89,10 +89,8 @@ def test_a_corrupted_sample_line_is_never_accepted(seq: int, raw: int, index: in
     index %= len(line)
     line[index] ^= flip
     parsed = fp.parse_line(bytes(line))
-    assert (
-        parsed is None
-        or (parsed == fp.Sample(seq, raw)
-        and bytes(line).strip() == fp.sample_line(seq, raw).strip())
+    assert parsed is None or (
+        parsed == fp.Sample(seq, raw) and bytes(line).strip() == fp.sample_line(seq, raw).strip()
     )
 
 

@@ -6,12 +6,18 @@ import os
 import time
 
 import pytest
-from dynamixel_sdk import PacketHandler, PortHandler
+from dynamixel_sdk import PacketHandler, PortHandler, port_handler
 
 from drivers.sim.servo_chain import ServoChainSimulator, default_chain
 
 COMM_SUCCESS = 0
 COMM_RX_TIMEOUT = -3001
+
+
+@pytest.fixture(autouse=True)
+def _patient_sdk(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The SDK waits 2 x its 16 ms latency timer for an answer; a loaded CI machine needs longer."""
+    monkeypatch.setattr(port_handler, "LATENCY_TIMER", 100)
 
 
 def open_port(path: str) -> PortHandler:
