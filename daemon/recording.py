@@ -36,8 +36,8 @@ from typing import IO, Final
 import structlog
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, Footer, Header, Message, Schema
-from mcap.stream_reader import breakup_chunk
+from mcap.records import Channel, Chunk, Footer, Header, Schema
+from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 
 from daemon.errors import RecordingError
@@ -52,6 +52,7 @@ MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 COMPRESSIONS: Final = {None: CompressionType.NONE, "zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4}
 
 _RECORD_PREFIX = struct.Struct("<BQ")  # opcode, record length
+_MESSAGE_PREFIX = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time; then the data
 
 
 @dataclass(frozen=True, slots=True)
@@ -486,16 +487,10 @@ class _Scan:
         elif opcode == Opcode.CHANNEL:
             self._channel(Channel.read(stream))
         elif opcode == Opcode.MESSAGE:
-            self._message(Message.read(stream, len(body)), offset)
+            self._message(body, 0, len(body), offset)
         elif opcode == Opcode.CHUNK:
-            records = breakup_chunk(Chunk.read(stream), validate_crc=True)
-            for record in records:
-                if isinstance(record, Schema):
-                    self._schema(record)
-                elif isinstance(record, Channel):
-                    self._channel(record)
-                elif isinstance(record, Message):
-                    self._message(record, offset)
+            chunk_stream, size = get_chunk_data_stream(Chunk.read(stream), validate_crc=True)
+            self._chunk_records(chunk_stream.read(size), offset)
         elif opcode == Opcode.FOOTER:
             Footer.read(stream)
         # Indexes, statistics, metadata and attachments are not needed to recover messages.
@@ -512,20 +507,35 @@ class _Scan:
             with contextlib.suppress(ValueError):
                 self.schema_docs[channel.topic] = json.loads(schema)
 
-    def _message(self, message: Message, offset: int) -> None:
-        topic = self.topics.get(message.channel_id)
+    def _chunk_records(self, data: bytes, offset: int) -> None:
+        """The schemas, channels and messages inside one (decompressed, CRC-checked) chunk, in order."""
+        pos = 0
+        while pos < len(data):
+            opcode, length = _RECORD_PREFIX.unpack_from(data, pos)
+            start = pos + _RECORD_PREFIX.size
+            pos = start + length
+            if pos > len(data):
+                raise ValueError("a record runs past the end of its chunk")
+            if opcode == Opcode.MESSAGE:
+                self._message(data, start, pos, offset)
+            elif opcode == Opcode.SCHEMA:
+                self._schema(Schema.read(ReadDataStream(io.BytesIO(data[start:pos]))))
+            elif opcode == Opcode.CHANNEL:
+                self._channel(Channel.read(ReadDataStream(io.BytesIO(data[start:pos]))))
+
+    def _message(self, data: bytes, start: int, end: int, offset: int) -> None:
+        """One message record's fields from ``data[start:end]``; the payload is decoded only when kept."""
+        channel_id, _sequence, t, _publish_time = _MESSAGE_PREFIX.unpack_from(data, start)
+        topic = self.topics.get(channel_id)
         if topic is None:
-            raise RecordingError(
-                f"{self.path}: message at byte {offset} names unknown channel {message.channel_id}"
-            )
+            raise RecordingError(f"{self.path}: message at byte {offset} names unknown channel {channel_id}")
         self.counts[topic] = self.counts.get(topic, 0) + 1
-        t = message.log_time
         self.start_ns = t if self.start_ns is None else min(self.start_ns, t)
         self.end_ns = t if self.end_ns is None else max(self.end_ns, t)
-        if not self.kept[message.channel_id]:
+        if not self.kept[channel_id]:
             return
         try:
-            payload = json.loads(message.data)
+            payload = json.loads(data[start + _MESSAGE_PREFIX.size : end])
         except ValueError as e:
             raise RecordingError(f"{self.path}: message on {topic} at byte {offset} is not JSON ({e})") from e
         if not isinstance(payload, dict):
