@@ -105,12 +105,12 @@ class Normaliser:
     high: dict[str, float] = field(default_factory=dict)
 
     def observe(self, m: Metrics) -> None:
-        for p in ("n", "A", "E", "t"):
-            v = float(getattr(m, p))
-            if p not in self.low or v < self.low[p]:
-                self.low[p] = v
-            if p not in self.high or v > self.high[p]:
-                self.high[p] = v
+        low, high = self.low, self.high
+        for p, v in (("n", m.n), ("A", m.A), ("E", m.E), ("t", m.t)):
+            if v < low.get(p, math.inf):
+                low[p] = v
+            if v > high.get(p, -math.inf):
+                high[p] = v
 
     def scaled(self, p: str, v: float) -> float:
         lo = self.low.get(p, v)
@@ -127,10 +127,10 @@ class Fitness:
     weights: dict[str, float]
     ranking: tuple[str, ...]
     norm: Normaliser = field(default_factory=Normaliser)
-    _raw: tuple[Callable[[Metrics], float], ...] = field(init=False, repr=False)
+    _raw: Callable[[Metrics], tuple[float, ...]] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self._raw = tuple(_RAW_COST[p] for p in self.ranking)
+        self._raw = _ranking_key(self.ranking)
 
     @classmethod
     def build(
@@ -165,7 +165,7 @@ class Fitness:
         layouts exactly as ranking the normalised cost parameters does, without rescaling on every compare."""
         if self.method is FitnessMethod.WS:
             return (self.weighted(m),)
-        return tuple([get(m) for get in self._raw])
+        return self._raw(m)
 
     def weighted(self, m: Metrics) -> float:
         """Eq 4.6 (with Eq 4.8-4.10 as weight choices)."""
@@ -199,6 +199,18 @@ _RAW_COST: dict[str, Callable[[Metrics], float]] = {
 }
 
 
+def _ranking_key(ranking: tuple[str, ...]) -> Callable[[Metrics], tuple[float, ...]]:
+    """The raw ranking key; the thesis's orders get a direct function (it is called millions of times)."""
+    if ranking == ("n", "A", "E", "t", "s"):
+        return lambda m: (-m.n, -m.A, m.E, m.t, -m.s)
+    if ranking == ("n", "A", "E", "t"):
+        return lambda m: (-m.n, -m.A, m.E, m.t)
+    if ranking == ("n", "A"):
+        return lambda m: (-m.n, -m.A)
+    getters = tuple(_RAW_COST[p] for p in ranking)
+    return lambda m: tuple([get(m) for get in getters])
+
+
 def _with_area(ranking: tuple[str, ...], cost: CostFunction) -> tuple[str, ...]:
     for p in ranking:
         if p not in PARAMS:
@@ -214,6 +226,11 @@ def sortedness(problem: Problem, mugs_in_order: Sequence[int]) -> int:
     types = problem.mug_types
     widths = [types[problem.mugs[i].type].width_mm for i in mugs_in_order]
     lengths = [types[problem.mugs[i].type].diameter_mm for i in mugs_in_order]
+    return size_sorted(widths, lengths)
+
+
+def size_sorted(widths: Sequence[int], lengths: Sequence[int]) -> int:
+    """s of §4.2.1.4 for a sequence of mug sizes: 1 if monotone in width or in length, else 0."""
     for seq in (widths, lengths):
         pairs = list(itertools.pairwise(seq))
         if all(a >= b for a, b in pairs) or all(a <= b for a, b in pairs):

@@ -18,7 +18,7 @@ from planning.placement import (
 )
 from planning.placement.order import blocking_violations
 
-FAST_METHODS = ("bh", "sa", "ga", "psok-n", "psok-i", "exact", "auto")
+ALL_METHODS = ("bh", "sa", "ga", "psop-n", "psop-i", "psok-n", "psok-i", "exact", "auto")
 
 
 def assert_valid(problem: Problem, result: PlanResult) -> None:
@@ -36,7 +36,7 @@ def assert_valid(problem: Problem, result: PlanResult) -> None:
     assert result.n == len(result.placed)
 
 
-@pytest.mark.parametrize("method", FAST_METHODS)
+@pytest.mark.parametrize("method", ALL_METHODS)
 def test_every_method_gives_a_valid_layout_on_dataset_1(method: str) -> None:
     problem = dataset_problem(1)
     assert_valid(problem, plan(problem, PlanOptions(method=method)))
@@ -59,7 +59,7 @@ def test_optimum_beats_the_thesis_best_on_the_full_tray() -> None:
     assert [plan(dataset_problem(n), PlanOptions(method="exact")).n for n in (4, 5, 6)] == [18, 20, 23]
 
 
-@pytest.mark.parametrize("method", ["sa", "ga", "psok-n", "psok-i"])
+@pytest.mark.parametrize("method", ["sa", "ga", "psop-n", "psop-i", "psok-n", "psok-i"])
 def test_seeded_runs_repeat_exactly(method: str) -> None:
     problem = dataset_problem(2)
     a = plan(problem, PlanOptions(method=method, sort="ro", seed=7))
