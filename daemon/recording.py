@@ -146,7 +146,7 @@ class Recorder:
         self.close()
 
     def write(self, topic: str, payload: Mapping[str, object], *, log_time_ns: int) -> bool:
-        """Queue one message for ``topic``; False (and counted as dropped) when the queue is full.
+        """Queue one message; False (counted as dropped) when the queue is full or the disk has failed.
 
         Raises ``RecordingError`` for a closed recorder, an empty topic, a negative time or a payload that
         is not a JSON object (NaN and infinities included: they are not JSON).
