@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from daemon.backend import joints_payload, observation_payload
-from daemon.errors import ReplayError
+from daemon.errors import RecordingError, ReplayError
+from daemon.recording import Recorder
 from daemon.replay import (
     FaultPlan,
     ReplayClock,
@@ -309,3 +310,11 @@ def test_replay_decodes_what_the_backend_records() -> None:
         decode_joints({**joints_payload(joints), "position_rad": [0.1]}, t=0.5)
     with pytest.raises(ValueError, match=r"^mugs.0.confidence is None, not a finite number$"):
         decode_observation({"mugs": [{**obs.detections[0].to_json(), "confidence": None}]}, t=0.0)
+
+
+def test_a_recording_without_messages_cannot_be_replayed(tmp_path: Path) -> None:
+    path = tmp_path / "empty.mcap"
+    Recorder(path).close()
+    with pytest.raises(RecordingError) as err:
+        Timeline.from_recording(path)
+    assert str(err.value) == f"{path}: holds no messages to replay"
