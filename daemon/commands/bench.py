@@ -9,7 +9,7 @@ import sys
 from collections.abc import Mapping, Sequence
 
 # Each module defines ``register(bench_subparsers)`` adding one benchmark whose parser sets ``handler``.
-BENCH_MODULES: tuple[str, ...] = ()
+BENCH_MODULES: tuple[str, ...] = ("daemon.commands.bench_placement",)
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
