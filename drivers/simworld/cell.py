@@ -1,0 +1,321 @@
+"""The simulated cell: the MuJoCo world behind the real drivers, over pseudo-terminals.
+
+``open_sim_cell`` starts the physics (``SimWorld``), the simulated Dynamixel chain with the world as its plant
+(``drivers.sim.ServoChainSimulator``), the FSR Arduino simulator fed by the world's pad force
+(``drivers.sim.FsrSimulator``), then opens the *real* drivers on those pseudo-terminals —
+``DynamixelArm``/``DynamixelGripper`` through dynamixel-sdk and ``FsrReader`` through pyserial — and the depth
+camera rendering the world, with the perception pipeline on top. Everything above this module sees only the
+``drivers.interfaces`` and ``perception.interfaces`` protocols; nothing reads the simulator's ground truth
+except tests and benchmarks (``cell.world.mug_truths()``).
+
+The devices keep wall-clock time (the bus streams goals at its control rate, the FSR reader debounces in real
+time), so the cell runs the world at real time by default; ``speed`` above 1 is for tests that drive the world
+without those drivers.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections.abc import AsyncIterator, Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import structlog
+
+from drivers.dynamixel import (
+    BusConfig,
+    DynamixelArm,
+    DynamixelGripper,
+    GripperSpec,
+    ServoChain,
+    tables,
+    thesis_joints,
+)
+from drivers.fsr.reader import FsrReader
+from drivers.interfaces import Camera, RGBDFrame
+from drivers.sim.fsr import FsrSimulator
+from drivers.sim.servo_chain import ServoChainSimulator, default_chain
+from drivers.simworld.arm import ArmMjcf, build_arm_mjcf, load_urdf
+from drivers.simworld.camera import DepthCamera, DepthNoise
+from drivers.simworld.collisions import TrayCollision, TrayCollisionCounter
+from drivers.simworld.scene import CAMERA_NAME, SceneLayout, SceneMug, build_mjcf
+from drivers.simworld.world import PhysicsConfig, SimWorld
+from perception.interfaces import MugObserver
+from planning.arm.description import BUNDLED_URDF, JOINT_LIMITS, GripperGeometry
+from planning.thesis import JOINT_SERVOS, MugSpec
+
+log = structlog.get_logger("drivers.simworld.cell")
+
+ObserverFactory = Callable[[Camera], MugObserver]
+
+# The gripper's aperture map for the driver: the planner's finger geometry sampled over the finger's swing.
+_APERTURE_SAMPLES = 12
+
+
+def gripper_spec(geometry: GripperGeometry, *, servo_id: int = 6) -> GripperSpec:
+    """The driver's view of the simulated gripper: angle-to-aperture from the same geometry as the URDF."""
+    limit = JOINT_LIMITS["gripper"]
+    angles = np.linspace(limit.lower_rad, limit.upper_rad, _APERTURE_SAMPLES)
+    aperture_map = tuple((float(a), float(geometry.aperture_m(float(a)))) for a in angles)
+    return GripperSpec(
+        servo_id=servo_id,
+        aperture_map=aperture_map,
+        open_aperture_m=float(geometry.aperture_m(limit.lower_rad)),
+    )
+
+
+class SnapshotCamera:
+    """The world's depth camera: copies the physics state under the world's lock, renders outside it.
+
+    Rendering takes tens of milliseconds; holding the lock that long would stall the physics thread, and
+    rendering without it could catch a half-written state. The copy takes microseconds.
+    """
+
+    def __init__(
+        self, world: SimWorld, *, width: int, height: int, noise: DepthNoise | None, seed: int
+    ) -> None:
+        self._world = world
+        self._data = mujoco.MjData(world.model)
+        with world.lock:
+            mujoco.mj_copyData(self._data, world.model, world.data)
+        self.camera = DepthCamera(
+            world.model,
+            self._data,
+            camera_name=CAMERA_NAME,
+            width=width,
+            height=height,
+            noise=noise,
+            seed=seed,
+        )
+        self.intrinsics = self.camera.intrinsics
+
+    def render(self) -> RGBDFrame:
+        with self._world.lock:
+            mujoco.mj_copyData(self._data, self._world.model, self._world.data)
+        return self.camera.render()
+
+    async def capture(self) -> RGBDFrame:
+        return self.render()
+
+    def close(self) -> None:
+        self.camera.close()
+
+
+class _PlantSwitch:
+    """The servo chain's plant: forwards to the current world, so a new counter can bring a new world."""
+
+    def __init__(self, world: SimWorld) -> None:
+        self.world = world
+
+    def set_goal(self, servo_id: int, position_rad: float, speed_rad_s: float) -> None:
+        self.world.set_goal(servo_id, position_rad, speed_rad_s)
+
+    def present(self, servo_id: int) -> tuple[float, float, float]:
+        return self.world.present(servo_id)
+
+    def set_torque(self, servo_id: int, on: bool) -> None:
+        self.world.set_torque(servo_id, on)
+
+    def force_n(self) -> float:
+        return self.world.gripper_force_n()
+
+
+@dataclass(slots=True)
+class SimCell:
+    """The simulated cell's devices (real drivers over pseudo-terminals) and the world behind them."""
+
+    layout: SceneLayout
+    arm: DynamixelArm
+    gripper: DynamixelGripper
+    force: FsrReader
+    camera: SnapshotCamera
+    observer: MugObserver
+    servo_sim: ServoChainSimulator
+    fsr_sim: FsrSimulator
+    collisions: TrayCollisionCounter
+    mugs: tuple[SceneMug, ...]
+    _plant: _PlantSwitch
+    _rebuild: Callable[[Sequence[SceneMug]], tuple[SimWorld, TrayCollisionCounter, SnapshotCamera]]
+    _observer_factory: ObserverFactory
+    collision_log: list[TrayCollision] = field(default_factory=list)
+
+    @property
+    def world(self) -> SimWorld:
+        return self._plant.world
+
+    def set_counter(self, mugs: Sequence[SceneMug]) -> None:
+        """Put a new set of mugs on the counter: a fresh world with the arm where it is now.
+
+        Call it between jobs (the arm still and nothing in the gripper); the drivers stay connected.
+        """
+        world, collisions, camera = self._rebuild(mugs)
+        old_world, old_camera = self._plant.world, self.camera
+        self._plant.world = world
+        old_world.stop()
+        old_camera.close()
+        self.camera = camera
+        self.collisions = collisions
+        self.observer = self._observer_factory(camera)
+        self.mugs = tuple(mugs)
+        log.info("simworld_counter_set", mugs=len(mugs))
+
+    def scene(self) -> dict[str, object]:
+        """The cell's initial scene for a recording's session header (true poses: the simulator's setup)."""
+        return {
+            "world": "mujoco",
+            "mugs": [
+                {
+                    "id": m.mug_id,
+                    "type": m.spec.name,
+                    "x_m": round(m.x_m, 4),
+                    "y_m": round(m.y_m, 4),
+                    "handle_yaw_rad": round(m.yaw_rad, 4),
+                    "upside_down": m.upside_down,
+                }
+                for m in self.mugs
+            ],
+        }
+
+
+def _default_observer(camera: Camera) -> MugObserver:
+    from perception import CameraObserver  # type: ignore[attr-defined]
+
+    observer: MugObserver = CameraObserver(camera)
+    return observer
+
+
+def scene_mugs(
+    entries: Sequence[tuple[str, str, float, float]], catalogue: Mapping[str, MugSpec]
+) -> list[SceneMug]:
+    """Counter mugs from (id, type, x, y) entries, handles along +x, upright (as the placement datasets)."""
+    unknown = sorted({t for _, t, _, _ in entries} - set(catalogue))
+    if unknown:
+        raise ValueError(
+            f"mug types {', '.join(unknown)} are not in the catalogue ({', '.join(sorted(catalogue))})"
+        )
+    return [SceneMug(mug_id, catalogue[kind], x, y) for mug_id, kind, x, y in entries]
+
+
+@contextlib.asynccontextmanager
+async def open_sim_cell(
+    layout: SceneLayout,
+    mugs: Sequence[SceneMug],
+    *,
+    speed: float = 1.0,
+    seed: int = 0,
+    urdf: Path = BUNDLED_URDF,
+    physics: PhysicsConfig | None = None,
+    start_pose_rad: Sequence[float] | None = None,
+    force_threshold_n: float = 2.0,
+    depth_noise: DepthNoise | None = None,
+    observer_factory: ObserverFactory | None = None,
+    on_collision: Callable[[TrayCollision], None] | None = None,
+) -> AsyncIterator[SimCell]:
+    """Start the simulated cell with ``mugs`` on the counter and yield its devices; stops everything on exit.
+
+    ``start_pose_rad`` places the five arm joints (default: the world's ready pose). ``on_collision`` is
+    called from the physics thread for every tray collision. ``observer_factory`` turns the camera into the
+    mug observer (default: ``perception.CameraObserver``).
+    """
+    arm_mjcf = build_arm_mjcf(load_urdf(urdf))
+    make_observer = observer_factory or _default_observer
+    noise = depth_noise if depth_noise is not None else DepthNoise()
+
+    def build(
+        scene: Sequence[SceneMug], pose: Mapping[str, float] | None
+    ) -> tuple[SimWorld, TrayCollisionCounter]:
+        xml = build_mjcf(
+            layout, scene, arm_body_xml=arm_mjcf.body_xml, arm_actuator_xml=arm_mjcf.actuator_xml
+        )
+        world = SimWorld(
+            xml,
+            arm_mjcf,
+            mug_ids=[m.mug_id for m in scene],
+            speed=speed,
+            physics=physics,
+            initial_pose_rad=pose,
+        )
+        counter = TrayCollisionCounter(world, layout.tray_region_m(), on_collision=on_collision)
+        return world, counter
+
+    pose = _pose(arm_mjcf, start_pose_rad)
+    world, collisions = build(mugs, pose)
+    plant = _PlantSwitch(world)
+    stack = contextlib.AsyncExitStack()
+    world.start()
+    stack.callback(lambda: plant.world.stop())
+    try:
+        servo_sim = stack.enter_context(ServoChainSimulator(default_chain(), plant=plant))
+        fsr_sim = stack.enter_context(FsrSimulator(plant.force_n))
+        force = await stack.enter_async_context(FsrReader(fsr_sim.device_path, threshold_n=force_threshold_n))
+        chain = await stack.enter_async_context(ServoChain(BusConfig(servo_sim.device_path), default_chain()))
+        joints = thesis_joints([_servo_limits(j) for j in _ARM_JOINTS])
+        arm = await stack.enter_async_context(DynamixelArm(chain, joints))
+        gripper = await stack.enter_async_context(
+            DynamixelGripper(chain, gripper_spec(arm_mjcf.gripper), force)
+        )
+        camera = _camera(world, layout, noise, seed)
+        stack.callback(lambda: cell.camera.close())
+
+        def rebuild(scene: Sequence[SceneMug]) -> tuple[SimWorld, TrayCollisionCounter, SnapshotCamera]:
+            now = {s.joint: plant.present(s.servo_id)[0] for s in arm_mjcf.servos}
+            new_world, new_counter = build(scene, now)
+            new_world.start()
+            return new_world, new_counter, _camera(new_world, layout, noise, seed)
+
+        cell = SimCell(
+            layout=layout,
+            arm=arm,
+            gripper=gripper,
+            force=force,
+            camera=camera,
+            observer=make_observer(camera),
+            servo_sim=servo_sim,
+            fsr_sim=fsr_sim,
+            collisions=collisions,
+            mugs=tuple(mugs),
+            _plant=plant,
+            _rebuild=rebuild,
+            _observer_factory=make_observer,
+        )
+        log.info(
+            "sim_cell_open", mugs=len(mugs), servo_port=servo_sim.device_path, fsr_port=fsr_sim.device_path
+        )
+        yield cell
+    finally:
+        await stack.aclose()
+
+
+_ARM_JOINTS = ("shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn")
+
+
+def _servo_limits(joint: str) -> tuple[float, float]:
+    """The URDF's joint limits, kept inside the servo's encoder range (the AX-12A's 1023 ticks end 5 mrad
+    short of the +150° the URDF allows)."""
+    servo = tables.model(dict(JOINT_SERVOS)[joint])
+    lo, hi = servo.rad_from_ticks(0), servo.rad_from_ticks(servo.max_tick)
+    return max(JOINT_LIMITS[joint].lower_rad, lo), min(JOINT_LIMITS[joint].upper_rad, hi)
+
+
+def _pose(arm: ArmMjcf, start_pose_rad: Sequence[float] | None) -> dict[str, float] | None:
+    if start_pose_rad is None:
+        return None
+    if len(start_pose_rad) != len(_ARM_JOINTS) or not all(math.isfinite(v) for v in start_pose_rad):
+        raise ValueError(
+            f"start_pose_rad needs {len(_ARM_JOINTS)} finite joint angles, got {list(start_pose_rad)}"
+        )
+    pose = dict(zip(_ARM_JOINTS, (float(v) for v in start_pose_rad), strict=True))
+    pose["gripper"] = 0.0
+    return pose
+
+
+def _camera(world: SimWorld, layout: SceneLayout, noise: DepthNoise | None, seed: int) -> SnapshotCamera:
+    return SnapshotCamera(
+        world, width=layout.camera.width, height=layout.camera.height, noise=noise, seed=seed
+    )
+
+
+__all__ = ["ObserverFactory", "SimCell", "SnapshotCamera", "gripper_spec", "open_sim_cell", "scene_mugs"]
