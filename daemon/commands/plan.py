@@ -66,6 +66,16 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         choices=["bpc", "upc", "ec"],
         help="bin-packing, user-preference or engineering cost (default upc)",
     )
+    parser.add_argument(
+        "--weights",
+        metavar="n=W,E=W,t=W,s=W",
+        help="your own weighted-sum weights (default: Eq 5.2 for upc, Eq 5.3 for ec)",
+    )
+    parser.add_argument(
+        "--ranking",
+        metavar="P,P,...",
+        help="your own ranking of n, E, t, s for --fitness rf (default n,E,t,s; area always follows n)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument(
         "--time-limit", type=float, default=1.0, metavar="SEC", help="budget for auto and exact (default 1.0)"
@@ -113,6 +123,8 @@ def run(args: argparse.Namespace) -> int:
         cost=args.cost,
         seed=args.seed,
         time_limit_s=args.time_limit,
+        weights=_weights(args.weights),
+        ranking=None if args.ranking is None else tuple(p.strip() for p in args.ranking.split(",")),
     )
     try:
         result = plan(problem, options)
@@ -132,6 +144,21 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(summary(result))
     return 0
+
+
+def _weights(text: str | None) -> dict[str, float] | None:
+    if text is None:
+        return None
+    weights: dict[str, float] = {}
+    for part in text.split(","):
+        name, sep, value = part.partition("=")
+        try:
+            weights[name.strip()] = float(value)
+        except ValueError as e:
+            raise UsageError(f"--weights: expected name=number pairs like n=0.4,E=0.3, got {part!r}") from e
+        if not sep:
+            raise UsageError(f"--weights: expected name=number pairs like n=0.4,E=0.3, got {part!r}")
+    return weights
 
 
 def summary(result: PlanResult) -> str:

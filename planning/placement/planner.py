@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import TypeVar
 
+from planning.interfaces import TraySlot
 from planning.placement.cost import CostFunction, Evaluator, Fitness, FitnessMethod, Metrics, MoveCost
 from planning.placement.errors import InvalidProblem
 from planning.placement.heuristics import Heuristic, parse_heuristic
@@ -75,6 +76,15 @@ class PlanResult:
     status: str = "feasible"
     evaluations: int = 0
     notes: tuple[str, ...] = ()
+
+    def slots(self, problem: Problem) -> tuple[TraySlot, ...]:
+        """The planned spots as the motion planner takes them (brim centre in the world frame, metres), in
+        placing order."""
+        out = []
+        for p in self.placed:
+            x, y = problem.to_world_mm(*problem.brim_centre_on_tray(p.type, p.x_mm, p.y_mm))
+            out.append(TraySlot(p.id, p.type, x / 1000.0, y / 1000.0, p.rotated))
+        return tuple(out)
 
     def to_json(self) -> dict[str, object]:
         return {
@@ -140,6 +150,7 @@ class Context:
         self.options = options
         self.heuristic = _parse(parse_heuristic, options.heuristic, "heuristic")
         self.sort = None if options.sort is None else _parse(parse_sort, options.sort, "sort")
+        _check_preferences(options)
         self.fitness = Fitness.build(
             _parse(_enum_parser(FitnessMethod, "fitness method"), options.fitness, "fitness"),
             _parse(_enum_parser(CostFunction, "cost function"), options.cost, "cost"),
@@ -263,6 +274,24 @@ def _result(ctx: Context, c: Candidate) -> PlanResult:
         evaluations=ctx.evaluations,
         notes=c.notes,
     )
+
+
+def _check_preferences(options: PlanOptions) -> None:
+    """A user's own weights (Eq 4.6) or ranking (§4.2.1.5) must name the cost parameters."""
+    if options.weights is not None:
+        for name, w in options.weights.items():
+            if name not in ("n", "E", "t", "s"):
+                raise InvalidProblem(f"weights: unknown parameter {name!r} (known: n, E, t, s)")
+            if isinstance(w, bool) or not isinstance(w, int | float) or not 0 <= w < float("inf"):
+                raise InvalidProblem(f"weights.{name}: must be a number, 0 or more, got {w!r}")
+        if not any(options.weights.values()):
+            raise InvalidProblem("weights: at least one weight must be positive")
+    if options.ranking is not None:
+        for name in options.ranking:
+            if name not in ("n", "A", "E", "t", "s"):
+                raise InvalidProblem(f"ranking: unknown parameter {name!r} (known: n, A, E, t, s)")
+        if len(set(options.ranking)) != len(options.ranking):
+            raise InvalidProblem(f"ranking: a parameter appears twice in {','.join(options.ranking)}")
 
 
 _T = TypeVar("_T")

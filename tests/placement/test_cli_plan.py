@@ -123,3 +123,33 @@ def test_missing_file_and_unknown_dataset_are_usage_errors(
         2,
         f"dishbot plan: error: --png: directory {str(tmp_path / 'no')!r} does not exist\n",
     )
+
+
+def test_own_weights_and_ranking_are_taken_and_checked(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = run(
+        capsys,
+        "--dataset",
+        "1",
+        "--method",
+        "bh",
+        "--fitness",
+        "ws",
+        "--weights",
+        "n=1,E=0,t=0,s=0",
+        "--json",
+    )
+    assert (code, json.loads(out)["fitness"]) == (0, "ws")
+    code, _, _ = run(capsys, "--dataset", "1", "--method", "bh", "--ranking", "E,n,t,s")
+    assert code == 0
+    assert run(capsys, "--dataset", "1", "--weights", "n=lots")[2] == (
+        "dishbot plan: error: --weights: expected name=number pairs like n=0.4,E=0.3, got 'n=lots'\n"
+    )
+    assert run(capsys, "--dataset", "1", "--weights", "q=1")[2] == (
+        "dishbot plan: error: weights: unknown parameter 'q' (known: n, E, t, s)\n"
+    )
+    assert run(capsys, "--dataset", "1", "--weights", "n=-1")[2] == (
+        "dishbot plan: error: weights.n: must be a number, 0 or more, got -1.0\n"
+    )
+    assert run(capsys, "--dataset", "1", "--ranking", "n,size")[2] == (
+        "dishbot plan: error: ranking: unknown parameter 'size' (known: n, A, E, t, s)\n"
+    )

@@ -118,3 +118,14 @@ def test_result_json_holds_the_documented_fields() -> None:
     assert doc["upper_bound"] == doc["n"] == 10
     first = doc["placed"][0]  # type: ignore[index]
     assert set(first) == {"id", "type", "x_mm", "y_mm", "rotated", "order"}
+
+
+def test_slots_give_brim_centres_in_the_world_frame_in_placing_order() -> None:
+    problem = dataset_problem(1)
+    result = plan(problem, PlanOptions(method="bh"))
+    slots = result.slots(problem)
+    assert [s.mug_id for s in slots] == [p.id for p in result.placed]
+    first = result.placed[0]
+    r = (problem.mug_types[first.type].diameter_mm + problem.tolerance_mm) / 2
+    assert slots[0].x_m == pytest.approx((problem.tray_origin_mm[0] + first.x_mm + r) / 1000)
+    assert slots[0].y_m == pytest.approx((problem.tray_origin_mm[1] + first.y_mm + r) / 1000)
