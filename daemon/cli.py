@@ -20,6 +20,9 @@ COMMAND_MODULES: tuple[str, ...] = (
     "daemon.commands.run",
     "daemon.commands.client",
     "daemon.commands.monitor",
+    "daemon.commands.servo",
+    "daemon.commands.fsr",
+    "daemon.commands.sim",
 )
 
 Handler = Callable[[argparse.Namespace], int]

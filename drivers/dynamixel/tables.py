@@ -251,13 +251,10 @@ MODELS: Final[dict[str, ModelSpec]] = {
 }
 MODELS_BY_NUMBER: Final[dict[int, ModelSpec]] = {m.number: m for m in MODELS.values()}
 
-# Baud rate register values (identical on 1.0 MX/AX for these rates; 2.0 X-series uses its own index).
+# Baud rate register values, limited to the rates dynamixel-sdk's PortHandler can set on the host side.
 BAUD_CODES_1: Final[dict[int, int]] = {
     1_000_000: 1,
     500_000: 3,
-    400_000: 4,
-    250_000: 7,
-    200_000: 9,
     115_200: 16,
     57_600: 34,
     19_200: 103,
@@ -271,7 +268,6 @@ BAUD_CODES_2: Final[dict[int, int]] = {
     2_000_000: 4,
     3_000_000: 5,
     4_000_000: 6,
-    4_500_000: 7,
 }
 
 
