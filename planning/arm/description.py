@@ -63,6 +63,7 @@ class GripperGeometry:
     finger_length_m: float = field(default_factory=finger_length_from_payload_reach)
     thumb_width_m: float = 0.02
     hinge_offset_m: float = 0.07
+    plate_thickness_m: float = 0.004  # thumb and finger: bent aluminium plate with its pad
 
     def aperture_m(self, angle_rad: float) -> float:
         """Distance between the thumb face and the finger tip at a gripper joint angle."""
@@ -122,6 +123,9 @@ def link_parts(desc: ArmDescription) -> dict[str, list[Part]]:
     wrist = rows["wrist_turn"].d_m
     palm = rows["gripper"].d_m
     g = desc.gripper
+    t = g.plate_thickness_m
+    palm_width = g.thumb_width_m + g.hinge_offset_m + 2 * t
+    palm_center_x = (g.thumb_width_m - g.hinge_offset_m) / 2
     return {
         "base_link": [_servo_part(servos["shoulder_turn"], (0.0, 0.0, -0.02), long_axis=2)],
         # The shoulder-lift servo and its U bracket turn with the shoulder.
@@ -146,14 +150,15 @@ def link_parts(desc: ArmDescription) -> dict[str, list[Part]]:
         # Gripper servo behind the palm, palm plate, and the fixed thumb (grasp y = -x of this frame).
         "gripper_link": [
             _servo_part(servos["gripper"], (0.0, 0.0, palm / 2), long_axis=2),
-            Part(0.020, (0.10, 0.04, 0.004), (0.0, 0.0, palm)),
+            # The palm plate spans from the thumb to the finger hinge (grasp y from -thumb to +hinge).
+            Part(0.020, (palm_width, 0.04, 0.004), (palm_center_x, 0.0, palm)),
             Part(
                 0.015,
-                (0.006, 0.03, g.finger_length_m),
-                (g.thumb_width_m + 0.003, 0.0, palm + g.finger_length_m / 2),
+                (t, 0.03, g.finger_length_m),
+                (g.thumb_width_m + t / 2, 0.0, palm + g.finger_length_m / 2),
             ),
         ],
-        "finger_link": [Part(0.015, (0.006, 0.03, g.finger_length_m), (-0.003, 0.0, g.finger_length_m / 2))],
+        "finger_link": [Part(0.015, (t, 0.03, g.finger_length_m), (-t / 2, 0.0, g.finger_length_m / 2))],
     }
 
 

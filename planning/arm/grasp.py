@@ -2,8 +2,8 @@
 
 The arm has no wrist yaw, so the gripper always approaches along a line through the shoulder-turn axis
 (Eq 4.28). The mug's axis then sits beside that line: the thumb touches the brim, so the axis is
-``r_m - w_g`` to the side of the grasp point (Eq 4.29-4.30), to the right of the approach when the gripper
-is upright and to the left when the wrist is turned by pi (the ∓ of Eq 4.37). Solving for the approach
+``r_m - w_g`` to the side of the grasp point (Eq 4.29-4.30), to the left of the approach for the side grasp
+and to the right when the wrist is turned by pi (the ∓ of Eq 4.37). Solving for the approach
 angle gives Eq 4.33-4.35; the palm (the thesis's gripper position) is a finger length behind the grasp
 point (Eq 4.36-4.37). The inverse (Eq 4.38-4.39) maps a reachable grasp point back to the mug it holds,
 which is what the tray limits (Eq 4.40-4.45) are built from.
@@ -40,6 +40,7 @@ def lateral_offset_m(spec: MugSpec, gripper: GripperGeometry) -> float:
 
 
 def _side_sign(kind: GraspKind) -> float:
+    """+1 when the mug is left of the approach (side grasp), -1 when right (upside down)."""
     if kind is GraspKind.POSITION:
         raise ValueError("a side grasp needs kind 'side' or 'side-upside-down', not 'position'")
     return 1.0 if kind is GraspKind.SIDE else -1.0
@@ -65,7 +66,7 @@ def side_grasp(
         raise ValueError(f"mug at ({mug_x_m:.3f}, {mug_y_m:.3f}) is too close to the shoulder axis to grasp")
     beta = math.atan2(mug_y_m, mug_x_m)  # Eq 4.33
     gamma = math.asin(delta / dist)  # Eq 4.34
-    alpha = beta + sign * gamma  # Eq 4.35: the approach line passes beside the mug axis
+    alpha = beta - sign * gamma  # Eq 4.35: the approach line passes beside the mug axis
     rho = math.sqrt(dist * dist - delta * delta)
     grasp_xy = (rho * math.cos(alpha), rho * math.sin(alpha))
     l_g = gripper.finger_length_m
@@ -86,8 +87,8 @@ def mug_axis_from_grasp(
     """Where the axis of a held mug is for a grasp point (Eq 4.38-4.39): beside the approach line."""
     sign = _side_sign(kind)
     alpha = math.atan2(grasp_xy_m[1], grasp_xy_m[0])
-    right = np.array([math.sin(alpha), -math.cos(alpha)])
-    return np.asarray(grasp_xy_m, dtype=np.float64) + sign * lateral_offset_m(spec, gripper) * right
+    left = np.array([-math.sin(alpha), math.cos(alpha)])
+    return np.asarray(grasp_xy_m, dtype=np.float64) + sign * lateral_offset_m(spec, gripper) * left
 
 
 def thesis_tray_limits(

@@ -13,8 +13,9 @@ from drivers.interfaces import FloatArray
 
 class GraspKind(StrEnum):
     """How the gripper meets the target. ``side`` grasps approach horizontally along the line from the
-    shoulder axis (thesis Eq 4.28: the arm has no wrist yaw), thumb on the left and fingers closing
-    horizontally; ``side-upside-down`` is the same with the wrist turned by pi (the mug hangs inverted)."""
+    shoulder axis (thesis Eq 4.28: the arm has no wrist yaw), fingers closing horizontally with the mug on
+    the left of the approach (Eq 4.37); ``side-upside-down`` is the same with the wrist turned by pi, the
+    mug on the right."""
 
     POSITION = "position"
     SIDE = "side"
@@ -41,14 +42,14 @@ class GraspTarget:
         return np.array([math.cos(alpha), math.sin(alpha), 0.0])
 
     def rotation(self) -> FloatArray | None:
-        """World rotation of the grasp frame (columns x, y, z; z = approach, y = closing side), or None.
+        """World rotation of the grasp frame (columns x, y, z; z = approach, y towards the mug axis), or None.
 
-        Upright: x points up, so y (towards the mug axis) points to the right of the approach. Upside down:
-        the wrist is turned by pi about the approach, x points down and y to the left."""
+        Side grasp: x points down, so y (towards the mug) points to the left of the approach. Upside down:
+        the wrist is turned by pi about the approach, x points up and the mug is on the right."""
         z = self.approach()
         if z is None:
             return None
-        x = np.array([0.0, 0.0, 1.0 if self.kind is GraspKind.SIDE else -1.0])
+        x = np.array([0.0, 0.0, -1.0 if self.kind is GraspKind.SIDE else 1.0])
         y = np.cross(z, x)
         return np.column_stack([x, y, z])
 

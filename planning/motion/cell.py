@@ -1,9 +1,12 @@
 """The work cell as motion planning sees it: counter region, flip area and tray, in the world frame.
 
 ``CellLayout`` mirrors the ``[cell]`` section of the config. ``check_reachable`` is what the daemon runs at
-start: every corner of the counter region, the extreme points of the flip area and the corners of the tray
-area a mug's axis can take must be reachable with the side grasps that happen there (thesis §4.3: grasp
-and release 6 cm above the table, carry and flip 7 cm above the tallest mug).
+start: the corners of the area a mug's axis can take on the counter (mugs stand with their footprints in the
+counter region, so axes stay a brim radius inside it) and its point nearest the arm, the extreme points of
+the flip area, and the corners and nearest point of the axis area on the tray must be reachable with the side
+grasps that happen there (thesis §4.3: grasp and release 6 cm above the table, carry and flip above the
+tallest mug). The side-grasp workspace is a ring around the shoulder axis, so the nearest point matters as
+much as the far corners.
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ from planning.arm.targets import GraspKind
 from planning.motion.errors import InvalidCell
 from planning.thesis import MugSpec
 
+_CARRY_MARGIN_M = 0.005
+
 
 @dataclass(frozen=True, slots=True)
 class CellLayout:
@@ -29,8 +34,10 @@ class CellLayout:
     flip_area_radius_m: float
     tray_origin_m: tuple[float, float]  # corner nearest the arm base
     tray_size_mm: tuple[int, int]  # along x, along y
-    tray_wall_height_m: float = 0.04
-    tray_wall_thickness_m: float = 0.005
+    # Not in the config: the simulated tray's base, walls (outside the inner rectangle) and thickness.
+    tray_floor_m: float = 0.006
+    tray_wall_height_m: float = 0.025
+    tray_wall_thickness_m: float = 0.008
     tolerance_mm: int = thesis.TOLERANCE_MM
 
     def __post_init__(self) -> None:
@@ -91,14 +98,16 @@ class CellLayout:
         """One line per corner the arm cannot serve with every mug type of the catalogue (empty: all fine)."""
         mugs = list((catalogue or thesis.MUG_TYPES).values())
         tallest = max(m.height_mm for m in mugs) / 1000.0
-        carry_z = carry_height_m(tallest)
+        carry_z = carry_height_m(tallest + max(0.0, self.tray_floor_m))
         checks: list[
             tuple[str, tuple[float, float], Sequence[tuple[GraspKind, float]], Sequence[MugSpec]]
         ] = []
-        x0, y0, x1, y1 = self.counter_region_m
         counter_moves = ((GraspKind.SIDE, thesis.GRASP_HEIGHT_M), (GraspKind.SIDE, carry_z))
-        for corner in ((x0, y0), (x1, y0), (x1, y1), (x0, y1)):
-            checks.append(("counter region corner", corner, counter_moves, mugs))
+        inset = min(m.diameter_mm for m in mugs) / 2000.0
+        x0, y0, x1, y1 = self.counter_region_m
+        counter_area = (x0 + inset, y0 + inset, x1 - inset, y1 - inset)
+        for corner in _corners_and_nearest(counter_area):
+            checks.append(("counter point", corner, counter_moves, mugs))
         cx, cy = self.flip_area_center_m
         r = self.flip_area_radius_m
         flip_moves = (
@@ -113,8 +122,8 @@ class CellLayout:
             (GraspKind.SIDE_UPSIDE_DOWN, carry_z),
         )
         for mug in mugs:
-            for corner in self.tray_axis_corners(mug):
-                checks.append(("tray corner", corner, place_moves, [mug]))
+            for corner in _corners_and_nearest(self.tray_axis_area(mug)):
+                checks.append(("tray point", corner, place_moves, [mug]))
         problems = []
         for what, (x, y), moves, specs in checks:
             for spec in specs:
@@ -124,30 +133,33 @@ class CellLayout:
                     break
         return problems
 
-    def tray_axis_corners(self, mug: MugSpec) -> list[tuple[float, float]]:
-        """The extreme axis positions of an unrotated mug inside the tray (footprint plus tolerance)."""
+    def tray_axis_area(self, mug: MugSpec) -> tuple[float, float, float, float]:
+        """The area (x_min, y_min, x_max, y_max) an unrotated mug's axis can take inside the tray: its
+        footprint (handle along +x, plus tolerance) must fit."""
         tx0, ty0, tx1, ty1 = self.tray_bounds_m
-        half_x = (mug.width_mm + self.tolerance_mm) / 2000.0
         half_y = (mug.diameter_mm + self.tolerance_mm) / 2000.0
-        r = mug.diameter_mm / 2000.0
-        # The handle points along +x: the brim's axis is r + tol/2 from the footprint's near x edge.
-        near_x = r + self.tolerance_mm / 2000.0
-        far_x = 2 * half_x - near_x
-        return [
-            (tx0 + near_x, ty0 + half_y),
-            (tx1 - far_x, ty0 + half_y),
-            (tx1 - far_x, ty1 - half_y),
-            (tx0 + near_x, ty1 - half_y),
-        ]
+        # The brim's axis is r + tol/2 from the footprint's near x edge, w - r + tol/2 from its far edge.
+        near_x = mug.diameter_mm / 2000.0 + self.tolerance_mm / 2000.0
+        far_x = (mug.width_mm + self.tolerance_mm) / 1000.0 - near_x
+        return tx0 + near_x, ty0 + half_y, tx1 - far_x, ty1 - half_y
+
+
+def _corners_and_nearest(area: tuple[float, float, float, float]) -> list[tuple[float, float]]:
+    """The four corners of a rectangle and its point nearest the shoulder axis (if not a corner)."""
+    x0, y0, x1, y1 = area
+    points = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+    nearest = (min(max(0.0, x0), x1), min(max(0.0, y0), y1))
+    if nearest not in points:
+        points.append(nearest)
+    return points
 
 
 def carry_height_m(tallest_mug_m: float) -> float:
     """Grasp-point height while carrying: the thesis's 7 cm above the tallest mug (§4.3), raised when needed
-    so the held mug's lowest point (6 cm below the grasp point) clears the tallest mug by 3 cm."""
-    return max(
-        tallest_mug_m + thesis.CARRY_CLEARANCE_M,
-        tallest_mug_m + thesis.TRANSIT_CLEARANCE_M + thesis.GRASP_HEIGHT_M,
-    )
+    so the held mug's lowest point (6 cm below the grasp point) clears the tallest mug by 3 cm, plus 5 mm
+    so the clearance holds with the IK's sub-millimetre residual."""
+    needed = tallest_mug_m + thesis.TRANSIT_CLEARANCE_M + thesis.GRASP_HEIGHT_M + _CARRY_MARGIN_M
+    return max(tallest_mug_m + thesis.CARRY_CLEARANCE_M, needed)
 
 
 def _first_failure(

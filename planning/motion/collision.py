@@ -50,8 +50,8 @@ class Box:
 
 @dataclass(frozen=True, slots=True)
 class HeldMug:
-    """A mug in the gripper, in the grasp frame: its axis runs along x through (0, lateral, 0) from
-    ``x_lo`` (its base) to ``x_hi`` (its brim) — the grasp frame's x is up for an upright side grasp."""
+    """A mug in the gripper, in the grasp frame: its axis runs along the frame's x through (0, lateral, 0),
+    the mug filling ``x_lo`` to ``x_hi`` along it."""
 
     name: str
     radius: float
@@ -87,15 +87,21 @@ def gripper_spheres(gripper: GripperGeometry, *, aperture_m: float) -> tuple[Flo
             centres.append(p)
             radii.append(r)
 
-    along = np.linspace(-l_g, 0.0, 4)
-    add(((x, -(w_g + 0.003), float(z)) for x in (-0.01, 0.0, 0.01) for z in along), 0.005)
+    # Thumb and finger are plates 3 cm tall: rows of spheres through the plate's middle, as thick as the
+    # plate, so they touch its inner face (where the mug is) and reach its outer face.
+    plate = gripper.plate_thickness_m / 2
+    along = np.arange(-l_g, 1e-9, 0.008)
+    across = (-0.012, 0.0, 0.012)
+    add(((x, -(w_g + plate), float(z)) for x in across for z in along), plate)
     angle = gripper.angle_for_aperture(aperture_m)
     hinge_y = gripper.hinge_offset_m
-    for f in np.linspace(0.0, 1.0, 4):
-        y = hinge_y - f * l_g * math.sin(angle) + 0.003
+    for f in np.linspace(0.0, 1.0, len(along)):
+        y = hinge_y - f * l_g * math.sin(angle) + plate
         z = -l_g + f * l_g * math.cos(angle)
-        add(((x, y, z) for x in (-0.01, 0.0, 0.01)), 0.005)
-    add(((x, float(y), -l_g) for x in (-0.012, 0.012) for y in np.linspace(-0.045, 0.045, 5)), 0.008)
+        add(((x, y, z) for x in across), plate)
+    t = gripper.plate_thickness_m
+    palm = np.linspace(-(w_g + t) + 0.008, hinge_y + t - 0.008, 6)
+    add(((x, float(y), -l_g) for x in (-0.012, 0.012) for y in palm), 0.008)
     add([(0.0, 0.0, -l_g - 0.02)], 0.02)  # gripper servo behind the palm
     add([(0.0, 0.0, -l_g - 0.07)], 0.022)  # wrist-turn servo
     return np.array(centres), np.array(radii)

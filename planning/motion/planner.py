@@ -11,8 +11,9 @@ unreachable, out of limits, non-finite or colliding raises ``MotionRefused`` and
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 import structlog
@@ -35,6 +36,7 @@ log = structlog.get_logger(__name__)
 # The arm's base column (shoulder-turn servo and its bracket) as an obstacle for the gripper.
 _BASE_COLUMN = Cylinder("the arm's base", 0.0, 0.0, 0.05, 0.0, 0.11)
 _MAX_JOINT_STEP_RAD = 0.35
+_POSE_SUFFIX = re.compile(r" \(pose \d+ of \d+\)$")
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,7 +59,8 @@ class CyclePlanner:
         catalogue: Mapping[str, MugSpec],
         *,
         control_rate_hz: float = 50.0,
-        approach_distance_m: float = 0.06,
+        back_off_m: Sequence[float] = (0.06, 0.03, 0.0),
+        side_clearance_m: float = 0.004,
         release_gap_m: float = 0.008,
         fine_speed_m_s: float = 0.08,
         gripper_close_s: float = 1.0,
@@ -72,14 +75,16 @@ class CyclePlanner:
         self.cell = cell
         self.catalogue = dict(catalogue)
         self.control_rate_hz = control_rate_hz
-        self.approach_distance_m = approach_distance_m
+        self.back_off_m = tuple(back_off_m)
+        self.side_clearance_m = side_clearance_m
         self.release_gap_m = release_gap_m
         self.fine_speed_m_s = fine_speed_m_s
         self.gripper_close_s = gripper_close_s
         self.gripper_open_s = gripper_open_s
         self.energy_model = energy_model or DynamicsEnergyModel(arm)
         tallest = max(m.height_mm for m in self.catalogue.values()) / 1000.0
-        self.carry_z_m = carry_height_m(tallest)
+        # Mugs on the tray stand on its base, so the tallest obstacle is that much higher there.
+        self.carry_z_m = carry_height_m(tallest + max(0.0, cell.tray_floor_m))
         self.open_aperture_m = arm.gripper.aperture_m(JOINT_LIMITS["gripper"].lower_rad)
 
     def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
@@ -145,6 +150,38 @@ class CyclePlanner:
         log.info("cycle_planned", mug_id=mug.mug_id, steps=len(steps), duration_s=round(duration, 2))
         return CyclePlan(mug_id=mug.mug_id, steps=tuple(steps), duration_s=duration, energy_j=energy)
 
+    def plan_for_slot(
+        self,
+        start_q: Sequence[float],
+        slot: TraySlot,
+        counter: Sequence[MugPose],
+        on_tray: Sequence[TraySlot],
+    ) -> tuple[MugPose, CyclePlan]:
+        """Plan the cycle for ``slot`` with the mug it names or, when that one cannot be reached (another mug
+        stands in front of it, say), with another counter mug of the same type, nearest the arm first
+        (thesis §4.1: the closest mug is taken). Returns the mug used and its plan; raises ``MotionRefused``
+        listing why each candidate failed."""
+        named = [m for m in counter if m.mug_id == slot.mug_id]
+        others = sorted(
+            (m for m in counter if m.type == slot.type and m.mug_id != slot.mug_id),
+            key=lambda m: (math.hypot(m.x_m, m.y_m), m.mug_id),
+        )
+        reasons = []
+        for mug in [*named, *others]:
+            try:
+                plan = self.plan_cycle(
+                    start_q, mug, replace(slot, mug_id=mug.mug_id), on_tray, counter=counter
+                )
+            except MotionRefused as e:
+                reasons.append(f"{mug.mug_id}: {e}")
+                continue
+            return mug, plan
+        if not reasons:
+            raise MotionRefused(f"slot for {slot.mug_id}: no {slot.type} mug left on the counter")
+        raise MotionRefused(
+            f"slot for {slot.mug_id}: no {slot.type} mug can be moved there ({'; '.join(reasons)})"
+        )
+
     def _cycle_motions(
         self,
         start: FloatArray,
@@ -161,23 +198,23 @@ class CyclePlanner:
         others = [m for m in counter if m.mug_id != mug.mug_id]
         placed = list(on_tray)
         delta = lateral_offset_m(spec, self.arm.gripper)
-        first_held = HeldMug(f"mug {mug.mug_id}", spec.diameter_mm / 2000.0, delta, -z_grasp, h - z_grasp)
-        upside_down_held = HeldMug(
-            f"mug {mug.mug_id}", spec.diameter_mm / 2000.0, delta, z_grasp - h, z_grasp
-        )
+        # The side grasp holds the mug 6 cm above its base with the grasp frame's x pointing down; after the
+        # flip and regrasp the x axis points up and the brim is 6 cm below the grasp point.
+        radius = spec.diameter_mm / 2000.0
+        first_held = HeldMug(f"mug {mug.mug_id}", radius, delta, z_grasp - h, z_grasp)
+        upside_down_held = HeldMug(f"mug {mug.mug_id}", radius, delta, -z_grasp, h - z_grasp)
         holding_aperture = spec.diameter_mm / 1000.0
+        opened = self.open_aperture_m
+        tray_z = self.cell.tray_floor_m
         plan = _Builder(self, start)
 
-        # side_grasp: from behind the mug at carry height, down, forward, close, up.
+        # side_grasp: from above and behind the mug down to grasp height, in, close, up.
         pick_kind = GraspKind.SIDE_UPSIDE_DOWN if mug.upside_down else GraspKind.SIDE
         pick = self._grasp(mug.x_m, mug.y_m, spec, pick_kind, z_grasp, f"grasp of mug {mug.mug_id}")
-        back = self._backed_off(pick)
         world = self._world(others, placed, target=mug, target_spec=spec)
-        plan.joint_move("side_grasp.approach", _at_z(back, carry), world, aperture=self.open_aperture_m)
-        plan.line("side_grasp.approach", back, world, aperture=self.open_aperture_m)
-        plan.line("side_grasp.approach", pick, world, aperture=self.open_aperture_m, ignore=mug.mug_id)
-        plan.gripper("side_grasp.close", StepKind.CLOSE)
         lift_world = self._world(others, placed)
+        self._first_move(plan, pick, world, mug.mug_id)
+        plan.gripper("side_grasp.close", StepKind.CLOSE)
         held = upside_down_held if mug.upside_down else first_held
         plan.line(
             "side_grasp.lift", _at_z(pick, carry), lift_world, aperture=holding_aperture, held=held, mass=mass
@@ -185,9 +222,8 @@ class CyclePlanner:
 
         if not mug.upside_down:
             fx, fy = self.cell.flip_area_center_m
-            set_down = self._grasp(
-                fx, fy, spec, GraspKind.SIDE_UPSIDE_DOWN, h - z_grasp + self.release_gap_m, "flip set-down"
-            )
+            set_down_z = h - z_grasp + self.release_gap_m
+            set_down = self._grasp(fx, fy, spec, GraspKind.SIDE_UPSIDE_DOWN, set_down_z, "flip set-down")
             above_flip = GraspTarget(_xy_at(set_down, carry), GraspKind.SIDE)
             plan.arc(
                 "flip.transit", above_flip, lift_world, aperture=holding_aperture, held=first_held, mass=mass
@@ -203,10 +239,7 @@ class CyclePlanner:
             flipped = MugPose(mug.mug_id, mug.type, fx, fy, upside_down=True)
             flip_world = self._world(others, placed, target=flipped, target_spec=spec)
             regrasp = self._grasp(fx, fy, spec, GraspKind.SIDE_UPSIDE_DOWN, z_grasp, "flip regrasp")
-            off = self._backed_off(set_down)
-            plan.line("flip.regrasp", off, flip_world, aperture=self.open_aperture_m, ignore=mug.mug_id)
-            plan.line("flip.regrasp", self._backed_off(regrasp), flip_world, aperture=self.open_aperture_m)
-            plan.line("flip.regrasp", regrasp, flip_world, aperture=self.open_aperture_m, ignore=mug.mug_id)
+            self._regrasp(plan, set_down, regrasp, flip_world, mug.mug_id)
             plan.gripper("flip.close", StepKind.CLOSE)
             plan.line(
                 "flip.lift",
@@ -217,13 +250,9 @@ class CyclePlanner:
                 mass=mass,
             )
 
+        place_z = tray_z + z_grasp + self.release_gap_m
         place = self._grasp(
-            slot.x_m,
-            slot.y_m,
-            spec,
-            GraspKind.SIDE_UPSIDE_DOWN,
-            z_grasp + self.release_gap_m,
-            f"slot of {mug.mug_id}",
+            slot.x_m, slot.y_m, spec, GraspKind.SIDE_UPSIDE_DOWN, place_z, f"slot of {mug.mug_id}"
         )
         held = upside_down_held
         plan.arc(
@@ -232,11 +261,71 @@ class CyclePlanner:
         plan.line("place.descend", place, lift_world, aperture=holding_aperture, held=held, mass=mass)
         plan.gripper("place.release", StepKind.OPEN)
         placed_now = MugPose(mug.mug_id, mug.type, slot.x_m, slot.y_m, upside_down=True)
-        done_world = self._world(others, placed, target=placed_now, target_spec=spec)
-        retreat = self._backed_off(place)
-        plan.line("place.retreat", retreat, done_world, aperture=self.open_aperture_m, ignore=mug.mug_id)
-        plan.line("place.retreat", _at_z(retreat, carry), done_world, aperture=self.open_aperture_m)
+        done_world = self._world(others, placed, target=placed_now, target_spec=spec, target_floor=tray_z)
+
+        def retreat(b: _Builder, back: float, side: float) -> None:
+            clear = self._clear_of(place, back, side)
+            b.line("place.retreat", clear, done_world, aperture=opened, ignore=mug.mug_id)
+            b.line("place.retreat", _at_z(clear, carry), done_world, aperture=opened)
+
+        self._try_offsets(plan, "place.retreat", retreat)
         return plan.motions
+
+    def _first_move(self, plan: _Builder, pick: GraspTarget, world: CollisionWorld, mug_id: str) -> None:
+        """side_grasp.approach: to above the pre-grasp point at carry height, down, then in to the grasp.
+        The pre-grasp point is behind the mug along the approach when that is reachable and clear, else
+        closer, else right above the grasp (the open gripper straddles the mug on the way down)."""
+        opened = self.open_aperture_m
+        carry = self.carry_z_m
+        phase = "side_grasp.approach"
+
+        def approach(b: _Builder, d: float, side: float) -> None:
+            pre = self._clear_of(pick, d, side)
+            above = _at_z(pre, max(carry, pre.position_m[2]))
+            try:
+                b.joint_move(phase, above, world, aperture=opened)
+            except MotionRefused:
+                b.rise(phase, carry, world, aperture=opened)
+                b.joint_move(phase, above, world, aperture=opened)
+            b.line(phase, pre, world, aperture=opened)
+            b.line(phase, pick, world, aperture=opened, ignore=mug_id)
+
+        self._try_offsets(plan, phase, approach)
+
+    def _regrasp(
+        self, plan: _Builder, set_down: GraspTarget, regrasp: GraspTarget, world: CollisionWorld, mug_id: str
+    ) -> None:
+        """flip.regrasp: let go of the inverted mug, back off, move to grasp height and go in again."""
+        opened = self.open_aperture_m
+
+        def moves(b: _Builder, d: float, side: float) -> None:
+            b.line("flip.regrasp", self._clear_of(set_down, d, side), world, aperture=opened, ignore=mug_id)
+            b.line("flip.regrasp", self._clear_of(regrasp, d, side), world, aperture=opened)
+            b.line("flip.regrasp", regrasp, world, aperture=opened, ignore=mug_id)
+
+        self._try_offsets(plan, "flip.regrasp", moves)
+
+    def _try_offsets(
+        self, plan: _Builder, phase: str, moves: Callable[[_Builder, float, float], object]
+    ) -> None:
+        """Plan ``moves`` with the open gripper backed off by each of ``back_off_m`` in turn, first with the
+        thumb ``side_clearance_m`` off the brim, then touching it (tight between neighbours); keep the first
+        that works, or refuse with every reason."""
+        reasons = []
+        for back in self.back_off_m:
+            for side in (self.side_clearance_m, 0.0):
+                trial = plan.fork()
+                try:
+                    moves(trial, back, side)
+                except MotionRefused as e:
+                    reasons.append(str(e).removeprefix(f"{phase}: "))
+                    continue
+                plan.adopt(trial)
+                return
+        first, last = reasons[0], reasons[-1]
+        if _POSE_SUFFIX.sub("", first) == _POSE_SUFFIX.sub("", last):
+            raise MotionRefused(f"{phase}: {first}")
+        raise MotionRefused(f"{phase}: {first}; straight from above: {last}")
 
     def _plan(
         self, waypoints: FloatArray, label: str, *, tool_length_m: float = 0.0, fine: bool = False
@@ -258,13 +347,15 @@ class CyclePlanner:
         except ValueError as e:
             raise MotionRefused(f"{what}: {e}") from e
 
-    def _backed_off(self, target: GraspTarget) -> GraspTarget:
-        """The same grasp ``approach_distance_m`` back along the approach (towards the base)."""
-        approach = target.approach()
-        assert approach is not None
+    def _clear_of(self, target: GraspTarget, back_m: float, side_m: float) -> GraspTarget:
+        """Where the open gripper is clear of the mug of a grasp: ``back_m`` back along the approach and
+        ``side_m`` away from the mug on the thumb's side (the thumb touches the brim at the grasp)."""
+        rotation = target.rotation()
+        assert rotation is not None
+        approach, mug_side = rotation[:, 2], rotation[:, 1]
+        shift = -back_m * approach - side_m * mug_side
         x, y, z = target.position_m
-        d = self.approach_distance_m
-        return GraspTarget((x - d * approach[0], y - d * approach[1], z), target.kind)
+        return GraspTarget((x + float(shift[0]), y + float(shift[1]), z), target.kind)
 
     def _spec(self, type_name: str, what: str) -> MugSpec:
         try:
@@ -306,6 +397,7 @@ class CyclePlanner:
         *,
         target: MugPose | None = None,
         target_spec: MugSpec | None = None,
+        target_floor: float = 0.0,
     ) -> CollisionWorld:
         cylinders: list[Cylinder] = [_BASE_COLUMN]
         for m in counter:
@@ -318,8 +410,10 @@ class CyclePlanner:
             )
         for s in placed:
             yaw = math.pi / 2 if s.rotated else 0.0
+            spec = self._spec(s.type, f"mug {s.mug_id}")
+            floor = self.cell.tray_floor_m
             cylinders += mug_obstacles(
-                f"mug {s.mug_id}", s.x_m, s.y_m, self._spec(s.type, f"mug {s.mug_id}"), handle_yaw_rad=yaw
+                f"mug {s.mug_id}", s.x_m, s.y_m, spec, handle_yaw_rad=yaw, floor_z=floor
             )
         if target is not None and target_spec is not None:
             cylinders += mug_obstacles(
@@ -328,6 +422,7 @@ class CyclePlanner:
                 target.y_m,
                 target_spec,
                 handle_yaw_rad=target.handle_yaw_rad,
+                floor_z=target_floor,
             )
         walls: list[Box] = tray_walls(
             self.cell.tray_bounds_m,
@@ -344,6 +439,22 @@ class _Builder:
         self.p = planner
         self.q = start
         self.motions: list[_Motion] = []
+
+    def fork(self) -> _Builder:
+        """A builder continuing from here whose motions can be adopted or dropped."""
+        trial = _Builder(self.p, self.q.copy())
+        trial.motions = list(self.motions)
+        return trial
+
+    def adopt(self, trial: _Builder) -> None:
+        self.q = trial.q
+        self.motions = trial.motions
+
+    def rise(self, phase: str, z: float, world: CollisionWorld, *, aperture: float) -> None:
+        """Straight up to height ``z`` keeping the present orientation as well as the arm allows."""
+        p, _ = self.p.arm.fk(self.q)
+        if p[2] < z:
+            self.line(phase, GraspTarget((float(p[0]), float(p[1]), z)), world, aperture=aperture)
 
     def gripper(self, phase: str, kind: StepKind) -> None:
         still = self.p._plan(self.q[None, :], phase)[1]
@@ -412,11 +523,16 @@ class _Builder:
         held: HeldMug | None = None,
         mass: float = 0.0,
     ) -> None:
-        """Carry along the arc between the bearings (the shorter way), radius and height blended."""
+        """Carry along the arc between the bearings, radius and height blended. The arc turns the way the
+        shoulder can: the shorter way unless that passes the shoulder-turn limit."""
         start_p, _ = self.p.arm.fk(self.q)
         a0 = math.atan2(start_p[1], start_p[0])
         a1 = math.atan2(goal.position_m[1], goal.position_m[0])
         span = math.remainder(a1 - a0, 2 * math.pi)
+        turn = float(self.q[0])
+        lo, hi = float(self.p.arm.lower[0]), float(self.p.arm.upper[0])
+        if not lo <= turn + span <= hi:
+            span -= math.copysign(2 * math.pi, span)
         r0, r1 = math.hypot(start_p[0], start_p[1]), math.hypot(goal.position_m[0], goal.position_m[1])
         z0, z1 = float(start_p[2]), goal.position_m[2]
         n = max(2, math.ceil(max(abs(span) / math.radians(3), abs(r1 - r0) / 0.02, abs(z1 - z0) / 0.02)) + 1)
@@ -481,6 +597,8 @@ class _Builder:
         ignore: str = "",
     ) -> None:
         trajectory, path = self.p._plan(waypoints, phase, tool_length_m=length, fine=fine)
+        if path.duration == 0.0:
+            return
         skip = frozenset({f"mug {ignore}"}) if ignore else frozenset()
         if held is not None:
             skip = skip | {held.name}

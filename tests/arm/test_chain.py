@@ -62,7 +62,7 @@ def test_stretched_side_grasp_holds_the_mug_at_the_rated_payload_reach(arm: ArmM
     position, rotation = arm.fk([0.0, 0.0, 0.0, -math.pi / 2, -math.pi / 2])
     assert position[0] == pytest.approx(thesis.ARM_PAYLOAD_REACH_M, abs=1e-3)
     assert np.allclose(rotation[:, 2], [1, 0, 0], atol=1e-6)  # approach forward
-    assert np.allclose(rotation[:, 0], [0, 0, 1], atol=1e-6)  # upright: x up
+    assert np.allclose(rotation[:, 0], [0, 0, 1], atol=1e-6)  # wrist turn -pi/2: the upside-down grasp
     assert finger_length_from_payload_reach() == pytest.approx(0.0572, abs=1e-4)
 
 

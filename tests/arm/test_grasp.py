@@ -45,13 +45,21 @@ def test_palm_is_delta_mg_from_the_mug_at_angle_theta_off_the_approach(arm: ArmM
         math.sqrt((r_m - w_g) ** 2 + l_g**2)
     )  # Eq 4.30
     assert g.theta_rad == pytest.approx(math.atan((r_m - w_g) / l_g))  # Eq 4.32
-    # Eq 4.36-4.37 (upright: the mug lies clockwise of the approach): palm = mug - Delta_mg at alpha' - theta.
-    angle = g.alpha_rad - g.theta_rad
+    # Eq 4.36-4.37, side grasp (the mug left of the approach): palm = mug - Delta_mg at alpha' + theta.
+    angle = g.alpha_rad + g.theta_rad
     assert g.palm_xy_m[0] == pytest.approx(0.4 - g.delta_mg_m * math.cos(angle))
     assert g.palm_xy_m[1] == pytest.approx(0.3 - g.delta_mg_m * math.sin(angle))
     # Eq 4.28: the approach angle is the grasp point's bearing from the base.
     x_g, y_g, _ = g.target.position_m
     assert math.atan2(y_g, x_g) == pytest.approx(g.alpha_rad)
+    # Eq 4.35: alpha' = beta' - gamma' for the side grasp, beta' + gamma' upside down.
+    beta = math.atan2(0.3, 0.4)
+    gamma = math.asin((r_m - w_g) / 0.5)
+    assert g.alpha_rad == pytest.approx(beta - gamma)
+    inverted = side_grasp(0.4, 0.3, BIG_MUG, arm.gripper, z_m=0.06, kind=GraspKind.SIDE_UPSIDE_DOWN)
+    assert inverted.alpha_rad == pytest.approx(beta + gamma)
+    angle = inverted.alpha_rad - inverted.theta_rad
+    assert inverted.palm_xy_m[1] == pytest.approx(0.3 - inverted.delta_mg_m * math.sin(angle))
 
 
 def test_a_mug_on_the_shoulder_axis_cannot_be_side_grasped(arm: ArmModel) -> None:
