@@ -9,6 +9,7 @@ motion, finishes the recording and closes the session.
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import contextlib
 import os
 import signal
@@ -65,6 +66,7 @@ async def serve(
     notifier: SdNotifier,
     on_ready: Callable[[Bus, Path], None] | None = None,
     stop: asyncio.Event | None = None,
+    executor: concurrent.futures.Executor | None = None,
 ) -> RunResult:
     """Run the daemon until SIGTERM/SIGINT or ``stop`` is set (or the ``once`` job ends); returns the last
     job's summary."""
@@ -100,6 +102,7 @@ async def serve(
             path,
             on_ready,
             stop or asyncio.Event(),
+            executor,
         )
 
 
@@ -114,9 +117,10 @@ async def _run(
     path: Path,
     on_ready: Callable[[Bus, Path], None] | None,
     stop: asyncio.Event,
+    executor: concurrent.futures.Executor | None,
 ) -> RunResult:
     loop = asyncio.get_running_loop()
-    job = Job(recorded(backend, bus.record), config, bus.publish, associate)
+    job = Job(recorded(backend, bus.record), config, bus.publish, associate, executor=executor)
     recorder.write_header(config.to_dict(), backend.scene())
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
@@ -220,7 +224,8 @@ async def _gripper_loop(bus: Bus, backend: Backend, job: Job, rate_hz: float) ->
         bus.publish(
             "gripper",
             {
-                "t": gs.t,
+                "t": time.time(),
+                "t_device": gs.t,
                 "aperture_m": round(gs.aperture_m, 5),
                 "load": round(gs.load, 4),
                 "force_n": None if reading is None else round(reading.force_n, 4),

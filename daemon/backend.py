@@ -8,14 +8,17 @@ is also handed to the recording, which is what a replay needs.
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
+import functools
+import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
 
-from daemon.config import Config
+from daemon.config import CellConfig, Config, MugTypeConfig
 from daemon.errors import UsageError
 from drivers.interfaces import (
     ArmDriver,
@@ -32,7 +35,7 @@ from perception.interfaces import Detection, MugObserver, Observation
 from perception.truth import TruthObserver
 from planning import thesis
 from planning.arm import ArmModel
-from planning.interfaces import MotionPlanner
+from planning.interfaces import CyclePlan, MotionPlanner, MugPose, TraySlot
 from planning.motion import CellLayout
 from planning.motion.planner import CyclePlanner
 from planning.placement import Problem, dataset_problem
@@ -112,8 +115,10 @@ def recorded(backend: Backend, sink: Sink) -> Backend:
 
 
 def joints_payload(js: JointState) -> dict[str, object]:
+    """``t`` is the wall clock when published, ``t_device`` the driver's own (monotonic or simulated) time."""
     return {
-        "t": js.t,
+        "t": time.time(),
+        "t_device": js.t,
         "names": list(js.names),
         "position_rad": [round(v, 6) for v in js.position_rad],
         "velocity_rad_s": [round(v, 6) for v in js.velocity_rad_s],
@@ -210,11 +215,19 @@ class _RecordedObserver:
         return obs
 
 
-def open_sim_backend(config: Config, *, world: str, dataset: int, speed: float, seed: int) -> Backend:
+def open_sim_backend(
+    config: Config,
+    *,
+    world: str,
+    dataset: int,
+    speed: float,
+    seed: int,
+    executor: concurrent.futures.Executor | None = None,
+) -> Backend:
     """The simulated cell with dataset ``dataset``'s mugs on its counter, ``speed`` times real time.
 
     ``world`` is ``kinematic`` (the placeholder cell of ``drivers.simcell``) or ``mujoco`` (the physics
-    simulation, once it is wired)."""
+    simulation, once it is wired). With ``executor`` (a process pool), motion planning runs there."""
     if world != "kinematic":
         raise UsageError(
             f"--world {world}: the MuJoCo cell is not wired into the daemon yet; use --world kinematic"
@@ -223,11 +236,13 @@ def open_sim_backend(config: Config, *, world: str, dataset: int, speed: float, 
     counter = _KinematicCounter(config, arm_model, speed=speed)
     tray = counter.set_counter(dataset=dataset, mugs=None)
     cell = counter.cell
-    catalogue = {
-        m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in config.mug_types
-    }
     observer = TruthObserver(counter.visible_mugs, noise_m=config.sim.detection_noise_m, seed=seed)
-    motion = counter.motion_planner(catalogue)
+
+    def motion_for(tray: Tray) -> MotionPlanner:
+        spec = CyclePlannerSpec(config.cell, tray, config.mug_types)
+        return spec.build(arm_model) if executor is None else ProcessMotionPlanner(spec, executor)
+
+    motion = motion_for(tray)
     backend = Backend(
         name="sim-kinematic",
         arm=cell.arm,
@@ -238,7 +253,7 @@ def open_sim_backend(config: Config, *, world: str, dataset: int, speed: float, 
         tray=tray,
         counter=counter,
     )
-    counter.on_tray_change = lambda t: setattr(backend, "motion", counter.motion_planner(catalogue))
+    counter.on_tray_change = lambda t: setattr(backend, "motion", motion_for(t))
     return backend
 
 
@@ -296,12 +311,6 @@ class _KinematicCounter:
             tray_origin_m=self._config.cell.tray_origin_m if robot_tray else None,
         )
 
-    def motion_planner(self, catalogue: Mapping[str, MugSpec]) -> MotionPlanner:
-        layout = CellLayout.from_config(self._config.cell)
-        layout = dataclasses.replace(layout, tray_origin_m=self.tray.origin_m, tray_size_mm=self.tray.size_mm)
-        planner: MotionPlanner = CyclePlanner(self._arm, layout, catalogue)
-        return planner
-
     def visible_mugs(self) -> list[Detection]:
         return [
             Detection(m.type, m.x_m, m.y_m, m.upside_down, m.handle_yaw_rad, 1.0)
@@ -311,3 +320,68 @@ class _KinematicCounter:
 
     def scene(self) -> dict[str, object]:
         return self.cell.world.scene()
+
+
+@dataclass(frozen=True, slots=True)
+class CyclePlannerSpec:
+    """Everything needed to build the cycle planner, hashable and picklable, so that a planning process can
+    build it once and reuse it."""
+
+    cell: CellConfig
+    tray: Tray
+    mug_types: tuple[MugTypeConfig, ...]
+
+    def build(self, arm: ArmModel | None = None) -> MotionPlanner:
+        layout = CellLayout.from_config(self.cell)
+        layout = dataclasses.replace(layout, tray_origin_m=self.tray.origin_m, tray_size_mm=self.tray.size_mm)
+        catalogue = {
+            m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in self.mug_types
+        }
+        planner: MotionPlanner = CyclePlanner(arm or ArmModel.load(), layout, catalogue)
+        return planner
+
+
+@functools.lru_cache(maxsize=4)
+def _planner_in_this_process(spec: CyclePlannerSpec) -> MotionPlanner:
+    return spec.build()
+
+
+def _plan_cycle(
+    spec: CyclePlannerSpec,
+    start_q: tuple[float, ...],
+    mug: MugPose,
+    slot: TraySlot,
+    on_tray: tuple[TraySlot, ...],
+) -> CyclePlan:
+    return _planner_in_this_process(spec).plan_cycle(start_q, mug, slot, on_tray)
+
+
+def _plan_move(
+    spec: CyclePlannerSpec, start_q: tuple[float, ...], goal_q: tuple[float, ...], label: str
+) -> JointTrajectory:
+    return _planner_in_this_process(spec).plan_move(start_q, goal_q, label=label)
+
+
+class ProcessMotionPlanner:
+    """A ``MotionPlanner`` whose planning runs in another process (``executor``, a process pool).
+
+    Planning is CPU-bound Python and C++ that holds the GIL; in the daemon's process it would stall the event
+    loop (telemetry, commands) for tens of milliseconds at a time. Calls block until the result is back, so
+    the job calls them from a thread (``asyncio.to_thread``), as it does any planner."""
+
+    def __init__(self, spec: CyclePlannerSpec, executor: concurrent.futures.Executor) -> None:
+        self._spec = spec
+        self._executor = executor
+
+    def warm_up(self) -> concurrent.futures.Future[MotionPlanner]:
+        """Build the planner in the worker now (model loading takes a while), not on the first mug."""
+        return self._executor.submit(_planner_in_this_process, self._spec)
+
+    def plan_cycle(
+        self, start_q: Sequence[float], mug: MugPose, slot: TraySlot, on_tray: Sequence[TraySlot]
+    ) -> CyclePlan:
+        future = self._executor.submit(_plan_cycle, self._spec, tuple(start_q), mug, slot, tuple(on_tray))
+        return future.result()
+
+    def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
+        return self._executor.submit(_plan_move, self._spec, tuple(start_q), tuple(goal_q), label).result()

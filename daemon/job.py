@@ -15,6 +15,7 @@ way is resumed by joining the interrupted trajectory at its nearest sample and f
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import contextlib
 import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
@@ -156,8 +157,12 @@ class Job:
         associate: Associate,
         *,
         chart: StateChart | None = None,
+        executor: concurrent.futures.Executor | None = None,
     ) -> None:
+        """``executor`` (a process pool) runs placement planning off this process, so its CPU time does not
+        hold the GIL against the event loop; without it, planning runs in a thread."""
         self.backend = backend
+        self._executor = executor
         self.config = config
         self.chart = chart or StateChart()
         self._publish = publish
@@ -386,7 +391,12 @@ class Job:
         ctx = self._ctx
         problem = self._problem()
         try:
-            result = await asyncio.to_thread(plan, problem, ctx.planner)
+            if self._executor is None:
+                result = await asyncio.to_thread(plan, problem, ctx.planner)
+            else:
+                result = await asyncio.get_running_loop().run_in_executor(
+                    self._executor, plan, problem, ctx.planner
+                )
         except InvalidProblem as e:
             self._event("warning", message=f"placement planning refused the problem: {e}")
             ctx.queue = []

@@ -9,7 +9,11 @@ import sys
 from collections.abc import Mapping, Sequence
 
 # Each module defines ``register(bench_subparsers)`` adding one benchmark whose parser sets ``handler``.
-BENCH_MODULES: tuple[str, ...] = ("daemon.commands.bench_placement",)
+BENCH_MODULES: tuple[str, ...] = (
+    "daemon.commands.bench_daemon",
+    "daemon.commands.bench_bus",
+    "daemon.commands.bench_placement",
+)
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

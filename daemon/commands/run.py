@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import concurrent.futures
+import multiprocessing
 import sys
 from pathlib import Path
 
 import structlog
 
 from daemon.app import RunOptions, RunResult, serve
-from daemon.backend import Backend, open_sim_backend
+from daemon.backend import Backend, ProcessMotionPlanner, open_sim_backend
 from daemon.config import Config, check_endpoint, load_config
 from daemon.errors import ConfigError, UsageError
 from daemon.job import Associate, StartRequest
@@ -88,24 +90,38 @@ def _run(args: argparse.Namespace) -> int:
         record_dir=args.record_dir or config.recording.dir,
         once=StartRequest() if args.once else None,
     )
-    backend = _backend(args, config, speed)
-    with SdNotifier.from_env() as notifier:
-        result = asyncio.run(serve(config, backend, _association(), options, notifier=notifier))
+    with planning_pool() as pool, SdNotifier.from_env() as notifier:
+        backend = _backend(args, config, speed, pool)
+        result = asyncio.run(serve(config, backend, association(), options, notifier=notifier, executor=pool))
     if args.once:
         _print_summary(result)
         return 0 if result.end_state == "done" else 1
     return 0
 
 
-def _backend(args: argparse.Namespace, config: Config, speed: float) -> Backend:
+def planning_pool() -> concurrent.futures.ProcessPoolExecutor:
+    """One worker process for placement and motion planning (forkserver: never fork Zenoh's threads)."""
+    return concurrent.futures.ProcessPoolExecutor(
+        max_workers=1, mp_context=multiprocessing.get_context("forkserver")
+    )
+
+
+def _backend(
+    args: argparse.Namespace, config: Config, speed: float, pool: concurrent.futures.Executor
+) -> Backend:
     if not args.sim and config.backend != "sim":
         raise UsageError("the hardware backend is not wired into dishbot run yet; use --sim")
     world = args.world or config.sim.world
     seed = config.sim.seed if args.seed is None else args.seed
-    return open_sim_backend(config, world=world, dataset=args.dataset, speed=speed, seed=seed)
+    backend = open_sim_backend(
+        config, world=world, dataset=args.dataset, speed=speed, seed=seed, executor=pool
+    )
+    if isinstance(backend.motion, ProcessMotionPlanner):
+        backend.motion.warm_up()
+    return backend
 
 
-def _association() -> Associate:
+def association() -> Associate:
     from perception import associate  # type: ignore[attr-defined]
 
     fn: Associate = associate
