@@ -120,10 +120,10 @@ class Hand:
         g = side_grasp(x, y, spec, self.model.gripper, z_m=z, kind=kind)
         alpha = g.alpha_rad
         along = np.array([math.cos(alpha), math.sin(alpha), 0.0])
-        thumb_side = np.array([-math.sin(alpha), math.cos(alpha), 0.0]) * (
-            1.0 if kind is GraspKind.SIDE else -1.0
-        )
         target = np.asarray(g.target.position_m)
+        # The thumb is on the side of the grasp point away from the mug axis (Eq 4.29-4.30).
+        thumb_side = np.append(target[:2] - np.array([x, y]), 0.0)
+        thumb_side /= np.linalg.norm(thumb_side)
         self.open()
         # Come in along the approach line with the mug centred between thumb and finger, then slide the
         # thumb sideways onto it: its face ends tangent to the mug (Eq 4.30); a straight approach brushes it.

@@ -90,15 +90,16 @@ def test_arm_driver_moves_the_physics_arm_and_a_grasp_lifts_then_drops_the_mug()
         g = side_grasp(*MUG_XY, spec, model.gripper, z_m=0.06)
         a = g.alpha_rad
         along = np.array([math.cos(a), math.sin(a), 0.0])
-        left = np.array([-math.sin(a), math.cos(a), 0.0])
         target = np.asarray(g.target.position_m)
+        thumb_side = np.append(target[:2] - np.asarray(MUG_XY), 0.0)
+        thumb_side /= np.linalg.norm(thumb_side)
         slack = (model.gripper.aperture_m(-0.35) - spec.diameter_mm / 1000.0) / 2.0
         start = (await cell.arm.read_joints()).position_rad
         await cell.gripper.open()
         approach = [
-            target + slack * left - 0.06 * along + np.array([0, 0, 0.15]),
-            target + slack * left - 0.06 * along,
-            target + slack * left,
+            target + slack * thumb_side - 0.06 * along + np.array([0, 0, 0.15]),
+            target + slack * thumb_side - 0.06 * along,
+            target + slack * thumb_side,
             target,
         ]
         await cell.arm.follow(_path(model, start, approach, GraspKind.SIDE))
@@ -114,7 +115,9 @@ def test_arm_driver_moves_the_physics_arm_and_a_grasp_lifts_then_drops_the_mug()
         assert cell.world.mug_truths()["a"].position_m[2] > 0.1
         reading = cell.force.latest()
         assert reading is not None
-        assert reading.force_n > 2.0 > idle_force
+        # The driver holds the pads where they stopped once the force passed the threshold, so the squeeze
+        # relaxes a little; it must stay above the reader's release level for the mug to count as held.
+        assert reading.force_n > cell.force.release_n > idle_force
         assert cell.force.holding()
         await cell.gripper.open()
         await asyncio.sleep(0.5)
