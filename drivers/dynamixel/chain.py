@@ -8,12 +8,13 @@ handed to the event loop with ``call_soon_threadsafe``.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from types import TracebackType
 from typing import TypeVar
 
-from drivers.dynamixel.bus import DeviceEvent, DynamixelBus
+from drivers.dynamixel.bus import DeviceEvent, DynamixelBus, ServoCounters
 from drivers.dynamixel.config import BusConfig
 
 T = TypeVar("T")
@@ -54,6 +55,14 @@ class ServoChain:
         if self._executor is None or self._loop is None:
             raise RuntimeError("the servo chain is not open; use `async with ServoChain(...)`")
         return await self._loop.run_in_executor(self._executor, fn, self.bus)
+
+    def counters(self) -> dict[int, ServoCounters]:
+        """A snapshot of the per-servo timeout/corrupt/retry/fault counters (for status publishing)."""
+        return {i: dataclasses.replace(c) for i, c in self.bus.counters.items()}
+
+    def faulted(self) -> dict[int, tuple[str, ...]]:
+        """Servos whose last answer carried a fault, with the fault names."""
+        return self.bus.faulted()
 
     async def open(self) -> None:
         self._loop = asyncio.get_running_loop()

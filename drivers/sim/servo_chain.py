@@ -260,14 +260,9 @@ class ServoChainSimulator:
             link.write(packet)
 
     def _wire_delay(self, servo: SimServo, nbytes: int) -> None:
-        if not self.wire_timing:
-            return
-        seconds = servo.get("return_delay") * 2e-6 + nbytes * 10 / self.baudrate
-        deadline = time.perf_counter() + seconds
-        if seconds > 0.002:
-            time.sleep(seconds - 0.001)
-        while time.perf_counter() < deadline:
-            time.sleep(0)
+        """Sleep (never spin: the driver may share this interpreter) for the return delay and the bytes."""
+        if self.wire_timing:
+            time.sleep(servo.get("return_delay") * 2e-6 + nbytes * 10 / self.baudrate)
 
     def _dispatch(self, frame: p.Frame, servos: list[SimServo]) -> list[tuple[SimServo, bytes]]:
         by_id = {s.servo_id: s for s in servos}
