@@ -35,36 +35,30 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
             "Prints a summary, or the result as JSON with --json; --svg/--png also draw the tray."
         ),
     )
-    source = parser.add_mutually_exclusive_group(required=True)
-    source.add_argument(
+    parser.add_argument(
         "problem", nargs="?", metavar="PROBLEM.json", help="the placement problem ('-' = stdin)"
     )
-    source.add_argument("--dataset", type=int, metavar="N", help="a built-in dataset of the thesis (1-6)")
+    parser.add_argument(
+        "--dataset", metavar="N", help="a built-in dataset of the thesis (1-6) instead of a file"
+    )
     parser.add_argument(
         "--method",
         default="auto",
-        choices=METHODS,
-        help="placement method (default auto: best within the time limit)",
+        help=f"placement method: {', '.join(METHODS)} (default auto: the best within the time limit)",
     )
     parser.add_argument(
         "--heuristic",
         default="ltf",
-        choices=[h.value for h in Heuristic],
-        help="packing heuristic, the fill order (default ltf, left-top fill)",
+        help=f"fill order: {', '.join(h.value for h in Heuristic)} (default ltf, left-top fill)",
     )
     parser.add_argument(
         "--sort",
-        choices=[s.value for s in Sort],
-        help="initial order (default: every sort for bh/auto, nis-l for the optimisers)",
+        help=f"initial order: {', '.join(s.value for s in Sort)} (default: every sort for bh/auto, nis-l for"
+        " the optimisers)",
     )
+    parser.add_argument("--fitness", default="rf", help="ws (weighted sum) or rf (ranking, default)")
     parser.add_argument(
-        "--fitness", default="rf", choices=["ws", "rf"], help="weighted sum or ranking (default rf)"
-    )
-    parser.add_argument(
-        "--cost",
-        default="upc",
-        choices=["bpc", "upc", "ec"],
-        help="bin-packing, user-preference or engineering cost (default upc)",
+        "--cost", default="upc", help="bpc (bin packing), upc (user preference, default) or ec (engineering)"
     )
     parser.add_argument(
         "--weights",
@@ -76,9 +70,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="P,P,...",
         help="your own ranking of n, E, t, s for --fitness rf (default n,E,t,s; area always follows n)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", default="0", help="random seed, a whole number (default 0)")
     parser.add_argument(
-        "--time-limit", type=float, default=1.0, metavar="SEC", help="budget for auto and exact (default 1.0)"
+        "--time-limit",
+        default="1.0",
+        metavar="SEC",
+        help="budget for auto and exact in seconds (default 1.0)",
     )
     parser.add_argument("--json", action="store_true", help="print the result as one JSON document")
     parser.add_argument("--svg", type=Path, metavar="FILE", help="also draw the plan as SVG")
@@ -88,9 +85,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 def load_problem(args: argparse.Namespace) -> Problem:
     if args.dataset is not None:
-        if args.dataset not in thesis.DATASETS:
-            raise UsageError(f"--dataset: unknown dataset {args.dataset} (known: 1-{len(thesis.DATASETS)})")
-        return dataset_problem(args.dataset)
+        if args.problem is not None:
+            raise UsageError("give either PROBLEM.json or --dataset N, not both")
+        known = {str(n): n for n in thesis.DATASETS}
+        if args.dataset not in known:
+            raise UsageError(f"--dataset: unknown dataset {args.dataset!r} (known: 1-{len(thesis.DATASETS)})")
+        return dataset_problem(known[args.dataset])
+    if args.problem is None:
+        raise UsageError("give a PROBLEM.json (or - for stdin) or --dataset N")
     name = args.problem
     try:
         text = sys.stdin.read() if name == "-" else Path(name).read_text(encoding="utf-8")
@@ -109,8 +111,10 @@ def load_problem(args: argparse.Namespace) -> Problem:
 
 
 def run(args: argparse.Namespace) -> int:
-    if not args.time_limit > 0:
-        raise UsageError(f"--time-limit: must be positive, got {args.time_limit}")
+    time_limit = _number("--time-limit", args.time_limit, float)
+    if not 0 < time_limit < float("inf"):
+        raise UsageError(f"--time-limit: must be a positive number of seconds, got {args.time_limit!r}")
+    seed = int(_number("--seed", args.seed, int))
     for flag, path in (("--svg", args.svg), ("--png", args.png)):
         if path is not None and not path.parent.resolve().is_dir():
             raise UsageError(f"{flag}: directory {str(path.parent)!r} does not exist")
@@ -121,15 +125,19 @@ def run(args: argparse.Namespace) -> int:
         sort=args.sort,
         fitness=args.fitness,
         cost=args.cost,
-        seed=args.seed,
-        time_limit_s=args.time_limit,
+        seed=seed,
+        time_limit_s=time_limit,
         weights=_weights(args.weights),
         ranking=None if args.ranking is None else tuple(p.strip() for p in args.ranking.split(",")),
     )
     try:
         result = plan(problem, options)
     except InvalidProblem as e:
-        raise UsageError(str(e)) from e
+        message = str(e)
+        for option in ("method", "heuristic", "sort", "fitness", "cost"):
+            if message.startswith(f"{option}: "):
+                message = "--" + message
+        raise UsageError(message) from e
     # Render everything before writing anything, so a failure leaves no half-written output.
     outputs: list[tuple[Path, bytes]] = []
     if args.svg is not None:
@@ -144,6 +152,14 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(summary(result))
     return 0
+
+
+def _number(flag: str, text: str, kind: type[int] | type[float]) -> float:
+    try:
+        return kind(text)
+    except ValueError as e:
+        what = "a whole number" if kind is int else "a number"
+        raise UsageError(f"{flag}: expected {what}, got {text!r}") from e
 
 
 def _weights(text: str | None) -> dict[str, float] | None:

@@ -92,7 +92,34 @@ def test_pictures_are_written(tmp_path: Path, capsys: pytest.CaptureFixture[str]
             [],
             "{path}: placed[0]: footprint [400, 530] x [0, 101] mm leaves the tray (475 x 520 mm)",
         ),
-        (json.dumps(EXAMPLE), ["--time-limit", "0"], "--time-limit: must be positive, got 0.0"),
+        (
+            json.dumps(EXAMPLE),
+            ["--time-limit", "0"],
+            "--time-limit: must be a positive number of seconds, got '0'",
+        ),
+        (json.dumps(EXAMPLE), ["--time-limit", "soon"], "--time-limit: expected a number, got 'soon'"),
+        (json.dumps(EXAMPLE), ["--seed", "1.5"], "--seed: expected a whole number, got '1.5'"),
+        (
+            json.dumps(EXAMPLE),
+            ["--method", "magic"],
+            "--method: unknown method 'magic' (known: auto, exact, bh, sa, ga, psop-n, psop-i, psok-n,"
+            " psok-i)",
+        ),
+        (
+            json.dumps(EXAMPLE),
+            ["--heuristic", "zigzag"],
+            "--heuristic: unknown heuristic 'zigzag' (known: blf, lbf, tlf, ltf, brf, rbf, trf, rtf)",
+        ),
+        (
+            json.dumps(EXAMPLE),
+            ["--sort", "size"],
+            "--sort: unknown sort 'size' (known: cif, nis-l, nis-w, nds-l, nds-w, ro)",
+        ),
+        (
+            json.dumps(EXAMPLE),
+            ["--cost", "cheap"],
+            "--cost: unknown cost function 'cheap' (known: bpc, upc, ec)",
+        ),
     ],
 )
 def test_bad_input_exits_2_with_one_line_and_writes_nothing(
@@ -116,7 +143,12 @@ def test_missing_file_and_unknown_dataset_are_usage_errors(
         == f"dishbot plan: error: {tmp_path / 'absent.json'}: no such file\n"
     )
     assert (
-        run(capsys, "--dataset", "9")[2] == "dishbot plan: error: --dataset: unknown dataset 9 (known: 1-6)\n"
+        run(capsys, "--dataset", "9")[2]
+        == "dishbot plan: error: --dataset: unknown dataset '9' (known: 1-6)\n"
+    )
+    assert run(capsys)[2] == "dishbot plan: error: give a PROBLEM.json (or - for stdin) or --dataset N\n"
+    assert run(capsys, "x.json", "--dataset", "1")[2] == (
+        "dishbot plan: error: give either PROBLEM.json or --dataset N, not both\n"
     )
     code, _, err = run(capsys, "--dataset", "1", "--png", str(tmp_path / "no" / "dir.png"))
     assert (code, err) == (
