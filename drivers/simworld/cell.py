@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-from collections.abc import AsyncIterator, Callable, Mapping, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -38,7 +38,7 @@ from drivers.fsr.reader import FsrReader
 from drivers.interfaces import Camera, RGBDFrame
 from drivers.sim.fsr import FsrSimulator
 from drivers.sim.servo_chain import ServoChainSimulator, default_chain
-from drivers.simworld.arm import ArmMjcf, build_arm_mjcf, load_urdf
+from drivers.simworld.arm import build_arm_mjcf, load_urdf
 from drivers.simworld.camera import DepthCamera, DepthNoise
 from drivers.simworld.collisions import TrayCollision, TrayCollisionCounter
 from drivers.simworld.scene import CAMERA_NAME, SceneLayout, SceneMug, build_mjcf
@@ -104,12 +104,19 @@ class SnapshotCamera:
         self.camera.close()
 
 
-class _PlantSwitch:
-    """The servo chain's plant: forwards to the current world, so a new counter can bring a new world."""
+class _WorldSwitch:
+    """What the devices hang on: the current world, its camera and its collision counter.
 
-    def __init__(self, world: SimWorld) -> None:
+    The servo chain's plant, the FSR's force and the camera forward to whatever world is current, so a new
+    counter (a new world) needs no new pseudo-terminals, drivers or observer.
+    """
+
+    def __init__(self, world: SimWorld, camera: SnapshotCamera, collisions: TrayCollisionCounter) -> None:
         self.world = world
+        self.camera = camera
+        self.collisions = collisions
 
+    # ServoPlant
     def set_goal(self, servo_id: int, position_rad: float, speed_rad_s: float) -> None:
         self.world.set_goal(servo_id, position_rad, speed_rad_s)
 
@@ -119,46 +126,66 @@ class _PlantSwitch:
     def set_torque(self, servo_id: int, on: bool) -> None:
         self.world.set_torque(servo_id, on)
 
+    # the FSR simulator's force source
     def force_n(self) -> float:
         return self.world.gripper_force_n()
+
+    # drivers.interfaces.Camera
+    async def capture(self) -> RGBDFrame:
+        return self.camera.render()
 
 
 @dataclass(slots=True)
 class SimCell:
-    """The simulated cell's devices (real drivers over pseudo-terminals) and the world behind them."""
+    """The simulated cell's devices (real drivers over pseudo-terminals) and the world behind them.
+
+    ``arm``, ``gripper``, ``force``, ``camera`` and ``observer`` are what a daemon backend runs on;
+    ``world`` and ``collisions`` are the simulator's own (ground truth, tray collisions) for tests, benchmarks
+    and the collision events.
+    """
 
     layout: SceneLayout
     arm: DynamixelArm
     gripper: DynamixelGripper
     force: FsrReader
-    camera: SnapshotCamera
     observer: MugObserver
     servo_sim: ServoChainSimulator
     fsr_sim: FsrSimulator
-    collisions: TrayCollisionCounter
     mugs: tuple[SceneMug, ...]
-    _plant: _PlantSwitch
-    _rebuild: Callable[[Sequence[SceneMug]], tuple[SimWorld, TrayCollisionCounter, SnapshotCamera]]
-    _observer_factory: ObserverFactory
-    collision_log: list[TrayCollision] = field(default_factory=list)
+    _switch: _WorldSwitch
+    _rebuild: Callable[[Sequence[SceneMug]], tuple[SimWorld, SnapshotCamera, TrayCollisionCounter]]
+    _collision_listeners: list[Callable[[TrayCollision], None]] = field(default_factory=list)
 
     @property
     def world(self) -> SimWorld:
-        return self._plant.world
+        return self._switch.world
+
+    @property
+    def camera(self) -> Camera:
+        return self._switch
+
+    @property
+    def collisions(self) -> TrayCollisionCounter:
+        """The current world's tray collision counter."""
+        return self._switch.collisions
+
+    def on_collision(self, listener: Callable[[TrayCollision], None]) -> None:
+        """Call ``listener`` for every tray collision, in this world and the ones later counters bring.
+
+        It runs on the physics thread and must not block (hand it to an event loop with
+        ``loop.call_soon_threadsafe``)."""
+        self._collision_listeners.append(listener)
 
     def set_counter(self, mugs: Sequence[SceneMug]) -> None:
         """Put a new set of mugs on the counter: a fresh world with the arm where it is now.
 
-        Call it between jobs (the arm still and nothing in the gripper); the drivers stay connected.
+        Call it between jobs (the arm still, nothing in the gripper); the drivers stay connected.
         """
-        world, collisions, camera = self._rebuild(mugs)
-        old_world, old_camera = self._plant.world, self.camera
-        self._plant.world = world
+        world, camera, collisions = self._rebuild(mugs)
+        old_world, old_camera = self._switch.world, self._switch.camera
+        self._switch.world, self._switch.camera, self._switch.collisions = world, camera, collisions
         old_world.stop()
         old_camera.close()
-        self.camera = camera
-        self.collisions = collisions
-        self.observer = self._observer_factory(camera)
         self.mugs = tuple(mugs)
         log.info("simworld_counter_set", mugs=len(mugs))
 
@@ -199,6 +226,93 @@ def scene_mugs(
     return [SceneMug(mug_id, catalogue[kind], x, y) for mug_id, kind, x, y in entries]
 
 
+async def start_sim_cell(
+    layout: SceneLayout,
+    mugs: Sequence[SceneMug],
+    *,
+    speed: float = 1.0,
+    seed: int = 0,
+    urdf: Path = BUNDLED_URDF,
+    physics: PhysicsConfig | None = None,
+    start_pose_rad: Sequence[float] | None = None,
+    force_threshold_n: float = 2.0,
+    depth_noise: DepthNoise | None = None,
+    observer_factory: ObserverFactory | None = None,
+) -> tuple[SimCell, Callable[[], Awaitable[None]]]:
+    """Start the simulated cell with ``mugs`` on the counter; returns it and the coroutine that stops it.
+
+    This is the daemon's entry point (``dishbot run --sim --world mujoco``): the cell's ``arm``, ``gripper``,
+    ``force`` and ``observer`` make the backend, the returned closer is its ``closer``. Call it on the event
+    loop that will use the devices. ``start_pose_rad`` places the five arm joints (default: the world's
+    ready pose); ``observer_factory`` turns the camera into the mug observer (default: perception's
+    ``CameraObserver``).
+    """
+    arm_mjcf = build_arm_mjcf(load_urdf(urdf))
+    make_observer = observer_factory or _default_observer
+    noise = depth_noise if depth_noise is not None else DepthNoise()
+    listeners: list[Callable[[TrayCollision], None]] = []
+
+    def dispatch(collision: TrayCollision) -> None:
+        for listener in listeners:
+            listener(collision)
+
+    def build(
+        scene: Sequence[SceneMug], pose: Mapping[str, float] | None
+    ) -> tuple[SimWorld, SnapshotCamera, TrayCollisionCounter]:
+        xml = build_mjcf(
+            layout, scene, arm_body_xml=arm_mjcf.body_xml, arm_actuator_xml=arm_mjcf.actuator_xml
+        )
+        world = SimWorld(
+            xml,
+            arm_mjcf,
+            mug_ids=[m.mug_id for m in scene],
+            speed=speed,
+            physics=physics,
+            initial_pose_rad=pose,
+        )
+        counter = TrayCollisionCounter(world, layout.tray_region_m(), on_collision=dispatch)
+        world.start()
+        return world, _camera(world, layout, noise, seed), counter
+
+    switch = _WorldSwitch(*build(mugs, _pose(start_pose_rad)))
+    stack = contextlib.AsyncExitStack()
+    stack.callback(lambda: switch.world.stop())
+    stack.callback(lambda: switch.camera.close())
+    try:
+        servo_sim = stack.enter_context(ServoChainSimulator(default_chain(), plant=switch))
+        fsr_sim = stack.enter_context(FsrSimulator(switch.force_n))
+        force = await stack.enter_async_context(FsrReader(fsr_sim.device_path, threshold_n=force_threshold_n))
+        chain = await stack.enter_async_context(ServoChain(BusConfig(servo_sim.device_path), default_chain()))
+        joints = thesis_joints([_servo_limits(j) for j in _ARM_JOINTS])
+        arm = await stack.enter_async_context(DynamixelArm(chain, joints))
+        gripper = await stack.enter_async_context(
+            DynamixelGripper(chain, gripper_spec(arm_mjcf.gripper), force)
+        )
+    except BaseException:
+        await stack.aclose()
+        raise
+
+    def rebuild(scene: Sequence[SceneMug]) -> tuple[SimWorld, SnapshotCamera, TrayCollisionCounter]:
+        now = {s.joint: switch.present(s.servo_id)[0] for s in arm_mjcf.servos}
+        return build(scene, now)
+
+    cell = SimCell(
+        layout=layout,
+        arm=arm,
+        gripper=gripper,
+        force=force,
+        observer=make_observer(switch),
+        servo_sim=servo_sim,
+        fsr_sim=fsr_sim,
+        mugs=tuple(mugs),
+        _switch=switch,
+        _rebuild=rebuild,
+        _collision_listeners=listeners,
+    )
+    log.info("sim_cell_open", mugs=len(mugs), servo_port=servo_sim.device_path, fsr_port=fsr_sim.device_path)
+    return cell, stack.aclose
+
+
 @contextlib.asynccontextmanager
 async def open_sim_cell(
     layout: SceneLayout,
@@ -212,81 +326,24 @@ async def open_sim_cell(
     force_threshold_n: float = 2.0,
     depth_noise: DepthNoise | None = None,
     observer_factory: ObserverFactory | None = None,
-    on_collision: Callable[[TrayCollision], None] | None = None,
 ) -> AsyncIterator[SimCell]:
-    """Start the simulated cell with ``mugs`` on the counter and yield its devices; stops everything on exit.
-
-    ``start_pose_rad`` places the five arm joints (default: the world's ready pose). ``on_collision`` is
-    called from the physics thread for every tray collision. ``observer_factory`` turns the camera into the
-    mug observer (default: ``perception.CameraObserver``).
-    """
-    arm_mjcf = build_arm_mjcf(load_urdf(urdf))
-    make_observer = observer_factory or _default_observer
-    noise = depth_noise if depth_noise is not None else DepthNoise()
-
-    def build(
-        scene: Sequence[SceneMug], pose: Mapping[str, float] | None
-    ) -> tuple[SimWorld, TrayCollisionCounter]:
-        xml = build_mjcf(
-            layout, scene, arm_body_xml=arm_mjcf.body_xml, arm_actuator_xml=arm_mjcf.actuator_xml
-        )
-        world = SimWorld(
-            xml,
-            arm_mjcf,
-            mug_ids=[m.mug_id for m in scene],
-            speed=speed,
-            physics=physics,
-            initial_pose_rad=pose,
-        )
-        counter = TrayCollisionCounter(world, layout.tray_region_m(), on_collision=on_collision)
-        return world, counter
-
-    pose = _pose(arm_mjcf, start_pose_rad)
-    world, collisions = build(mugs, pose)
-    plant = _PlantSwitch(world)
-    stack = contextlib.AsyncExitStack()
-    world.start()
-    stack.callback(lambda: plant.world.stop())
+    """``start_sim_cell`` as an ``async with`` block; stops everything on exit."""
+    cell, close = await start_sim_cell(
+        layout,
+        mugs,
+        speed=speed,
+        seed=seed,
+        urdf=urdf,
+        physics=physics,
+        start_pose_rad=start_pose_rad,
+        force_threshold_n=force_threshold_n,
+        depth_noise=depth_noise,
+        observer_factory=observer_factory,
+    )
     try:
-        servo_sim = stack.enter_context(ServoChainSimulator(default_chain(), plant=plant))
-        fsr_sim = stack.enter_context(FsrSimulator(plant.force_n))
-        force = await stack.enter_async_context(FsrReader(fsr_sim.device_path, threshold_n=force_threshold_n))
-        chain = await stack.enter_async_context(ServoChain(BusConfig(servo_sim.device_path), default_chain()))
-        joints = thesis_joints([_servo_limits(j) for j in _ARM_JOINTS])
-        arm = await stack.enter_async_context(DynamixelArm(chain, joints))
-        gripper = await stack.enter_async_context(
-            DynamixelGripper(chain, gripper_spec(arm_mjcf.gripper), force)
-        )
-        camera = _camera(world, layout, noise, seed)
-        stack.callback(lambda: cell.camera.close())
-
-        def rebuild(scene: Sequence[SceneMug]) -> tuple[SimWorld, TrayCollisionCounter, SnapshotCamera]:
-            now = {s.joint: plant.present(s.servo_id)[0] for s in arm_mjcf.servos}
-            new_world, new_counter = build(scene, now)
-            new_world.start()
-            return new_world, new_counter, _camera(new_world, layout, noise, seed)
-
-        cell = SimCell(
-            layout=layout,
-            arm=arm,
-            gripper=gripper,
-            force=force,
-            camera=camera,
-            observer=make_observer(camera),
-            servo_sim=servo_sim,
-            fsr_sim=fsr_sim,
-            collisions=collisions,
-            mugs=tuple(mugs),
-            _plant=plant,
-            _rebuild=rebuild,
-            _observer_factory=make_observer,
-        )
-        log.info(
-            "sim_cell_open", mugs=len(mugs), servo_port=servo_sim.device_path, fsr_port=fsr_sim.device_path
-        )
         yield cell
     finally:
-        await stack.aclose()
+        await close()
 
 
 _ARM_JOINTS = ("shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn")
@@ -300,7 +357,7 @@ def _servo_limits(joint: str) -> tuple[float, float]:
     return max(JOINT_LIMITS[joint].lower_rad, lo), min(JOINT_LIMITS[joint].upper_rad, hi)
 
 
-def _pose(arm: ArmMjcf, start_pose_rad: Sequence[float] | None) -> dict[str, float] | None:
+def _pose(start_pose_rad: Sequence[float] | None) -> dict[str, float] | None:
     if start_pose_rad is None:
         return None
     if len(start_pose_rad) != len(_ARM_JOINTS) or not all(math.isfinite(v) for v in start_pose_rad):
@@ -318,4 +375,12 @@ def _camera(world: SimWorld, layout: SceneLayout, noise: DepthNoise | None, seed
     )
 
 
-__all__ = ["ObserverFactory", "SimCell", "SnapshotCamera", "gripper_spec", "open_sim_cell", "scene_mugs"]
+__all__ = [
+    "ObserverFactory",
+    "SimCell",
+    "SnapshotCamera",
+    "gripper_spec",
+    "open_sim_cell",
+    "scene_mugs",
+    "start_sim_cell",
+]
