@@ -1,0 +1,128 @@
+"""End to end: ``dishbot run --sim`` as a subprocess, commanded and followed over loopback Zenoh.
+
+The test starts the daemon on a free port, waits for it to answer, subscribes to ``state``, starts a job on
+dataset 1, follows ``state`` until the job is done with the planned mugs placed, sends SIGTERM, and checks
+that the process exits 0 and that its MCAP recording holds the same sequence of states the subscriber saw.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+
+import perception
+from daemon.recording import read_messages
+from daemon.zenoh_io import session_config
+from tests.daemon.conftest import free_port
+
+ROBOT = "e2e"
+SPEED = 60.0
+
+
+def _dedupe(states: list[str]) -> list[str]:
+    return [s for i, s in enumerate(states) if i == 0 or states[i - 1] != s]
+
+
+def _query(session: zenoh.Session, verb: str, body: dict[str, Any] | None = None) -> dict[str, Any] | None:
+    payload = json.dumps(body).encode() if body else b""
+    for reply in session.get(f"dishbot/{ROBOT}/cmd/{verb}", payload=payload, timeout=2.0):
+        if reply.ok is not None:
+            result: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
+            return result
+    return None
+
+
+@pytest.mark.skipif(
+    not hasattr(perception, "associate"), reason="lost-mug association (perception.associate) has not landed"
+)
+def test_run_sim_places_the_planned_mugs_and_records_what_it_published(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    config = tmp_path / "robot.toml"
+    config.write_text(f'robot_id = "{ROBOT}"\n[planner]\nmethod = "bh"\n')
+    record_dir = tmp_path / "recordings"
+    cmd = [sys.executable, "-m", "daemon.cli", "run", "--sim", "--world", "kinematic", "--dataset", "1"]
+    cmd += [
+        "--speed",
+        str(SPEED),
+        "--listen",
+        endpoint,
+        "--record-dir",
+        str(record_dir),
+        "--config",
+        str(config),
+    ]
+    log = (tmp_path / "daemon.log").open("w")
+    daemon = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=Path(__file__).parents[2])
+    seen: list[dict[str, Any]] = []
+    lock = threading.Lock()
+
+    def on_state(sample: zenoh.Sample) -> None:
+        with lock:
+            seen.append(json.loads(sample.payload.to_bytes()))
+
+    try:
+        with zenoh.open(session_config(listen=[], connect=[endpoint])) as session:
+            deadline = time.monotonic() + 30
+            status = None
+            while status is None and time.monotonic() < deadline and daemon.poll() is None:
+                status = _query(session, "status")
+                time.sleep(0.1)
+            assert status is not None, (tmp_path / "daemon.log").read_text()
+            assert status["state"] == "idle"
+            subscriber = session.declare_subscriber(f"dishbot/{ROBOT}/state", on_state)
+            while not seen and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert _query(session, "start") == {"ok": True, "state": "detect"}
+            deadline = time.monotonic() + 40
+            while time.monotonic() < deadline:
+                with lock:
+                    last = seen[-1]
+                if last["state"] == "done":
+                    break
+                time.sleep(0.05)
+            final = _query(session, "status")
+            del subscriber
+        assert final is not None
+        assert final["state"] == "done", (tmp_path / "daemon.log").read_text()[-3000:]
+        assert final["mugs_placed"] >= 1
+        assert final["mugs_placed"] == final["summary"]["placed"]
+        assert final["mugs_placed"] + final["mugs_failed"] >= final["mugs_planned"]
+        daemon.send_signal(signal.SIGTERM)
+        assert daemon.wait(timeout=20) == 0
+    finally:
+        if daemon.poll() is None:
+            daemon.kill()
+            daemon.wait()
+        log.close()
+
+    recordings = list(record_dir.glob("*.mcap"))
+    assert len(recordings) == 1
+    read = read_messages(recordings[0])
+    assert not read.truncated
+    assert read.header is not None
+    recorded = [str(m.payload["state"]) for m in read if m.topic == f"dishbot/{ROBOT}/state"]
+    with lock:
+        subscribed = [str(s["state"]) for s in seen]
+    recorded_seq = _dedupe(recorded)
+    subscribed_seq = _dedupe(subscribed)
+    assert subscribed_seq[0] == "idle"
+    assert (
+        recorded_seq[recorded_seq.index("detect") - 1 :]
+        == subscribed_seq[subscribed_seq.index("detect") - 1 :]
+    )
+    assert recorded_seq[-1] == "done"
+    assert {"detect", "plan", "side_grasp.approach", "flip.turn", "place.release"} <= set(recorded_seq)
+    topics = set(read.topic_counts)
+    for topic in ("state", "joints", "gripper", "detections", "plan", "events", "log"):
+        assert f"dishbot/{ROBOT}/{topic}" in topics
+    for topic in ("input/observation", "input/grasp", "input/holding"):
+        assert f"dishbot/{ROBOT}/{topic}" in topics
