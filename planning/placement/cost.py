@@ -97,25 +97,32 @@ def default_ranking(cost: CostFunction) -> tuple[str, ...]:
     return thesis.RF_RANKING if cost is CostFunction.UPC else tuple(p for p in thesis.RF_RANKING if p != "s")
 
 
-@dataclass
-class Normaliser:
-    """Running minimum and maximum of each parameter over every layout seen in one run."""
+_NORMALISED = {"n": 0, "A": 1, "E": 2, "t": 3}
 
-    low: dict[str, float] = field(default_factory=dict)
-    high: dict[str, float] = field(default_factory=dict)
+
+class Normaliser:
+    """Running minimum and maximum of n, A, E and t over every layout seen in one run."""
+
+    __slots__ = ("high", "low")
+
+    def __init__(self) -> None:
+        self.low = [math.inf] * 4
+        self.high = [-math.inf] * 4
 
     def observe(self, m: Metrics) -> None:
         low, high = self.low, self.high
-        for p, v in (("n", m.n), ("A", m.A), ("E", m.E), ("t", m.t)):
-            if v < low.get(p, math.inf):
-                low[p] = v
-            if v > high.get(p, -math.inf):
-                high[p] = v
+        for i, v in enumerate((m.n, m.A, m.E, m.t)):
+            if v < low[i]:
+                low[i] = v
+            if v > high[i]:
+                high[i] = v
 
     def scaled(self, p: str, v: float) -> float:
-        lo = self.low.get(p, v)
-        span = self.high.get(p, v) - lo
-        return 0.0 if span <= 0 else (v - lo) / span
+        """(v - min) / (max - min), 0 while the range is empty."""
+        i = _NORMALISED[p]
+        lo = self.low[i]
+        span = self.high[i] - lo
+        return (v - lo) / span if span > 0 else 0.0
 
 
 @dataclass
