@@ -8,6 +8,7 @@ handed to the event loop with ``call_soon_threadsafe``.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -48,7 +49,8 @@ class ServoChain:
 
     def _forward(self, event: DeviceEvent) -> None:
         if self._on_event is not None and self._loop is not None:
-            self._loop.call_soon_threadsafe(self._on_event, event)
+            with contextlib.suppress(RuntimeError):  # the loop is closing: nobody is left to tell
+                self._loop.call_soon_threadsafe(self._on_event, event)
 
     async def call(self, fn: Callable[[DynamixelBus], T]) -> T:
         """Run ``fn(bus)`` on the bus thread and return its result (exceptions propagate)."""

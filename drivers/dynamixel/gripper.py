@@ -36,11 +36,13 @@ class DynamixelGripper:
         force_sensor: ForceSensor,
         *,
         timeout_s: float = 6.0,
+        force_max_age_s: float = 0.25,
     ) -> None:
         self._chain = chain
         self.spec = spec
         self._force_sensor = force_sensor
         self.timeout_s = timeout_s
+        self.force_max_age_s = force_max_age_s
         self.overload_recoveries = 0
         self._id = spec.servo_id
         self._log = log.bind(servo_id=spec.servo_id)
@@ -144,8 +146,11 @@ class DynamixelGripper:
         await self._chain.call(lambda bus: bus.write_register(self._id, self._limit_register, ticks))
 
     def _force(self) -> float:
+        """The pad force, or 0 when the sensor has nothing fresh: a frozen reading never counts as held."""
         reading = self._force_sensor.latest()
-        return reading.force_n if reading is not None else 0.0
+        if reading is None or time.monotonic() - reading.t > self.force_max_age_s:
+            return 0.0
+        return reading.force_n
 
     async def _close(self, threshold_n: float, min_aperture_m: float) -> GraspResult:
         spec = self.spec

@@ -411,7 +411,9 @@ class ServoChainSimulator:
         before_torque = servo.get("torque_enable")
         saved = bytes(servo.table)
         servo.table[address : address + len(data)] = data
-        if "goal_position" in written and not 0 <= servo.get("goal_position") <= spec.max_tick:
+        if ("goal_position" in written and not 0 <= servo.get("goal_position") <= spec.max_tick) or (
+            "id" in written and servo.get("id") > p.MAX_ID
+        ):
             servo.table[:] = saved
             return self._range_error()
         if self.protocol == 1 and "torque_limit" in written and servo.get("torque_limit") > 0:

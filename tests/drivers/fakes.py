@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import functools
 import threading
+import time
 from collections.abc import Callable, Coroutine
 from typing import Any, ParamSpec
 
@@ -70,7 +71,7 @@ class PlantForceSensor:
 
     def latest(self) -> ForceReading | None:
         self.seq += 1
-        return ForceReading(0.0, self.plant.force_n(), 0, self.seq)
+        return ForceReading(time.monotonic(), self.plant.force_n(), 0, self.seq)
 
     def holding(self) -> bool:
         return self.plant.force_n() >= self.threshold_n

@@ -7,7 +7,10 @@ import time
 
 import pytest
 from dynamixel_sdk import PacketHandler, PortHandler, port_handler
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
+from drivers.dynamixel.protocol import Frame, Framer
 from drivers.sim.servo_chain import ServoChainSimulator, default_chain
 
 COMM_SUCCESS = 0
@@ -127,3 +130,22 @@ def test_unplugging_makes_the_device_path_vanish_and_replugging_restores_it() ->
         port = open_port(path)
         assert PacketHandler(1.0).ping(port, 1)[1] == COMM_SUCCESS
         port.closePort()
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    st.sampled_from([1, 2]),
+    st.sampled_from([1, 2, 3, 0xFE]),
+    st.sampled_from([0x01, 0x02, 0x03, 0x04, 0x05, 0x08, 0x82, 0x83, 0x92, 0x55, 0x7F]),
+    st.binary(max_size=24),
+)
+def test_the_simulated_servos_survive_any_instruction(
+    protocol: int, sid: int, code: int, params: bytes
+) -> None:
+    chain = [(1, "MX-64T"), (2, "AX-12A")] if protocol == 1 else [(1, "XL430-W250"), (2, "XM430-W350")]
+    sim = ServoChainSimulator(chain, protocol=protocol, wire_timing=False)  # type: ignore[arg-type]
+    servos = [sim.servo(1), sim.servo(2)]
+    replies = sim._dispatch(Frame(sid, code, params), servos)
+    for _, packet in replies:
+        assert len(Framer(protocol).feed(packet)) == 1  # type: ignore[arg-type]
+    assert {s.servo_id for s in servos} <= set(range(253))
