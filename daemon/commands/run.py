@@ -90,9 +90,9 @@ def _run(args: argparse.Namespace) -> int:
         record_dir=args.record_dir or config.recording.dir,
         once=StartRequest() if args.once else None,
     )
+    associate = association()
     with planning_pool() as pool, SdNotifier.from_env() as notifier:
-        backend = _backend(args, config, speed, pool)
-        result = asyncio.run(serve(config, backend, association(), options, notifier=notifier, executor=pool))
+        result = asyncio.run(_serve(args, config, speed, options, associate, pool, notifier))
     if args.once:
         _print_summary(result)
         return 0 if result.end_state == "done" else 1
@@ -106,7 +106,21 @@ def planning_pool() -> concurrent.futures.ProcessPoolExecutor:
     )
 
 
-def _backend(
+async def _serve(
+    args: argparse.Namespace,
+    config: Config,
+    speed: float,
+    options: RunOptions,
+    associate: Associate,
+    pool: concurrent.futures.Executor,
+    notifier: SdNotifier,
+) -> RunResult:
+    """Open the backend on the event loop that will drive its devices, then serve."""
+    backend = await _backend(args, config, speed, pool)
+    return await serve(config, backend, associate, options, notifier=notifier, executor=pool)
+
+
+async def _backend(
     args: argparse.Namespace, config: Config, speed: float, pool: concurrent.futures.Executor
 ) -> Backend:
     if not args.sim and config.backend != "sim":
@@ -122,9 +136,12 @@ def _backend(
 
 
 def association() -> Associate:
-    from perception import associate  # type: ignore[attr-defined]
+    """Lost-mug association (thesis §4.3.1) from ``perception``."""
+    import perception
 
-    fn: Associate = associate
+    fn: Associate | None = getattr(perception, "associate", None)
+    if fn is None:
+        raise UsageError("this build has no lost-mug association (perception.associate); the daemon needs it")
     return fn
 
 
