@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import time
 
 import numpy as np
 import pytest
@@ -19,7 +20,7 @@ from drivers.dynamixel import (
     thesis_joints,
 )
 from drivers.errors import LimitViolation
-from drivers.interfaces import ArmDriver, GripperDriver, JointTrajectory
+from drivers.interfaces import ArmDriver, ForceReading, GripperDriver, JointTrajectory
 from drivers.sim.plant import FirstOrderPlant
 from drivers.sim.servo_chain import ServoChainSimulator, default_chain
 from planning.thesis import JOINT_SERVOS
@@ -181,3 +182,27 @@ async def test_fault_events_reach_the_event_loop_listener() -> None:
     assert [(e.kind, e.device, e.detail["faults"]) for e in events] == [
         ("servo_fault", "servo/1", ["overload"])
     ]
+
+
+class FrozenForceSensor:
+    """An FSR whose last reading, high, stopped updating (the Arduino was unplugged mid-grasp)."""
+
+    def latest(self) -> ForceReading | None:
+        return ForceReading(time.monotonic() - 5.0, 9.0, 900, 1)
+
+    def holding(self) -> bool:
+        return True
+
+
+@async_test
+async def test_a_frozen_force_reading_never_counts_as_a_grasp() -> None:
+    spec, plant = gripper_setup(None)
+    with ServoChainSimulator([(6, "AX-12A")], plant=plant) as sim:
+        async with (
+            ServoChain(BusConfig(sim.device_path), [(6, "AX-12A")], read_timeout_s=PATIENT_S) as chain,
+            DynamixelGripper(chain, spec, FrozenForceSensor()) as gripper,
+        ):
+            await gripper.open()
+            result = await gripper.close_on_mug(force_threshold_n=1.0, min_aperture_m=0.03)
+            assert not result.held
+            assert result.force_n == 0.0
