@@ -38,6 +38,7 @@ class FakeWorld:
     log: list[str] = field(default_factory=list)
     original: dict[str, Detection] = field(default_factory=dict)
     hold_in_phase: str | None = None
+    hold_in_close: bool = False
     holding_still: asyncio.Event = field(default_factory=asyncio.Event)
 
     def __post_init__(self) -> None:
@@ -98,6 +99,10 @@ class FakeGripper:
 
     async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
         self.w.log.append(f"close:{self.w.phase}")
+        if self.w.hold_in_close:
+            self.w.hold_in_close = False
+            self.w.holding_still.set()
+            await asyncio.Event().wait()  # until cancelled
         await asyncio.sleep(0.001)
         mug = self.w.loose or self.w.target
         if mug is None or self.w.fail_grasps > 0 or mug in self.w.always_fail:

@@ -145,6 +145,24 @@ def test_pause_stops_the_arm_mid_move_and_resume_rejoins_the_move() -> None:
     assert (job.chart.state, world.placed) == ("done", ["true0"])
 
 
+def test_pausing_while_the_gripper_closes_stops_it_and_resume_closes_again() -> None:
+    world = make_world(1)
+    world.hold_in_close = True
+
+    async def scenario(job: Job) -> None:
+        await job.command("start", StartRequest())
+        await world.holding_still.wait()
+        await job.command("pause")
+        assert world.log[-3:] == ["gripper.stop", "arm.stop", "gripper.stop"]
+        await job.command("resume")
+        assert job.chart.state == "side_grasp.close"
+        await job.finished.wait()
+
+    job, _ = _run(world, scenario)
+    assert [e for e in world.log if e.startswith("close:side_grasp")] == ["close:side_grasp.approach:m1"] * 2
+    assert (job.chart.state, world.placed) == ("done", ["true0"])
+
+
 def test_stop_ends_the_job_in_idle_with_the_arm_stopped() -> None:
     world = make_world(2)
 
