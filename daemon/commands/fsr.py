@@ -28,7 +28,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "calibrate",
         help="sample the pad empty and with a known weight; print the gain and thresholds for the config",
     )
-    cal.add_argument("--port", required=True, help="serial device of the FSR Arduino, e.g. /dev/ttyACM0")
+    cal.add_argument(
+        "--port",
+        default="/dev/dishbot-fsr",
+        help="serial device of the FSR Arduino (default /dev/dishbot-fsr, from drivers/udev/)",
+    )
     cal.add_argument("--mass-kg", type=float, required=True, help="the calibration weight on the pad, kg")
     cal.add_argument("--seconds", type=float, default=2.0, help="how long to sample each phase (default 2)")
     cal.add_argument("--json", action="store_true", help="print JSON instead of TOML")

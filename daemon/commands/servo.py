@@ -44,7 +44,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _bus_flags(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--port", required=True, help="serial device of the bus adapter, e.g. /dev/ttyUSB0")
+    parser.add_argument(
+        "--port",
+        default="/dev/dishbot-servos",
+        help="serial device of the bus adapter (default /dev/dishbot-servos, from drivers/udev/)",
+    )
     parser.add_argument(
         "--protocol", type=int, default=1, help="Dynamixel protocol version, 1 or 2 (default 1)"
     )
