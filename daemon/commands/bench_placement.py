@@ -36,13 +36,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
             "too because wall time grows with whatever else the machine runs."
         ),
     )
-    parser.add_argument("--runs", type=int, default=5, help="seeded runs per dataset and method (default 5)")
+    parser.add_argument("--runs", default="5", help="seeded runs per dataset and method (default 5)")
     parser.add_argument(
         "--methods", default=",".join(METHODS), help=f"comma-separated subset of {', '.join(METHODS)}"
     )
     parser.add_argument("--datasets", default="1,2,3,4,5,6", help="comma-separated subset of 1-6")
     parser.add_argument(
-        "--time-limit", type=float, default=1.0, metavar="SEC", help="budget for auto and exact (default 1.0)"
+        "--time-limit", default="1.0", metavar="SEC", help="budget for auto and exact (default 1.0)"
     )
     add_json_flag(parser)
     parser.set_defaults(handler=run)
@@ -59,10 +59,15 @@ def _parse_list(text: str, allowed: tuple[str, ...], flag: str) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.runs < 1:
-        raise UsageError(f"--runs: must be at least 1, got {args.runs}")
-    if not args.time_limit > 0:
-        raise UsageError(f"--time-limit: must be positive, got {args.time_limit}")
+    if not args.runs.isdigit() or int(args.runs) < 1:
+        raise UsageError(f"--runs: expected a whole number, at least 1, got {args.runs!r}")
+    n_runs = int(args.runs)
+    try:
+        time_limit = float(args.time_limit)
+    except ValueError as e:
+        raise UsageError(f"--time-limit: expected a number of seconds, got {args.time_limit!r}") from e
+    if not 0 < time_limit < float("inf"):
+        raise UsageError(f"--time-limit: must be positive, got {args.time_limit!r}")
     methods = _parse_list(args.methods, METHODS, "--methods")
     datasets = [
         int(d) for d in _parse_list(args.datasets, tuple(str(n) for n in thesis.DATASETS), "--datasets")
@@ -79,9 +84,9 @@ def run(args: argparse.Namespace) -> int:
         runs: dict[str, list[tuple[PlanResult, float, float]]] = {}
         for method in methods:
             runs[method] = []
-            for seed in range(args.runs):
+            for seed in range(n_runs):
                 wall, cpu = time.perf_counter(), time.process_time()
-                result = plan(problem, PlanOptions(method=method, seed=seed, time_limit_s=args.time_limit))
+                result = plan(problem, PlanOptions(method=method, seed=seed, time_limit_s=time_limit))
                 runs[method].append((result, time.perf_counter() - wall, time.process_time() - cpu))
         scorer = Fitness.build(FitnessMethod.WS, CostFunction.UPC)
         for results in runs.values():
@@ -103,16 +108,13 @@ def run(args: argparse.Namespace) -> int:
                     round(cost, 3),
                     round(statistics.fmean(walls), 3),
                     round(statistics.fmean(cpus), 3),
-                    "-" if thesis_minutes is None else round(thesis_minutes[n - 1] * 60, 2),
+                    "-" if thesis_minutes is None else round(thesis_minutes[n - 1] * 60, 3),
                     ds.thesis_best_placed,
                     ds.human_placed,
                 ]
             )
             if method == "auto":
-                ok = (
-                    all(r.optimal and r.n == optimum.n for r, _, _ in results)
-                    and max(walls) <= args.time_limit
-                )
+                ok = all(r.optimal and r.n == optimum.n for r, _, _ in results) and max(walls) <= time_limit
                 targets["auto_optimal_within_limit"] = bool(targets["auto_optimal_within_limit"]) and ok
             if method == "exact":
                 targets["exact_proves_all"] = bool(targets["exact_proves_all"]) and all(
@@ -136,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
     ]
     speed_columns, speed_rows = packer_speed(datasets)
     extra: dict[str, object] = {
-        "runs": args.runs,
+        "runs": n_runs,
         "cost": "Eq 5.2 weighted sum, n/E/t normalised over all runs on the dataset (lower is better)",
         **targets,
     }
