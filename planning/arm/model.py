@@ -38,6 +38,24 @@ _ROTATION_WEIGHT_M = 0.1
 _POSITION_TOL_M = 1e-3
 _ROTATION_TOL_RAD = 2e-3
 _CONVERGED_M = 2e-6
+_STALL_ITERS = 8
+
+
+@dataclass(frozen=True, slots=True)
+class _Seed:
+    """A starting pose for the solver; closed-form seeds carry a label naming their branch."""
+
+    q: FloatArray
+    label: str = ""
+
+
+def _wrap_into(angle: float, lower: float, upper: float) -> float:
+    """``angle`` shifted by whole turns into [lower, upper] when possible, else to the nearest turn of it."""
+    wrapped = math.remainder(angle, 2 * math.pi)
+    for candidate in (wrapped, wrapped + 2 * math.pi, wrapped - 2 * math.pi):
+        if lower <= candidate <= upper:
+            return candidate
+    return wrapped
 
 
 @dataclass(frozen=True, slots=True)
@@ -206,9 +224,20 @@ class ArmModel:
             return IkResult(False, None, math.inf, unreachable)
         best: IkResult | None = None
         total_iters = 0
-        for seed in self._seeds(goal_p, goal_r, target.kind, seeds):
+        closed_form = self._planar is not None and goal_r is not None
+        seeds_tried = 0
+        limit_reasons: list[str] = []
+        for seed in self._seeds(goal_p, goal_r, seeds):
+            if closed_form and seed.label:
+                # A fully specified grasp has only the closed-form solutions; one outside the limits cannot
+                # be pulled inside by the solver, so say which joint is in the way instead of iterating.
+                outside = self.limit_violations(seed.q, tol=1e-3)
+                if outside:
+                    limit_reasons.append(f"{seed.label}: {outside[0]}")
+                    continue
+            seeds_tried += 1
             q, pos_err, rot_err, iters = self._solve(
-                seed, goal_p, goal_r, max_iters=max_iters, damping=damping
+                seed.q, goal_p, goal_r, max_iters=max_iters, damping=damping
             )
             total_iters += iters
             ok = pos_err <= _POSITION_TOL_M and rot_err <= _ROTATION_TOL_RAD
@@ -219,7 +248,10 @@ class ArmModel:
                 best.orientation_error_rad * _ROTATION_WEIGHT_M
             ):
                 best = result
-        assert best is not None
+        if best is None:
+            # The two reaching-forward branches say enough; the over-the-shoulder ones rarely matter.
+            reason = "no solution within the joint limits (" + "; ".join(limit_reasons[:2]) + ")"
+            return IkResult(False, None, math.inf, reason, math.inf, total_iters)
         assert best.q is not None
         at_limit = [
             f"{name} at {'lower' if abs(v - lo) < 1e-6 else 'upper'} limit"
@@ -246,6 +278,7 @@ class ArmModel:
         rows = slice(0, 3) if goal_r is None else slice(0, 6)
         lam2 = damping * damping
         pos_err = rot_err = math.inf
+        best_total, best_it = math.inf, 0
         for it in range(1, max_iters + 1):
             pin.computeJointJacobians(self.model, self.data, q)
             pin.updateFramePlacements(self.model, self.data)
@@ -272,39 +305,56 @@ class ArmModel:
             if float(np.max(np.abs(q_next - q))) < 1e-10:
                 break
             q = q_next
+            total = pos_err + rot_err * _ROTATION_WEIGHT_M
+            if total < best_total * 0.99:
+                best_total, best_it = total, it
+            elif it - best_it >= _STALL_ITERS:
+                break
         return q, pos_err, rot_err, max_iters
 
     def _seeds(
+        self, goal_p: FloatArray, goal_r: FloatArray | None, user: Sequence[JointValues]
+    ) -> Iterable[_Seed]:
+        for s in user:
+            yield _Seed(self.joint_vector(s))
+        if self._planar is not None:
+            if goal_r is not None:
+                for flipped in (False, True):
+                    for elbow_up in (True, False):
+                        yield self._closed_form_seed(
+                            goal_p, goal_r, goal_r[:, 2], elbow_up=elbow_up, flipped=flipped
+                        )
+                return
+            for pitch in (0.0, -math.pi / 4, -math.pi / 2, math.pi / 4):
+                psi = math.atan2(goal_p[1], goal_p[0])
+                approach = np.array(
+                    [math.cos(pitch) * math.cos(psi), math.cos(pitch) * math.sin(psi), math.sin(pitch)]
+                )
+                for elbow_up in (True, False):
+                    yield self._closed_form_seed(goal_p, None, approach, elbow_up=elbow_up, flipped=False)
+        yield _Seed((self.lower + self.upper) / 2)
+        yield _Seed(np.clip(np.zeros(self.dof), self.lower, self.upper))
+        rng = np.random.default_rng(0)
+        for _ in range(4):
+            yield _Seed(rng.uniform(self.lower, self.upper))
+
+    def _closed_form_seed(
         self,
         goal_p: FloatArray,
         goal_r: FloatArray | None,
-        kind: GraspKind,
-        user: Sequence[JointValues],
-    ) -> Iterable[FloatArray]:
-        for s in user:
-            yield self.joint_vector(s)
-        if self._planar is not None:
-            pitches = (0.0,) if goal_r is not None else (0.0, -math.pi / 4, -math.pi / 2, math.pi / 4)
-            for pitch in pitches:
-                for elbow_up in (True, False):
-                    yield self._closed_form_seed(goal_p, goal_r, pitch, elbow_up=elbow_up)
-        mid = (self.lower + self.upper) / 2
-        yield mid
-        yield np.clip(np.zeros(self.dof), self.lower, self.upper)
-        rng = np.random.default_rng(0)
-        for _ in range(4):
-            yield rng.uniform(self.lower, self.upper)
-
-    def _closed_form_seed(
-        self, goal_p: FloatArray, goal_r: FloatArray | None, pitch: float, *, elbow_up: bool
-    ) -> FloatArray:
-        """Shoulder turn towards the target, the shoulder-elbow triangle for the wrist centre, the wrist
-        pitch for the approach, and the wrist roll that matches the target's x axis."""
+        approach: FloatArray,
+        *,
+        elbow_up: bool,
+        flipped: bool,
+    ) -> _Seed:
+        """Shoulder turn towards the target (or away from it, reaching back over the shoulder), the
+        shoulder-elbow triangle for the wrist centre, the wrist pitch for the approach, and the wrist roll
+        that matches the target's x axis."""
         g = self._planar
         assert g is not None
-        psi = math.atan2(goal_p[1], goal_p[0])
+        psi = math.atan2(goal_p[1], goal_p[0]) + (math.pi if flipped else 0.0)
         radial = np.array([math.cos(psi), math.sin(psi), 0.0])
-        approach = math.cos(pitch) * radial + np.array([0.0, 0.0, math.sin(pitch)])
+        pitch = math.atan2(float(approach[2]), float(approach @ radial))
         wrist = goal_p - g.tool_m * approach
         r_w = float(wrist @ radial)
         z_w = float(wrist[2]) - g.shoulder_z_m
@@ -324,7 +374,9 @@ class ArmModel:
             x0, z0 = rot[:, 0], rot[:, 2]
             x_goal = goal_r[:, 0]
             q[4] = math.atan2(float(np.cross(x0, x_goal) @ z0), float(x0 @ x_goal))
-        return q
+        q = np.array([_wrap_into(v, lo, hi) for v, lo, hi in zip(q, self.lower, self.upper, strict=True)])
+        label = f"{'elbow up' if elbow_up else 'elbow down'}{', over the shoulder' if flipped else ''}"
+        return _Seed(q, label)
 
     def _out_of_reach(self, goal_p: FloatArray, target: GraspTarget) -> str:
         """Why a target is plainly beyond the thesis arm's reach, or '' (other URDFs: always '')."""

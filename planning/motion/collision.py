@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Final
 
 import numpy as np
 
@@ -37,6 +38,10 @@ class Cylinder:
     radius: float
     z_lo: float
     z_hi: float
+
+
+# The arm's base column (shoulder-turn servo, its bracket and the shoulder-lift servo) as an obstacle.
+BASE_COLUMN: Final = Cylinder("the arm's base", 0.0, 0.0, 0.05, 0.0, 0.11)
 
 
 @dataclass(frozen=True, slots=True)

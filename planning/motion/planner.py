@@ -20,21 +20,28 @@ import structlog
 
 from drivers.interfaces import FloatArray, JointTrajectory
 from planning import thesis
+from planning.arm.calibration import PositionCorrection
 from planning.arm.description import JOINT_LIMITS
 from planning.arm.grasp import lateral_offset_m, side_grasp
 from planning.arm.model import ArmModel, JointValues
 from planning.arm.targets import GraspKind, GraspTarget
 from planning.interfaces import CyclePlan, MotionRefused, MugPose, Step, StepKind, TraySlot
 from planning.motion.cell import CellLayout, carry_height_m
-from planning.motion.collision import Box, CollisionWorld, Cylinder, HeldMug, mug_obstacles, tray_walls
+from planning.motion.collision import (
+    BASE_COLUMN,
+    Box,
+    CollisionWorld,
+    Cylinder,
+    HeldMug,
+    mug_obstacles,
+    tray_walls,
+)
 from planning.motion.energy import DynamicsEnergyModel
 from planning.motion.trajectory import JointPath, plan_path
 from planning.thesis import MugSpec
 
 log = structlog.get_logger(__name__)
 
-# The arm's base column (shoulder-turn servo and its bracket) as an obstacle for the gripper.
-_BASE_COLUMN = Cylinder("the arm's base", 0.0, 0.0, 0.05, 0.0, 0.11)
 _MAX_JOINT_STEP_RAD = 0.35
 _POSE_SUFFIX = re.compile(r" \(pose \d+ of \d+\)$")
 
@@ -66,6 +73,7 @@ class CyclePlanner:
         gripper_close_s: float = 1.0,
         gripper_open_s: float = 0.6,
         energy_model: DynamicsEnergyModel | None = None,
+        correction: PositionCorrection | None = None,
     ) -> None:
         if not control_rate_hz > 0:
             raise ValueError(f"control_rate_hz must be > 0, got {control_rate_hz}")
@@ -82,6 +90,7 @@ class CyclePlanner:
         self.gripper_close_s = gripper_close_s
         self.gripper_open_s = gripper_open_s
         self.energy_model = energy_model or DynamicsEnergyModel(arm)
+        self.correction = correction
         tallest = max(m.height_mm for m in self.catalogue.values()) / 1000.0
         # Mugs on the tray stand on its base, so the tallest obstacle is that much higher there.
         self.carry_z_m = carry_height_m(tallest + max(0.0, cell.tray_floor_m))
@@ -399,7 +408,7 @@ class CyclePlanner:
         target_spec: MugSpec | None = None,
         target_floor: float = 0.0,
     ) -> CollisionWorld:
-        cylinders: list[Cylinder] = [_BASE_COLUMN]
+        cylinders: list[Cylinder] = [BASE_COLUMN]
         for m in counter:
             cylinders += mug_obstacles(
                 f"mug {m.mug_id}",
@@ -577,7 +586,11 @@ class _Builder:
         )
 
     def _solve(self, target: GraspTarget, seed: JointValues, phase: str) -> FloatArray:
-        result = self.p.arm.ik(target, seeds=[seed])
+        """IK for a target, first moved by the calibration correction (if any) so the real arm gets there."""
+        command = target
+        if self.p.correction is not None:
+            command = GraspTarget(self.p.correction.correct(target.position_m), target.kind)
+        result = self.p.arm.ik(command, seeds=[seed])
         if not result.ok or result.q is None:
             x, y, z = target.position_m
             raise MotionRefused(f"{phase}: ({x:.3f}, {y:.3f}, {z:.3f}) m unreachable: {result.reason}")

@@ -93,8 +93,10 @@ def test_nan_target_is_refused(arm: ArmModel) -> None:
 def test_side_grasp_too_close_to_the_base_names_the_joint_at_its_limit(arm: ArmModel) -> None:
     result = arm.ik(GraspTarget((0.25, 0.0, 0.06), GraspKind.SIDE))
     assert not result.ok
-    assert result.reason.startswith("no solution within the joint limits: best residual ")
-    assert "wrist_lift at lower limit" in result.reason
+    assert result.reason == (
+        "no solution within the joint limits (elbow up: wrist_lift=-3.0697 rad is outside [-2.8000, 2.8000]; "
+        "elbow down: shoulder_lift=1.2972 rad is outside [-2.0000, 0.3000])"
+    )
 
 
 def test_limit_violations_name_the_joint_and_range(arm: ArmModel) -> None:

@@ -1,0 +1,261 @@
+"""The arm's side-grasp workspace (thesis §4.3, appendix A's z levels) and the tray it can serve.
+
+The thesis searched the workspace in Gazebo by moving limits 1 cm at a time. Here the arm model answers
+directly: the arm turns about its shoulder axis, so whether a mug standing at (x, y) can be side-grasped at
+a given height depends only on its distance from that axis (a radial profile found by IK at 2 mm steps)
+and on the bearing the approach needs (Eq 4.28, Eq 4.35), which the shoulder-turn range limits. From the
+profiles follows the largest tray, centred on the arm's x axis, whose every mug position can be served —
+the model's answer to Eq 4.40-4.45 (33.2 x 37.4 cm in the thesis) — and a top-view PNG of the regions with
+the configured cell drawn over them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from drivers.interfaces import FloatArray
+from planning import thesis
+from planning.arm.description import JOINT_LIMITS
+from planning.arm.grasp import lateral_offset_m, side_grasp
+from planning.arm.model import ArmModel
+from planning.arm.targets import GraspKind
+from planning.motion.cell import CellLayout, carry_height_m
+from planning.motion.collision import BASE_COLUMN, CollisionWorld
+from planning.thesis import MugSpec
+
+_STEP_M = 0.002
+_MAX_RADIUS_M = 1.0
+
+
+@dataclass(frozen=True, slots=True)
+class RadialProfile:
+    """Distances of the mug axis from the shoulder axis at which one grasp works (all levels given)."""
+
+    kind: GraspKind
+    spec: MugSpec
+    heights_m: tuple[float, ...]
+    radii_m: FloatArray  # sampled distances
+    reachable: FloatArray  # bool per distance
+
+    @property
+    def interval_m(self) -> tuple[float, float] | None:
+        """The (first, last) reachable distance, or None when nothing is reachable."""
+        idx = np.flatnonzero(self.reachable)
+        if not len(idx):
+            return None
+        return float(self.radii_m[idx[0]]), float(self.radii_m[idx[-1]])
+
+    def contains(self, r: FloatArray) -> FloatArray:
+        """Whether distances ``r`` are reachable (nearest sample)."""
+        i = np.clip(np.rint((r - self.radii_m[0]) / _STEP_M).astype(int), 0, len(self.radii_m) - 1)
+        inside = (r >= self.radii_m[0]) & (r <= self.radii_m[-1])
+        return np.asarray(self.reachable[i] & inside, dtype=bool)
+
+
+def radial_profile(
+    arm: ArmModel, spec: MugSpec, kind: GraspKind, heights_m: Sequence[float], *, step_m: float = _STEP_M
+) -> RadialProfile:
+    """Which axis distances (bearing 0) the grasp reaches at every one of ``heights_m``."""
+    delta = lateral_offset_m(spec, arm.gripper)
+    radii = np.arange(abs(delta) + step_m, _MAX_RADIUS_M, step_m)
+    # Reaching back over the shoulder can put the wrist into the arm's own base: those poses do not count.
+    base = CollisionWorld(arm, [BASE_COLUMN], [])
+    opened = arm.gripper.aperture_m(JOINT_LIMITS["gripper"].lower_rad)
+    ok = np.zeros(len(radii), dtype=bool)
+    seeds: dict[float, tuple[float, ...]] = {}
+    for i, r in enumerate(radii):
+        good = True
+        for z in heights_m:
+            target = side_grasp(float(r), 0.0, spec, arm.gripper, z_m=z, kind=kind).target
+            prior = seeds.get(z)
+            result = arm.ik(target, seeds=[prior] if prior else ())
+            if (
+                not result.ok
+                or result.q is None
+                or base.first_collision(np.array([result.q]), aperture_m=opened)
+            ):
+                good = False
+                break
+            seeds[z] = result.q
+        ok[i] = good
+    return RadialProfile(kind, spec, tuple(heights_m), radii, ok)
+
+
+def reachable_axes(arm: ArmModel, profile: RadialProfile, x: FloatArray, y: FloatArray) -> FloatArray:
+    """Whether mugs standing at (x, y) (arrays) are reachable: distance in the profile and the approach
+    bearing inside the shoulder-turn range."""
+    r = np.hypot(x, y)
+    delta = lateral_offset_m(profile.spec, arm.gripper)
+    sign = 1.0 if profile.kind is GraspKind.SIDE else -1.0
+    with np.errstate(invalid="ignore"):
+        alpha = np.arctan2(y, x) - sign * np.arcsin(np.clip(delta / np.maximum(r, 1e-9), -1.0, 1.0))
+    turn_ok = (alpha >= arm.lower[0]) & (alpha <= arm.upper[0])
+    return np.asarray(profile.contains(r) & turn_ok & (r > abs(delta)), dtype=bool)
+
+
+@dataclass(frozen=True, slots=True)
+class Workspace:
+    """Radial profiles of every grasp the cycle uses, per mug type."""
+
+    pick: dict[str, RadialProfile]  # side grasp at grasp and carry height (counter)
+    place: dict[str, RadialProfile]  # upside-down grasp at place and carry height (tray)
+    carry_z_m: float
+
+
+def workspace(arm: ArmModel, catalogue: Mapping[str, MugSpec], *, tray_floor_m: float = 0.0) -> Workspace:
+    """The profiles of the pick and place grasps at the thesis's z levels (appendix A: 6 cm, carry)."""
+    tallest = max(m.height_mm for m in catalogue.values()) / 1000.0
+    carry = carry_height_m(tallest + max(0.0, tray_floor_m))
+    pick = {
+        n: radial_profile(arm, m, GraspKind.SIDE, (thesis.GRASP_HEIGHT_M, carry))
+        for n, m in catalogue.items()
+    }
+    place_z = tray_floor_m + thesis.PLACE_HEIGHT_M
+    place = {
+        n: radial_profile(arm, m, GraspKind.SIDE_UPSIDE_DOWN, (place_z, carry)) for n, m in catalogue.items()
+    }
+    return Workspace(pick, place, carry)
+
+
+@dataclass(frozen=True, slots=True)
+class TrayLimits:
+    """The largest tray centred on the arm's x axis whose every mug position the arm serves."""
+
+    x_near_m: float
+    x_far_m: float
+    half_width_m: float
+
+    @property
+    def size_mm(self) -> tuple[int, int]:
+        return round((self.x_far_m - self.x_near_m) * 1000), round(2 * self.half_width_m * 1000)
+
+
+def served_tray(
+    arm: ArmModel, ws: Workspace, catalogue: Mapping[str, MugSpec], *, tolerance_mm: int = thesis.TOLERANCE_MM
+) -> TrayLimits | None:
+    """Search trays (1 cm steps) for the one of largest area all of whose mug positions are reachable."""
+    best: tuple[float, TrayLimits] | None = None
+    min_half = max(m.diameter_mm / 2000.0 + tolerance_mm / 2000.0 for m in catalogue.values()) + 0.001
+    for x_near in np.arange(0.10, 0.70, 0.01):
+        for x_far in np.arange(x_near + 0.15, 0.80, 0.01):
+            lo, hi = min_half, 0.50
+            if not _tray_ok(arm, ws, catalogue, x_near, x_far, lo, tolerance_mm):
+                continue
+            while hi - lo > 0.005:
+                mid = (lo + hi) / 2
+                lo, hi = (
+                    (mid, hi) if _tray_ok(arm, ws, catalogue, x_near, x_far, mid, tolerance_mm) else (lo, mid)
+                )
+            area = (x_far - x_near) * 2 * lo
+            if best is None or area > best[0] + 1e-9:
+                best = (area, TrayLimits(float(x_near), float(x_far), float(lo)))
+    return best[1] if best else None
+
+
+def _tray_ok(
+    arm: ArmModel,
+    ws: Workspace,
+    catalogue: Mapping[str, MugSpec],
+    x_near: float,
+    x_far: float,
+    half_width: float,
+    tolerance_mm: int,
+) -> bool:
+    tol = tolerance_mm / 1000.0
+    for name, mug in catalogue.items():
+        r = mug.diameter_mm / 2000.0
+        ax0 = x_near + r + tol / 2
+        ax1 = x_far - (mug.width_mm / 1000.0 - r + tol / 2)
+        ay = half_width - r - tol / 2
+        if ax1 < ax0 or ay < 0:
+            return False
+        xs, ys = (
+            np.asarray(a, dtype=np.float64)
+            for a in np.meshgrid(np.linspace(ax0, ax1, 12), np.linspace(-ay, ay, 12))
+        )
+        if not np.all(reachable_axes(arm, ws.place[name], xs, ys)):
+            return False
+    return True
+
+
+def draw_workspace(
+    arm: ArmModel,
+    cell: CellLayout,
+    ws: Workspace,
+    path: Path,
+    *,
+    px_per_m: float = 800.0,
+) -> None:
+    """A top-view PNG: where every mug type can be picked (green) and placed upside down (blue), with the
+    counter region, the flip area, the tray and the arm's base drawn over it."""
+    import cv2
+
+    x0, x1, y0, y1 = -0.80, 0.80, -0.80, 0.80
+    width = int((y1 - y0) * px_per_m)
+    height = int((x1 - x0) * px_per_m)
+    # Image rows run along -x (forward is up), columns along -y (left is left).
+    cols, rows = np.meshgrid(np.arange(width), np.arange(height))
+    wx = np.asarray(x1 - (rows + 0.5) / px_per_m, dtype=np.float64)
+    wy = np.asarray(y1 - (cols + 0.5) / px_per_m, dtype=np.float64)
+    pick = np.logical_and.reduce([reachable_axes(arm, p, wx, wy) for p in ws.pick.values()])
+    place = np.logical_and.reduce([reachable_axes(arm, p, wx, wy) for p in ws.place.values()])
+    image = np.full((height, width, 3), 255, dtype=np.uint8)
+    image[pick] = (200, 240, 200)
+    image[place] = (240, 215, 190)
+    image[pick & place] = (220, 230, 200)
+
+    def px(x: float, y: float) -> tuple[int, int]:
+        return round((y1 - y) * px_per_m), round((x1 - x) * px_per_m)
+
+    for r in np.arange(0.1, 0.81, 0.1):
+        cv2.circle(image, px(0, 0), int(r * px_per_m), (225, 225, 225), 1, cv2.LINE_AA)
+    cv2.line(image, px(x1, 0), px(x0, 0), (200, 200, 200), 1)
+    cv2.line(image, px(0, y1), px(0, y0), (200, 200, 200), 1)
+    cx0, cy0, cx1, cy1 = cell.counter_region_m
+    cv2.rectangle(image, px(cx1, cy1), px(cx0, cy0), (40, 120, 40), 2)
+    tx0, ty0, tx1, ty1 = cell.tray_bounds_m
+    cv2.rectangle(image, px(tx1, ty1), px(tx0, ty0), (160, 80, 20), 2)
+    fx, fy = cell.flip_area_center_m
+    cv2.circle(image, px(fx, fy), int(cell.flip_area_radius_m * px_per_m), (30, 30, 180), 2, cv2.LINE_AA)
+    cv2.circle(image, px(0, 0), int(0.05 * px_per_m), (60, 60, 60), -1, cv2.LINE_AA)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    labels = [
+        ("counter region", (40, 120, 40), px(cx1, cy1)),
+        ("tray", (160, 80, 20), px(tx1, ty1)),
+        ("flip area", (30, 30, 180), px(fx + cell.flip_area_radius_m, fy + cell.flip_area_radius_m)),
+    ]
+    for text, colour, (u, v) in labels:
+        cv2.putText(image, text, (u + 4, max(14, v - 6)), font, 0.5, colour, 1, cv2.LINE_AA)
+    legend = [
+        ("green: side grasp (pick) at 6 cm and carry height", (40, 120, 40)),
+        ("blue: upside-down grasp (place) at 6 cm and carry height", (160, 80, 20)),
+        (f"carry height {ws.carry_z_m * 100:.1f} cm; grid rings every 10 cm; x forward = up", (60, 60, 60)),
+    ]
+    for i, (text, colour) in enumerate(legend):
+        cv2.putText(
+            image, text, (10, height - 12 - 20 * (len(legend) - 1 - i)), font, 0.5, colour, 1, cv2.LINE_AA
+        )
+    if not cv2.imwrite(str(path), image):
+        raise OSError(f"could not write the workspace image to {path}")
+
+
+def describe(ws: Workspace) -> list[tuple[str, str, str, str]]:
+    """Rows (grasp, mug type, heights, reachable distances) for a printed summary."""
+    rows = []
+    for what, profiles in (("side (pick)", ws.pick), ("upside-down (place)", ws.place)):
+        for name, p in profiles.items():
+            heights = ", ".join(f"{z * 100:.1f}" for z in p.heights_m) + " cm"
+            interval = p.interval_m
+            span = "none" if interval is None else f"{interval[0]:.3f}-{interval[1]:.3f} m"
+            rows.append((what, name, heights, span))
+    return rows
+
+
+def bearing_limits_deg(arm: ArmModel) -> tuple[float, float]:
+    """The shoulder-turn range, which bounds the approach bearing."""
+    return math.degrees(float(arm.lower[0])), math.degrees(float(arm.upper[0]))
