@@ -351,6 +351,7 @@ class DynamixelBus:
     def _exchange(self, packet: bytes, expected: Mapping[int, int]) -> dict[int, p.Status]:
         """Send one instruction and collect the statuses of ``expected`` (id -> data length) until timeout."""
         got: dict[int, p.Status] = {}
+        short: dict[int, int] = {}  # error bytes of answers that came without their data
         framer = p.Framer(self.config.protocol)
         timeout = self.read_timeout_s + len(expected) * 0.002
 
@@ -375,10 +376,15 @@ class DynamixelBus:
                         continue
                     if len(status.data) != expected[status.servo_id]:
                         self._counters(status.servo_id).corrupt += 1
+                        if status.error:
+                            short[status.servo_id] = status.error
                         continue
                     got[status.servo_id] = status
 
         self._io(io)
+        for servo_id, error in short.items():
+            if servo_id not in got:
+                self._check_error(servo_id, error)  # a shutdown fault must not hide behind a short answer
         if framer.corrupt:
             for servo_id in expected:
                 if servo_id not in got:

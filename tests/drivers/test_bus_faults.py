@@ -17,6 +17,7 @@ from drivers.dynamixel import (
     ServoChain,
 )
 from drivers.dynamixel.faults import error_names, hardware_error_names
+from drivers.dynamixel.protocol import encode_status
 from drivers.errors import BusLost, DriverError, ServoFault
 from drivers.sim.servo_chain import ServoChainSimulator, default_chain
 from tests.drivers.fakes import PATIENT_S, MugBetweenPads, PlantForceSensor, async_test
@@ -210,3 +211,14 @@ async def test_gripper_faults_after_the_allowed_overload_recoveries() -> None:
                 "check the gripper for a jam and power-cycle the servo"
             )
             assert gripper.overload_recoveries == 2
+
+
+def test_an_overload_in_an_answer_without_data_still_raises(
+    chain_1: tuple[ServoChainSimulator, DynamixelBus, list[DeviceEvent]],
+) -> None:
+    sim, bus, _ = chain_1
+    sim.silence(4)
+    sim.inject_garbage(encode_status(1, 4, 0x20))  # servo 4 answers "overload" and nothing else
+    with pytest.raises(ServoFault) as raised:
+        bus.read_states([4])
+    assert (raised.value.servo_id, raised.value.bits) == (4, ("overload",))
