@@ -352,8 +352,9 @@ def _plan_cycle(
     mug: MugPose,
     slot: TraySlot,
     on_tray: tuple[TraySlot, ...],
+    counter: tuple[MugPose, ...],
 ) -> CyclePlan:
-    return _planner_in_this_process(spec).plan_cycle(start_q, mug, slot, on_tray)
+    return _planner_in_this_process(spec).plan_cycle(start_q, mug, slot, on_tray, counter=counter)
 
 
 def _plan_move(
@@ -378,9 +379,17 @@ class ProcessMotionPlanner:
         return self._executor.submit(_planner_in_this_process, self._spec)
 
     def plan_cycle(
-        self, start_q: Sequence[float], mug: MugPose, slot: TraySlot, on_tray: Sequence[TraySlot]
+        self,
+        start_q: Sequence[float],
+        mug: MugPose,
+        slot: TraySlot,
+        on_tray: Sequence[TraySlot],
+        *,
+        counter: Sequence[MugPose] = (),
     ) -> CyclePlan:
-        future = self._executor.submit(_plan_cycle, self._spec, tuple(start_q), mug, slot, tuple(on_tray))
+        future = self._executor.submit(
+            _plan_cycle, self._spec, tuple(start_q), mug, slot, tuple(on_tray), tuple(counter)
+        )
         return future.result()
 
     def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import functools
 import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -604,8 +605,13 @@ class Job:
         ctx = self._ctx
         js = await self.backend.arm.read_joints()
         try:
+            others = tuple(m for m in ctx.counter.values() if m.mug_id != pose.mug_id)
             cycle = await asyncio.to_thread(
-                self.backend.motion.plan_cycle, js.position_rad, pose, slot, tuple(ctx.on_tray)
+                functools.partial(self.backend.motion.plan_cycle, counter=others),
+                js.position_rad,
+                pose,
+                slot,
+                tuple(ctx.on_tray),
             )
         except MotionRefused as e:
             self._event("motion_refused", mug_id=pose.mug_id, reason=str(e))

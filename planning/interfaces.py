@@ -81,8 +81,11 @@ class MotionPlanner(Protocol):
         mug: MugPose,
         slot: TraySlot,
         on_tray: Sequence[TraySlot],
+        *,
+        counter: Sequence[MugPose] = (),
     ) -> CyclePlan:
-        """Raises ``MotionRefused`` with the reason when any part of the cycle is impossible."""
+        """Raises ``MotionRefused`` with the reason when any part of the cycle is impossible. ``counter``
+        lists the other mugs still on the counter, obstacles for the approach and the carry."""
         ...
 
     def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:

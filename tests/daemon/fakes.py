@@ -145,10 +145,18 @@ class FakeMotion:
         self.w = world
         self.refuse = set(refuse)
         self.bridges: list[str] = []
+        self.obstacles: list[tuple[str, ...]] = []
 
     def plan_cycle(
-        self, start_q: Sequence[float], mug: MugPose, slot: TraySlot, on_tray: Sequence[TraySlot]
+        self,
+        start_q: Sequence[float],
+        mug: MugPose,
+        slot: TraySlot,
+        on_tray: Sequence[TraySlot],
+        *,
+        counter: Sequence[MugPose] = (),
     ) -> CyclePlan:
+        self.obstacles.append(tuple(m.mug_id for m in counter))
         true_id = min(
             self.w.counter,
             key=lambda k: math.hypot(self.w.counter[k].x_m - mug.x_m, self.w.counter[k].y_m - mug.y_m),

@@ -72,6 +72,9 @@ def test_a_whole_job_places_every_mug_and_ends_done() -> None:
     assert len(plan["slots"]) == 3
     final = [p for t, p in published if t == "state"][-1]
     assert (final["state"], final["mugs_placed"], final["mugs_total"]) == ("done", 3, 3)
+    motion = job.backend.motion
+    assert isinstance(motion, FakeMotion)
+    assert [len(o) for o in motion.obstacles] == [2, 1, 0]  # the other counter mugs, for collision checks
 
 
 def test_a_failed_grasp_recovers_the_mug_and_grasps_it_again() -> None:
