@@ -4,7 +4,8 @@ The simulated chain runs in its own process (``dishbot sim bus``), answering at 
 1 Mbps bus, so the numbers are those of the driver, not of a simulator sharing its interpreter.
 Measured: packet encode/decode time, the full bus cycle (sync write of every goal + read of every joint)
 on Protocol 1.0 and 2.0, and the event loop's wake-up lateness (p99, target <= 5 ms) while the arm
-streams a trajectory at 50 Hz.
+streams a trajectory at 50 Hz — idle, with the simulator in another process, and with it in this one (as
+``dishbot run --sim`` has it).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from daemon.commands.bench import add_json_flag, emit
 from drivers.dynamixel import BusConfig, DynamixelArm, DynamixelBus, ServoChain, thesis_joints
 from drivers.dynamixel import protocol as p
 from drivers.interfaces import JointTrajectory
-from drivers.sim import default_chain
+from drivers.sim import ServoChainSimulator, default_chain
 
 X_CHAIN = (
     (1, "XM430-W350"),
@@ -83,7 +84,10 @@ def _codec_us(repeats: int = 2000) -> tuple[float, float]:
     return encode, decode
 
 
-def _cycle(path: str, protocol: int, servos: Sequence[tuple[int, str]], seconds: float) -> list[float]:
+def _cycle(
+    path: str, protocol: int, servos: Sequence[tuple[int, str]], seconds: float
+) -> tuple[list[float], int]:
+    """Durations of back-to-back bus cycles, and how many answers had to be asked for again."""
     ids = [i for i, _ in servos]
     with DynamixelBus(BusConfig(path, protocol=protocol)) as bus:  # type: ignore[arg-type]
         bus.verify(servos)
@@ -95,7 +99,8 @@ def _cycle(path: str, protocol: int, servos: Sequence[tuple[int, str]], seconds:
             bus.write_goals(goals)
             bus.read_states(ids)
             times.append(time.perf_counter() - t0)
-    return times
+        retries = sum(c.retries for c in bus.counters.values())
+    return times, retries
 
 
 async def _jitter(path: str, seconds: float, *, with_bus: bool) -> tuple[list[float], float]:
@@ -145,7 +150,7 @@ def _run(args: argparse.Namespace) -> int:
     ]
     for protocol, servos in ((1, default_chain()), (2, X_CHAIN)):
         with simulated_bus(servos, protocol) as path:
-            times = _cycle(path, protocol, servos, args.seconds)
+            times, retries = _cycle(path, protocol, servos, args.seconds)
         rows.append(
             [
                 f"bus cycle rate, Protocol {protocol}.0, 6 servos",
@@ -155,9 +160,14 @@ def _run(args: argparse.Namespace) -> int:
             ]
         )
         rows.append([f"bus cycle p99, Protocol {protocol}.0", round(_pct(times, 99) * 1e3, 2), "ms", ""])
+        rows.append(
+            [f"retried answers, Protocol {protocol}.0", retries, f"of {len(times) * len(servos)}", ""]
+        )
     idle, _ = asyncio.run(_jitter("", args.seconds, with_bus=False))
     with simulated_bus(default_chain(), 1) as path:
         busy, rate = asyncio.run(_jitter(path, args.seconds, with_bus=True))
+    with ServoChainSimulator(default_chain()) as sim:  # as `dishbot run --sim` runs it: same interpreter
+        shared, _ = asyncio.run(_jitter(sim.device_path, args.seconds, with_bus=True))
     rows.append(["control loop rate (arm.follow)", round(rate, 1), "Hz", "50"])
     rows.append(["event-loop jitter p99, idle", round(_pct(idle, 99) * 1e3, 3), "ms", ""])
     rows.append(
@@ -169,6 +179,14 @@ def _run(args: argparse.Namespace) -> int:
         ]
     )
     rows.append(["event-loop jitter max, bus at 50 Hz", round(max(busy) * 1e3, 3), "ms", ""])
+    rows.append(
+        [
+            "event-loop jitter p99, bus at 50 Hz, simulator in-process",
+            round(_pct(shared, 99) * 1e3, 3),
+            "ms",
+            "",
+        ]
+    )
     emit(
         "bench bus",
         ["metric", "value", "unit", "target"],
