@@ -282,7 +282,15 @@ class Job:
                 )
             except ValueError as e:
                 raise CommandRefused(str(e)) from e
-        self._ctx = _Context(planner=options)
+            previous = _Context(planner=options)  # a new scene: the tray starts empty
+        else:
+            previous = self._ctx  # the same scene: what earlier jobs put on the tray is still there
+        self._ctx = _Context(
+            planner=options,
+            on_tray=list(previous.on_tray),
+            tray_mugs=list(previous.tray_mugs),
+            next_id=previous.next_id,
+        )
         self._ctx.summary.started_at = time.monotonic()
         self.finished.clear()
 
@@ -390,8 +398,8 @@ class Job:
 
     async def _plan(self) -> Outcome:
         ctx = self._ctx
-        problem = self._problem()
         try:
+            problem = self._problem()
             if self._executor is None:
                 result = await asyncio.to_thread(plan, problem, ctx.planner)
             else:

@@ -262,3 +262,22 @@ def test_a_mug_added_to_the_counter_during_the_job_is_planned_and_placed() -> No
     changed = [p for t, p in published if t == "events" and p["kind"] == "counter_changed"]
     assert [c["came"] for c in changed] == [["m3"]]
     assert len([p for t, p in published if t == "plan"]) == 2
+
+
+def test_a_new_job_on_the_same_counter_plans_around_the_mugs_already_on_the_tray() -> None:
+    world = make_world(3)
+
+    async def scenario(job: Job) -> None:
+        await job.command("start", StartRequest())
+        await _until(job, lambda: job.summary.placed >= 1)
+        await job.command("stop")
+        await job.command("start", StartRequest())
+        await job.finished.wait()
+
+    job, published = _run(world, scenario)
+    plans = [p for t, p in published if t == "plan"]
+    assert len(plans) == 2
+    first_slot = plans[0]["slots"][0]
+    assert all((s["x_m"], s["y_m"]) != (first_slot["x_m"], first_slot["y_m"]) for s in plans[1]["slots"])
+    assert sorted(world.placed) == ["true0", "true1", "true2"]
+    assert job.status()["mugs_placed"] == 3
