@@ -12,7 +12,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from drivers.simworld.scene import SceneLayout, SceneMug
 from perception.interfaces import Detection
@@ -84,6 +83,8 @@ def score_frame(truth: Sequence[SceneMug], detections: Sequence[Detection]) -> F
     """Match detections to mugs (optimal assignment within ``MATCH_GATE_M``) and count what went right."""
     if not truth or not detections:
         return FrameScore(0, len(detections), len(truth), (), 0, 0, ())
+    from scipy.optimize import linear_sum_assignment  # slow to import; only scoring needs it
+
     cost = np.array([[math.hypot(d.x_m - m.x_m, d.y_m - m.y_m) for d in detections] for m in truth])
     rows, cols = linear_sum_assignment(cost)
     pairs = [(r, c) for r, c in zip(rows, cols, strict=True) if cost[r, c] <= MATCH_GATE_M]
