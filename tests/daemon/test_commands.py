@@ -222,3 +222,48 @@ def test_the_parser_accepts_or_refuses_any_json_with_a_bad_command_error(verb: s
         message = str(e)
     assert message
     assert "\n" not in message
+
+
+def test_monitor_prints_state_changes_and_events_of_a_running_job(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    async def scenario(endpoint: str, send: Client) -> None:
+        watch = asyncio.create_task(
+            asyncio.to_thread(main, ["monitor", "--connect", endpoint, "--robot", ROBOT, "--duration", "2.5"])
+        )
+        await asyncio.sleep(1.0)
+        await send("start", b"")
+        assert await watch == 0
+
+    _with_daemon(tmp_path, scenario)
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith(("state ", "event "))]
+    assert lines[0] == "state idle  placed 0"
+    assert "state detect  placed 0" in lines
+    assert any(line.startswith("event mug_placed ") for line in lines)
+
+
+def test_the_monitor_panel_shows_state_joints_and_force() -> None:
+    from daemon.commands.monitor import panel
+
+    text = panel(
+        {
+            "state": {
+                "state": "flip.turn",
+                "current_mug": "m3",
+                "mugs_placed": 1,
+                "mugs_planned": 4,
+                "mugs_total": 5,
+                "mugs_failed": 0,
+            },
+            "joints": {"names": ["a", "b"], "position_rad": [0.1, -1.25]},
+            "gripper": {"aperture_m": 0.0725, "force_n": 3.0, "holding": True},
+        },
+        "r1",
+        "tcp/127.0.0.1:7447",
+    )
+    assert text.splitlines() == [
+        "dishbot r1 @ tcp/127.0.0.1:7447",
+        "state   flip.turn   mug m3   placed 1/4  seen 5  failed 0",
+        "joints  a +0.100  b -1.250",
+        "gripper aperture 72.5 mm  force 3.00 N  holding",
+    ]
