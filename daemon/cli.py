@@ -23,6 +23,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "daemon.commands.servo",
     "daemon.commands.fsr",
     "daemon.commands.sim",
+    "daemon.commands.arm",
 )
 
 Handler = Callable[[argparse.Namespace], int]

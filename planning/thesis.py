@@ -123,7 +123,7 @@ TRANSIT_CLEARANCE_M: Final = 0.03
 TRAY_Y_LOWER_M: Final = 0.132
 # §4.3: the side-grasp workspace the thesis found in Gazebo: 22 cm along x, 82 cm along y.
 THESIS_SIDE_GRASP_RANGE_M: Final = (0.22, 0.82)
-# Appendix A: worst position error of the 6-DOF solver on the 5-DOF arm, before and after the fitted correction.
+# Appendix A: worst position error of the 6-DOF solver on the 5-DOF arm, before and after the fitted fix.
 THESIS_IK_ERROR_BEFORE_M: Final = 0.177
 THESIS_IK_ERROR_AFTER_M: Final = 0.032
 # Appendix A, Eq A.1-A.3: the averaged quadratic error models in (x, |y|), coefficients of

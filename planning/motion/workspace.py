@@ -12,7 +12,7 @@ the configured cell drawn over them.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,7 +28,8 @@ from planning.motion.cell import CellLayout, carry_height_m
 from planning.motion.collision import BASE_COLUMN, CollisionWorld
 from planning.thesis import MugSpec
 
-_STEP_M = 0.002
+_STEP_M = 0.01
+_RESOLUTION_M = 0.0005
 _MAX_RADIUS_M = 1.0
 
 
@@ -39,51 +40,73 @@ class RadialProfile:
     kind: GraspKind
     spec: MugSpec
     heights_m: tuple[float, ...]
-    radii_m: FloatArray  # sampled distances
-    reachable: FloatArray  # bool per distance
+    intervals_m: tuple[tuple[float, float], ...]  # reachable [from, to], ascending
 
     @property
     def interval_m(self) -> tuple[float, float] | None:
         """The (first, last) reachable distance, or None when nothing is reachable."""
-        idx = np.flatnonzero(self.reachable)
-        if not len(idx):
+        if not self.intervals_m:
             return None
-        return float(self.radii_m[idx[0]]), float(self.radii_m[idx[-1]])
+        return self.intervals_m[0][0], self.intervals_m[-1][1]
 
     def contains(self, r: FloatArray) -> FloatArray:
-        """Whether distances ``r`` are reachable (nearest sample)."""
-        i = np.clip(np.rint((r - self.radii_m[0]) / _STEP_M).astype(int), 0, len(self.radii_m) - 1)
-        inside = (r >= self.radii_m[0]) & (r <= self.radii_m[-1])
-        return np.asarray(self.reachable[i] & inside, dtype=bool)
+        """Whether distances ``r`` are reachable."""
+        inside = np.zeros(np.shape(r), dtype=bool)
+        for lo, hi in self.intervals_m:
+            inside |= (r >= lo) & (r <= hi)
+        return inside
 
 
 def radial_profile(
-    arm: ArmModel, spec: MugSpec, kind: GraspKind, heights_m: Sequence[float], *, step_m: float = _STEP_M
+    arm: ArmModel,
+    spec: MugSpec,
+    kind: GraspKind,
+    heights_m: Sequence[float],
+    *,
+    step_m: float = _STEP_M,
+    resolution_m: float = _RESOLUTION_M,
 ) -> RadialProfile:
-    """Which axis distances (bearing 0) the grasp reaches at every one of ``heights_m``."""
+    """Which axis distances (bearing 0) the grasp reaches at every one of ``heights_m``: a scan every
+    ``step_m``, each change between reachable and not refined by bisection to ``resolution_m``."""
     delta = lateral_offset_m(spec, arm.gripper)
-    radii = np.arange(abs(delta) + step_m, _MAX_RADIUS_M, step_m)
     # Reaching back over the shoulder can put the wrist into the arm's own base: those poses do not count.
     base = CollisionWorld(arm, [BASE_COLUMN], [])
     opened = arm.gripper.aperture_m(JOINT_LIMITS["gripper"].lower_rad)
-    ok = np.zeros(len(radii), dtype=bool)
-    seeds: dict[float, tuple[float, ...]] = {}
-    for i, r in enumerate(radii):
-        good = True
+
+    def ok(r: float) -> bool:
         for z in heights_m:
-            target = side_grasp(float(r), 0.0, spec, arm.gripper, z_m=z, kind=kind).target
-            prior = seeds.get(z)
-            result = arm.ik(target, seeds=[prior] if prior else ())
-            if (
-                not result.ok
-                or result.q is None
-                or base.first_collision(np.array([result.q]), aperture_m=opened)
-            ):
-                good = False
-                break
-            seeds[z] = result.q
-        ok[i] = good
-    return RadialProfile(kind, spec, tuple(heights_m), radii, ok)
+            target = side_grasp(r, 0.0, spec, arm.gripper, z_m=z, kind=kind).target
+            result = arm.ik(target)
+            if not result.ok or result.q is None:
+                return False
+            if base.first_collision(np.array([result.q]), aperture_m=opened):
+                return False
+        return True
+
+    radii = np.arange(abs(delta) + step_m, _MAX_RADIUS_M, step_m)
+    flags = [ok(float(r)) for r in radii]
+    intervals: list[tuple[float, float]] = []
+    start: float | None = None
+    for i, (r, good) in enumerate(zip(radii, flags, strict=True)):
+        if good and start is None:
+            start = float(r) if i == 0 else _edge(ok, float(radii[i - 1]), float(r), resolution_m)
+        if not good and start is not None:
+            intervals.append((start, _edge(ok, float(r), float(radii[i - 1]), resolution_m)))
+            start = None
+    if start is not None:
+        intervals.append((start, float(radii[-1])))
+    return RadialProfile(kind, spec, tuple(heights_m), tuple(intervals))
+
+
+def _edge(ok: Callable[[float], bool], bad: float, good: float, resolution: float) -> float:
+    """The reachable end of [bad, good] to within ``resolution`` (bisection)."""
+    while abs(good - bad) > resolution:
+        mid = (bad + good) / 2
+        if ok(mid):
+            good = mid
+        else:
+            bad = mid
+    return good
 
 
 def reachable_axes(arm: ArmModel, profile: RadialProfile, x: FloatArray, y: FloatArray) -> FloatArray:
@@ -145,7 +168,7 @@ def served_tray(
         for x_far in np.arange(x_near + 0.15, 0.80, 0.01):
             lo, hi = min_half, 0.50
             if not _tray_ok(arm, ws, catalogue, x_near, x_far, lo, tolerance_mm):
-                continue
+                break  # a longer tray from the same near edge cannot fit either
             while hi - lo > 0.005:
                 mid = (lo + hi) / 2
                 lo, hi = (
