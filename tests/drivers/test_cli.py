@@ -20,7 +20,9 @@ def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, 
     return code, out, (err.splitlines() or [""])[-1]
 
 
-def test_sim_bus_prints_its_device_path_on_the_first_line_and_serves_the_thesis_chain() -> None:
+def test_sim_bus_prints_its_device_path_on_the_first_line_and_serves_the_thesis_chain(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
     child = subprocess.Popen(
         [sys.executable, "-m", "daemon.cli", "sim", "bus"],
         stdout=subprocess.PIPE,
@@ -30,14 +32,9 @@ def test_sim_bus_prints_its_device_path_on_the_first_line_and_serves_the_thesis_
     try:
         assert child.stdout is not None
         path = child.stdout.readline().strip()
-        scan = subprocess.run(
-            [sys.executable, "-m", "daemon.cli", "servo", "scan", "--port", path, "--max-id", "8", "--json"],
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
-        assert scan.returncode == 0, scan.stderr
-        servos = json.loads(scan.stdout)["servos"]
+        code, out, _ = run(["servo", "scan", "--port", path, "--max-id", "8", "--json"], capsys)
+        assert code == 0
+        servos = json.loads(out)["servos"]
         assert [(s["id"], s["model"]) for s in servos] == list(default_chain())
     finally:
         child.terminate()
