@@ -1,0 +1,123 @@
+"""The real daemon under a stand-in for systemd: notify lifecycle, watchdog pings, recording after a kill."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from daemon.recording import HEADER_TOPIC, read_messages
+
+ROBOT = "svc"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture
+def notify_socket(tmp_path: Path) -> Iterator[socket.socket]:
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(tmp_path / "notify.sock"))
+    sock.settimeout(0.2)
+    yield sock
+    sock.close()
+
+
+def start_daemon(tmp_path: Path, notify: socket.socket) -> subprocess.Popen[bytes]:
+    config = tmp_path / "dishbot.toml"
+    config.write_text(f'robot_id = "{ROBOT}"\n')
+    env = {
+        **os.environ,
+        "NOTIFY_SOCKET": notify.getsockname(),
+        "WATCHDOG_USEC": "2000000",  # 2 s: the daemon pings every second
+    }
+    env.pop("WATCHDOG_PID", None)
+    listen = f"tcp/127.0.0.1:{free_port()}"
+    command = [sys.executable, "-m", "daemon.cli", "run", "--sim", "--config", str(config)]
+    command += ["--record-dir", str(tmp_path / "rec"), "--listen", listen]
+    with (tmp_path / "stderr.log").open("wb") as stderr:
+        return subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=stderr)
+
+
+def wait_for(sock: socket.socket, prefix: str, proc: subprocess.Popen[bytes]) -> tuple[float, str]:
+    """The arrival time and text of the next notification starting with ``prefix``."""
+    deadline = time.monotonic() + 30.0
+    while time.monotonic() < deadline:
+        try:
+            message = sock.recv(4096).decode()
+        except TimeoutError:
+            if proc.poll() is not None:
+                stderr = Path(notify_dir(sock), "stderr.log").read_text(errors="replace")
+                pytest.fail(f"the daemon exited with {proc.returncode} before {prefix}:\n{stderr[-2000:]}")
+            continue
+        if message.startswith(prefix):
+            return time.monotonic(), message
+    pytest.fail(f"no {prefix} from the daemon within 30 s")
+
+
+def notify_dir(sock: socket.socket) -> str:
+    return os.path.dirname(sock.getsockname())
+
+
+def the_recording(tmp_path: Path) -> Path:
+    files = list((tmp_path / "rec").glob("*.mcap"))
+    assert len(files) == 1, files
+    return files[0]
+
+
+def test_daemon_notifies_ready_pings_the_watchdog_and_stops_cleanly_on_sigterm(
+    tmp_path: Path, notify_socket: socket.socket
+) -> None:
+    proc = start_daemon(tmp_path, notify_socket)
+    try:
+        _, ready = wait_for(notify_socket, "READY=1", proc)
+        assert ready.splitlines()[1].startswith("STATUS=")
+        pings = [wait_for(notify_socket, "WATCHDOG=1", proc)[0] for _ in range(3)]
+        gaps = [b - a for a, b in itertools.pairwise(pings)]
+        assert all(0.6 < gap < 1.8 for gap in gaps), gaps  # half of WATCHDOG_USEC, well inside the timeout
+        proc.send_signal(signal.SIGTERM)
+        _, stopping = wait_for(notify_socket, "STOPPING=1", proc)
+        assert proc.wait(timeout=30) == 0
+    finally:
+        proc.kill()
+        proc.wait(timeout=10)
+    rec = read_messages(the_recording(tmp_path))
+    assert not rec.truncated
+    assert rec.header is not None
+    assert rec.header["config"]["robot_id"] == ROBOT  # type: ignore[index]
+    assert rec.topic_counts[f"dishbot/{ROBOT}/state"] >= 1
+    assert stopping.startswith("STOPPING=1")
+
+
+def test_daemon_killed_with_sigkill_leaves_a_recording_readable_to_about_a_second_before(
+    tmp_path: Path, notify_socket: socket.socket
+) -> None:
+    proc = start_daemon(tmp_path, notify_socket)
+    try:
+        wait_for(notify_socket, "READY=1", proc)
+        for _ in range(2):  # a second of recording between the pings
+            wait_for(notify_socket, "WATCHDOG=1", proc)
+        killed_ns = time.time_ns()
+        proc.send_signal(signal.SIGKILL)
+        assert proc.wait(timeout=10) == -signal.SIGKILL
+    finally:
+        proc.kill()
+        proc.wait(timeout=10)
+    rec = read_messages(the_recording(tmp_path))
+    assert rec.truncated
+    assert rec.header is not None
+    assert rec.topic_counts[f"dishbot/{ROBOT}/joints"] > 10
+    assert rec.cut_after_ns is not None
+    assert killed_ns - rec.cut_after_ns < 1_000_000_000
+    assert HEADER_TOPIC in rec.topic_counts
