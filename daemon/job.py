@@ -21,7 +21,7 @@ import functools
 import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 import structlog
@@ -42,8 +42,16 @@ from statechart.machine import StateChart, Transition
 log = structlog.get_logger("daemon.job")
 
 Publish = Callable[[str, Mapping[str, object]], None]
-# associate(known, seen) -> the seen detections, each with the id of the known mug it is (or "" when new).
-Associate = Callable[[Sequence[Detection], Sequence[Detection]], Sequence[Detection]]
+
+
+class Associate(Protocol):
+    """Lost-mug association (``perception.associate``): the seen detections, each with the id of the known
+    mug it is ("" when new). ``target_id`` names the mug the arm was handling (it may have moved)."""
+
+    def __call__(
+        self, known: Sequence[Detection], seen: Sequence[Detection], *, target_id: str = ""
+    ) -> Sequence[Detection]: ...
+
 
 # After a pause, a move is joined at its nearest sample; within this of it, without a bridging move.
 _ON_PATH_RAD = 0.02
@@ -443,7 +451,8 @@ class Job:
         current = ctx.current
         ctx.carrying = False
         await self._gripper_action(self.backend.gripper.open())
-        seen = await self._look()
+        target = current.mug_id if current is not None and current.mug_id in ctx.counter else ""
+        seen = await self._look(target_id=target)
         ctx.counter = {d.mug_id: self._pose(d) for d in seen}
         if current is None:
             ctx.needs_plan = True
@@ -564,7 +573,7 @@ class Job:
             await self.backend.gripper.stop()
             raise
 
-    async def _look(self) -> list[Detection]:
+    async def _look(self, *, target_id: str = "") -> list[Detection]:
         """Observe the counter and give each detection the id of the known mug it is, or a new id."""
         ctx = self._ctx
         obs = await self.backend.observer.observe()
@@ -572,7 +581,11 @@ class Job:
             Detection(m.type, m.x_m, m.y_m, m.upside_down, m.handle_yaw_rad, 1.0, m.mug_id)
             for m in ctx.counter.values()
         ]
-        associated = list(self._associate(known, obs.detections)) if known else list(obs.detections)
+        associated = (
+            list(self._associate(known, obs.detections, target_id=target_id))
+            if known
+            else list(obs.detections)
+        )
         out = []
         for d in sorted(associated, key=lambda d: (d.mug_id == "", -d.x_m, d.y_m)):
             if not d.mug_id:

@@ -17,6 +17,7 @@ from daemon.config import Config, check_endpoint, load_config
 from daemon.errors import ConfigError, UsageError
 from daemon.job import Associate, StartRequest
 from daemon.sdnotify import SdNotifier
+from perception import associate
 from planning import thesis
 
 
@@ -136,13 +137,8 @@ async def _backend(
 
 
 def association() -> Associate:
-    """Lost-mug association (thesis §4.3.1) from ``perception``."""
-    import perception
-
-    fn: Associate | None = getattr(perception, "associate", None)
-    if fn is None:
-        raise UsageError("this build has no lost-mug association (perception.associate); the daemon needs it")
-    return fn
+    """Lost-mug association (thesis §4.3.1)."""
+    return associate
 
 
 def _endpoints(values: list[str], flag: str) -> list[str]:

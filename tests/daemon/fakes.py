@@ -188,32 +188,6 @@ class FakeMotion:
         return JointTrajectory(NAMES, s * 0.1, a + np.outer(s, b - a), label=label)
 
 
-def nearest_association(known: Sequence[Detection], seen: Sequence[Detection]) -> list[Detection]:
-    """Association test double: a seen mug is the known mug of its type within 3 cm."""
-    out = []
-    free = list(known)
-    for d in seen:
-        match = min(
-            (k for k in free if k.type == d.type and math.hypot(k.x_m - d.x_m, k.y_m - d.y_m) < 0.03),
-            key=lambda k: math.hypot(k.x_m - d.x_m, k.y_m - d.y_m),
-            default=None,
-        )
-        if match is not None:
-            free.remove(match)
-        out.append(
-            Detection(
-                d.type,
-                d.x_m,
-                d.y_m,
-                d.upside_down,
-                d.handle_yaw_rad,
-                d.confidence,
-                match.mug_id if match else "",
-            )
-        )
-    return out
-
-
 def make_world(n: int = 3) -> FakeWorld:
     counter = {
         f"true{i}": Detection("big" if i % 2 else "small", -0.1 * i, 0.3 + 0.01 * i, False, 0.0, 1.0)

@@ -20,8 +20,9 @@ from daemon.commands_handler import BadCommand, parse
 from daemon.config import load_config
 from daemon.sdnotify import SdNotifier
 from daemon.zenoh_io import session_config
+from perception import associate
 from tests.daemon.conftest import free_port
-from tests.daemon.fakes import make_backend, make_world, nearest_association
+from tests.daemon.fakes import make_backend, make_world
 
 ROBOT = "cmdtest"
 
@@ -41,7 +42,7 @@ def _with_daemon(tmp_path: Path, scenario: Callable[[str, Client], Awaitable[Non
             serve(
                 config,
                 make_backend(make_world(2)),
-                nearest_association,
+                associate,
                 options,
                 notifier=SdNotifier(None),
                 on_ready=lambda bus, path: ready.set(),
@@ -204,6 +205,7 @@ def test_request_returns_none_when_nobody_answers() -> None:
     assert request(f"tcp/127.0.0.1:{free_port()}", "ghost", "status", {}, timeout_s=0.3) is None
 
 
+_CONFIG = load_config()
 _json = st.recursive(
     st.none() | st.booleans() | st.integers(-10, 10) | st.floats(allow_nan=False) | st.text(max_size=5),
     lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=8), inner, max_size=3),
@@ -214,7 +216,7 @@ _json = st.recursive(
 @settings(max_examples=200, deadline=None)
 @given(verb=st.sampled_from(["start", "pause", "status", "nope"]), body=_json)
 def test_the_parser_accepts_or_refuses_any_json_with_a_bad_command_error(verb: str, body: object) -> None:
-    config = load_config()
+    config = _CONFIG
     message = "accepted"
     try:
         parse(verb, json.dumps(body).encode(), config)

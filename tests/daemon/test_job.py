@@ -10,7 +10,8 @@ import pytest
 
 from daemon.config import load_config
 from daemon.job import CommandRefused, Job, StartRequest
-from tests.daemon.fakes import FakeMotion, FakeWorld, make_backend, make_world, nearest_association
+from perception import associate
+from tests.daemon.fakes import FakeMotion, FakeWorld, make_backend, make_world
 
 Published = list[tuple[str, dict[str, Any]]]
 
@@ -22,7 +23,7 @@ def _job(world: FakeWorld, *, refuse: tuple[str, ...] = ()) -> tuple[Job, Publis
         published.append((topic, dict(payload)))
 
     config = load_config(overrides={"planner": {"method": "bh", "time_limit_s": 0.2}})
-    return Job(make_backend(world, refuse=refuse), config, publish, nearest_association), published
+    return Job(make_backend(world, refuse=refuse), config, publish, associate), published
 
 
 def _run(world: FakeWorld, scenario: Callable[[Job], Awaitable[None]], **kw: Any) -> tuple[Job, Published]:

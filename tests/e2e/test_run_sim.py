@@ -16,10 +16,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-import pytest
 import zenoh
 
-import perception
 from daemon.recording import read_messages
 from daemon.zenoh_io import session_config
 from tests.daemon.conftest import free_port
@@ -41,9 +39,6 @@ def _query(session: zenoh.Session, verb: str, body: dict[str, Any] | None = None
     return None
 
 
-@pytest.mark.skipif(
-    not hasattr(perception, "associate"), reason="lost-mug association (perception.associate) has not landed"
-)
 def test_run_sim_places_the_planned_mugs_and_records_what_it_published(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = tmp_path / "robot.toml"
