@@ -222,3 +222,17 @@ def test_an_overload_in_an_answer_without_data_still_raises(
     with pytest.raises(ServoFault) as raised:
         bus.read_states([4])
     assert (raised.value.servo_id, raised.value.bits) == (4, ("overload",))
+
+
+def test_an_unplug_inside_an_sdk_sync_write_does_not_leave_the_port_busy(
+    chain_1: tuple[ServoChainSimulator, DynamixelBus, list[DeviceEvent]],
+) -> None:
+    sim, bus, events = chain_1
+    goals = dict.fromkeys(IDS, (0.1, 1.0))
+    sim.unplug()
+    with pytest.raises(BusLost):
+        bus.write_goals(goals)  # pyserial raises inside dynamixel-sdk's txPacket, which set is_using first
+    sim.replug()
+    bus.write_goals(goals)
+    assert set(bus.read_states(IDS)) == set(IDS)
+    assert [e.kind for e in events] == ["bus_lost", "bus_restored"]
