@@ -217,3 +217,23 @@ async def test_a_port_without_the_sketch_fails_to_start_with_a_clear_error() -> 
             f"no dishbot_fsr sketch answered on {sim.device_path} within 0.2 s; "
             "flash drivers/fsr/arduino/dishbot_fsr.ino and check the baud rate"
         )
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.binary(max_size=30), st.integers(0, 1023)), max_size=20), st.integers(1, 9))
+def test_the_reader_only_ever_accepts_samples_that_were_sent(
+    chunks: list[tuple[bytes, int]], cut: int
+) -> None:
+    reader = FsrReader("/dev/null")
+    sent: dict[int, int] = {}
+    stream = b""
+    for seq, (noise, raw) in enumerate(chunks):
+        sent[seq] = raw
+        stream += noise + fp.sample_line(seq, raw)
+    accepted: list[tuple[int, int]] = []
+    for i in range(0, len(stream), cut):
+        reader._feed(stream[i : i + cut])
+        latest = reader.latest()
+        if latest is not None and (not accepted or accepted[-1][0] != latest.seq):
+            accepted.append((latest.seq, latest.raw))
+    assert all(sent.get(seq) == raw for seq, raw in accepted)
