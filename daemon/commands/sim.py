@@ -7,7 +7,6 @@ The first line printed is the device path, so scripts can read it and open the b
 from __future__ import annotations
 
 import argparse
-import contextlib
 import signal
 import sys
 import threading
@@ -73,7 +72,8 @@ def _bus(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise UsageError(str(e)) from e
     done = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    for signum in (signal.SIGINT, signal.SIGTERM):  # Ctrl-C, or a supervisor stopping it
+        signal.signal(signum, lambda *_: done.set())
     with sim:
         print(sim.device_path, flush=True)
         listing = ", ".join(f"{i}:{m}" for i, m in servos)
@@ -82,6 +82,5 @@ def _bus(args: argparse.Namespace) -> int:
             file=sys.stderr,
             flush=True,
         )
-        with contextlib.suppress(KeyboardInterrupt):
-            done.wait()
+        done.wait()
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 import threading
@@ -37,7 +38,7 @@ def test_sim_bus_prints_its_device_path_on_the_first_line_and_serves_the_thesis_
         servos = json.loads(out)["servos"]
         assert [(s["id"], s["model"]) for s in servos] == list(default_chain())
     finally:
-        child.terminate()
+        child.send_signal(signal.SIGINT)  # Ctrl-C ends it cleanly
         assert child.wait(timeout=10) == 0
 
 
