@@ -24,6 +24,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "daemon.commands.fsr",
     "daemon.commands.sim",
     "daemon.commands.arm",
+    "daemon.commands.detect",
+    "daemon.commands.calibrate",
 )
 
 Handler = Callable[[argparse.Namespace], int]

@@ -268,6 +268,30 @@ def build_mjcf(
 """
 
 
+def calibration_board_xml(
+    size_m: tuple[float, float], origin_xy: tuple[float, float], yaw_rad: float, *, texture_file: str
+) -> tuple[str, str]:
+    """(asset XML, body XML) of a printed calibration board lying face up on the table.
+
+    ``texture_file`` names the board image, passed to ``MjModel.from_xml_string`` in its ``assets``; the
+    image's top-left corner lies at ``origin_xy`` and its width runs along ``yaw_rad`` (the board frame of
+    ``perception.calibration.board_on_table``). MuJoCo maps a plane's texture with the image's top-left at the
+    plane's (-x, +y) corner.
+    """
+    w, h = size_m
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    centre = (origin_xy[0] + c * w / 2 + s * h / 2, origin_xy[1] + s * w / 2 - c * h / 2, 0.0004)
+    assets = (
+        f'    <texture name="calibration_board" type="2d" file="{texture_file}"/>\n'
+        '    <material name="calibration_board" texture="calibration_board" texrepeat="1 1"/>'
+    )
+    body = (
+        f'    <geom name="{BOARD_GEOM}" type="plane" pos="{_v(centre)}" euler="0 0 {yaw_rad:.6g}" '
+        f'size="{w / 2:.6g} {h / 2:.6g} 0.01" material="calibration_board" contype="0" conaffinity="0"/>'
+    )
+    return assets, body
+
+
 def mug_mesh(spec: MugSpec, *, segments: int = MUG_SEGMENTS) -> tuple[FloatArray, npt.NDArray[np.int64]]:
     """Vertices (n, 3) and outward-facing triangles (m, 3) of the open cup, origin at its bottom centre."""
     r_out = spec.diameter_mm / 2000.0
