@@ -13,6 +13,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "daemon.commands.bench_daemon",
     "daemon.commands.bench_bus",
     "daemon.commands.bench_placement",
+    "daemon.commands.bench_motion",
     "daemon.commands.bench_perception",
 )
 

@@ -37,8 +37,9 @@ JointValues = Sequence[float] | FloatArray
 _ROTATION_WEIGHT_M = 0.1
 _POSITION_TOL_M = 1e-3
 _ROTATION_TOL_RAD = 2e-3
-_CONVERGED_M = 2e-6
+_CONVERGED_M = 1e-5  # 10 µm: a hundred times inside the 1 mm target, well below servo resolution
 _STALL_ITERS = 8
+_POSITION_PITCHES_DEG = (0, -15, -30, -45, -60, -75, -90, 15, 30, 45, 60, 75, 90)
 
 
 @dataclass(frozen=True, slots=True)
@@ -47,6 +48,7 @@ class _Seed:
 
     q: FloatArray
     label: str = ""
+    exact: bool = False  # a closed-form solution (the shoulder-elbow triangle closes)
 
 
 def _wrap_into(angle: float, lower: float, upper: float) -> float:
@@ -92,6 +94,7 @@ class ArmModel:
         self.max_velocity = np.array([s.max_speed_rad_s for s in servo_models])
         self.max_acceleration = np.array([s.max_accel_rad_s2 for s in servo_models])
         self._tool_id = model.getFrameId(tool_frame)
+        self._limits = ([float(v) for v in self.lower], [float(v) for v in self.upper])
         self._planar = self._measure_planar() if self.joint_names == THESIS_ARM_JOINTS else None
 
     @classmethod
@@ -176,6 +179,9 @@ class ArmModel:
             if not lo - tol <= v <= hi + tol:
                 out.append(f"{name}={v:.4f} rad is outside [{lo:.4f}, {hi:.4f}]")
         return out
+
+    def _inside(self, q: FloatArray, tol: float = 1e-3) -> bool:
+        return bool(np.all(q >= self.lower - tol) and np.all(q <= self.upper + tol))
 
     def fk(self, q: JointValues) -> tuple[FloatArray, FloatArray]:
         """World position (3,) and rotation (3, 3) of the grasp point at joint angles ``q``."""
@@ -303,13 +309,13 @@ class ArmModel:
                 dq *= 0.5 / step
             q_next = np.clip(q + dq, self.lower, self.upper)
             if float(np.max(np.abs(q_next - q))) < 1e-10:
-                break
+                return q, pos_err, rot_err, it
             q = q_next
             total = pos_err + rot_err * _ROTATION_WEIGHT_M
             if total < best_total * 0.99:
                 best_total, best_it = total, it
             elif it - best_it >= _STALL_ITERS:
-                break
+                return q, pos_err, rot_err, it
         return q, pos_err, rot_err, max_iters
 
     def _seeds(
@@ -325,18 +331,44 @@ class ArmModel:
                             goal_p, goal_r, goal_r[:, 2], elbow_up=elbow_up, flipped=flipped
                         )
                 return
-            for pitch in (0.0, -math.pi / 4, -math.pi / 2, math.pi / 4):
-                psi = math.atan2(goal_p[1], goal_p[0])
-                approach = np.array(
-                    [math.cos(pitch) * math.cos(psi), math.cos(pitch) * math.sin(psi), math.sin(pitch)]
-                )
-                for elbow_up in (True, False):
-                    yield self._closed_form_seed(goal_p, None, approach, elbow_up=elbow_up, flipped=False)
+            yield from self._position_fan(goal_p)
         yield _Seed((self.lower + self.upper) / 2)
         yield _Seed(np.clip(np.zeros(self.dof), self.lower, self.upper))
         rng = np.random.default_rng(0)
         for _ in range(4):
             yield _Seed(rng.uniform(self.lower, self.upper))
+
+    def _position_fan(self, goal_p: FloatArray) -> list[_Seed]:
+        """Position only: the closed form for a fan of approach pitches (level first, then down, then up),
+        both elbows, reaching forward and over the shoulder, computed at once; only exact solutions inside
+        the limits are worth a try."""
+        g = self._planar
+        assert g is not None
+        pitch = np.radians(np.repeat(_POSITION_PITCHES_DEG, 4))
+        flipped = np.tile([0.0, 0.0, 1.0, 1.0], len(_POSITION_PITCHES_DEG))
+        up = np.tile([-1.0, 1.0, -1.0, 1.0], len(_POSITION_PITCHES_DEG))  # -1: elbow up
+        psi = math.atan2(goal_p[1], goal_p[0]) + np.pi * flipped
+        # In the arm's plane the target is at +r (reaching forward) or -r (over the shoulder).
+        r = math.hypot(goal_p[0], goal_p[1]) * (1.0 - 2.0 * flipped)
+        r_w = r - g.tool_m * np.cos(pitch)  # the approach heads along the plane either way
+        z_w = goal_p[2] - g.tool_m * np.sin(pitch) - g.shoulder_z_m
+        cos_delta = (r_w**2 + z_w**2 - g.upper_m**2 - g.fore_m**2) / (2 * g.upper_m * g.fore_m)
+        exact = np.abs(cos_delta) <= 1.0
+        delta = up * np.arccos(np.clip(cos_delta, -1.0, 1.0))
+        e1 = np.arctan2(z_w, r_w) - np.arctan2(g.fore_m * np.sin(delta), g.upper_m + g.fore_m * np.cos(delta))
+        sl, el = -e1, -delta
+        wl = -np.pi / 2 - pitch - sl - el
+        q = np.column_stack(
+            [
+                np.remainder(psi + np.pi, 2 * np.pi) - np.pi,
+                sl,
+                el,
+                np.remainder(wl + np.pi, 2 * np.pi) - np.pi,
+                np.full_like(sl, -np.pi / 2),
+            ]
+        )
+        inside = np.all((q >= self.lower - 1e-3) & (q <= self.upper + 1e-3), axis=1)
+        return [_Seed(q[i], "position fan", True) for i in np.flatnonzero(exact & inside)]
 
     def _closed_form_seed(
         self,
@@ -353,12 +385,14 @@ class ArmModel:
         g = self._planar
         assert g is not None
         psi = math.atan2(goal_p[1], goal_p[0]) + (math.pi if flipped else 0.0)
-        radial = np.array([math.cos(psi), math.sin(psi), 0.0])
-        pitch = math.atan2(float(approach[2]), float(approach @ radial))
-        wrist = goal_p - g.tool_m * approach
-        r_w = float(wrist @ radial)
-        z_w = float(wrist[2]) - g.shoulder_z_m
+        cos_psi, sin_psi = math.cos(psi), math.sin(psi)
+        ax, ay, az = float(approach[0]), float(approach[1]), float(approach[2])
+        pitch = math.atan2(az, ax * cos_psi + ay * sin_psi)
+        wx, wy = float(goal_p[0]) - g.tool_m * ax, float(goal_p[1]) - g.tool_m * ay
+        r_w = wx * cos_psi + wy * sin_psi
+        z_w = float(goal_p[2]) - g.tool_m * az - g.shoulder_z_m
         cos_delta = (r_w * r_w + z_w * z_w - g.upper_m**2 - g.fore_m**2) / (2 * g.upper_m * g.fore_m)
+        exact = abs(cos_delta) <= 1.0
         delta = math.acos(max(-1.0, min(1.0, cos_delta)))
         if elbow_up:
             delta = -delta
@@ -367,16 +401,18 @@ class ArmModel:
         )
         sl, el = -e1, -delta
         wl = -math.pi / 2 - pitch - sl - el
-        q = np.array([psi, sl, el, wl, -math.pi / 2])
+        wt = -math.pi / 2
         if goal_r is not None:
-            q[4] = 0.0
-            _, rot = self.fk(q)
+            _, rot = self.fk(np.array([psi, sl, el, wl, 0.0]))
             x0, z0 = rot[:, 0], rot[:, 2]
             x_goal = goal_r[:, 0]
-            q[4] = math.atan2(float(np.cross(x0, x_goal) @ z0), float(x0 @ x_goal))
-        q = np.array([_wrap_into(v, lo, hi) for v, lo, hi in zip(q, self.lower, self.upper, strict=True)])
+            wt = math.atan2(float(np.cross(x0, x_goal) @ z0), float(x0 @ x_goal))
+        lower, upper = self._limits
+        q = np.array(
+            [_wrap_into(v, lo, hi) for v, lo, hi in zip((psi, sl, el, wl, wt), lower, upper, strict=True)]
+        )
         label = f"{'elbow up' if elbow_up else 'elbow down'}{', over the shoulder' if flipped else ''}"
-        return _Seed(q, label)
+        return _Seed(q, label, exact)
 
     def _out_of_reach(self, goal_p: FloatArray, target: GraspTarget) -> str:
         """Why a target is plainly beyond the thesis arm's reach, or '' (other URDFs: always '')."""
