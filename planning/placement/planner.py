@@ -56,6 +56,10 @@ class PlacedMug:
 
 @dataclass(frozen=True)
 class PlanResult:
+    """A plan: the spots in placing order, what stays on the counter, the placement parameters (n, A in mm²,
+    E in J, t in s including the computation, s), the cost under the run's fitness and normalisation, and,
+    when a solver proved it, whether n is the largest possible (``optimal``) and the bound on n."""
+
     method: str
     heuristic: str
     sort: str | None

@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 
 from planning import thesis
-from planning.placement.cost import Metrics
 from planning.placement.packing import Packer, Packing
 from planning.placement.planner import Candidate, Context
 
@@ -43,11 +42,7 @@ def run(ctx: Context) -> Candidate:
         if m_current.n == n_total or ctx.out_of_time():
             break
         temperature *= params.cooling_rate
-    return Candidate.of(most if _fewer(m_best, m_most) else best)
-
-
-def _fewer(a: Metrics, b: Metrics) -> bool:
-    return a.n < b.n
+    return Candidate.of(most if m_best.n < m_most.n else best)
 
 
 def configuration_order(packing: Packing) -> list[int]:
