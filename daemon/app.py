@@ -135,6 +135,12 @@ async def _run(
     if notifier.watchdog_interval_s is not None:
         interval = notifier.watchdog_interval_s / 2.0
         tasks.append(asyncio.create_task(_every(interval, _ping(notifier)), name="watchdog"))
+    if backend.on_event is not None:
+
+        def device_event(event: Mapping[str, object]) -> None:
+            loop.call_soon_threadsafe(bus.publish, "events", event)
+
+        backend.on_event(device_event)
     bus.serve(loop, lambda verb, payload: commands_handler.handle(job, verb, payload))
     bus.publish("state", job.status())
     notifier.ready(f"robot {config.robot_id} idle")

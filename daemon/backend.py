@@ -68,6 +68,9 @@ class CounterSetup(Protocol):
     def scene(self) -> dict[str, object]: ...
 
 
+EventListener = Callable[[Mapping[str, object]], None]
+
+
 async def _nothing() -> None:
     return None
 
@@ -85,6 +88,9 @@ class Backend:
     tray: Tray
     counter: CounterSetup | None = None
     closer: Callable[[], Awaitable[None]] = field(default=_nothing)
+    # Devices that report events of their own (tray collisions in simulation) call the listener given here,
+    # possibly from another thread.
+    on_event: Callable[[EventListener], None] | None = None
 
     def scene(self) -> dict[str, object]:
         """The initial scene for the recording's session header."""
@@ -215,7 +221,7 @@ class _RecordedObserver:
         return obs
 
 
-def open_sim_backend(
+async def open_sim_backend(
     config: Config,
     *,
     world: str,
@@ -224,14 +230,29 @@ def open_sim_backend(
     seed: int,
     executor: concurrent.futures.Executor | None = None,
 ) -> Backend:
-    """The simulated cell with dataset ``dataset``'s mugs on its counter, ``speed`` times real time.
-
-    ``world`` is ``kinematic`` (the placeholder cell of ``drivers.simcell``) or ``mujoco`` (the physics
-    simulation, once it is wired). With ``executor`` (a process pool), motion planning runs there."""
+    """The simulated cell with dataset ``dataset``'s mugs on its counter: ``kinematic`` (the placeholder cell,
+    ``speed`` times real time) or ``mujoco`` (the physics simulation, real time). With ``executor`` (a
+    process pool), motion planning runs there. Call it on the event loop that will use the devices."""
+    if world == "mujoco":
+        if speed != 1.0:
+            raise UsageError(
+                f"--speed {speed:g}: the MuJoCo cell runs in real time (its drivers keep wall time)"
+            )
+        return await open_mujoco_backend(config, dataset=dataset, seed=seed, executor=executor)
     if world != "kinematic":
-        raise UsageError(
-            f"--world {world}: the MuJoCo cell is not wired into the daemon yet; use --world kinematic"
-        )
+        raise UsageError(f"--world {world}: choose kinematic or mujoco")
+    return open_kinematic_backend(config, dataset=dataset, speed=speed, seed=seed, executor=executor)
+
+
+def open_kinematic_backend(
+    config: Config,
+    *,
+    dataset: int,
+    speed: float,
+    seed: int,
+    executor: concurrent.futures.Executor | None = None,
+) -> Backend:
+    """The kinematic placeholder cell (``drivers.simcell``), ``speed`` times faster than real time."""
     arm_model = ArmModel.load()
     counter = _KinematicCounter(config, arm_model, speed=speed)
     tray = counter.set_counter(dataset=dataset, mugs=None)
@@ -394,3 +415,69 @@ class ProcessMotionPlanner:
 
     def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
         return self._executor.submit(_plan_move, self._spec, tuple(start_q), tuple(goal_q), label).result()
+
+
+async def open_mujoco_backend(
+    config: Config, *, dataset: int, seed: int, executor: concurrent.futures.Executor | None = None
+) -> Backend:
+    """The MuJoCo cell (``drivers.simworld``): real drivers over simulated servos and FSR, a rendered depth
+    camera and the depth detector; dataset ``dataset``'s mugs on the counter. It runs in real time (its
+    drivers keep wall-clock time). Call it on the event loop that will use the devices."""
+    from drivers.simworld.cell import scene_mugs, start_sim_cell
+    from drivers.simworld.scene import SceneLayout
+
+    plain = config.to_dict()
+    try:
+        layout = SceneLayout.from_config(plain["cell"], plain["camera"])
+    except ValueError as e:
+        raise UsageError(f"the MuJoCo cell cannot use this config: {e}") from e
+    catalogue = {
+        m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in config.mug_types
+    }
+    tray = Tray(config.cell.tray_origin_m, config.cell.tray_size_mm)
+
+    def entries(
+        dataset: int | None, mugs: Sequence[CounterMug] | None
+    ) -> list[tuple[str, str, float, float]]:
+        if mugs is not None:
+            return [(m.mug_id, m.type, m.x_m, m.y_m) for m in mugs]
+        problem = dataset_problem(
+            dataset or 1, counter_region_m=config.cell.counter_region_m, tray_origin_m=tray.origin_m
+        )
+        return [(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs]
+
+    cell, closer = await start_sim_cell(
+        layout,
+        scene_mugs(entries(dataset, None), catalogue),
+        seed=seed,
+        holding_threshold_n=config.grasp.force_threshold_n / 2.0,
+    )
+
+    class _Counter:
+        def set_counter(self, *, dataset: int | None, mugs: Sequence[CounterMug] | None) -> Tray:
+            cell.set_counter(scene_mugs(entries(dataset, mugs), catalogue))
+            return tray
+
+        def scene(self) -> dict[str, object]:
+            return cell.scene()
+
+    spec = CyclePlannerSpec(config.cell, tray, config.mug_types)
+    motion: MotionPlanner = spec.build() if executor is None else ProcessMotionPlanner(spec, executor)
+
+    def on_event(listener: EventListener) -> None:
+        cell.on_collision(
+            lambda c: listener({**c.to_event(), "kind": "tray_collision", "t_sim": c.t, "t": time.time()})
+        )
+
+    return Backend(
+        name="sim-mujoco",
+        arm=cell.arm,
+        gripper=cell.gripper,
+        force=cell.force,
+        observer=cell.observer,
+        motion=motion,
+        tray=tray,
+        counter=_Counter(),
+        closer=closer,
+        on_event=on_event,
+    )

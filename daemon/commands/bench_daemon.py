@@ -132,7 +132,7 @@ async def _live(tmp: Path, commands: int, seconds: float) -> _Live:
         overrides={"robot_id": ROBOT, "planner": {"method": "bh"}, "sim": {"speed": 5.0}},
     )
     with planning_pool() as pool:
-        backend = open_sim_backend(
+        backend = await open_sim_backend(
             config, world="kinematic", dataset=1, speed=config.sim.speed, seed=0, executor=pool
         )
         if isinstance(backend.motion, ProcessMotionPlanner):

@@ -128,7 +128,7 @@ async def _backend(
         raise UsageError("the hardware backend is not wired into dishbot run yet; use --sim")
     world = args.world or config.sim.world
     seed = config.sim.seed if args.seed is None else args.seed
-    backend = open_sim_backend(
+    backend = await open_sim_backend(
         config, world=world, dataset=args.dataset, speed=speed, seed=seed, executor=pool
     )
     if isinstance(backend.motion, ProcessMotionPlanner):
