@@ -49,6 +49,11 @@ class Tray:
     origin_m: tuple[float, float]
     size_mm: tuple[int, int]
 
+    def contains(self, x_m: float, y_m: float) -> bool:
+        """Whether a point of the world frame lies over the tray."""
+        x0, y0 = self.origin_m
+        return x0 <= x_m <= x0 + self.size_mm[0] / 1000.0 and y0 <= y_m <= y0 + self.size_mm[1] / 1000.0
+
 
 @dataclass(frozen=True, slots=True)
 class CounterMug:

@@ -577,14 +577,15 @@ class Job:
         """Observe the counter and give each detection the id of the known mug it is, or a new id."""
         ctx = self._ctx
         obs = await self.backend.observer.observe()
+        tray = self.backend.tray
+        # Mugs standing on the tray are the job's own work (it knows them); only counter mugs are to load.
+        on_counter = tuple(d for d in obs.detections if not tray.contains(d.x_m, d.y_m))
         known = [
             Detection(m.type, m.x_m, m.y_m, m.upside_down, m.handle_yaw_rad, 1.0, m.mug_id)
             for m in ctx.counter.values()
         ]
         associated = (
-            list(self._associate(known, obs.detections, target_id=target_id))
-            if known
-            else list(obs.detections)
+            list(self._associate(known, on_counter, target_id=target_id)) if known else list(on_counter)
         )
         out = []
         for d in sorted(associated, key=lambda d: (d.mug_id == "", -d.x_m, d.y_m)):

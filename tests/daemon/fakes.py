@@ -134,6 +134,7 @@ class FakeObserver:
     async def observe(self) -> Observation:
         await asyncio.sleep(0)
         seen = [d for k, d in self.w.counter.items() if k != self.w.held]
+        seen += [Detection("big", 0.3 + 0.1 * i, 0.0, True, 0.0, 0.9) for i, _ in enumerate(self.w.placed)]
         return Observation(0.0, tuple(Detection(d.type, d.x_m, d.y_m, False, 0.0, 0.9) for d in seen))
 
 
@@ -204,5 +205,7 @@ def make_backend(world: FakeWorld, *, refuse: Sequence[str] = ()) -> Backend:
         force=FakeForce(world),
         observer=FakeObserver(world),
         motion=FakeMotion(world, refuse),
-        tray=Tray(origin_m=(0.15, -0.187), size_mm=(332, 374)),
+        tray=Tray(
+            origin_m=(0.25, -0.187), size_mm=(332, 374)
+        ),  # the observer also sees the placed mugs there
     )
