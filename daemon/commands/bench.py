@@ -15,6 +15,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "daemon.commands.bench_placement",
     "daemon.commands.bench_motion",
     "daemon.commands.bench_perception",
+    "daemon.commands.bench_sim",
 )
 
 

@@ -232,6 +232,10 @@ FULL_TORQUE_ERROR_RAD: Final[Mapping[str, float]] = {
     "MX-28T": math.radians(2.0),
     "AX-12A": math.radians(6.0),
 }
+# Static friction of the spur gear trains (200:1 and more) as a fraction of the stall torque: a servo that
+# stops keeps part of the squeeze or load it had, yet an arm with its torque off still sags, as real ones do (an
+# estimate; the datasheets give no backdrive torque).
+GEAR_FRICTION_FRACTION: Final = 0.10
 # The FSR (a Pololu/Interlink 406 is about 0.5 mm thick) and the finger's rubber stand this far proud of the
 # thumb and finger faces; the pads' boxes reach as far into the faces again.
 PAD_THICKNESS_M: Final = 0.0005
@@ -390,7 +394,7 @@ def build_arm_mjcf(
                     f'<joint name="{servo.mj_joint}" type="hinge" axis="{_vec(j.axis)}" '
                     f'range="{lower:.6g} {upper:.6g}" armature="{servo.armature_kg_m2:.6g}" '
                     f'damping="{0.05 * servo.model.stall_torque_nm:.6g}" '
-                    f'frictionloss="{0.01 * servo.model.stall_torque_nm:.6g}"/>'
+                    f'frictionloss="{GEAR_FRICTION_FRACTION * servo.model.stall_torque_nm:.6g}"/>'
                 )
             elif j.type != "fixed":
                 raise SimModelError(f"URDF {urdf.name!r}: {j.type} joint {j.name!r} is not part of this arm")

@@ -43,6 +43,7 @@ from drivers.simworld.camera import DepthCamera, DepthNoise
 from drivers.simworld.collisions import TrayCollision, TrayCollisionCounter
 from drivers.simworld.scene import CAMERA_NAME, SceneLayout, SceneMug, build_mjcf
 from drivers.simworld.world import PhysicsConfig, SimWorld
+from perception import CameraObserver
 from perception.interfaces import MugObserver
 from planning.arm.description import BUNDLED_URDF, JOINT_LIMITS, GripperGeometry
 from planning.thesis import JOINT_SERVOS, MugSpec
@@ -207,13 +208,6 @@ class SimCell:
         }
 
 
-def _default_observer(camera: Camera) -> MugObserver:
-    from perception import CameraObserver  # type: ignore[attr-defined]
-
-    observer: MugObserver = CameraObserver(camera)
-    return observer
-
-
 def scene_mugs(
     entries: Sequence[tuple[str, str, float, float]], catalogue: Mapping[str, MugSpec]
 ) -> list[SceneMug]:
@@ -235,7 +229,8 @@ async def start_sim_cell(
     urdf: Path = BUNDLED_URDF,
     physics: PhysicsConfig | None = None,
     start_pose_rad: Sequence[float] | None = None,
-    force_threshold_n: float = 2.0,
+    holding_threshold_n: float = 1.0,
+    fsr_debounce_s: float = 0.03,
     depth_noise: DepthNoise | None = None,
     observer_factory: ObserverFactory | None = None,
 ) -> tuple[SimCell, Callable[[], Awaitable[None]]]:
@@ -244,11 +239,12 @@ async def start_sim_cell(
     This is the daemon's entry point (``dishbot run --sim --world mujoco``): the cell's ``arm``, ``gripper``,
     ``force`` and ``observer`` make the backend, the returned closer is its ``closer``. Call it on the event
     loop that will use the devices. ``start_pose_rad`` places the five arm joints (default: the world's
-    ready pose); ``observer_factory`` turns the camera into the mug observer (default: perception's
-    ``CameraObserver``).
+    ready pose); ``holding_threshold_n`` is the FSR reader's "a mug is in the gripper" level (below the
+    grasp threshold, which the squeeze relaxes from once the gripper stops closing); ``observer_factory``
+    turns the camera into the mug observer (default: perception's ``CameraObserver``).
     """
     arm_mjcf = build_arm_mjcf(load_urdf(urdf))
-    make_observer = observer_factory or _default_observer
+    make_observer = observer_factory or CameraObserver
     noise = depth_noise if depth_noise is not None else DepthNoise()
     listeners: list[Callable[[TrayCollision], None]] = []
 
@@ -281,7 +277,9 @@ async def start_sim_cell(
     try:
         servo_sim = stack.enter_context(ServoChainSimulator(default_chain(), plant=switch))
         fsr_sim = stack.enter_context(FsrSimulator(switch.force_n))
-        force = await stack.enter_async_context(FsrReader(fsr_sim.device_path, threshold_n=force_threshold_n))
+        force = await stack.enter_async_context(
+            FsrReader(fsr_sim.device_path, threshold_n=holding_threshold_n, debounce_s=fsr_debounce_s)
+        )
         chain = await stack.enter_async_context(ServoChain(BusConfig(servo_sim.device_path), default_chain()))
         joints = thesis_joints([_servo_limits(j) for j in _ARM_JOINTS])
         arm = await stack.enter_async_context(DynamixelArm(chain, joints))
@@ -323,7 +321,8 @@ async def open_sim_cell(
     urdf: Path = BUNDLED_URDF,
     physics: PhysicsConfig | None = None,
     start_pose_rad: Sequence[float] | None = None,
-    force_threshold_n: float = 2.0,
+    holding_threshold_n: float = 1.0,
+    fsr_debounce_s: float = 0.03,
     depth_noise: DepthNoise | None = None,
     observer_factory: ObserverFactory | None = None,
 ) -> AsyncIterator[SimCell]:
@@ -336,7 +335,8 @@ async def open_sim_cell(
         urdf=urdf,
         physics=physics,
         start_pose_rad=start_pose_rad,
-        force_threshold_n=force_threshold_n,
+        holding_threshold_n=holding_threshold_n,
+        fsr_debounce_s=fsr_debounce_s,
         depth_noise=depth_noise,
         observer_factory=observer_factory,
     )

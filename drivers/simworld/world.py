@@ -212,6 +212,9 @@ class SimWorld:
         spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
         spec.option.iterations = cfg.solver_iterations
         spec.option.ls_iterations = 10
+        # Mugs at rest on the counter sleep (no contacts solved) until something touches them: a dozen
+        # resting mugs otherwise cost most of the step.
+        spec.option.enableflags |= mujoco.mjtEnableBit.mjENBL_SLEEP
         # Torsional and rolling friction on the mugs: without them a mug rocking on its rim walks across the
         # tray and a tipped one rolls off the table forever.
         for geom in spec.geoms:

@@ -6,18 +6,16 @@ from __future__ import annotations
 import asyncio
 import itertools
 import math
-import time
 from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from drivers.interfaces import ArmDriver, Camera, ForceSensor, GripperDriver, JointTrajectory
+from drivers.interfaces import ArmDriver, ForceSensor, GripperDriver, JointTrajectory
 from drivers.simworld.cell import SimCell, gripper_spec, open_sim_cell, scene_mugs
 from drivers.simworld.scene import CameraSpec, SceneLayout
-from perception.detector import DepthMugDetector
-from perception.interfaces import MugObserver, Observation
+from perception.interfaces import MugObserver
 from planning.arm.description import GripperGeometry
 from planning.arm.grasp import side_grasp
 from planning.arm.model import ArmModel
@@ -26,18 +24,6 @@ from planning.thesis import MUG_TYPES, SMALL_MUG
 from tests.simworld.conftest import cell_layout
 
 MUG_XY = (0.24, 0.40)
-
-
-class DetectorObserver:
-    """The depth detector on the cell's camera (stands in until perception ships its observer)."""
-
-    def __init__(self, camera: Camera) -> None:
-        self._camera = camera
-        self._detector = DepthMugDetector(MUG_TYPES)
-
-    async def observe(self) -> Observation:
-        frame = await self._camera.capture()
-        return Observation(t=time.monotonic(), detections=tuple(self._detector.detect(frame)))
 
 
 def full_camera_layout() -> SceneLayout:
@@ -72,7 +58,7 @@ def run(coro: object) -> None:
 def test_cell_devices_speak_the_driver_protocols() -> None:
     async def body() -> None:
         mugs = scene_mugs([("a", "small", *MUG_XY)], MUG_TYPES)
-        async with open_sim_cell(cell_layout(), mugs, observer_factory=DetectorObserver) as cell:
+        async with open_sim_cell(cell_layout(), mugs) as cell:
             assert isinstance(cell.arm, ArmDriver)
             assert isinstance(cell.gripper, GripperDriver)
             assert isinstance(cell.force, ForceSensor)
@@ -127,7 +113,7 @@ def test_arm_driver_moves_the_physics_arm_and_a_grasp_lifts_then_drops_the_mug()
 
     async def main() -> None:
         mugs = scene_mugs([("a", "small", *MUG_XY)], MUG_TYPES)
-        async with open_sim_cell(cell_layout(), mugs, observer_factory=DetectorObserver) as cell:
+        async with open_sim_cell(cell_layout(), mugs) as cell:
             await body(cell, ArmModel.load())
 
     run(main())
@@ -136,7 +122,7 @@ def test_arm_driver_moves_the_physics_arm_and_a_grasp_lifts_then_drops_the_mug()
 def test_the_camera_pipeline_sees_the_counter_mugs_where_they_are() -> None:
     async def main() -> None:
         mugs = scene_mugs([("a", "small", 0.0, 0.45), ("b", "big", 0.25, 0.45)], MUG_TYPES)
-        async with open_sim_cell(full_camera_layout(), mugs, observer_factory=DetectorObserver) as cell:
+        async with open_sim_cell(full_camera_layout(), mugs) as cell:
             obs = await cell.observer.observe()
             seen = sorted((d.type, round(d.x_m, 2), round(d.y_m, 2)) for d in obs.detections)
             assert [s[0] for s in seen] == ["big", "small"]
@@ -151,7 +137,7 @@ def test_the_camera_pipeline_sees_the_counter_mugs_where_they_are() -> None:
 def test_a_new_counter_brings_a_new_world_with_the_arm_where_it_was() -> None:
     async def main() -> None:
         layout = cell_layout()
-        async with open_sim_cell(layout, [], observer_factory=DetectorObserver) as cell:
+        async with open_sim_cell(layout, []) as cell:
             before = (await cell.arm.read_joints()).position_rad
             cell.set_counter(scene_mugs([("z", "big", 0.1, 0.45)], MUG_TYPES))
             await asyncio.sleep(0.2)
