@@ -14,21 +14,16 @@ distance from the counter to the tray; ``thesis_energy_j`` gives it for comparis
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
 
 from drivers.interfaces import FloatArray
 from planning import thesis
-from planning.arm.grasp import lateral_offset_m, side_grasp
 from planning.arm.model import ArmModel
 from planning.arm.servos import SERVO_MODELS
-from planning.arm.targets import GraspKind, GraspTarget
-from planning.motion.cell import CellLayout, carry_height_m
 from planning.motion.trajectory import JointPath
-from planning.thesis import MugSpec
 
 
 @dataclass(frozen=True, slots=True)
@@ -126,72 +121,3 @@ class DynamicsEnergyModel:
         cached = (model, model.createData())
         self._models[key] = cached
         return cached
-
-
-@dataclass
-class DynamicsMoveCost:
-    """Time and electrical energy of one mug's cycle for the placement planner (``MoveCost``), from the
-    arm model: joint moves between the cycle's key poses (pick, flip, place at carry height) timed within
-    the servo limits and costed with RNEA and the servo model, plus the fine moves and gripper waits.
-
-    Collision checks are left to the cycle planner; poses are cached on a 5 mm grid so thousands of
-    candidate spots cost milliseconds each."""
-
-    arm: ArmModel
-    cell: CellLayout
-    catalogue: Mapping[str, MugSpec] = field(default_factory=lambda: dict(thesis.MUG_TYPES))
-    rate_hz: float = 25.0
-    gripper_s: float = 3.2  # two closes, two opens (CyclePlanner defaults)
-    fine_s: float = 8.0  # approach, lift, set-down, regrasp, descend, retreat at fine speed
-    _energy: DynamicsEnergyModel = field(init=False)
-    _ik: dict[tuple[int, int, str, str], FloatArray | None] = field(init=False, default_factory=dict)
-
-    def __post_init__(self) -> None:
-        self._energy = DynamicsEnergyModel(self.arm)
-        tallest = max(m.height_mm for m in self.catalogue.values()) / 1000.0
-        self._carry = carry_height_m(tallest)
-
-    def __call__(
-        self, mug_mass_kg: float, start_xy_m: tuple[float, float], goal_xy_m: tuple[float, float]
-    ) -> tuple[float, float]:
-        spec = min(self.catalogue.values(), key=lambda m: abs(m.mass_kg - mug_mass_kg))
-        pick = self._pose(start_xy_m, spec, GraspKind.SIDE)
-        flip_up = self._pose(self.cell.flip_area_center_m, spec, GraspKind.SIDE, flip=True)
-        flip_down = self._pose(self.cell.flip_area_center_m, spec, GraspKind.SIDE_UPSIDE_DOWN)
-        place = self._pose(goal_xy_m, spec, GraspKind.SIDE_UPSIDE_DOWN)
-        if pick is None or flip_up is None or flip_down is None or place is None:
-            return math.inf, math.inf
-        lateral = lateral_offset_m(spec, self.arm.gripper)
-        seconds = self.gripper_s + self.fine_s
-        joules = 0.0
-        for a, b in ((pick, flip_up), (flip_up, flip_down), (flip_down, place)):
-            path = JointPath(np.array([a, b]), self.arm.max_velocity, self.arm.max_acceleration)
-            seconds += path.duration
-            joules += self._energy.path_energy(
-                path, self.rate_hz, payload_kg=mug_mass_kg, payload_lateral_m=lateral
-            ).total_j
-        joules += self._energy.hold_energy_j(pick, self.gripper_s + self.fine_s, payload_kg=mug_mass_kg)
-        joules += self._energy.idle_energy_j(seconds)
-        return seconds, joules
-
-    def _pose(
-        self, xy: tuple[float, float], spec: MugSpec, kind: GraspKind, *, flip: bool = False
-    ) -> FloatArray | None:
-        key = (round(xy[0] * 200), round(xy[1] * 200), spec.name, f"{kind}{flip}")
-        if key in self._ik:
-            return self._ik[key]
-        try:
-            if flip:
-                g = side_grasp(
-                    xy[0], xy[1], spec, self.arm.gripper, z_m=self._carry, kind=GraspKind.SIDE_UPSIDE_DOWN
-                ).target
-                target = GraspTarget(g.position_m, kind)
-            else:
-                target = side_grasp(xy[0], xy[1], spec, self.arm.gripper, z_m=self._carry, kind=kind).target
-        except ValueError:
-            self._ik[key] = None
-            return None
-        result = self.arm.ik(target)
-        q = np.asarray(result.q) if result.ok and result.q is not None else None
-        self._ik[key] = q
-        return q

@@ -259,3 +259,31 @@ def test_a_mug_close_to_the_base_is_taken_from_above(planner: CyclePlanner, arm:
     end, _ = arm.fk(approach[-1].positions[-1])
     # Backing off 6 cm towards the base is out of the side-grasp ring this close in: the last move is short.
     assert float(np.linalg.norm(end - start)) < 0.035
+
+
+def test_a_mug_already_upside_down_skips_the_flip(planner: CyclePlanner, arm: ArmModel) -> None:
+    inverted = MugPose("m1", "big", -0.10, 0.45, upside_down=True)
+    cycle = planner.plan_cycle(START_Q, inverted, SLOT, [])
+    assert cycle.steps_for("flip") == ()
+    grasp = [s for s in cycle.steps if s.phase == "side_grasp.approach"][-1].trajectory
+    assert grasp is not None
+    _, rotation = arm.fk(grasp.positions[-1])
+    assert rotation[2, 0] == pytest.approx(1.0, abs=1e-3)  # taken with the upside-down grasp
+
+
+def test_a_calibration_correction_moves_the_commanded_grasp(arm: ArmModel, cell: CellLayout) -> None:
+    from planning.arm.calibration import FEATURES, PositionCorrection
+
+    # The real arm reaches 1 cm further along x than commanded: the planner commands 1 cm short.
+    offset = tuple(0.01 if f == "1" else 0.0 for f in FEATURES)
+    zero = tuple(0.0 for _ in FEATURES)
+    corrected = CyclePlanner(arm, cell, MUG_TYPES, correction=PositionCorrection((offset, zero, zero)))
+    cycle = corrected.plan_cycle(START_Q, MUG, SLOT, [])
+    position, _ = arm.fk(_end_of(cycle, "side_grasp.approach"))
+    plain, _ = arm.fk(_end_of(_plan_without_correction(arm, cell), "side_grasp.approach"))
+    assert position[0] == pytest.approx(plain[0] - 0.01, abs=1e-3)
+    assert position[1] == pytest.approx(plain[1], abs=1e-3)
+
+
+def _plan_without_correction(arm: ArmModel, cell: CellLayout) -> CyclePlan:
+    return CyclePlanner(arm, cell, MUG_TYPES).plan_cycle(START_Q, MUG, SLOT, [])
