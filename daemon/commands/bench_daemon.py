@@ -29,7 +29,7 @@ import zenoh
 from daemon.app import RunOptions, serve
 from daemon.backend import ProcessMotionPlanner, open_sim_backend
 from daemon.commands.bench import add_json_flag, emit
-from daemon.commands.run import association, planning_pool
+from daemon.commands.run import association, logs_to_stderr, planning_pool
 from daemon.config import load_config
 from daemon.errors import UsageError
 from daemon.job import StartRequest
@@ -78,10 +78,12 @@ class _Live:
     state_ms: list[float]
     joints_ms: list[float]
     jitter_ms: list[float]
+    baseline_jitter_ms: list[float]
     states_seen: int
 
 
 def _bench(args: argparse.Namespace) -> int:
+    logs_to_stderr()
     if not 10 <= args.commands <= 100_000:
         raise UsageError(f"--commands {args.commands}: choose 10-100000")
     if not 1.0 <= args.seconds <= 600:
@@ -107,6 +109,13 @@ def _bench(args: argparse.Namespace) -> int:
             *_percentiles(live.jitter_ms),
             len(live.jitter_ms),
             "p99 <= 5",
+        ],
+        [
+            "same, bare loop in another process",
+            "ms",
+            *_percentiles(live.baseline_jitter_ms),
+            len(live.baseline_jitter_ms),
+            "machine floor",
         ],
     ]
     emit(
@@ -156,13 +165,46 @@ async def _live(tmp: Path, commands: int, seconds: float) -> _Live:
         probe_errors: list[float] = []
         probing = asyncio.create_task(_probe(probe_errors))
         try:
+            baseline = _start_bare_probe(seconds)
             result = await asyncio.to_thread(_client_process, endpoint, commands, seconds)
+            baseline_errors = await asyncio.to_thread(_finish_bare_probe, baseline)
         finally:
             probing.cancel()
             stop.set()
             await daemon
     round_trip, state, joints, states_seen = result
-    return _Live(round_trip, state, joints, probe_errors, states_seen)
+    return _Live(round_trip, state, joints, probe_errors, baseline_errors, states_seen)
+
+
+_BareProbe = tuple[multiprocessing.process.BaseProcess, "multiprocessing.queues.Queue[list[float]]"]
+
+
+def _start_bare_probe(seconds: float) -> _BareProbe:
+    """The same 50 Hz probe on an idle event loop in its own process: what the machine's load alone costs."""
+    context = multiprocessing.get_context("spawn")
+    results: multiprocessing.queues.Queue[list[float]] = context.Queue()
+    process = context.Process(target=_bare_probe, args=(seconds, results), daemon=True)
+    process.start()
+    return process, results
+
+
+def _finish_bare_probe(probe: _BareProbe) -> list[float]:
+    process, results = probe
+    try:
+        return results.get(timeout=120)
+    finally:
+        process.join(timeout=10)
+
+
+def _bare_probe(seconds: float, results: multiprocessing.queues.Queue[list[float]]) -> None:
+    async def run() -> list[float]:
+        errors: list[float] = []
+        task = asyncio.create_task(_probe(errors))
+        await asyncio.sleep(seconds)
+        task.cancel()
+        return errors
+
+    results.put(asyncio.run(run()))
 
 
 async def _probe(errors: list[float]) -> None:

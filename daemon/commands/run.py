@@ -75,8 +75,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    # Logs go to stderr: stdout carries the --once summary.
-    structlog.configure(logger_factory=structlog.PrintLoggerFactory(sys.stderr))
+    logs_to_stderr()
     config = load_config(args.config)
     listen = tuple(_endpoints(args.listen, "--listen")) if args.listen else config.zenoh.listen
     connect = tuple(_endpoints(args.connect, "--connect")) if args.connect else config.zenoh.connect
@@ -103,8 +102,13 @@ def _run(args: argparse.Namespace) -> int:
 def planning_pool() -> concurrent.futures.ProcessPoolExecutor:
     """One worker process for placement and motion planning (forkserver: never fork Zenoh's threads)."""
     return concurrent.futures.ProcessPoolExecutor(
-        max_workers=1, mp_context=multiprocessing.get_context("forkserver")
+        max_workers=1, mp_context=multiprocessing.get_context("forkserver"), initializer=logs_to_stderr
     )
+
+
+def logs_to_stderr() -> None:
+    """Send structlog output to stderr: stdout carries summaries and tables."""
+    structlog.configure(logger_factory=structlog.PrintLoggerFactory(sys.stderr))
 
 
 async def _serve(

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import pytest
 import zenoh
 
 from daemon.recording import read_messages
@@ -39,6 +40,7 @@ def _query(session: zenoh.Session, verb: str, body: dict[str, Any] | None = None
     return None
 
 
+@pytest.mark.slow
 def test_run_sim_places_the_planned_mugs_and_records_what_it_published(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = tmp_path / "robot.toml"

@@ -1,0 +1,33 @@
+"""``dishbot bench daemon`` runs end to end and reports every measure (the numbers are not judged here)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from daemon.cli import main
+
+
+@pytest.mark.slow
+def test_bench_daemon_reports_every_measure_as_json(capsys: pytest.CaptureFixture[str]) -> None:
+    assert (
+        main(["bench", "daemon", "--commands", "10", "--seconds", "1", "--messages", "1000", "--json"]) == 0
+    )
+    doc = json.loads(capsys.readouterr().out)
+    measures = {row["measure"]: row for row in doc["rows"]}
+    assert list(measures) == [
+        "command round trip (status)",
+        "state publish -> receive",
+        "joints publish -> receive",
+        "event loop period error at 50 Hz",
+        "same, bare loop in another process",
+    ]
+    assert measures["command round trip (status)"]["samples"] == 10
+    assert all(row["p50"] <= row["p99"] <= row["max"] for row in doc["rows"])
+    assert doc["recording_messages_per_s"] > 0
+
+
+def test_bench_daemon_refuses_a_silly_size(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "daemon", "--commands", "3"]) == 2
+    assert capsys.readouterr().err == "dishbot bench: error: --commands 3: choose 10-100000\n"
