@@ -173,6 +173,7 @@ class SimWorld:
         # Held by the physics thread while it steps; take it to read or render a consistent state.
         self.lock = threading.RLock()
         self._servos = self._bind_servos()
+        self._present: dict[int, tuple[float, float, float]] = {}
         self._mug_body = {m: self._id(mujoco.mjtObj.mjOBJ_BODY, MUG_BODY_PREFIX + m) for m in self.mug_ids}
         self._weld = {m: self._id(mujoco.mjtObj.mjOBJ_EQUALITY, WELD_PREFIX + m) for m in self.mug_ids}
         self._fsr_pad = self._id(mujoco.mjtObj.mjOBJ_GEOM, FSR_PAD_GEOM)
@@ -289,26 +290,26 @@ class SimWorld:
             s.setpoint = s.goal = float(self.data.qpos[s.qpos_adr])
             self.data.ctrl[s.actuator] = s.setpoint
         self._advance(0.3)
+        self._publish_present()
         self.data.time = 0.0
         self._next_monitor = 0.0
 
     # --------------------------------------------------------------------------------- the servo plant
 
     def set_goal(self, servo_id: int, position_rad: float, speed_rad_s: float) -> None:
-        """A new goal position and moving speed for one servo (``speed_rad_s`` <= 0: as fast as it can)."""
+        """A new goal position and moving speed for one servo (``speed_rad_s`` <= 0: as fast as it can).
+
+        Lock-free (two attribute writes the physics thread reads each step): the bus simulator must never
+        wait for a batch of physics steps, or the driver sees a servo that does not answer."""
         s = self._servo(servo_id)
-        with self.lock:
-            s.goal = min(max(position_rad, s.lower), s.upper)
-            s.speed = s.max_speed if speed_rad_s <= 0.0 else min(speed_rad_s, s.max_speed)
+        s.speed = s.max_speed if speed_rad_s <= 0.0 else min(speed_rad_s, s.max_speed)
+        s.goal = min(max(position_rad, s.lower), s.upper)
 
     def present(self, servo_id: int) -> tuple[float, float, float]:
-        """Present position (rad), velocity (rad/s) and load (signed fraction of the stall torque)."""
-        s = self._servo(servo_id)
-        with self.lock:
-            position = float(self.data.qpos[s.qpos_adr])
-            velocity = float(self.data.qvel[s.dof_adr])
-            torque = float(self.data.actuator_force[s.actuator])
-        return position, velocity, max(-1.0, min(1.0, torque / s.stall_torque))
+        """Present position (rad), velocity (rad/s) and load (signed fraction of the stall torque), as of
+        the last physics step. Lock-free, like ``set_goal``."""
+        self._servo(servo_id)
+        return self._present[servo_id]
 
     def set_torque(self, servo_id: int, on: bool) -> None:
         """Torque on holds the present position; torque off lets the joint hang on its gearbox friction."""
@@ -477,11 +478,24 @@ class SimWorld:
         for _ in range(steps):
             self._drive_servos(dt)
             mujoco.mj_step(self.model, self.data)
+            self._publish_present()
             if self.data.time >= self._next_monitor:
                 self._next_monitor = self.data.time + self.physics.monitor_period_s
                 self._monitor()
         if not np.all(np.isfinite(self.data.qpos)):
             raise SimModelError(f"the simulation diverged at t={self.time():.3f} s (non-finite positions)")
+
+    def _publish_present(self) -> None:
+        """Swap in a fresh snapshot of every servo's state (one reference assignment: atomic for readers)."""
+        d = self.data
+        self._present = {
+            sid: (
+                float(d.qpos[s.qpos_adr]),
+                float(d.qvel[s.dof_adr]),
+                max(-1.0, min(1.0, float(d.actuator_force[s.actuator]) / s.stall_torque)),
+            )
+            for sid, s in self._servos.items()
+        }
 
     def _drive_servos(self, dt: float) -> None:
         for s in self._servos.values():
