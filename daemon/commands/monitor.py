@@ -99,7 +99,7 @@ def _monitor(args: argparse.Namespace) -> int:
                 else:
                     sys.stdout.writelines(line + "\n" for line in lines)
                 sys.stdout.flush()
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, BrokenPipeError):  # Ctrl-C, or the reader (e.g. head) went away
             pass
         del subscribers
     return 0
