@@ -60,7 +60,7 @@ class DetectorParams:
     ransac_sample: int = 4000
     band_below_m: float = 0.014  # brim band: cells this far below a type's height ...
     band_above_m: float = 0.016  # ... up to this far above it (a tray lifts a mug a few millimetres)
-    min_votes: float = 0.50  # Hough peak: this fraction of a full circle of brim edge must agree
+    min_votes: float = 0.70  # Hough peak: this fraction of a full circle of brim edge must agree
     min_support: float = 0.55  # fraction of the fitted brim circle that must be seen
     max_residual_m: float = 0.0024  # RMS distance of the brim cells from the fitted circle: it must be round
     max_spill_m: float = 0.004  # how far the surface at brim height may reach past the brim (box corners do)
@@ -163,8 +163,12 @@ class DepthMugDetector:
         """Every brim fit, accepted or not (for diagnosis), the camera's xy in the levelled frame and the
         height map."""
         p = self._params
-        grid = self._pixel_grid(frame)
         world_from_camera = np.asarray(frame.world_from_camera, dtype=np.float64)
+        grid = self._pixel_grid(frame)
+        if self._region is not None:
+            grid = grid.crop(
+                _pixels_seeing(self._region, p.max_height_m, frame.intrinsics, world_from_camera)
+            )
         table_from_world, table_xy = _level_on_table(grid, world_from_camera, p)
         table_from_camera = table_from_world @ world_from_camera
         region = self._region or _region_around(table_xy)
@@ -226,16 +230,19 @@ class DepthMugDetector:
     def _hough_peaks(self, band: BoolArray, radius_cells: float) -> list[tuple[float, float, float]]:
         """Candidate brim centres (row, column in raster cells, votes), strongest first.
 
-        The votes are cast on a raster twice as coarse as the height map: the peak only has to fall within
-        the refinement's reach, and the coarse vote is a sixteenth of the work.
+        The votes are cast on a raster ``_HOUGH_FACTOR`` times as coarse as the height map: the peak only has
+        to fall within the refinement's reach (a centimetre), and the coarse vote is far less work.
         """
+        f = _HOUGH_FACTOR
         eroded = cv2.erode(band.astype(np.uint8), _CROSS)
         boundary = (band & ~eroded.astype(bool)).astype(np.float32)
-        coarse = cv2.resize(boundary, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA) * 4.0
-        r = radius_cells / 2.0
+        h, w = boundary.shape
+        boundary = boundary[: h - h % f, : w - w % f]
+        coarse = cv2.resize(boundary, None, fx=1 / f, fy=1 / f, interpolation=cv2.INTER_AREA) * float(f * f)
+        r = radius_cells / f
         key = round(r * 10)
         if key not in self._kernels:
-            self._kernels[key] = _ring_kernel(r)
+            self._kernels[key] = _ring_kernel(r, f)
         votes = cv2.filter2D(coarse, cv2.CV_32F, self._kernels[key], borderType=cv2.BORDER_CONSTANT)
         local_max = cv2.dilate(votes, _SQUARE5)
         ys, xs = np.nonzero((votes >= local_max) & (votes >= self._params.min_votes))
@@ -245,22 +252,26 @@ class DepthMugDetector:
         for i in order:
             if all((ys[i] - a) ** 2 + (xs[i] - b) ** 2 > min_sq for a, b, _ in peaks):
                 peaks.append((float(ys[i]), float(xs[i]), float(votes[ys[i], xs[i]])))
-        return [(2.0 * a + 0.5, 2.0 * b + 0.5, v) for a, b, v in peaks]
+        centre = (f - 1) / 2  # fine-cell index of a coarse cell's centre
+        return [(f * a + centre, f * b + centre, v) for a, b, v in peaks]
 
 
 _CROSS: Final = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 _DISC5: Final = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
 _SQUARE5: Final = np.ones((5, 5), np.uint8)
+_HOUGH_FACTOR: Final = 3
 
 
-def _ring_kernel(radius_cells: float) -> F32Array:
-    """A ring of width ±1 cell, normalised so a full circle of boundary cells at the radius scores 1.
+def _ring_kernel(radius_cells: float, factor: int) -> F32Array:
+    """A ring of width ±1 cell on a raster ``factor`` times coarser than the height map, normalised so a
+    full circle of boundary cells at the radius scores 1 (a brim seen all round, inner and outer edge, 2).
 
-    A brim seen all round, with its inner and outer edge, scores up to 2."""
+    A coarse cell sums the boundary cells of ``factor``² fine ones, and a fine circle of radius R crosses
+    ``factor`` times as many cells as the coarse ring of radius R / ``factor`` holds along its length."""
     n = math.ceil(radius_cells) + 2
     yy, xx = np.mgrid[-n : n + 1, -n : n + 1]
     ring: F32Array = (np.abs(np.hypot(yy, xx) - radius_cells) <= 1.0).astype(np.float32)
-    return ring / np.float32(ring.sum())
+    return ring / np.float32(ring.sum() * factor / 2.0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -271,6 +282,34 @@ class _PixelGrid:
     ry: F32Array
     z: F32Array
     valid: BoolArray
+
+    def crop(self, box: tuple[slice, slice]) -> _PixelGrid:
+        """The pixels inside ``box`` (rows, columns) only."""
+        return _PixelGrid(self.rx[box], self.ry[box], self.z[box], self.valid[box])
+
+
+def _pixels_seeing(
+    region: tuple[float, float, float, float],
+    height_m: float,
+    K: CameraIntrinsics,
+    world_from_camera: FloatArray,
+) -> tuple[slice, slice]:
+    """The image rows and columns that can see the search region (up to ``height_m`` above the table), with
+    a margin for an extrinsic that is a little off; the whole image when the region reaches behind the camera.
+    """
+    x0, y0, x1, y1 = region
+    corners = np.array([(x, y, z, 1.0) for x in (x0, x1) for y in (y0, y1) for z in (0.0, height_m)])
+    cam = (np.linalg.inv(world_from_camera) @ corners.T)[:3]
+    if np.any(cam[2] <= 0.05):
+        return slice(0, K.height), slice(0, K.width)
+    u = K.fx * cam[0] / cam[2] + K.cx
+    v = K.fy * cam[1] / cam[2] + K.cy
+    margin = 0.05 * max(K.width, K.height)
+    c0, c1 = max(int(u.min() - margin), 0), min(int(u.max() + margin) + 1, K.width)
+    r0, r1 = max(int(v.min() - margin), 0), min(int(v.max() + margin) + 1, K.height)
+    if c1 - c0 < 2 or r1 - r0 < 2:
+        return slice(0, K.height), slice(0, K.width)
+    return slice(r0, r1), slice(c0, c1)
 
 
 def _coordinate(T: FloatArray, axis: int, rx: F32Array, ry: F32Array, z: F32Array) -> F32Array:
@@ -396,7 +435,7 @@ def _refine(
     R = spec.diameter_mm / 2000.0
     rim_r = R - RIM_INSET_M
     h = spec.height_mm / 1000.0
-    w = raster.window(raster.centre_of(*peak), R + 0.035)
+    w = raster.window(raster.centre_of(*peak), R + 0.022)
     inner = w.dist < 0.6 * rim_r
     upside_down = bool(w.of(filled)[inner].mean() > 0.5) if inner.any() else False
     # An open mug shows a ring at its brim; an upside-down one a closed disc whose edge is the brim.
@@ -475,31 +514,51 @@ def _fit_circle(
     centre; the radius is held unless ``free_radius``. Returns the centre's offset, radius, RMS residual."""
     cx, cy, r = 0.0, 0.0, radius
     huber = 0.003
-    for _ in range(12):
+    for _ in range(8):
         dx, dy = x - cx, y - cy
         d = np.maximum(np.sqrt(dx * dx + dy * dy), 1e-9)
         ux, uy = dx / d, dy / d
         res = d - r
         w = np.minimum(1.0, huber / np.maximum(np.abs(res), 1e-12))
+        wx, wy = w * ux, w * uy
         # Normal equations of the weighted problem; residual derivatives are (-ux, -uy, -1).
-        sxx, sxy, syy = float(w @ (ux * ux)), float(w @ (ux * uy)), float(w @ (uy * uy))
-        gx, gy = float(w @ (ux * res)), float(w @ (uy * res))
+        a11, a12, a22 = float(wx @ ux), float(wx @ uy), float(wy @ uy)
+        b1, b2 = float(wx @ res), float(wy @ res)
         if free_radius:
-            sx, sy, s1, g1 = float(w @ ux), float(w @ uy), float(w.sum()), float(w @ res)
-            A = np.array([[sxx, sxy, sx], [sxy, syy, sy], [sx, sy, s1]])
-            step = np.linalg.solve(A + 1e-12 * np.eye(3), np.array([gx, gy, g1]))
-            sx_, sy_, sr = float(step[0]), float(step[1]), float(step[2])
+            a13, a23, a33, b3 = float(wx.sum()), float(wy.sum()), float(w.sum()), float(w @ res)
+            step = _solve3((a11, a12, a13, a22, a23, a33), (b1, b2, b3))
         else:
-            det = sxx * syy - sxy * sxy
-            if abs(det) < 1e-18:
-                break
-            sx_, sy_, sr = (syy * gx - sxy * gy) / det, (sxx * gy - sxy * gx) / det, 0.0
-        cx, cy, r = cx + sx_, cy + sy_, r + sr
-        if sx_ * sx_ + sy_ * sy_ < 4e-10:
+            det = a11 * a22 - a12 * a12
+            step = (
+                None if abs(det) < 1e-18 else ((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det, 0.0)
+            )
+        if step is None:
+            break
+        cx, cy, r = cx + step[0], cy + step[1], r + step[2]
+        if step[0] * step[0] + step[1] * step[1] < 2.5e-9:  # under 50 µm: far below what the data resolve
             break
     dx, dy = x - cx, y - cy
     res = np.sqrt(dx * dx + dy * dy) - r
     return (cx, cy), r, float(np.sqrt(np.mean(res * res)))
+
+
+def _solve3(
+    a: tuple[float, float, float, float, float, float], b: tuple[float, float, float]
+) -> tuple[float, float, float] | None:
+    """Solve the symmetric 3×3 system [[a0 a1 a2] [a1 a3 a4] [a2 a4 a5]] x = b by Cramer's rule (numpy's
+    solver costs more than the arithmetic at this size)."""
+    a0, a1, a2, a3, a4, a5 = a
+    c0 = a3 * a5 - a4 * a4
+    c1 = a2 * a4 - a1 * a5
+    c2 = a1 * a4 - a2 * a3
+    det = a0 * c0 + a1 * c1 + a2 * c2
+    if abs(det) < 1e-24:
+        return None
+    b0, b1, b2 = b
+    x0 = (b0 * c0 + b1 * c1 + b2 * c2) / det
+    x1 = (b0 * c1 + b1 * (a0 * a5 - a2 * a2) + b2 * (a1 * a2 - a0 * a4)) / det
+    x2 = (b0 * c2 + b1 * (a1 * a2 - a0 * a4) + b2 * (a0 * a3 - a1 * a1)) / det
+    return x0, x1, x2
 
 
 def _handle_yaw(
