@@ -149,3 +149,21 @@ def test_an_empty_catalogue_is_refused() -> None:
         ValueError, match=r"^the mug catalogue is empty; configure at least one \[mug_types.<name>\]$"
     ):
         DepthMugDetector({})
+
+
+def test_a_hidden_handle_is_reported_pointing_away_from_the_camera(
+    detector: DepthMugDetector, layout: SceneLayout
+) -> None:
+    x0, y0, x1, y1 = layout.counter_region_m
+    yc = (y0 + y1) / 2
+    # The camera looks along -y; a handle towards -y is behind its mug, one towards +y in plain view.
+    hidden = SceneMug("hidden", SMALL_MUG, x1 - 0.15, yc, yaw_rad=-math.pi / 2)
+    shown = SceneMug("shown", SMALL_MUG, x0 + 0.15, yc, yaw_rad=math.pi / 2)
+    found = detector.detect(render(layout, [hidden, shown], noise=DepthNoise(), seed=3))
+    by_id = {
+        m.mug_id: d for m in (hidden, shown) for d in found if math.hypot(d.x_m - m.x_m, d.y_m - m.y_m) < 0.01
+    }
+    assert abs(math.remainder(by_id["hidden"].handle_yaw_rad - hidden.yaw_rad, 2 * math.pi)) < math.radians(
+        35
+    )
+    assert by_id["hidden"].confidence < by_id["shown"].confidence
