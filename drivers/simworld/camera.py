@@ -48,23 +48,26 @@ class DepthNoise:
             raise ValueError("DepthNoise.baseline_m and focal_px must be positive")
 
     def apply(self, depth_m: npt.NDArray[np.float32], rng: np.random.Generator) -> npt.NDArray[np.float32]:
-        """A noisy copy of an ideal planar depth image (0 stays 0)."""
-        z = depth_m.astype(np.float64)
+        """A noisy copy of an ideal planar depth image (0 stays 0). Single precision: the steps it models
+        are millimetres, and it runs on every simulated frame."""
+        z = np.asarray(depth_m, dtype=np.float32)
         valid = (z >= self.min_range_m) & (z <= self.max_range_m)
-        noisy = z + rng.standard_normal(z.shape) * (self.sigma_at_1m_m * z * z)
+        noisy = z + rng.standard_normal(z.shape, dtype=np.float32) * (np.float32(self.sigma_at_1m_m) * z * z)
         if self.disparity_step_px > 0:
-            fb = self.focal_px * self.baseline_m
-            disparity = fb / np.where(valid, noisy, 1.0)
-            disparity = np.round(disparity / self.disparity_step_px) * self.disparity_step_px
-            noisy = fb / np.maximum(disparity, 1e-9)
-        lost = rng.random(z.shape) < self.random_dropout
+            fb = np.float32(self.focal_px * self.baseline_m)
+            step = np.float32(self.disparity_step_px)
+            disparity = np.round(fb / np.where(valid, noisy, np.float32(1.0)) / step) * step
+            noisy = (fb / np.maximum(disparity, np.float32(1e-6))).astype(np.float32)
+        # One uniform draw serves both dropouts: a pixel is lost at random, or more often behind an edge.
+        u = rng.random(z.shape, dtype=np.float32)
+        lost = u < self.random_dropout
         if self.edge_dropout > 0:
-            lost |= _far_side_of_edges(z, self.edge_jump_m) & (rng.random(z.shape) < self.edge_dropout)
-        out = np.where(valid & ~lost, noisy, 0.0)
-        return out.astype(np.float32)
+            lost |= _far_side_of_edges(z, self.edge_jump_m) & (u < self.edge_dropout)
+        out: npt.NDArray[np.float32] = np.where(valid & ~lost, noisy, np.float32(0.0)).astype(np.float32)
+        return out
 
 
-def _far_side_of_edges(z: FloatArray, jump_m: float) -> npt.NDArray[np.bool_]:
+def _far_side_of_edges(z: npt.NDArray[np.float32], jump_m: float) -> npt.NDArray[np.bool_]:
     """Pixels that are more than ``jump_m`` farther than one of their 4-neighbours."""
     edge = np.zeros(z.shape, dtype=bool)
     dv = z[1:, :] - z[:-1, :]
