@@ -200,85 +200,133 @@ class CyclePlanner:
         on_tray: Sequence[TraySlot],
         counter: Sequence[MugPose],
     ) -> list[_Motion]:
-        h = spec.height_mm / 1000.0
-        carry = self.carry_z_m
-        z_grasp = thesis.GRASP_HEIGHT_M
-        mass = spec.mass_kg
-        others = [m for m in counter if m.mug_id != mug.mug_id]
-        placed = list(on_tray)
-        delta = lateral_offset_m(spec, self.arm.gripper)
-        # The side grasp holds the mug 6 cm above its base with the grasp frame's x pointing down; after the
-        # flip and regrasp the x axis points up and the brim is 6 cm below the grasp point.
-        radius = spec.diameter_mm / 2000.0
-        first_held = HeldMug(f"mug {mug.mug_id}", radius, delta, z_grasp - h, z_grasp)
-        upside_down_held = HeldMug(f"mug {mug.mug_id}", radius, delta, -z_grasp, h - z_grasp)
-        holding_aperture = spec.diameter_mm / 1000.0
-        opened = self.open_aperture_m
-        tray_z = self.cell.tray_floor_m
+        c = _CycleContext(self, mug, spec, slot, on_tray, counter)
         plan = _Builder(self, start)
 
-        # side_grasp: from above and behind the mug down to grasp height, in, close, up.
-        pick_kind = GraspKind.SIDE_UPSIDE_DOWN if mug.upside_down else GraspKind.SIDE
-        pick = self._grasp(mug.x_m, mug.y_m, spec, pick_kind, z_grasp, f"grasp of mug {mug.mug_id}")
-        world = self._world(others, placed, target=mug, target_spec=spec)
-        lift_world = self._world(others, placed)
-        self._first_move(plan, pick, world, mug.mug_id)
+        def pick_and_place(b: _Builder, kind: GraspKind) -> None:
+            self._pick(b, c, kind)
+            self._place(b, c, kind)
+
+        def regrasp_and_place(b: _Builder, kind: GraspKind) -> None:
+            self._regrasp(b, c, kind)
+            self._place(b, c, kind)
+
+        if mug.upside_down:
+            # Already upside down: no flip; either wrist roll can take it and place it.
+            return self._either_roll(plan, pick_and_place)
+        self._pick(plan, c, GraspKind.SIDE)
+        self._flip(plan, c)
+        return self._either_roll(plan, regrasp_and_place)
+
+    def _either_roll(self, plan: _Builder, moves: Callable[[_Builder, GraspKind], None]) -> list[_Motion]:
+        """Finish the cycle holding the inverted mug with the wrist turned (finger on the mug's right, as
+        the thesis did) or, when that collides, with the wrist level (finger on the left): between close
+        neighbours on the tray the opening finger needs the free side."""
+        reasons = []
+        for kind, roll in ((GraspKind.SIDE_UPSIDE_DOWN, "wrist turned"), (GraspKind.SIDE, "wrist level")):
+            trial = plan.fork()
+            try:
+                moves(trial, kind)
+            except MotionRefused as e:
+                reasons.append((roll, str(e)))
+                continue
+            plan.adopt(trial)
+            return plan.motions
+        (_, first), (roll, second) = reasons
+        raise MotionRefused(first if first == second else f"{first}; with the {roll}: {second}")
+
+    def _pick(self, plan: _Builder, c: _CycleContext, kind: GraspKind) -> None:
+        """side_grasp: from above and behind the mug down to grasp height, in, close, up."""
+        pick = self._grasp(
+            c.mug.x_m, c.mug.y_m, c.spec, kind, thesis.GRASP_HEIGHT_M, f"grasp of mug {c.mug.mug_id}"
+        )
+        world = self._world(c.others, c.placed, target=c.mug, target_spec=c.spec)
+        self._first_move(plan, pick, world, c.mug.mug_id)
         plan.gripper("side_grasp.close", StepKind.CLOSE)
-        held = upside_down_held if mug.upside_down else first_held
+        held = c.held(kind)
         plan.line(
-            "side_grasp.lift", _at_z(pick, carry), lift_world, aperture=holding_aperture, held=held, mass=mass
+            "side_grasp.lift",
+            _at_z(pick, self.carry_z_m),
+            c.lift_world,
+            aperture=c.holding,
+            held=held,
+            mass=c.mass,
         )
 
-        if not mug.upside_down:
-            fx, fy = self.cell.flip_area_center_m
-            set_down_z = h - z_grasp + self.release_gap_m
-            set_down = self._grasp(fx, fy, spec, GraspKind.SIDE_UPSIDE_DOWN, set_down_z, "flip set-down")
-            above_flip = GraspTarget(_xy_at(set_down, carry), GraspKind.SIDE)
-            plan.arc(
-                "flip.transit", above_flip, lift_world, aperture=holding_aperture, held=first_held, mass=mass
-            )
-            turned = GraspTarget(above_flip.position_m, GraspKind.SIDE_UPSIDE_DOWN)
-            plan.joint_move(
-                "flip.turn", turned, lift_world, aperture=holding_aperture, held=first_held, mass=mass
-            )
-            plan.line(
-                "flip.set_down", set_down, lift_world, aperture=holding_aperture, held=first_held, mass=mass
-            )
-            plan.gripper("flip.release", StepKind.OPEN)
-            flipped = MugPose(mug.mug_id, mug.type, fx, fy, upside_down=True)
-            flip_world = self._world(others, placed, target=flipped, target_spec=spec)
-            regrasp = self._grasp(fx, fy, spec, GraspKind.SIDE_UPSIDE_DOWN, z_grasp, "flip regrasp")
-            self._regrasp(plan, set_down, regrasp, flip_world, mug.mug_id)
-            plan.gripper("flip.close", StepKind.CLOSE)
-            plan.line(
-                "flip.lift",
-                _at_z(regrasp, carry),
-                lift_world,
-                aperture=holding_aperture,
-                held=upside_down_held,
-                mass=mass,
-            )
+    def _flip(self, plan: _Builder, c: _CycleContext) -> None:
+        """flip: carry to above the flip area, turn the wrist by pi, set the mug down upside down, let go."""
+        fx, fy = self.cell.flip_area_center_m
+        h = c.spec.height_mm / 1000.0
+        set_down_z = h - thesis.GRASP_HEIGHT_M + self.release_gap_m
+        set_down = self._grasp(fx, fy, c.spec, GraspKind.SIDE_UPSIDE_DOWN, set_down_z, "flip set-down")
+        above = GraspTarget(_xy_at(set_down, self.carry_z_m), GraspKind.SIDE)
+        held = c.held(GraspKind.SIDE)  # the mug stays where it is in the gripper while the wrist turns
+        plan.arc("flip.transit", above, c.lift_world, aperture=c.holding, held=held, mass=c.mass)
+        turned = GraspTarget(above.position_m, GraspKind.SIDE_UPSIDE_DOWN)
+        plan.joint_move("flip.turn", turned, c.lift_world, aperture=c.holding, held=held, mass=c.mass)
+        plan.line("flip.set_down", set_down, c.lift_world, aperture=c.holding, held=held, mass=c.mass)
+        plan.gripper("flip.release", StepKind.OPEN)
+        c.set_down = set_down
 
-        place_z = tray_z + z_grasp + self.release_gap_m
-        place = self._grasp(
-            slot.x_m, slot.y_m, spec, GraspKind.SIDE_UPSIDE_DOWN, place_z, f"slot of {mug.mug_id}"
+    def _regrasp(self, plan: _Builder, c: _CycleContext, kind: GraspKind) -> None:
+        """flip.regrasp .. flip.lift: back off the inverted mug, go to grasp height (turning the wrist if
+        the other roll is wanted), go in, close, lift."""
+        assert c.set_down is not None
+        set_down = c.set_down
+        fx, fy = self.cell.flip_area_center_m
+        opened = self.open_aperture_m
+        regrasp = self._grasp(fx, fy, c.spec, kind, thesis.GRASP_HEIGHT_M, "flip regrasp")
+        flipped = MugPose(c.mug.mug_id, c.mug.type, fx, fy, upside_down=True)
+        world = self._world(c.others, c.placed, target=flipped, target_spec=c.spec)
+
+        def moves(b: _Builder, back: float, side: float) -> None:
+            off = self._clear_of(set_down, back, side)
+            b.line("flip.regrasp", off, world, aperture=opened, ignore=c.mug.mug_id)
+            pre = self._clear_of(regrasp, back, side)
+            if kind is not set_down.kind:
+                # Rolling the wrist sweeps the palm round the approach axis: do it up at carry height.
+                carry = self.carry_z_m
+                b.line("flip.regrasp", _at_z(off, carry), world, aperture=opened)
+                b.joint_move("flip.regrasp", _at_z(pre, carry), world, aperture=opened)
+            b.line("flip.regrasp", pre, world, aperture=opened)
+            b.line("flip.regrasp", regrasp, world, aperture=opened, ignore=c.mug.mug_id)
+
+        self._try_offsets(plan, "flip.regrasp", moves)
+        plan.gripper("flip.close", StepKind.CLOSE)
+        held = c.held(kind)
+        plan.line(
+            "flip.lift",
+            _at_z(regrasp, self.carry_z_m),
+            c.lift_world,
+            aperture=c.holding,
+            held=held,
+            mass=c.mass,
         )
-        held = upside_down_held
+
+    def _place(self, plan: _Builder, c: _CycleContext, kind: GraspKind) -> None:
+        """place: carry to above the slot, descend until the brim is just above the tray, let go, back off."""
+        tray_z = self.cell.tray_floor_m
+        place_z = tray_z + thesis.GRASP_HEIGHT_M + self.release_gap_m
+        place = self._grasp(c.slot.x_m, c.slot.y_m, c.spec, kind, place_z, f"slot of {c.mug.mug_id}")
+        held = c.held(kind)
+        carry = self.carry_z_m
         plan.arc(
-            "place.transit", _at_z(place, carry), lift_world, aperture=holding_aperture, held=held, mass=mass
+            "place.transit", _at_z(place, carry), c.lift_world, aperture=c.holding, held=held, mass=c.mass
         )
-        plan.line("place.descend", place, lift_world, aperture=holding_aperture, held=held, mass=mass)
+        plan.line("place.descend", place, c.lift_world, aperture=c.holding, held=held, mass=c.mass)
         plan.gripper("place.release", StepKind.OPEN)
-        placed_now = MugPose(mug.mug_id, mug.type, slot.x_m, slot.y_m, upside_down=True)
-        done_world = self._world(others, placed, target=placed_now, target_spec=spec, target_floor=tray_z)
+        placed_now = MugPose(c.mug.mug_id, c.mug.type, c.slot.x_m, c.slot.y_m, upside_down=True)
+        done_world = self._world(
+            c.others, c.placed, target=placed_now, target_spec=c.spec, target_floor=tray_z
+        )
+        opened = self.open_aperture_m
 
         def retreat(b: _Builder, back: float, side: float) -> None:
             clear = self._clear_of(place, back, side)
-            b.line("place.retreat", clear, done_world, aperture=opened, ignore=mug.mug_id)
+            b.line("place.retreat", clear, done_world, aperture=opened, ignore=c.mug.mug_id)
             b.line("place.retreat", _at_z(clear, carry), done_world, aperture=opened)
 
         self._try_offsets(plan, "place.retreat", retreat)
-        return plan.motions
 
     def _first_move(self, plan: _Builder, pick: GraspTarget, world: CollisionWorld, mug_id: str) -> None:
         """side_grasp.approach: to above the pre-grasp point at carry height, down, then in to the grasp.
@@ -300,19 +348,6 @@ class CyclePlanner:
             b.line(phase, pick, world, aperture=opened, ignore=mug_id)
 
         self._try_offsets(plan, phase, approach)
-
-    def _regrasp(
-        self, plan: _Builder, set_down: GraspTarget, regrasp: GraspTarget, world: CollisionWorld, mug_id: str
-    ) -> None:
-        """flip.regrasp: let go of the inverted mug, back off, move to grasp height and go in again."""
-        opened = self.open_aperture_m
-
-        def moves(b: _Builder, d: float, side: float) -> None:
-            b.line("flip.regrasp", self._clear_of(set_down, d, side), world, aperture=opened, ignore=mug_id)
-            b.line("flip.regrasp", self._clear_of(regrasp, d, side), world, aperture=opened)
-            b.line("flip.regrasp", regrasp, world, aperture=opened, ignore=mug_id)
-
-        self._try_offsets(plan, "flip.regrasp", moves)
 
     def _try_offsets(
         self, plan: _Builder, phase: str, moves: Callable[[_Builder, float, float], object]
@@ -439,6 +474,40 @@ class CyclePlanner:
             thickness=self.cell.tray_wall_thickness_m,
         )
         return CollisionWorld(self.arm, cylinders, walls)
+
+
+class _CycleContext:
+    """What every part of one mug's cycle needs: the mug, its slot, the obstacles and how it is held."""
+
+    def __init__(
+        self,
+        planner: CyclePlanner,
+        mug: MugPose,
+        spec: MugSpec,
+        slot: TraySlot,
+        on_tray: Sequence[TraySlot],
+        counter: Sequence[MugPose],
+    ) -> None:
+        self.mug = mug
+        self.spec = spec
+        self.slot = slot
+        self.others = [m for m in counter if m.mug_id != mug.mug_id]
+        self.placed = list(on_tray)
+        self.mass = spec.mass_kg
+        self.holding = spec.diameter_mm / 1000.0
+        self.lift_world = planner._world(self.others, self.placed)
+        self.set_down: GraspTarget | None = None
+        self._delta = lateral_offset_m(spec, planner.arm.gripper)
+
+    def held(self, kind: GraspKind) -> HeldMug:
+        """The mug in the gripper, grasped 6 cm above its lower end: with the wrist level (x down) that end
+        is at +6 cm along the grasp frame's x, with the wrist turned (x up) at -6 cm."""
+        h = self.spec.height_mm / 1000.0
+        z = thesis.GRASP_HEIGHT_M
+        radius = self.spec.diameter_mm / 2000.0
+        if kind is GraspKind.SIDE:
+            return HeldMug(f"mug {self.mug.mug_id}", radius, self._delta, z - h, z)
+        return HeldMug(f"mug {self.mug.mug_id}", radius, self._delta, -z, h - z)
 
 
 class _Builder:

@@ -287,3 +287,28 @@ def test_a_calibration_correction_moves_the_commanded_grasp(arm: ArmModel, cell:
 
 def _plan_without_correction(arm: ArmModel, cell: CellLayout) -> CyclePlan:
     return CyclePlanner(arm, cell, MUG_TYPES).plan_cycle(START_Q, MUG, SLOT, [])
+
+
+def test_a_neighbour_on_the_finger_side_makes_the_planner_place_with_the_wrist_level(
+    planner: CyclePlanner, arm: ArmModel
+) -> None:
+    # A small mug 1 cm (the packing tolerance) to the right of the slot: the finger of the turned wrist,
+    # on the mug's right, would open into it.
+    right = TraySlot("m4", "small", SLOT.x_m, SLOT.y_m - 0.0455 - 0.037 - 0.010)
+    cycle = planner.plan_cycle(START_Q, MUG, SLOT, [right])
+    position, rotation = arm.fk(_end_of(cycle, "place.descend"))
+    assert rotation[2, 0] == pytest.approx(-1.0, abs=1e-3)  # wrist level: finger on the mug's left
+    axis = position[:2] + lateral_offset_m(MUG_TYPES["big"], arm.gripper) * rotation[:2, 1]
+    assert np.allclose(axis, [SLOT.x_m, SLOT.y_m], atol=1e-3)
+
+
+def test_neighbours_on_both_sides_refuse_the_slot_naming_both_rolls(planner: CyclePlanner) -> None:
+    gap = 0.0455 + 0.037 + 0.010
+    tight = [
+        TraySlot("m4", "small", SLOT.x_m, SLOT.y_m - gap),
+        TraySlot("m5", "small", SLOT.x_m, SLOT.y_m + gap),
+    ]
+    with pytest.raises(
+        MotionRefused, match=r"^place\.\w+: the gripper would hit mug m4 .*; with the wrist level: "
+    ):
+        planner.plan_cycle(START_Q, MUG, SLOT, tight)
