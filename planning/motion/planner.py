@@ -96,13 +96,21 @@ class CyclePlanner:
         self.carry_z_m = carry_height_m(tallest + max(0.0, cell.tray_floor_m))
         self.open_aperture_m = arm.gripper.aperture_m(JOINT_LIMITS["gripper"].lower_rad)
 
-    def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
-        """A joint-space move within the servo limits, refused when either end is invalid or it collides
-        with the tray or the base (used for parking and recovery; nothing held)."""
+    def plan_move(
+        self,
+        start_q: Sequence[float],
+        goal_q: Sequence[float],
+        *,
+        label: str,
+        counter: Sequence[MugPose] = (),
+        on_tray: Sequence[TraySlot] = (),
+    ) -> JointTrajectory:
+        """A joint-space move within the servo limits with nothing held (parking, recovery), refused when
+        either end is invalid or the open gripper would hit the counter, base, tray or the mugs given."""
         start = self._checked_q(start_q, "start_q")
         goal = self._checked_q(goal_q, "goal_q")
         trajectory, _ = self._plan(np.array([start, goal]), label)
-        world = self._world([], [])
+        world = self._world(counter, on_tray)
         why = world.first_collision(trajectory.positions, aperture_m=self.open_aperture_m)
         if why:
             raise MotionRefused(f"{label}: {why}")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from planning import thesis
-from planning.arm import ArmModel
+from planning.arm import ArmModel, GraspKind, GraspTarget
 from planning.arm.grasp import lateral_offset_m
 from planning.interfaces import CyclePlan, MotionPlanner, MotionRefused, MugPose, StepKind, TraySlot
 from planning.motion import CellLayout, CyclePlanner
@@ -312,3 +312,14 @@ def test_neighbours_on_both_sides_refuse_the_slot_naming_both_rolls(planner: Cyc
         MotionRefused, match=r"^place\.\w+: the gripper would hit mug m4 .*; with the wrist level: "
     ):
         planner.plan_cycle(START_Q, MUG, SLOT, tight)
+
+
+def test_plan_move_refuses_to_sweep_through_a_mug_it_is_told_about(
+    planner: CyclePlanner, arm: ArmModel
+) -> None:
+    low = arm.ik(GraspTarget((-0.10, 0.45, 0.09), GraspKind.SIDE))
+    assert low.q is not None
+    goal = low.q
+    assert planner.plan_move(START_Q, goal, label="park").duration > 0
+    with pytest.raises(MotionRefused, match=r"^park: the gripper would hit mug m8"):
+        planner.plan_move(START_Q, goal, label="park", counter=[MugPose("m8", "big", -0.10, 0.47)])
