@@ -20,7 +20,8 @@ counter, as the thesis's appearance model did (§5.1):
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections import Counter
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Final, TypeVar
 
@@ -112,7 +113,9 @@ class DepthMugDetector:
     """Finds the catalogue's mugs in a depth frame and reports them in the world frame.
 
     ``region_m`` (x_min, y_min, x_max, y_max) limits the search to part of the table in world coordinates;
-    by default the whole table plane in view is searched.
+    by default the whole table plane in view is searched. Mugs whose centre lies in one of the ``exclude_m``
+    rectangles (the tray, say, whose mugs are done) are not reported; they are still found, so they cannot be
+    mistaken for something else.
     """
 
     def __init__(
@@ -121,12 +124,14 @@ class DepthMugDetector:
         *,
         params: DetectorParams | None = None,
         region_m: tuple[float, float, float, float] | None = None,
+        exclude_m: Sequence[tuple[float, float, float, float]] = (),
     ) -> None:
         if not catalogue:
             raise ValueError("the mug catalogue is empty; configure at least one [mug_types.<name>]")
         self._catalogue = dict(catalogue)
         self._params = params or DetectorParams()
         self._region = region_m
+        self._exclude = tuple(exclude_m)
         self._grids: dict[CameraIntrinsics, tuple[F32Array, F32Array]] = {}
         self._kernels: dict[int, F32Array] = {}
 
@@ -141,9 +146,14 @@ class DepthMugDetector:
         it (z = 0 on the counter top, z up) with the extrinsic's tilt error removed.
         """
         fits, camera_xy, raster = self.fit(frame)
-        accepted = [f for f in fits if not f.rejection(self._params)]
+        verdicts = [(f, f.rejection(self._params)) for f in fits]
+        accepted = [f for f, reason in verdicts if not reason]
+        rejected = Counter(reason for _, reason in verdicts if reason)
+        log.debug("brims_fitted", accepted=len(accepted), rejected=dict(rejected))
         detections = []
         for fit in accepted:
+            if any(x0 <= fit.x_m <= x1 and y0 <= fit.y_m <= y1 for x0, y0, x1, y1 in self._exclude):
+                continue
             others = [f for f in accepted if f is not fit]
             yaw, seen = _handle_yaw(raster, fit, others, camera_xy, self._params)
             detections.append(

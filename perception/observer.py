@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Callable, Mapping
 from concurrent.futures import Executor
 
 import cv2
@@ -12,9 +13,10 @@ import numpy.typing as npt
 import structlog
 
 from drivers.interfaces import Camera, RGBDFrame
+from drivers.simworld.scene import TRAY_WALL_THICKNESS_M, SceneLayout
 from perception.detector import DepthMugDetector
 from perception.interfaces import Detection, Observation
-from planning.thesis import MUG_TYPES
+from planning.thesis import MUG_TYPES, MugSpec
 
 log = structlog.get_logger(__name__)
 
@@ -57,6 +59,22 @@ class CameraObserver:
             depth_preview=depth_preview(frame, width=self._preview_width),
             meta={**frame.meta, "detect_ms": f"{elapsed_ms:.1f}"},
         )
+
+
+def cell_observer_factory(
+    layout: SceneLayout, catalogue: Mapping[str, MugSpec], *, preview_width: int = 160
+) -> Callable[[Camera], CameraObserver]:
+    """Observers for the configured cell: search the table, and leave out the mugs standing in the tray
+    (they are placed; the daemon looks for the mugs still to load, on the counter and the flip area)."""
+    x0, y0, x1, y1 = layout.tray_region_m()
+    wall = TRAY_WALL_THICKNESS_M
+    tray = (x0 - wall, y0 - wall, x1 + wall, y1 + wall)
+    detector = DepthMugDetector(catalogue, region_m=layout.table_region_m(), exclude_m=(tray,))
+
+    def factory(camera: Camera) -> CameraObserver:
+        return CameraObserver(camera, detector, preview_width=preview_width)
+
+    return factory
 
 
 def depth_preview(frame: RGBDFrame, *, width: int = 160) -> npt.NDArray[np.float32]:

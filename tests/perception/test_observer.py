@@ -78,3 +78,19 @@ def test_a_tiny_preview_is_refused() -> None:
     frame = RGBDFrame(0.0, np.ones((4, 4), np.float32), None, np.eye(4))  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=r"^preview_width 4: use at least 8 pixels$"):
         CameraObserver(StillCamera(frame), preview_width=4)
+
+
+def test_cell_observer_leaves_out_the_mugs_already_in_the_tray(layout: SceneLayout) -> None:
+    from perception.observer import cell_observer_factory
+    from tests.perception.scenes import render
+
+    x0, y0, x1, y1 = layout.tray_region_m()
+    cx0, cy0, cx1, cy1 = layout.counter_region_m
+    placed = SceneMug("placed", SMALL_MUG, (x0 + x1) / 2, (y0 + y1) / 2)
+    waiting = SceneMug("waiting", BIG_MUG, (cx0 + cx1) / 2, (cy0 + cy1) / 2)
+    frame = render(layout, [placed, waiting], noise=DepthNoise(), seed=6)
+    observer = cell_observer_factory(layout, MUG_TYPES)(StillCamera(frame))
+    obs = asyncio.run(observer.observe())
+    assert [(d.type, round(d.x_m, 2), round(d.y_m, 2)) for d in obs.detections] == [
+        ("big", round(waiting.x_m, 2), round(waiting.y_m, 2))
+    ]
