@@ -8,6 +8,7 @@ is also handed to the recording, which is what a replay needs.
 
 from __future__ import annotations
 
+import base64
 import concurrent.futures
 import dataclasses
 import functools
@@ -17,6 +18,7 @@ from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
+import numpy.typing as npt
 
 from daemon.config import CellConfig, Config, MugTypeConfig
 from daemon.errors import UsageError
@@ -139,6 +141,19 @@ def joints_payload(js: JointState) -> dict[str, object]:
 
 def observation_payload(obs: Observation) -> dict[str, object]:
     return {"t": obs.t, "mugs": [d.to_json() for d in obs.detections], "meta": dict(obs.meta)}
+
+
+def depth_preview_payload(depth_m: npt.NDArray[np.float32]) -> dict[str, object]:
+    """A small depth image for monitors: unsigned 16-bit millimetres (0 = no reading), little-endian,
+    row-major, base64."""
+    mm = np.nan_to_num(np.asarray(depth_m, dtype=np.float64) * 1000.0, nan=0.0, posinf=0.0, neginf=0.0)
+    data = np.clip(np.rint(mm), 0, 65535).astype("<u2")
+    return {
+        "width": int(data.shape[1]),
+        "height": int(data.shape[0]),
+        "encoding": "uint16_mm_le_base64",
+        "data": base64.b64encode(data.tobytes()).decode("ascii"),
+    }
 
 
 class _RecordedArm:

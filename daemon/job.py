@@ -26,7 +26,7 @@ from typing import Any, Protocol, TypeVar
 import numpy as np
 import structlog
 
-from daemon.backend import Backend, CounterMug, observation_payload
+from daemon.backend import Backend, CounterMug, depth_preview_payload, observation_payload
 from daemon.config import Config
 from drivers.errors import BusLost, DriverError, LimitViolation
 from drivers.interfaces import JointTrajectory
@@ -593,7 +593,10 @@ class Job:
                 d = replace(d, mug_id=f"m{ctx.next_id}")
                 ctx.next_id += 1
             out.append(d)
-        self._publish("detections", {**observation_payload(replace(obs, detections=tuple(out)))})
+        payload = observation_payload(replace(obs, detections=tuple(out)))
+        if obs.depth_preview is not None:
+            payload["depth_preview"] = depth_preview_payload(obs.depth_preview)
+        self._publish("detections", payload)
         return out
 
     @staticmethod

@@ -176,3 +176,15 @@ def test_the_truth_detector_adds_seeded_noise_and_no_ids() -> None:
         abs(d.x_m - t.x_m) < 0.01 and abs(d.y_m - t.y_m) < 0.01 for d, t in zip(first, truth, strict=True)
     )
     assert all(0.5 <= d.confidence <= 1.0 for d in first)
+
+
+def test_a_depth_preview_is_published_as_16_bit_millimetres() -> None:
+    import base64
+
+    from daemon.backend import depth_preview_payload
+
+    depth = np.array([[0.0, 1.25], [np.nan, 70.0]], dtype=np.float32)
+    payload = depth_preview_payload(depth)
+    assert (payload["width"], payload["height"], payload["encoding"]) == (2, 2, "uint16_mm_le_base64")
+    values = np.frombuffer(base64.b64decode(str(payload["data"])), dtype="<u2").reshape(2, 2)
+    assert values.tolist() == [[0, 1250], [0, 65535]]
