@@ -18,9 +18,10 @@ from typing import overload
 import numpy as np
 
 from perception.interfaces import Detection
+from planning.thesis import KNOWN_MUG_TOLERANCE_M
 
 # Thesis §4.1, §4.3.1: a mug within this distance of its previous position has not moved.
-KNOWN_WITHIN_M = 0.01
+KNOWN_WITHIN_M = KNOWN_MUG_TOLERANCE_M
 # Farther than this a mug is not taken to have moved but to be another one (and the known one lost).
 MAX_MOVE_M = 0.5
 

@@ -100,6 +100,9 @@ CAMERA_HEIGHT_M: Final = 1.70
 CAMERA_DISTANCE_TO_TABLE_M: Final = 0.70
 CAMERA_PITCH_RAD: Final = math.radians(55.0)
 
+# §4.1, §4.3.1: a mug detected within this distance of its previous position is the same ("known") mug.
+KNOWN_MUG_TOLERANCE_M: Final = 0.01
+
 # §4.3: gripper heights above the table for each phase.
 GRASP_HEIGHT_M: Final = 0.06
 CARRY_CLEARANCE_M: Final = 0.07  # above the tallest mug
