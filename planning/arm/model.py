@@ -190,22 +190,11 @@ class ArmModel:
         placement = self.data.oMf[self._tool_id]
         return placement.translation.copy(), placement.rotation.copy()
 
-    def frame_position(self, name: str) -> FloatArray:
-        """World position of a frame after the last ``fk``/``frames_at`` call."""
-        return np.asarray(self.data.oMf[self.model.getFrameId(name)].translation).copy()
-
     def joint_positions(self, q: JointValues) -> FloatArray:
         """World positions (n, 3) of every joint axis origin, base first, at ``q``."""
         qv = self.joint_vector(q)
         pin.forwardKinematics(self.model, self.data, qv)
         return np.array([self.data.oMi[i].translation for i in range(1, self.model.njoints)])
-
-    def jacobian(self, q: JointValues) -> FloatArray:
-        """6 x n Jacobian of the grasp point (linear rows first), world-aligned axes."""
-        qv = self.joint_vector(q)
-        return np.asarray(
-            pin.computeFrameJacobian(self.model, self.data, qv, self._tool_id, pin.LOCAL_WORLD_ALIGNED)
-        ).copy()
 
     def ik(
         self,

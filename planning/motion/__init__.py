@@ -2,7 +2,7 @@
 
 from planning.motion.cell import CellLayout, carry_height_m
 from planning.motion.energy import DynamicsEnergyModel, EnergyBreakdown, thesis_energy_j
-from planning.motion.errors import InvalidCell, UnknownMugType
+from planning.motion.errors import InvalidCell
 from planning.motion.move_cost import DynamicsMoveCost
 from planning.motion.planner import CyclePlanner
 from planning.motion.trajectory import JointPath, plan_path
@@ -15,7 +15,6 @@ __all__ = [
     "EnergyBreakdown",
     "InvalidCell",
     "JointPath",
-    "UnknownMugType",
     "carry_height_m",
     "plan_path",
     "thesis_energy_j",

@@ -6,10 +6,3 @@ from __future__ import annotations
 
 class InvalidCell(ValueError):
     """The cell layout is malformed; the message names the ``[cell]`` field and what is allowed."""
-
-
-class UnknownMugType(KeyError):
-    """A mug's type is not in the catalogue the planner was given."""
-
-    def __str__(self) -> str:
-        return str(self.args[0]) if self.args else "unknown mug type"

@@ -11,7 +11,6 @@ the configured cell drawn over them.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -277,8 +276,3 @@ def describe(ws: Workspace) -> list[tuple[str, str, str, str]]:
             span = "none" if interval is None else f"{interval[0]:.3f}-{interval[1]:.3f} m"
             rows.append((what, name, heights, span))
     return rows
-
-
-def bearing_limits_deg(arm: ArmModel) -> tuple[float, float]:
-    """The shoulder-turn range, which bounds the approach bearing."""
-    return math.degrees(float(arm.lower[0])), math.degrees(float(arm.upper[0]))
