@@ -233,8 +233,8 @@ class DepthMugDetector:
                     continue
                 fits.append(fit)
                 if not fit.rejection(p):
-                    reach = (spec.width_mm - spec.diameter_mm) / 1000.0
-                    _paint_disc(suppressed, raster, (fit.x_m, fit.y_m), fit.radius_m + reach + 0.006)
+                    # Its body is taken; a neighbour's brim may come within a few millimetres of it.
+                    _paint_disc(suppressed, raster, (fit.x_m, fit.y_m), spec.diameter_mm / 2000.0 + 0.008)
         return fits
 
     def _hough_peaks(self, band: BoolArray, radius_cells: float) -> list[tuple[float, float, float]]:

@@ -167,3 +167,21 @@ def test_a_hidden_handle_is_reported_pointing_away_from_the_camera(
         35
     )
     assert by_id["hidden"].confidence < by_id["shown"].confidence
+
+
+@pytest.mark.parametrize("gap_m", [0.010, 0.002])
+def test_mugs_a_few_millimetres_apart_are_told_apart(
+    detector: DepthMugDetector, layout: SceneLayout, gap_m: float
+) -> None:
+    x0, y0, _, _ = layout.counter_region_m
+    row = [
+        SceneMug(
+            f"r{i}", BIG_MUG if i % 2 else SMALL_MUG, x0 + 0.06 + i * (0.091 + gap_m), y0 + 0.05, -math.pi / 2
+        )
+        for i in range(4)
+    ]
+    # Along the line of sight as well: the nearer mug hides the lower part of the one behind it.
+    column = [SceneMug("c0", BIG_MUG, 0.2, y0 + 0.05), SceneMug("c1", SMALL_MUG, 0.2, y0 + 0.141 + gap_m)]
+    mugs = row + column
+    score = score_frame(mugs, detector.detect(render(layout, mugs, noise=DepthNoise(), seed=1)))
+    assert (score.true_positives, score.false_positives, score.type_correct) == (6, 0, 6)
