@@ -76,6 +76,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser.add_argument(
         "--timeout", type=float, default=1800.0, metavar="SEC", help="give a job up after SEC (default 1800)"
     )
+    parser.add_argument(
+        "--fsr-debounce",
+        type=float,
+        default=0.03,
+        metavar="SEC",
+        help="how long the FSR reader waits before it believes a crossing (default 0.03, the reader's own)",
+    )
     parser.add_argument("--config", type=Path, default=None, help="a config file overriding the defaults")
     add_json_flag(parser)
     parser.set_defaults(handler=run)
@@ -96,6 +103,8 @@ def run(args: argparse.Namespace) -> int:
     datasets = _datasets(args.datasets)
     if not args.timeout > 0:
         raise UsageError(f"--timeout: {args.timeout} must be > 0 seconds")
+    if not 0.0 <= args.fsr_debounce <= 1.0:
+        raise UsageError(f"--fsr-debounce: {args.fsr_debounce} must be in [0, 1] seconds")
     config = load_config(args.config)
     detector = DepthMugDetector(catalogue_of(config))
 
@@ -147,6 +156,7 @@ def run(args: argparse.Namespace) -> int:
         "wall_s",
     ]
     extra = {
+        "fsr debounce s": args.fsr_debounce,
         "target tray_collisions": 0,
         "thesis (Gazebo, Table 5.26) s per mug": thesis.THESIS_GAZEBO_SECONDS_PER_MUG,
         "thesis best placed (ds1, ds2, ds3)": [thesis.DATASETS[n].thesis_best_placed for n in datasets],
@@ -214,6 +224,7 @@ async def open_mujoco_backend(
     *,
     observer_factory: ObserverFactory,
     seed: int = 0,
+    fsr_debounce_s: float = 0.03,
     executor: concurrent.futures.Executor | None = None,
 ) -> tuple[Backend, SimCell]:
     """A daemon backend on a fresh MuJoCo cell (empty counter; a job's ``start`` puts the mugs on it).
@@ -228,6 +239,7 @@ async def open_mujoco_backend(
         start_pose_rad=config.sim.start_q_rad,
         # As the kinematic cell: "holding" at half the grasp threshold.
         holding_threshold_n=config.grasp.force_threshold_n / 2.0,
+        fsr_debounce_s=fsr_debounce_s,
         observer_factory=observer_factory,
     )
     counter = MujocoCounter(cell, config)
@@ -255,12 +267,13 @@ async def run_dataset(
     associate: Associate,
     seed: int = 0,
     timeout_s: float = 1800.0,
+    fsr_debounce_s: float = 0.03,
     executor: concurrent.futures.Executor | None = None,
     on_event: Callable[[str, Mapping[str, object]], None] | None = None,
 ) -> SimRun:
     """One loading job of ``dataset`` in a fresh MuJoCo cell, measured."""
     backend, cell = await open_mujoco_backend(
-        config, observer_factory=observer_factory, seed=seed, executor=executor
+        config, observer_factory=observer_factory, seed=seed, fsr_debounce_s=fsr_debounce_s, executor=executor
     )
     collisions: list[TrayCollision] = []
     cell.on_collision(collisions.append)
