@@ -187,6 +187,7 @@ class SimWorld:
         self._gripper_servo = next(s for s in self._servos.values() if s.joint == "gripper")
         self._held: str | None = None
         self._held_aperture_m = 0.0
+        self._held_force_n = 0.0
         self._low_force_since: float | None = None
         self._slipping: set[str] = set()
         self._gripper_geoms = np.flatnonzero(self.geom_gripper)
@@ -509,12 +510,10 @@ class SimWorld:
 
     def _monitor(self) -> None:
         grip = self._scan_contacts()
-        # The FSR reads the thumb's pad. While the weld carries the mug it also absorbs part of the squeeze,
-        # so the pad then reports the finger's push: what the thumb feels when friction alone holds the mug.
-        self._force_n = grip.finger_force_n if self._held is not None else grip.pad_force_n
         now = self.time()
         jaw = self._gripper_servo
         aperture = self.arm.gripper.aperture_m(float(self.data.qpos[jaw.qpos_adr]))
+        self._force_n = self._squeeze_n(aperture) if self._held is not None else grip.pad_force_n
         if self._held is not None and grip.support_force_n > self.physics.support_force_n:
             # Pressed onto something: from here friction alone decides, so the mug can slide in the grasp.
             self._release(reason="supported")
@@ -530,7 +529,7 @@ class SimWorld:
                 if mug not in self._slipping:
                     self._weld_mug(mug, aperture)
         else:
-            opened = aperture > self._held_aperture_m + self.physics.release_opening_m
+            opened = aperture >= self._held_aperture_m + self.physics.release_opening_m
             if self._force_n < self.physics.release_force_n:
                 self._low_force_since = self._low_force_since if self._low_force_since is not None else now
             else:
@@ -547,6 +546,16 @@ class SimWorld:
             self.model.geom_priority[self._gripper_geoms] = 0
         for listener in self._listeners:
             listener(self, now, grip.contacts)
+
+    def _squeeze_n(self, aperture_m: float) -> float:
+        """What the FSR reads while the weld carries the mug.
+
+        The weld stands in for friction, and it also takes up part of the squeeze, so the contact forces
+        then swing with every jolt of the arm (a dip to zero would look like a drop). The pads are treated as
+        a linear spring instead: the force at the confirmed grasp, falling to zero as the jaw opens by
+        ``release_opening_m`` and rising as it closes further."""
+        opening = (aperture_m - self._held_aperture_m) / self.physics.release_opening_m
+        return self._held_force_n * min(max(1.0 - opening, 0.0), 2.0)
 
     def _scan_contacts(self) -> _GripContacts:
         """Mug-mug and gripper-mug contacts of this instant, and what they mean for the grasp."""
@@ -609,6 +618,7 @@ class SimWorld:
         self.data.eq_active[eq] = 1
         self._held = mug
         self._held_aperture_m = aperture_m
+        self._held_force_n = self._force_n
         self._low_force_since = None
         log.debug(
             "simworld_grasp_welded", mug_id=mug, force_n=round(self._force_n, 2), t=round(self.time(), 3)

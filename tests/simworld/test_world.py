@@ -202,3 +202,26 @@ def test_world_steps_in_real_time_in_its_thread(make_world: WorldFactory) -> Non
     assert 0.35 < elapsed < 0.7
     assert world.mug_truths()["a"].orientation == "upright"
     assert math.isfinite(world.wall_stepping_s)
+
+
+def test_a_fast_carry_reads_a_steady_squeeze_not_a_drop(make_world: WorldFactory, hand_for: HandFor) -> None:
+    mug = mug_facing_arm("a", SMALL_MUG, 0.24, 0.40)
+    world = make_world([mug])
+    hand = hand_for(world)
+    q = hand.grasp(mug.spec, mug.x_m, mug.y_m)
+    assert hand.close_until(2.0)
+    q = hand.lift_to(
+        side_grasp(mug.x_m, mug.y_m, SMALL_MUG, hand.model.gripper, z_m=0.25).target.position_m,
+        GraspKind.SIDE,
+        q,
+    )
+    lowest: list[float] = []
+    world.add_contact_listener(lambda w, t, c: lowest.append(w.gripper_force_n()) if w.held_mug else None)
+    carried = world.gripper_force_n()
+    for xy in ((0.30, -0.40), (0.50, 0.0)):
+        target = side_grasp(*xy, SMALL_MUG, hand.model.gripper, z_m=0.25).target.position_m
+        q = hand.ik(target, GraspKind.SIDE, seed=q)
+        hand.move(q, speed_rad_s=3.0)
+    assert world.held_mug == "a"
+    assert min(lowest) > 0.8 * carried
+    assert world.mug_truths()["a"].position_m[2] > 0.15
