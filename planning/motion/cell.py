@@ -110,9 +110,12 @@ class CellLayout:
             checks.append(("counter point", corner, counter_moves, mugs))
         cx, cy = self.flip_area_center_m
         r = self.flip_area_radius_m
+        # Set down upside down: the grasp point is as high above the counter as the mug is tall, less 6 cm.
+        set_down_z = min(m.height_mm for m in mugs) / 1000.0 - thesis.GRASP_HEIGHT_M
         flip_moves = (
             (GraspKind.SIDE, carry_z),
             (GraspKind.SIDE_UPSIDE_DOWN, carry_z),
+            (GraspKind.SIDE_UPSIDE_DOWN, max(set_down_z, 0.0)),
             (GraspKind.SIDE_UPSIDE_DOWN, thesis.GRASP_HEIGHT_M),
         )
         for point in ((cx - r, cy), (cx + r, cy), (cx, cy - r), (cx, cy + r)):

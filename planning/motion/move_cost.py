@@ -54,6 +54,8 @@ class DynamicsMoveCost:
         *,
         rate_hz: float = 25.0,
     ) -> None:
+        # Its own copy of the model: the placement planner may run beside the cycle planner.
+        arm = arm.copy()
         self.arm = arm
         self.cell = cell
         self.catalogue = dict(catalogue or thesis.MUG_TYPES)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import re
+import threading
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
@@ -91,6 +92,8 @@ class CyclePlanner:
         self.gripper_open_s = gripper_open_s
         self.energy_model = energy_model or DynamicsEnergyModel(arm)
         self.correction = correction
+        # The arm model keeps one Pinocchio Data: calls from several threads take turns.
+        self._lock = threading.Lock()
         tallest = max(m.height_mm for m in self.catalogue.values()) / 1000.0
         # Mugs on the tray stand on its base, so the tallest obstacle is that much higher there.
         self.carry_z_m = carry_height_m(tallest + max(0.0, cell.tray_floor_m))
@@ -109,9 +112,10 @@ class CyclePlanner:
         either end is invalid or the open gripper would hit the counter, base, tray or the mugs given."""
         start = self._checked_q(start_q, "start_q")
         goal = self._checked_q(goal_q, "goal_q")
-        trajectory, _ = self._plan(np.array([start, goal]), label)
-        world = self._world(counter, on_tray)
-        why = world.first_collision(trajectory.positions, aperture_m=self.open_aperture_m)
+        with self._lock:
+            trajectory, _ = self._plan(np.array([start, goal]), label)
+            world = self._world(counter, on_tray)
+            why = world.first_collision(trajectory.positions, aperture_m=self.open_aperture_m)
         if why:
             raise MotionRefused(f"{label}: {why}")
         return trajectory
@@ -145,7 +149,11 @@ class CyclePlanner:
             if not math.isfinite(v):
                 raise MotionRefused(f"mug {mug.mug_id}: {name} is not finite")
         self._check_slot_in_tray(slot, spec)
-        motions = self._cycle_motions(start, mug, spec, slot, on_tray, counter)
+        with self._lock:
+            return self._costed(mug, self._cycle_motions(start, mug, spec, slot, on_tray, counter))
+
+    def _costed(self, mug: MugPose, motions: Sequence[_Motion]) -> CyclePlan:
+        """The plan of a cycle's motions with its predicted duration and electrical energy."""
         steps: list[Step] = []
         duration = 0.0
         energy = 0.0
