@@ -246,21 +246,23 @@ async def open_sim_backend(
     *,
     world: str,
     dataset: int,
-    speed: float,
+    speed: float | None,
     seed: int,
     executor: concurrent.futures.Executor | None = None,
 ) -> Backend:
-    """The simulated cell with dataset ``dataset``'s mugs on its counter: ``kinematic`` (the placeholder cell,
-    ``speed`` times real time) or ``mujoco`` (the physics simulation, real time). With ``executor`` (a
-    process pool), motion planning runs there. Call it on the event loop that will use the devices."""
+    """The simulated cell with dataset ``dataset``'s mugs on its counter: ``kinematic`` (the placeholder
+    cell, ``speed`` (default ``sim.speed``) times real time) or ``mujoco`` (the physics simulation, real
+    time). With ``executor`` (a process pool), motion planning runs there. Call it on the event loop that
+    will use the devices."""
     if world == "mujoco":
-        if speed != 1.0:
+        if speed not in (None, 1.0):
             raise UsageError(
                 f"--speed {speed:g}: the MuJoCo cell runs in real time (its drivers keep wall time)"
             )
         return await open_mujoco_backend(config, dataset=dataset, seed=seed, executor=executor)
     if world != "kinematic":
         raise UsageError(f"--world {world}: choose kinematic or mujoco")
+    speed = config.sim.speed if speed is None else speed
     return open_kinematic_backend(config, dataset=dataset, speed=speed, seed=seed, executor=executor)
 
 
@@ -387,6 +389,10 @@ def _planner_in_this_process(spec: CyclePlannerSpec) -> MotionPlanner:
     return spec.build()
 
 
+def _build_in_this_process(spec: CyclePlannerSpec) -> None:
+    _planner_in_this_process(spec)
+
+
 def _plan_cycle(
     spec: CyclePlannerSpec,
     start_q: tuple[float, ...],
@@ -415,9 +421,9 @@ class ProcessMotionPlanner:
         self._spec = spec
         self._executor = executor
 
-    def warm_up(self) -> concurrent.futures.Future[MotionPlanner]:
+    def warm_up(self) -> concurrent.futures.Future[None]:
         """Build the planner in the worker now (model loading takes a while), not on the first mug."""
-        return self._executor.submit(_planner_in_this_process, self._spec)
+        return self._executor.submit(_build_in_this_process, self._spec)
 
     def plan_cycle(
         self,

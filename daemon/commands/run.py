@@ -81,8 +81,8 @@ def _run(args: argparse.Namespace) -> int:
     connect = tuple(_endpoints(args.connect, "--connect")) if args.connect else config.zenoh.connect
     if not 1 <= args.dataset <= len(thesis.DATASETS):
         raise UsageError(f"--dataset {args.dataset}: choose a dataset 1-{len(thesis.DATASETS)}")
-    speed = config.sim.speed if args.speed is None else args.speed
-    if not 0.1 <= speed <= 1000.0:
+    speed: float | None = args.speed
+    if speed is not None and not 0.1 <= speed <= 1000.0:
         raise UsageError(f"--speed {speed:g}: choose 0.1-1000 simulated seconds per second")
     options = RunOptions(
         listen=listen,
@@ -114,7 +114,7 @@ def logs_to_stderr() -> None:
 async def _serve(
     args: argparse.Namespace,
     config: Config,
-    speed: float,
+    speed: float | None,
     options: RunOptions,
     associate: Associate,
     pool: concurrent.futures.Executor,
@@ -126,7 +126,7 @@ async def _serve(
 
 
 async def _backend(
-    args: argparse.Namespace, config: Config, speed: float, pool: concurrent.futures.Executor
+    args: argparse.Namespace, config: Config, speed: float | None, pool: concurrent.futures.Executor
 ) -> Backend:
     if not args.sim and config.backend != "sim":
         raise UsageError("the hardware backend is not wired into dishbot run yet; use --sim")

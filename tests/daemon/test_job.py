@@ -282,3 +282,10 @@ def test_a_new_job_on_the_same_counter_plans_around_the_mugs_already_on_the_tray
     assert all((s["x_m"], s["y_m"]) != (first_slot["x_m"], first_slot["y_m"]) for s in plans[1]["slots"])
     assert sorted(world.placed) == ["true0", "true1", "true2"]
     assert job.status()["mugs_placed"] == 3
+
+
+def test_an_empty_counter_ends_the_job_done_with_nothing_to_do() -> None:
+    job, published = _run(make_world(0), _start_and_finish)
+    assert job.chart.state == "done"
+    assert (job.summary.detected, job.summary.planned, job.summary.placed) == (0, 0, 0)
+    assert _states(published) == ["detect", "plan", "done"]
