@@ -99,6 +99,16 @@ class CyclePlanner:
         self.carry_z_m = carry_height_m(tallest + max(0.0, cell.tray_floor_m))
         self.open_aperture_m = arm.gripper.aperture_m(JOINT_LIMITS["gripper"].lower_rad)
 
+    def __getstate__(self) -> dict[str, object]:
+        """Picklable (the daemon may plan in a worker process): the lock stays behind."""
+        state = dict(self.__dict__)
+        del state["_lock"]
+        return state
+
+    def __setstate__(self, state: dict[str, object]) -> None:
+        self.__dict__.update(state)
+        self._lock = threading.Lock()
+
     def plan_move(
         self,
         start_q: Sequence[float],

@@ -323,3 +323,12 @@ def test_plan_move_refuses_to_sweep_through_a_mug_it_is_told_about(
     assert planner.plan_move(START_Q, goal, label="park").duration > 0
     with pytest.raises(MotionRefused, match=r"^park: the gripper would hit mug m8"):
         planner.plan_move(START_Q, goal, label="park", counter=[MugPose("m8", "big", -0.10, 0.47)])
+
+
+def test_a_pickled_planner_plans_the_same_cycle(planner: CyclePlanner, plan: CyclePlan) -> None:
+    import pickle
+
+    copy = pickle.loads(pickle.dumps(planner))
+    again = copy.plan_cycle(START_Q, MUG, SLOT, PLACED, counter=NEIGHBOURS)
+    assert again.duration_s == pytest.approx(plan.duration_s)
+    assert [s.phase for s in again.steps] == [s.phase for s in plan.steps]
