@@ -39,6 +39,7 @@ from daemon.zenoh_io import encode, key, session_config
 
 ROBOT = "bench"
 PROBE_HZ = 50.0
+_CLIENT_SETTLE_S = 1.5  # the client process starts, connects and subscribes before the loop is probed
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -163,10 +164,13 @@ async def _live(tmp: Path, commands: int, seconds: float) -> _Live:
         )
         await asyncio.wait_for(ready.wait(), 30)
         probe_errors: list[float] = []
+        # Start the helper processes first: spawning them blocks this loop, which must not be measured.
+        baseline = _start_bare_probe(seconds + _CLIENT_SETTLE_S)
+        client = asyncio.create_task(asyncio.to_thread(_client_process, endpoint, commands, seconds))
+        await asyncio.sleep(_CLIENT_SETTLE_S)
         probing = asyncio.create_task(_probe(probe_errors))
         try:
-            baseline = _start_bare_probe(seconds)
-            result = await asyncio.to_thread(_client_process, endpoint, commands, seconds)
+            result = await client
             baseline_errors = await asyncio.to_thread(_finish_bare_probe, baseline)
         finally:
             probing.cancel()
@@ -260,7 +264,7 @@ def _client(
             session.declare_subscriber(key(ROBOT, "state"), latency(state_ms)),
             session.declare_subscriber(key(ROBOT, "joints"), latency(joints_ms)),
         ]
-        time.sleep(0.5)
+        time.sleep(_CLIENT_SETTLE_S)  # until the daemon-side probe runs
         _query(session, "start", StartRequest())
         start = time.monotonic()
         round_trip: list[float] = []
