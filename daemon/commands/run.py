@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import concurrent.futures
 import multiprocessing
+import os
 import sys
 from pathlib import Path
 
@@ -19,6 +20,8 @@ from daemon.job import Associate, StartRequest
 from daemon.sdnotify import SdNotifier
 from perception import associate
 from planning import thesis
+
+_PLANNING_NICENESS = 10
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -102,8 +105,15 @@ def _run(args: argparse.Namespace) -> int:
 def planning_pool() -> concurrent.futures.ProcessPoolExecutor:
     """One worker process for placement and motion planning (forkserver: never fork Zenoh's threads)."""
     return concurrent.futures.ProcessPoolExecutor(
-        max_workers=1, mp_context=multiprocessing.get_context("forkserver"), initializer=logs_to_stderr
+        max_workers=1, mp_context=multiprocessing.get_context("forkserver"), initializer=_planning_worker
     )
+
+
+def _planning_worker() -> None:
+    """Planning is background work: below the daemon's priority, so a busy planner cannot delay the loop
+    that publishes telemetry and answers commands when the CPUs are short."""
+    os.nice(_PLANNING_NICENESS)
+    logs_to_stderr()
 
 
 def logs_to_stderr() -> None:
