@@ -117,6 +117,30 @@ class _Swarm:
         self.outside[i] = out
         self.cx[i], self.cy[i] = nx, ny
 
+    def trial(self, i: int, q: Point) -> tuple[int, int, int, bool]:
+        """What moving particle i to q would give — the bad count of Eq 4.23, i's corner and whether i would
+        be placed — without moving it."""
+        r = self.radius[i]
+        nx, ny = round(q[0] - r), round(q[1] - r)
+        ox, oy = self.cx[i], self.cy[i]
+        if nx == ox and ny == oy:
+            return self.bad, nx, ny, self.placed(i)
+        fxi, fyi = self.size[i]
+        cx, cy, size = self.cx, self.cy, self.size
+        change = 0
+        for j in range(self.k):
+            if j == i:
+                continue
+            xj, yj = cx[j], cy[j]
+            fxj, fyj = size[j]
+            was = ox < xj + fxj and xj < ox + fxi and oy < yj + fyj and yj < oy + fyi
+            now = nx < xj + fxj and xj < nx + fxi and ny < yj + fyj and yj < ny + fyi
+            if was != now:
+                change += 1 if now else -1
+        out = self._outside(i, nx, ny)
+        bad = self.bad + 2 * change + out - self.outside[i]
+        return bad, nx, ny, self.overlaps[i] + change == 0 and not out
+
     def placed(self, i: int) -> bool:
         return self.overlaps[i] == 0 and not self.outside[i]
 
@@ -125,9 +149,13 @@ class _Swarm:
         return 1.0 / (1.0 + self.bad)
 
     def particle_metrics(self, i: int, s: int) -> Metrics:
-        if not self.placed(i):
+        return self.particle_metrics_at(i, self.cx[i], self.cy[i], self.placed(i), s)
+
+    def particle_metrics_at(self, i: int, x: int, y: int, placed: bool, s: int) -> Metrics:
+        """φ_ρ of particle i with its corner at (x, y): placed or not, its area, energy and time."""
+        if not placed:
             return Metrics(0, 0.0, 0.0, 0.0, s)
-        dt, de = self.ctx.evaluator.move(self.mugs[i], self.cx[i], self.cy[i], False)
+        dt, de = self.ctx.evaluator.move(self.mugs[i], x, y, False)
         return Metrics(1, self.ctx.evaluator.area(self.mugs[i]), de, dt, s)
 
     def metrics(self) -> Metrics:
@@ -229,16 +257,16 @@ def _inner(
             m_i = swarm.particle_metrics(i, s)
             particle_fitness.norm.observe(m_i)
             old = swarm.pos[i]
-            swarm.move(i, swarm.clamp(i, (old[1], old[0])))
-            o_hat = swarm.objective()
-            m_hat = swarm.particle_metrics(i, s)
+            mutated = swarm.clamp(i, (old[1], old[0]))
+            bad, x, y, placed = swarm.trial(i, mutated)
+            o_hat = 1.0 / (1.0 + bad)
+            m_hat = swarm.particle_metrics_at(i, x, y, placed, s)
             particle_fitness.norm.observe(m_hat)
             ctx.evaluations += 1
             if o_hat > particle_o[i] or (o_hat == particle_o[i] and particle_fitness.better(m_hat, m_i)):
+                swarm.move(i, mutated)
                 particle_o[i] = objective = o_hat
                 m_i = m_hat
-            else:
-                swarm.move(i, old)
             current = _Best(i, swarm.pos[i], particle_o[i], m_i)
             if beats(current, personal[i]):
                 personal[i] = current
