@@ -258,9 +258,9 @@ def _inner(
             particle_fitness.norm.observe(m_i)
             old = swarm.pos[i]
             mutated = swarm.clamp(i, (old[1], old[0]))
-            bad, x, y, placed = swarm.trial(i, mutated)
+            bad, corner_x, corner_y, placed = swarm.trial(i, mutated)
             o_hat = 1.0 / (1.0 + bad)
-            m_hat = swarm.particle_metrics_at(i, x, y, placed, s)
+            m_hat = swarm.particle_metrics_at(i, corner_x, corner_y, placed, s)
             particle_fitness.norm.observe(m_hat)
             ctx.evaluations += 1
             if o_hat > particle_o[i] or (o_hat == particle_o[i] and particle_fitness.better(m_hat, m_i)):
