@@ -173,12 +173,19 @@ class DepthMugDetector:
         """Every brim fit, accepted or not (for diagnosis), the camera's xy in the levelled frame and the
         height map."""
         p = self._params
-        world_from_camera = np.asarray(frame.world_from_camera, dtype=np.float64)
-        grid = self._pixel_grid(frame)
-        if self._region is not None:
-            grid = grid.crop(
-                _pixels_seeing(self._region, p.max_height_m, frame.intrinsics, world_from_camera)
+        K = frame.intrinsics
+        if frame.depth_m.shape != (K.height, K.width):
+            raise FrameError(
+                f"depth image is {frame.depth_m.shape[1]}x{frame.depth_m.shape[0]} pixels but the intrinsics "
+                f"say {K.width}x{K.height}"
             )
+        world_from_camera = np.asarray(frame.world_from_camera, dtype=np.float64)
+        if world_from_camera.shape != (4, 4) or not np.all(np.isfinite(world_from_camera)):
+            raise FrameError("world_from_camera must be a finite 4x4 matrix")
+        box = (slice(0, K.height), slice(0, K.width))
+        if self._region is not None:
+            box = _pixels_seeing(self._region, p.max_height_m, K, world_from_camera)
+        grid = self._pixel_grid(frame, box)
         table_from_world, table_xy = _level_on_table(grid, world_from_camera, p)
         table_from_camera = table_from_world @ world_from_camera
         region = self._region or _region_around(table_xy)
@@ -186,18 +193,13 @@ class DepthMugDetector:
         camera_xy = table_from_camera[:2, 3]
         return self._fit_mugs(raster, camera_xy), camera_xy, raster
 
-    def _pixel_grid(self, frame: RGBDFrame) -> _PixelGrid:
+    def _pixel_grid(self, frame: RGBDFrame, box: tuple[slice, slice]) -> _PixelGrid:
+        """The pixels in ``box`` (rows, columns) and their rays; NaN or infinite depth is no reading."""
         K = frame.intrinsics
-        depth = frame.depth_m
-        if depth.shape != (K.height, K.width):
-            raise FrameError(
-                f"depth image is {depth.shape[1]}x{depth.shape[0]} pixels but the intrinsics say "
-                f"{K.width}x{K.height}"
-            )
-        T = np.asarray(frame.world_from_camera)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise FrameError("world_from_camera must be a finite 4x4 matrix")
-        z = np.nan_to_num(np.asarray(depth, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+        z = np.asarray(frame.depth_m, dtype=np.float32)[box]
+        finite = np.isfinite(z)
+        if not finite.all():
+            z = np.where(finite, z, np.float32(0.0))
         valid = z > 0
         count = int(valid.sum())
         if count < 100:
@@ -210,7 +212,7 @@ class DepthMugDetector:
                 np.ascontiguousarray(np.broadcast_to(v[:, None], (K.height, K.width))),
             )
         rx, ry = self._grids[K]
-        return _PixelGrid(rx, ry, z, valid)
+        return _PixelGrid(rx[box], ry[box], z, valid)
 
     def _fit_mugs(self, raster: _HeightMap, camera_xy: FloatArray) -> list[MugFit]:
         p = self._params
@@ -292,10 +294,6 @@ class _PixelGrid:
     ry: F32Array
     z: F32Array
     valid: BoolArray
-
-    def crop(self, box: tuple[slice, slice]) -> _PixelGrid:
-        """The pixels inside ``box`` (rows, columns) only."""
-        return _PixelGrid(self.rx[box], self.ry[box], self.z[box], self.valid[box])
 
 
 def _pixels_seeing(
