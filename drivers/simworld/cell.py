@@ -280,7 +280,11 @@ async def start_sim_cell(
         force = await stack.enter_async_context(
             FsrReader(fsr_sim.device_path, threshold_n=holding_threshold_n, debounce_s=fsr_debounce_s)
         )
-        chain = await stack.enter_async_context(ServoChain(BusConfig(servo_sim.device_path), default_chain()))
+        # The simulated servos answer from a Python thread sharing the GIL with the physics and the event
+        # loop, not from firmware: give a status packet 50 ms (a real chain needs well under 20 ms).
+        chain = await stack.enter_async_context(
+            ServoChain(BusConfig(servo_sim.device_path), default_chain(), retries=3, read_timeout_s=0.05)
+        )
         joints = thesis_joints([_servo_limits(j) for j in _ARM_JOINTS])
         arm = await stack.enter_async_context(DynamixelArm(chain, joints))
         gripper = await stack.enter_async_context(

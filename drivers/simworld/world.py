@@ -104,6 +104,9 @@ class MugTruth:
 
 @dataclass(slots=True)
 class _Servo:
+    """A servo's fixed facts; its goal, speed and set-point live in the world's arrays at ``index``."""
+
+    index: int
     servo_id: int
     joint: str
     actuator: int
@@ -115,9 +118,6 @@ class _Servo:
     stall_torque: float
     gainprm: np.ndarray = field(default_factory=lambda: np.zeros(0))
     biasprm: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    goal: float = 0.0
-    speed: float = 0.0
-    setpoint: float = 0.0
     torque_on: bool = True
 
 
@@ -173,7 +173,17 @@ class SimWorld:
         # Held by the physics thread while it steps; take it to read or render a consistent state.
         self.lock = threading.RLock()
         self._servos = self._bind_servos()
-        self._present: dict[int, tuple[float, float, float]] = {}
+        ordered = sorted(self._servos.values(), key=lambda sv: sv.index)
+        # Per-servo state as arrays, so driving the servos and publishing their state costs a few numpy
+        # operations per step rather than a Python loop (the bus simulator shares the GIL with this thread).
+        self._actuators = np.array([sv.actuator for sv in ordered], dtype=np.int64)
+        self._qpos_adr = np.array([sv.qpos_adr for sv in ordered], dtype=np.int64)
+        self._dof_adr = np.array([sv.dof_adr for sv in ordered], dtype=np.int64)
+        self._stall = np.array([sv.stall_torque for sv in ordered])
+        self._goal = np.zeros(len(ordered))
+        self._speed = np.zeros(len(ordered))
+        self._setpoint = np.zeros(len(ordered))
+        self._present = (np.zeros(len(ordered)), np.zeros(len(ordered)), np.zeros(len(ordered)))
         self._mug_body = {m: self._id(mujoco.mjtObj.mjOBJ_BODY, MUG_BODY_PREFIX + m) for m in self.mug_ids}
         self._weld = {m: self._id(mujoco.mjtObj.mjOBJ_EQUALITY, WELD_PREFIX + m) for m in self.mug_ids}
         self._fsr_pad = self._id(mujoco.mjtObj.mjOBJ_GEOM, FSR_PAD_GEOM)
@@ -248,10 +258,11 @@ class SimWorld:
 
     def _bind_servos(self) -> dict[int, _Servo]:
         servos: dict[int, _Servo] = {}
-        for s in self.arm.servos:
+        for index, s in enumerate(self.arm.servos):
             j = self._id(mujoco.mjtObj.mjOBJ_JOINT, s.mj_joint)
             a = self._id(mujoco.mjtObj.mjOBJ_ACTUATOR, s.mj_actuator)
             servos[s.servo_id] = _Servo(
+                index=index,
                 servo_id=s.servo_id,
                 joint=s.joint,
                 actuator=a,
@@ -287,9 +298,8 @@ class SimWorld:
         for s in self._servos.values():
             self.data.qpos[s.qpos_adr] = min(max(pose.get(s.joint, 0.0), s.lower), s.upper)
         mujoco.mj_forward(self.model, self.data)
-        for s in self._servos.values():
-            s.setpoint = s.goal = float(self.data.qpos[s.qpos_adr])
-            self.data.ctrl[s.actuator] = s.setpoint
+        self._setpoint[:] = self._goal[:] = self.data.qpos[self._qpos_adr]
+        self.data.ctrl[self._actuators] = self._setpoint
         self._advance(0.3)
         self._publish_present()
         self.data.time = 0.0
@@ -303,21 +313,22 @@ class SimWorld:
         Lock-free (two attribute writes the physics thread reads each step): the bus simulator must never
         wait for a batch of physics steps, or the driver sees a servo that does not answer."""
         s = self._servo(servo_id)
-        s.speed = s.max_speed if speed_rad_s <= 0.0 else min(speed_rad_s, s.max_speed)
-        s.goal = min(max(position_rad, s.lower), s.upper)
+        self._speed[s.index] = s.max_speed if speed_rad_s <= 0.0 else min(speed_rad_s, s.max_speed)
+        self._goal[s.index] = min(max(position_rad, s.lower), s.upper)
 
     def present(self, servo_id: int) -> tuple[float, float, float]:
         """Present position (rad), velocity (rad/s) and load (signed fraction of the stall torque), as of
         the last physics step. Lock-free, like ``set_goal``."""
-        self._servo(servo_id)
-        return self._present[servo_id]
+        k = self._servo(servo_id).index
+        position, velocity, load = self._present
+        return float(position[k]), float(velocity[k]), float(load[k])
 
     def set_torque(self, servo_id: int, on: bool) -> None:
         """Torque on holds the present position; torque off lets the joint hang on its gearbox friction."""
         s = self._servo(servo_id)
         with self.lock:
             if on and not s.torque_on:
-                s.setpoint = s.goal = float(self.data.qpos[s.qpos_adr])
+                self._setpoint[s.index] = self._goal[s.index] = float(self.data.qpos[s.qpos_adr])
                 self.model.actuator_gainprm[s.actuator] = s.gainprm
                 self.model.actuator_biasprm[s.actuator] = s.biasprm
             elif not on and s.torque_on:
@@ -489,22 +500,14 @@ class SimWorld:
     def _publish_present(self) -> None:
         """Swap in a fresh snapshot of every servo's state (one reference assignment: atomic for readers)."""
         d = self.data
-        self._present = {
-            sid: (
-                float(d.qpos[s.qpos_adr]),
-                float(d.qvel[s.dof_adr]),
-                max(-1.0, min(1.0, float(d.actuator_force[s.actuator]) / s.stall_torque)),
-            )
-            for sid, s in self._servos.items()
-        }
+        load = np.clip(d.actuator_force[self._actuators] / self._stall, -1.0, 1.0)
+        self._present = (d.qpos[self._qpos_adr].copy(), d.qvel[self._dof_adr].copy(), load)
 
     def _drive_servos(self, dt: float) -> None:
-        for s in self._servos.values():
-            if not s.torque_on:
-                continue
-            step = s.speed * dt
-            s.setpoint += min(max(s.goal - s.setpoint, -step), step)
-            self.data.ctrl[s.actuator] = s.setpoint
+        """Walk each set-point towards its goal at the commanded speed, as the servo firmware does."""
+        step = self._speed * dt
+        self._setpoint += np.clip(self._goal - self._setpoint, -step, step)
+        self.data.ctrl[self._actuators] = self._setpoint
 
     # ------------------------------------------------------------------------- grasp and contact monitor
 
@@ -540,7 +543,10 @@ class SimWorld:
             )
             if opened or weak:
                 self._release(reason="opened" if opened else "force_lost")
-        if self._slipping and self.arm.gripper.aperture_m(jaw.goal) > self._held_aperture_m + 0.005:
+        if (
+            self._slipping
+            and self.arm.gripper.aperture_m(float(self._goal[jaw.index])) > self._held_aperture_m + 0.005
+        ):
             self._slipping.clear()
             self.model.geom_friction[self._gripper_geoms] = self._gripper_friction
             self.model.geom_priority[self._gripper_geoms] = 0
