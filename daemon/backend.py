@@ -322,6 +322,7 @@ class _KinematicCounter:
             q0=np.asarray(config.sim.start_q_rad, dtype=np.float64),
         )
         self.on_tray_change: Callable[[Tray], None] | None = None
+        self.dataset: int | None = None
 
     def set_counter(self, *, dataset: int | None, mugs: Sequence[CounterMug] | None) -> Tray:
         if mugs is not None:
@@ -335,6 +336,7 @@ class _KinematicCounter:
         unknown = sorted({m.type for m in sim_mugs} - set(self._geometry))
         if unknown:
             raise ValueError(f"mug types {', '.join(unknown)} are not in the configured catalogue")
+        self.dataset = dataset if mugs is None else None
         world = self.cell.world
         world.set_mugs(sim_mugs)
         world.tray_origin_m = tray.origin_m
@@ -362,7 +364,7 @@ class _KinematicCounter:
         ]
 
     def scene(self) -> dict[str, object]:
-        return self.cell.world.scene()
+        return {**self.cell.world.scene(), "dataset": self.dataset}
 
 
 @dataclass(frozen=True, slots=True)
@@ -480,12 +482,16 @@ async def open_mujoco_backend(
     )
 
     class _Counter:
+        def __init__(self) -> None:
+            self.dataset: int | None = dataset
+
         def set_counter(self, *, dataset: int | None, mugs: Sequence[CounterMug] | None) -> Tray:
             cell.set_counter(scene_mugs(entries(dataset, mugs), catalogue))
+            self.dataset = dataset if mugs is None else None
             return tray
 
         def scene(self) -> dict[str, object]:
-            return cell.scene()
+            return {**cell.scene(), "dataset": self.dataset}
 
     spec = CyclePlannerSpec(config.cell, tray, config.mug_types)
     motion: MotionPlanner = spec.build() if executor is None else ProcessMotionPlanner(spec, executor)

@@ -290,6 +290,7 @@ class Job:
                 )
             except ValueError as e:
                 raise CommandRefused(str(e)) from e
+            self._event("scene_set", scene=self.backend.scene())  # the recording's header has the first
             previous = _Context(planner=options)  # a new scene: the tray starts empty
         else:
             previous = self._ctx  # the same scene: what earlier jobs put on the tray is still there

@@ -289,3 +289,26 @@ def test_an_empty_counter_ends_the_job_done_with_nothing_to_do() -> None:
     assert job.chart.state == "done"
     assert (job.summary.detected, job.summary.planned, job.summary.placed) == (0, 0, 0)
     assert _states(published) == ["detect", "plan", "done"]
+
+
+def test_starting_on_a_new_dataset_sets_the_simulated_counter_up_and_records_the_scene() -> None:
+    from daemon.backend import open_kinematic_backend
+
+    config = load_config(overrides={"planner": {"method": "bh"}})
+    backend = open_kinematic_backend(config, dataset=1, speed=50.0, seed=0)
+    published: Published = []
+
+    async def go() -> None:
+        job = Job(backend, config, lambda t, p: published.append((t, dict(p))), associate)
+        control = asyncio.create_task(job.run())
+        await job.command("start", StartRequest(dataset=4))
+        await job.command("stop")
+        await job.shutdown()
+        control.cancel()
+
+    asyncio.run(go())
+    scene = next(p["scene"] for t, p in published if t == "events" and p["kind"] == "scene_set")
+    assert scene["dataset"] == 4
+    assert len(scene["mugs"]) == 30  # dataset 4: 20 big and 10 small
+    assert scene["tray"]["size_m"] == [0.475, 0.52]  # the full-size tray
+    assert backend.tray.size_mm == (475, 520)
