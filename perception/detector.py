@@ -393,7 +393,7 @@ class _HeightMap:
         r1 = min(int((xy[1] + radius_m - self.y0) / self.cell) + 2, self.top.shape[0])
         dy = (self.y0 + (np.arange(r0, r1) + 0.5) * self.cell - xy[1])[:, None]
         dx = (self.x0 + (np.arange(c0, c1) + 0.5) * self.cell - xy[0])[None, :]
-        return _Window(slice(r0, r1), slice(c0, c1), xy, dx, dy, np.sqrt(dx * dx + dy * dy))
+        return _Window.around(slice(r0, r1), slice(c0, c1), xy, dx, dy)
 
 
 @dataclass(frozen=True, slots=True)
@@ -403,15 +403,22 @@ class _Window:
     rows: slice
     cols: slice
     centre: tuple[float, float]
-    dx: FloatArray  # (1, w) offsets along x
-    dy: FloatArray  # (h, 1) offsets along y
+    gx: FloatArray  # (h, w) offsets along x
+    gy: FloatArray  # (h, w) offsets along y
     dist: FloatArray  # (h, w)
+
+    @classmethod
+    def around(
+        cls, rows: slice, cols: slice, centre: tuple[float, float], dx: FloatArray, dy: FloatArray
+    ) -> _Window:
+        """From the column offsets ``dx`` (1, w) and row offsets ``dy`` (h, 1)."""
+        gx, gy = np.broadcast_arrays(dx, dy)
+        return cls(rows, cols, centre, gx, gy, np.sqrt(dx * dx + dy * dy))
 
     def shifted(self, ox: float, oy: float) -> _Window:
         """The same cells, measured from a centre moved by (ox, oy)."""
-        dx, dy = self.dx - ox, self.dy - oy
         centre = (self.centre[0] + ox, self.centre[1] + oy)
-        return _Window(self.rows, self.cols, centre, dx, dy, np.sqrt(dx * dx + dy * dy))
+        return _Window.around(self.rows, self.cols, centre, self.gx[:1, :] - ox, self.gy[:, :1] - oy)
 
     def of(self, image: npt.NDArray[_G]) -> npt.NDArray[_G]:
         return image[self.rows, self.cols]
@@ -453,7 +460,7 @@ def _refine(
         use = edges & (np.abs(w.dist - target_r) < tolerance)
         if use.sum() < 8:
             return None
-        dx, dy = np.broadcast_to(w.dx, use.shape)[use], np.broadcast_to(w.dy, use.shape)[use]
+        dx, dy = w.gx[use], w.gy[use]
         coverage = _coverage(dx, dy)
         if coverage < 0.5:
             return None
@@ -505,7 +512,7 @@ def _support(seen: BoolArray, w: _Window, radius: float, samples: int = 48) -> f
     near = seen & (np.abs(w.dist - radius) < 0.004)
     if not near.any():
         return 0.0
-    dx, dy = np.broadcast_to(w.dx, near.shape)[near], np.broadcast_to(w.dy, near.shape)[near]
+    dx, dy = w.gx[near], w.gy[near]
     return _coverage(dx, dy, sectors=samples)
 
 
@@ -585,7 +592,7 @@ def _handle_yaw(
     top = w.of(raster.top)
     dist = w.dist
     cand = (dist > R + 0.009) & (dist < R + reach + 0.004) & (top > 0.15 * h) & (top < h - 0.012)
-    gx, gy = np.broadcast_to(w.dx, dist.shape), np.broadcast_to(w.dy, dist.shape)
+    gx, gy = w.gx, w.gy
     for o in others:
         ox, oy = o.x_m - fit.x_m, o.y_m - fit.y_m
         if math.hypot(ox, oy) < R + reach + o.radius_m + 0.03:
