@@ -185,3 +185,14 @@ def test_mugs_a_few_millimetres_apart_are_told_apart(
     mugs = row + column
     score = score_frame(mugs, detector.detect(render(layout, mugs, noise=DepthNoise(), seed=1)))
     assert (score.true_positives, score.false_positives, score.type_correct) == (6, 0, 6)
+
+
+def test_nan_and_infinite_depths_count_as_no_reading(
+    detector: DepthMugDetector, dataset_1: tuple[list[SceneMug], RGBDFrame]
+) -> None:
+    mugs, frame = dataset_1
+    depth = frame.depth_m.copy()
+    depth[::7, ::5] = np.nan
+    depth[3::11, 2::9] = np.inf
+    score = score_frame(mugs, detector.detect(replace(frame, depth_m=depth)))
+    assert (score.true_positives, score.false_positives) == (12, 0)
