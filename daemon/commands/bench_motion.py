@@ -12,6 +12,7 @@ the servos' standby draw) beside the thesis's proxy E = M g Δm (Eq 4.2).
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import statistics
 import sys
@@ -58,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--dataset: expected 1, 2 or 3 (the robot-tray datasets), got {args.dataset!r}")
     structlog.configure(
         logger_factory=structlog.PrintLoggerFactory(sys.stderr),
-        wrapper_class=structlog.make_filtering_bound_logger(40),
+        wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING),
     )
     arm = ArmModel.load()
     rows: list[list[object]] = []
