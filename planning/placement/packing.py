@@ -8,6 +8,8 @@ gives (``oracle.GridPacker``; a property test holds them equal) at a fraction of
 
 Geometry depends only on the sequence of footprints, so packings are cached by that sequence, and every
 prefix is cached too: a metaheuristic's neighbour that changes position i of the order repacks from i on.
+Each cached state also remembers every footprint's first fit: adding a mug only shrinks the free space, so a
+first fit the new mug does not cover stays the answer, and one it covers is searched again from its row on.
 """
 
 from __future__ import annotations
@@ -21,8 +23,12 @@ from planning.placement.problem import Problem
 
 # (b0, b1, a0, a1): a placed footprint in the canonical frame, half-open.
 Rect = tuple[int, int, int, int]
-# rectangles sorted by b0, candidate rows ascending, bitmask of shapes that no longer fit, spots so far
-_State = tuple[tuple[Rect, ...], tuple[int, ...], int, tuple["Spot | None", ...]]
+# What is known of one footprint option's first fit in a state: (a, b, exact). Exact: it is (a, b), or the
+# option fits nowhere when a < 0. Not exact: the first fit is in row a or later (a placement covered (a, b)).
+_Fit = tuple[int, int, bool]
+# rectangles sorted by b0, candidate rows ascending, bitmask of shapes that no longer fit, spots so far,
+# first fits per footprint option (None: not computed yet)
+_State = tuple[tuple[Rect, ...], tuple[int, ...], int, tuple["Spot | None", ...], tuple[_Fit | None, ...]]
 # x, y (footprint corner, tray coordinates), rotated
 Spot = tuple[int, int, bool]
 
@@ -55,13 +61,14 @@ class Packing:
 
 
 def first_fit(
-    by_b: Sequence[Rect], rows: Sequence[int], size_a: int, size_b: int, da: int, db: int
+    by_b: Sequence[Rect], rows: Sequence[int], size_a: int, size_b: int, da: int, db: int, from_row: int = 0
 ) -> tuple[int, int] | None:
-    """The lowest (a, b) at which a ``da`` x ``db`` footprint fits.
+    """The lowest (a, b) at which a ``da`` x ``db`` footprint fits, looking at rows from ``from_row`` on.
 
     ``by_b`` holds the placed rectangles as (b0, b1, a0, a1) sorted by b0; ``rows`` the ascending candidate
     rows (0 and every a1)."""
-    for a in rows:
+    for i in range(bisect.bisect_left(rows, from_row), len(rows)):
+        a = rows[i]
         a_end = a + da
         if a_end > size_a:
             return None
@@ -95,7 +102,18 @@ class Packer:
                 shape_index[options] = len(shapes)
                 shapes.append(options)
             self._code.append(shape_index[options])
-        self._shapes = shapes
+        # every footprint option (canonical da, db; tray fx, fy; rotated) and the options of each shape code,
+        # unrotated first so that it wins ties
+        self._options: list[tuple[int, int, int, int, bool]] = []
+        self._shape_options: list[tuple[int, ...]] = []
+        for shape in shapes:
+            indices = []
+            for fx, fy, rot in shape:
+                option = (*self._frame.dims(fx, fy), fx, fy, rot)
+                if option not in self._options:
+                    self._options.append(option)
+                indices.append(self._options.index(option))
+            self._shape_options.append(tuple(indices))
         base = sorted(
             self._rect_of(q.x_mm, q.y_mm, *problem.footprint(q.type, q.rotated)) for q in problem.placed
         )
@@ -137,35 +155,48 @@ class Packer:
             else:
                 hi = mid - 1
         if lo:
-            rects_t, rows_t, failed, spots_t = cache[key[:lo]]
+            rects_t, rows_t, failed, spots_t, fits_t = cache[key[:lo]]
         else:
-            (rects_t, rows_t), failed, spots_t = self._base, 0, ()
-        rects, rows, spots = list(rects_t), list(rows_t), list(spots_t)
+            (rects_t, rows_t), failed, spots_t, fits_t = self._base, 0, (), (None,) * len(self._options)
+        rects, rows, spots, fits = list(rects_t), list(rows_t), list(spots_t), list(fits_t)
         tray = self.problem.tray_size_mm
         frame = self._frame
+        options = self._options
         size_a, size_b = self._size
         for k in range(lo, len(key)):
             code = key[k]
             spot: Spot | None = None
             if not failed >> code & 1:
-                best: tuple[int, int, int, int, bool] | None = None
-                for fx, fy, rot in self._shapes[code]:
-                    da, db = (fx, fy) if frame.primary_is_x else (fy, fx)
-                    corner = first_fit(rects, rows, size_a, size_b, da, db)
-                    self.placements_computed += 1
-                    if corner is not None and (best is None or corner < best[:2]):
-                        best = (corner[0], corner[1], fx, fy, rot)
+                best: tuple[int, int, int] | None = None
+                for o in self._shape_options[code]:
+                    known = fits[o]
+                    if known is None or not known[2]:
+                        # Free space only shrinks as mugs are added, so the first fit never moves to an
+                        # earlier row: start from the row it was in.
+                        da, db = options[o][:2]
+                        corner = first_fit(rects, rows, size_a, size_b, da, db, known[0] if known else 0)
+                        self.placements_computed += 1
+                        known = (corner[0], corner[1], True) if corner else (-1, -1, True)
+                        fits[o] = known
+                    if known[0] >= 0 and (best is None or known[:2] < best[:2]):
+                        best = (known[0], known[1], o)
                 if best is None:
                     failed |= 1 << code
                 else:
-                    a, b, fx, fy, rot = best
-                    da, db = frame.dims(fx, fy)
+                    a, b, o = best
+                    da, db, fx, fy, rot = options[o]
                     bisect.insort(rects, (b, b + db, a, a + da))
                     k_row = bisect.bisect_left(rows, a + da)
                     if k_row == len(rows) or rows[k_row] != a + da:
                         rows.insert(k_row, a + da)
+                    for p, f in enumerate(fits):
+                        if f is not None and f[2] and f[0] >= 0:
+                            pa, pb = f[0], f[1]
+                            pda, pdb = options[p][:2]
+                            if pa < a + da and a < pa + pda and pb < b + db and b < pb + pdb:
+                                fits[p] = (pa, pb, False)
                     x, y = frame.from_canonical(tray, a, b, fx, fy)
                     spot = (x, y, rot)
             spots.append(spot)
-            cache[key[: k + 1]] = (tuple(rects), tuple(rows), failed, tuple(spots))
-        return cache[key] if key else (tuple(rects), tuple(rows), failed, ())
+            cache[key[: k + 1]] = (tuple(rects), tuple(rows), failed, tuple(spots), tuple(fits))
+        return cache[key] if key else (tuple(rects), tuple(rows), failed, (), tuple(fits))
