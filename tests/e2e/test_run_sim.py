@@ -1,8 +1,9 @@
 """End to end: ``dishbot run --sim`` as a subprocess, commanded and followed over loopback Zenoh.
 
 The test starts the daemon on a free port, waits for it to answer, subscribes to ``state``, starts a job on
-dataset 1, follows ``state`` until the job is done with the planned mugs placed, sends SIGTERM, and checks
-that the process exits 0 and that its MCAP recording holds the same sequence of states the subscriber saw.
+four mugs of dataset 1, follows ``state`` until the job is done with the planned mugs placed, sends SIGTERM,
+and checks that the process exits 0 and that its MCAP recording holds the same sequence of states the
+subscriber saw.
 """
 
 from __future__ import annotations
@@ -19,8 +20,10 @@ from typing import Any
 import pytest
 import zenoh
 
+from daemon.config import load_config
 from daemon.recording import read_messages
 from daemon.zenoh_io import session_config
+from planning.placement import dataset_problem
 from tests.daemon.conftest import free_port
 
 ROBOT = "e2e"
@@ -29,6 +32,15 @@ SPEED = 60.0
 
 def _dedupe(states: list[str]) -> list[str]:
     return [s for i, s in enumerate(states) if i == 0 or states[i - 1] != s]
+
+
+def _four_mugs() -> list[dict[str, object]]:
+    """Four mugs of dataset 1 where the dataset puts them (a short job keeps the test fast)."""
+    cell = load_config().cell
+    problem = dataset_problem(1, counter_region_m=cell.counter_region_m, tray_origin_m=cell.tray_origin_m)
+    return [
+        {"id": m.id, "type": m.type, "x_m": m.x_mm / 1000.0, "y_m": m.y_mm / 1000.0} for m in problem.mugs[:4]
+    ]
 
 
 def _query(session: zenoh.Session, verb: str, body: dict[str, Any] | None = None) -> dict[str, Any] | None:
@@ -78,7 +90,10 @@ def test_run_sim_places_the_planned_mugs_and_records_what_it_published(tmp_path:
             subscriber = session.declare_subscriber(f"dishbot/{ROBOT}/state", on_state)
             while not seen and time.monotonic() < deadline:
                 time.sleep(0.05)
-            assert _query(session, "start") == {"ok": True, "state": "detect"}
+            assert _query(session, "start", {"mugs": _four_mugs(), "planner": {"method": "bh"}}) == {
+                "ok": True,
+                "state": "detect",
+            }
             deadline = time.monotonic() + 40
             while time.monotonic() < deadline:
                 with lock:
