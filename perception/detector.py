@@ -412,8 +412,8 @@ class _Window:
         cls, rows: slice, cols: slice, centre: tuple[float, float], dx: FloatArray, dy: FloatArray
     ) -> _Window:
         """From the column offsets ``dx`` (1, w) and row offsets ``dy`` (h, 1)."""
-        gx, gy = np.broadcast_arrays(dx, dy)
-        return cls(rows, cols, centre, gx, gy, np.sqrt(dx * dx + dy * dy))
+        # Plain arithmetic builds the dense grids far faster than numpy's broadcasting helpers.
+        return cls(rows, cols, centre, dx + 0.0 * dy, dy + 0.0 * dx, np.sqrt(dx * dx + dy * dy))
 
     def shifted(self, ox: float, oy: float) -> _Window:
         """The same cells, measured from a centre moved by (ox, oy)."""
@@ -666,7 +666,8 @@ def _level_on_table(
         )
     best_inliers = np.abs(sample @ normals[best] - offsets[best]) < p.plane_inlier_m
     q = sample[best_inliers]
-    spread = np.percentile(q[:, :2], 95, axis=0) - np.percentile(q[:, :2], 5, axis=0)
+    low, high = np.percentile(q[:, :2], [5, 95], axis=0)
+    spread = high - low
     if spread.min() < p.min_table_extent_m:
         raise FrameError(_no_table(f"the level points span only {spread.min():.2f} m across"))
     centroid, normal = _plane_through(q)
