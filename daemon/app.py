@@ -121,7 +121,9 @@ async def _run(
     executor: concurrent.futures.Executor | None,
 ) -> RunResult:
     loop = asyncio.get_running_loop()
-    job = Job(recorded(backend, bus.record), config, bus.publish, associate, executor=executor)
+    # Every read at the driver boundary (the telemetry's too) is recorded as an input for replay.
+    backend = recorded(backend, bus.record)
+    job = Job(backend, config, bus.publish, associate, executor=executor)
     recorder.write_header(config.to_dict(), backend.scene())
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)

@@ -95,6 +95,8 @@ class Backend:
     tray: Tray
     counter: CounterSetup | None = None
     closer: Callable[[], Awaitable[None]] = field(default=_nothing)
+    # The motion planner for another tray (a simulated counter set up with a different tray).
+    motion_for: Callable[[Tray], MotionPlanner] | None = None
     # Devices that report events of their own (tray collisions in simulation) call the listener given here,
     # possibly from another thread.
     on_event: Callable[[EventListener], None] | None = None
@@ -285,19 +287,17 @@ def open_kinematic_backend(
         spec = CyclePlannerSpec(config.cell, tray, config.mug_types)
         return spec.build(arm_model) if executor is None else ProcessMotionPlanner(spec, executor)
 
-    motion = motion_for(tray)
-    backend = Backend(
+    return Backend(
         name="sim-kinematic",
         arm=cell.arm,
         gripper=cell.gripper,
         force=cell.force,
         observer=observer,
-        motion=motion,
+        motion=motion_for(tray),
         tray=tray,
         counter=counter,
+        motion_for=motion_for,
     )
-    counter.on_tray_change = lambda t: setattr(backend, "motion", motion_for(t))
-    return backend
 
 
 class _KinematicCounter:
@@ -321,7 +321,6 @@ class _KinematicCounter:
             arm=arm,
             q0=np.asarray(config.sim.start_q_rad, dtype=np.float64),
         )
-        self.on_tray_change: Callable[[Tray], None] | None = None
         self.dataset: int | None = None
 
     def set_counter(self, *, dataset: int | None, mugs: Sequence[CounterMug] | None) -> Tray:
@@ -341,10 +340,7 @@ class _KinematicCounter:
         world.set_mugs(sim_mugs)
         world.tray_origin_m = tray.origin_m
         world.tray_size_m = (tray.size_mm[0] / 1000.0, tray.size_mm[1] / 1000.0)
-        changed = tray != self.tray
         self.tray = tray
-        if changed and self.on_tray_change is not None:
-            self.on_tray_change(tray)
         return tray
 
     def _dataset(self, n: int) -> Problem:

@@ -285,11 +285,12 @@ class Job:
                     "dataset and mugs set up a simulated counter; this backend is real hardware"
                 )
             try:
-                self.backend.tray = self.backend.counter.set_counter(
-                    dataset=request.dataset, mugs=request.mugs
-                )
+                tray = self.backend.counter.set_counter(dataset=request.dataset, mugs=request.mugs)
             except ValueError as e:
                 raise CommandRefused(str(e)) from e
+            if tray != self.backend.tray and self.backend.motion_for is not None:
+                self.backend.motion = self.backend.motion_for(tray)
+            self.backend.tray = tray
             self._event("scene_set", scene=self.backend.scene())  # the recording's header has the first
             previous = _Context(planner=options)  # a new scene: the tray starts empty
         else:

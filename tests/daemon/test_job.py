@@ -296,6 +296,7 @@ def test_starting_on_a_new_dataset_sets_the_simulated_counter_up_and_records_the
 
     config = load_config(overrides={"planner": {"method": "bh"}})
     backend = open_kinematic_backend(config, dataset=1, speed=50.0, seed=0)
+    first_planner = backend.motion
     published: Published = []
 
     async def go() -> None:
@@ -312,3 +313,4 @@ def test_starting_on_a_new_dataset_sets_the_simulated_counter_up_and_records_the
     assert len(scene["mugs"]) == 30  # dataset 4: 20 big and 10 small
     assert scene["tray"]["size_m"] == [0.475, 0.52]  # the full-size tray
     assert backend.tray.size_mm == (475, 520)
+    assert backend.motion is not first_planner  # planned for the new tray

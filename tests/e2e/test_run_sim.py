@@ -136,5 +136,5 @@ def test_run_sim_places_the_planned_mugs_and_records_what_it_published(tmp_path:
     topics = set(read.topic_counts)
     for topic in ("state", "joints", "gripper", "detections", "plan", "events", "log"):
         assert f"dishbot/{ROBOT}/{topic}" in topics
-    for topic in ("input/observation", "input/grasp", "input/holding"):
+    for topic in ("input/observation", "input/grasp", "input/holding", "input/joints", "input/force"):
         assert f"dishbot/{ROBOT}/{topic}" in topics
