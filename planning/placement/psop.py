@@ -18,7 +18,7 @@ is the centre rounded to whole millimetres, the thesis's 1 mm grid.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from planning import thesis
 from planning.placement.cost import Fitness, Metrics, size_sorted
@@ -29,8 +29,9 @@ VELOCITY_FRACTION = 0.1
 Point = tuple[float, float]
 
 
-@dataclass(frozen=True, slots=True)
-class _Best:
+class _Best(NamedTuple):
+    """A remembered particle: its slot, position, objective O and particle parameters then."""
+
     slot: int
     pos: Point
     objective: float
@@ -297,25 +298,27 @@ def _inner(
             elif beats(local_best, second_best):
                 second_best = local_best
             use_improved = rng.random() <= params.ps and second_best is not None
+        # Eq 4.18-4.19 (improved: Eq 4.24), with velocity mirroring and position clamping.
+        random, c1, c2, c3 = rng.random, params.c1, params.c2, params.c3
+        pull = second_best.pos if use_improved and second_best is not None else None
+        gx, gy = global_best.pos
         for i in range(k):
             own = personal[i]
             assert own is not None
-            x = swarm.pos[i]
-            v = list(velocity[i])
-            for d in (0, 1):
-                v[d] = (
-                    omega * v[d]
-                    + params.c1 * rng.random() * (own.pos[d] - x[d])
-                    + params.c2 * rng.random() * (global_best.pos[d] - x[d])
-                )
-                if use_improved and second_best is not None:
-                    v[d] += params.c3 * rng.random() * (second_best.pos[d] - x[d])
-            q = [x[0] + v[0], x[1] + v[1]]
-            for d in (0, 1):
-                if not swarm.low[i][d] <= q[d] <= swarm.high[i][d]:
-                    v[d] = -v[d]
-                    q[d] = min(max(q[d], swarm.low[i][d]), swarm.high[i][d])
-            velocity[i] = (v[0], v[1])
-            swarm.move(i, (q[0], q[1]))
+            (x, y), (vx, vy), (ox, oy) = swarm.pos[i], velocity[i], own.pos
+            vx = omega * vx + c1 * random() * (ox - x) + c2 * random() * (gx - x)
+            if pull is not None:
+                vx += c3 * random() * (pull[0] - x)
+            vy = omega * vy + c1 * random() * (oy - y) + c2 * random() * (gy - y)
+            if pull is not None:
+                vy += c3 * random() * (pull[1] - y)
+            (lx, ly), (hx, hy) = swarm.low[i], swarm.high[i]
+            x, y = x + vx, y + vy
+            if not lx <= x <= hx:
+                vx, x = -vx, min(max(x, lx), hx)
+            if not ly <= y <= hy:
+                vy, y = -vy, min(max(y, ly), hy)
+            velocity[i] = (vx, vy)
+            swarm.move(i, (x, y))
     assert best_layout is not None
     return best_layout[0], best_layout[1] >= 1.0
