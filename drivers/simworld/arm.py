@@ -232,9 +232,9 @@ FULL_TORQUE_ERROR_RAD: Final[Mapping[str, float]] = {
     "MX-28T": math.radians(2.0),
     "AX-12A": math.radians(6.0),
 }
-# Static friction of the spur gear trains (200:1 and more) as a fraction of the stall torque: a servo that
-# stops keeps part of the squeeze or load it had, yet an arm with its torque off still sags, as real ones do (an
-# estimate; the datasheets give no backdrive torque).
+# Static friction of the spur gear trains (200:1 and more) as a fraction of the stall torque: a servo
+# that stops keeps part of the squeeze or load it had, yet an arm with its torque off still sags, as real
+# ones do (an estimate; the datasheets give no backdrive torque).
 GEAR_FRICTION_FRACTION: Final = 0.10
 # The FSR (a Pololu/Interlink 406 is about 0.5 mm thick) and the finger's rubber stand this far proud of the
 # thumb and finger faces; the pads' boxes reach as far into the faces again.
@@ -242,9 +242,11 @@ PAD_THICKNESS_M: Final = 0.0005
 
 # Arm geoms collide with the world and the mugs (contype 1 there) but not with each other.
 _ARM_GEOM_ATTRS: Final = 'contype="2" conaffinity="1" friction="0.6 0.005 0.0001" rgba="0.25 0.27 0.3 1"'
+# Rubber-faced pads: MuJoCo's default contact time constant with a wider impedance ramp, so a squeeze
+# compresses them by a fraction of a millimetre rather than not at all.
 _PAD_GEOM_ATTRS: Final = (
-    'contype="2" conaffinity="1" condim="4" friction="1.0 0.01 0.001" solref="0.004 1" '
-    'solimp="0.95 0.99 0.001" rgba="0.75 0.2 0.1 1" mass="0.001"'
+    'contype="2" conaffinity="1" condim="4" friction="1.0 0.01 0.001" solref="0.02 1" '
+    'solimp="0.9 0.95 0.005" rgba="0.75 0.2 0.1 1" mass="0.001"'
 )
 
 
