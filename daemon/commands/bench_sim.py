@@ -22,6 +22,7 @@ from pathlib import Path
 
 from daemon.backend import Backend, CounterMug, CyclePlannerSpec, ProcessMotionPlanner, Tray
 from daemon.commands.bench import add_json_flag, emit
+from daemon.commands.run import logs_to_stderr, planning_pool
 from daemon.config import Config, load_config
 from daemon.errors import UsageError
 from daemon.job import Associate, Job, StartRequest
@@ -106,24 +107,28 @@ def run(args: argparse.Namespace) -> int:
     if not 0.0 <= args.fsr_debounce <= 1.0:
         raise UsageError(f"--fsr-debounce: {args.fsr_debounce} must be in [0, 1] seconds")
     config = load_config(args.config)
+    logs_to_stderr()  # stdout carries the table or the JSON document
     detector = DepthMugDetector(catalogue_of(config))
 
     def observer_factory(camera: Camera) -> MugObserver:
         return CameraObserver(camera, detector)
 
-    runs = [
-        asyncio.run(
-            run_dataset(
-                n,
-                config,
-                observer_factory=observer_factory,
-                associate=associate,
-                seed=args.seed,
-                timeout_s=args.timeout,
+    with planning_pool() as pool:
+        runs = [
+            asyncio.run(
+                run_dataset(
+                    n,
+                    config,
+                    observer_factory=observer_factory,
+                    associate=associate,
+                    seed=args.seed,
+                    timeout_s=args.timeout,
+                    fsr_debounce_s=args.fsr_debounce,
+                    executor=pool,
+                )
             )
-        )
-        for n in datasets
-    ]
+            for n in datasets
+        ]
     rows = [
         [
             r.dataset,
