@@ -12,7 +12,7 @@ class ConfigError(ValueError):
 
 
 class RecordingError(ValueError):
-    """A session recording cannot be written or read (not MCAP, empty, unknown compression, closed recorder)."""
+    """A recording cannot be written or read (not MCAP, empty, unknown compression, closed recorder)."""
 
 
 class ReplayError(ValueError):
