@@ -27,12 +27,10 @@ import structlog
 
 from drivers.dynamixel import (
     BusConfig,
+    DeviceEvent,
     DynamixelArm,
     DynamixelGripper,
     GripperSpec,
-    ServoChain,
-    tables,
-    thesis_joints,
 )
 from drivers.fsr.reader import FsrReader
 from drivers.interfaces import Camera, RGBDFrame
@@ -43,6 +41,7 @@ from drivers.simworld.camera import DepthCamera, DepthNoise
 from drivers.simworld.collisions import TrayCollision, TrayCollisionCounter
 from drivers.simworld.scene import CAMERA_NAME, SceneLayout, SceneMug, build_mjcf
 from drivers.simworld.world import PhysicsConfig, SimWorld
+from drivers.stack import ARM_JOINTS, FsrSettings, StackSpec, arm_joints, open_device_stack
 from perception import CameraObserver
 from perception.interfaces import MugObserver
 from planning.arm.description import BUNDLED_URDF, JOINT_LIMITS, GripperGeometry
@@ -156,6 +155,7 @@ class SimCell:
     _switch: _WorldSwitch
     _rebuild: Callable[[Sequence[SceneMug]], tuple[SimWorld, SnapshotCamera, TrayCollisionCounter]]
     _collision_listeners: list[Callable[[TrayCollision], None]] = field(default_factory=list)
+    _device_listeners: list[Callable[[DeviceEvent], None]] = field(default_factory=list)
 
     @property
     def world(self) -> SimWorld:
@@ -176,6 +176,11 @@ class SimCell:
         It runs on the physics thread and must not block (hand it to an event loop with
         ``loop.call_soon_threadsafe``)."""
         self._collision_listeners.append(listener)
+
+    def on_device_event(self, listener: Callable[[DeviceEvent], None]) -> None:
+        """Call ``listener`` with every fault and recovery the drivers report (servo faults, bus lost, FSR
+        lost or stale, ...), on the event loop."""
+        self._device_listeners.append(listener)
 
     def set_counter(self, mugs: Sequence[SceneMug]) -> None:
         """Put a new set of mugs on the counter: a fresh world with the arm where it is now.
@@ -274,22 +279,28 @@ async def start_sim_cell(
     stack = contextlib.AsyncExitStack()
     stack.callback(lambda: switch.world.stop())
     stack.callback(lambda: switch.camera.close())
+    device_listeners: list[Callable[[DeviceEvent], None]] = []
+
+    def device_event(event: DeviceEvent) -> None:
+        for listener in device_listeners:
+            listener(event)
+
     try:
         servo_sim = stack.enter_context(ServoChainSimulator(default_chain(), plant=switch))
         fsr_sim = stack.enter_context(FsrSimulator(switch.force_n))
-        force = await stack.enter_async_context(
-            FsrReader(fsr_sim.device_path, threshold_n=holding_threshold_n, debounce_s=fsr_debounce_s)
+        arm_servos = dict(JOINT_SERVOS)
+        spec = StackSpec(
+            bus=BusConfig(servo_sim.device_path),
+            joints=arm_joints([(j, i + 1, arm_servos[j]) for i, j in enumerate(ARM_JOINTS)]),
+            gripper=gripper_spec(arm_mjcf.gripper),
+            fsr=FsrSettings(fsr_sim.device_path, threshold_n=holding_threshold_n, debounce_s=fsr_debounce_s),
+            # The simulated servos answer from a Python thread sharing the GIL with the physics and the
+            # event loop, not from firmware: give a status packet 50 ms (a real chain needs under 20 ms).
+            retries=3,
+            read_timeout_s=0.05,
         )
-        # The simulated servos answer from a Python thread sharing the GIL with the physics and the event
-        # loop, not from firmware: give a status packet 50 ms (a real chain needs well under 20 ms).
-        chain = await stack.enter_async_context(
-            ServoChain(BusConfig(servo_sim.device_path), default_chain(), retries=3, read_timeout_s=0.05)
-        )
-        joints = thesis_joints([_servo_limits(j) for j in _ARM_JOINTS])
-        arm = await stack.enter_async_context(DynamixelArm(chain, joints))
-        gripper = await stack.enter_async_context(
-            DynamixelGripper(chain, gripper_spec(arm_mjcf.gripper), force)
-        )
+        devices = await open_device_stack(spec, stack, on_event=device_event)
+        arm, gripper, force = devices.arm, devices.gripper, devices.force
     except BaseException:
         await stack.aclose()
         raise
@@ -310,6 +321,7 @@ async def start_sim_cell(
         _switch=switch,
         _rebuild=rebuild,
         _collision_listeners=listeners,
+        _device_listeners=device_listeners,
     )
     log.info("sim_cell_open", mugs=len(mugs), servo_port=servo_sim.device_path, fsr_port=fsr_sim.device_path)
     return cell, stack.aclose
@@ -350,25 +362,14 @@ async def open_sim_cell(
         await close()
 
 
-_ARM_JOINTS = ("shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn")
-
-
-def _servo_limits(joint: str) -> tuple[float, float]:
-    """The URDF's joint limits, kept inside the servo's encoder range (the AX-12A's 1023 ticks end 5 mrad
-    short of the +150° the URDF allows)."""
-    servo = tables.model(dict(JOINT_SERVOS)[joint])
-    lo, hi = servo.rad_from_ticks(0), servo.rad_from_ticks(servo.max_tick)
-    return max(JOINT_LIMITS[joint].lower_rad, lo), min(JOINT_LIMITS[joint].upper_rad, hi)
-
-
 def _pose(start_pose_rad: Sequence[float] | None) -> dict[str, float] | None:
     if start_pose_rad is None:
         return None
-    if len(start_pose_rad) != len(_ARM_JOINTS) or not all(math.isfinite(v) for v in start_pose_rad):
+    if len(start_pose_rad) != len(ARM_JOINTS) or not all(math.isfinite(v) for v in start_pose_rad):
         raise ValueError(
-            f"start_pose_rad needs {len(_ARM_JOINTS)} finite joint angles, got {list(start_pose_rad)}"
+            f"start_pose_rad needs {len(ARM_JOINTS)} finite joint angles, got {list(start_pose_rad)}"
         )
-    pose = dict(zip(_ARM_JOINTS, (float(v) for v in start_pose_rad), strict=True))
+    pose = dict(zip(ARM_JOINTS, (float(v) for v in start_pose_rad), strict=True))
     pose["gripper"] = 0.0
     return pose
 

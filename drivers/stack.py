@@ -1,0 +1,127 @@
+"""The robot's device stack, built one way for the real arm and for the simulated cell.
+
+``open_device_stack`` opens the FSR reader, the servo chain (every id and model verified before any torque),
+the arm's five joints and the gripper, on whatever serial ports it is given: ``/dev/dishbot-servos`` and
+``/dev/dishbot-fsr`` on the robot, the pseudo-terminals of ``drivers.sim`` in the simulated cell. The daemon's
+hardware backend and ``drivers.simworld.cell.start_sim_cell`` both call it, so the simulation exercises the
+exact stack the robot runs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from drivers.dynamixel import (
+    BusConfig,
+    DeviceEvent,
+    DynamixelArm,
+    DynamixelGripper,
+    GripperSpec,
+    JointSpec,
+    ServoChain,
+    tables,
+)
+from drivers.fsr.reader import FsrReader
+from planning.arm.description import JOINT_LIMITS
+
+ARM_JOINTS = ("shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn")
+
+
+@dataclass(frozen=True, slots=True)
+class FsrSettings:
+    """The FSR Arduino's port and the reader's grasp detection (``dishbot fsr calibrate`` prints these)."""
+
+    port: str
+    threshold_n: float
+    release_n: float | None = None
+    gain: float = 1.0
+    debounce_s: float = 0.03
+    stale_after_s: float = 0.2
+
+
+@dataclass(frozen=True, slots=True)
+class StackSpec:
+    """Everything the device stack needs: the bus, the arm joints (ids, models, limits), the gripper, the FSR,
+    and the bus's retry policy."""
+
+    bus: BusConfig
+    joints: tuple[JointSpec, ...]
+    gripper: GripperSpec
+    fsr: FsrSettings
+    retries: int = 2
+    read_timeout_s: float = 0.02
+
+    @property
+    def chain(self) -> tuple[tuple[int, str], ...]:
+        """Every (servo id, model) expected on the bus: the joints, then the gripper."""
+        return (*((j.servo_id, j.model) for j in self.joints), (self.gripper.servo_id, self.gripper.model))
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceStack:
+    """The open devices: what a daemon backend's ``arm``, ``gripper`` and ``force`` are."""
+
+    chain: ServoChain
+    arm: DynamixelArm
+    gripper: DynamixelGripper
+    force: FsrReader
+
+
+def arm_joints(servos: Sequence[tuple[str, int, str]]) -> tuple[JointSpec, ...]:
+    """The five arm joints from (name, servo id, model), limited to the URDF's joint limits kept inside each
+    servo's encoder range (the AX-12A's 1023 ticks end 5 mrad short of the +150° the URDF allows)."""
+    names = tuple(name for name, _, _ in servos)
+    if names != ARM_JOINTS:
+        raise ValueError(
+            f"the arm joints must be {', '.join(ARM_JOINTS)} in that order, got {', '.join(names)}"
+        )
+    joints = []
+    for name, servo_id, model_name in servos:
+        servo = tables.model(model_name)
+        lo, hi = servo.rad_from_ticks(0), servo.rad_from_ticks(servo.max_tick)
+        limit = JOINT_LIMITS[name]
+        joints.append(
+            JointSpec(name, servo_id, model_name, max(limit.lower_rad, lo), min(limit.upper_rad, hi))
+        )
+    return tuple(joints)
+
+
+async def open_device_stack(
+    spec: StackSpec,
+    stack: contextlib.AsyncExitStack,
+    *,
+    on_event: Callable[[DeviceEvent], None] | None = None,
+) -> DeviceStack:
+    """Open the FSR reader, the verified chain, the arm and the gripper, each entered on ``stack`` (closing
+    it turns the torque off and closes the ports, in reverse order).
+    ``on_event`` receives every device fault and recovery on the event loop. Call it on the loop that will
+    use the devices."""
+    fsr = spec.fsr
+    force = await stack.enter_async_context(
+        FsrReader(
+            fsr.port,
+            threshold_n=fsr.threshold_n,
+            release_n=fsr.release_n,
+            gain=fsr.gain,
+            debounce_s=fsr.debounce_s,
+            stale_after_s=fsr.stale_after_s,
+            on_event=on_event,
+        )
+    )
+    chain = await stack.enter_async_context(
+        ServoChain(
+            spec.bus,
+            spec.chain,
+            retries=spec.retries,
+            read_timeout_s=spec.read_timeout_s,
+            on_event=on_event,
+        )
+    )
+    arm = await stack.enter_async_context(DynamixelArm(chain, spec.joints))
+    gripper = await stack.enter_async_context(DynamixelGripper(chain, spec.gripper, force))
+    return DeviceStack(chain=chain, arm=arm, gripper=gripper, force=force)
+
+
+__all__ = ["ARM_JOINTS", "DeviceStack", "FsrSettings", "StackSpec", "arm_joints", "open_device_stack"]
