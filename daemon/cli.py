@@ -8,6 +8,7 @@ import sys
 from collections.abc import Callable, Sequence
 
 from daemon.errors import ConfigError, UsageError
+from daemon.logs import LEVELS, configure_cli_logging
 
 # Each module defines ``register(subparsers)``, which adds its verbs and sets ``handler`` on the parser:
 # a callable taking the parsed namespace and returning the exit code.
@@ -36,6 +37,12 @@ def build_parser() -> argparse.ArgumentParser:
         prog="dishbot",
         description="Load the mugs on a kitchen counter into a dishwasher tray with a low-cost robot arm.",
     )
+    parser.add_argument(
+        "--log-level",
+        choices=tuple(LEVELS),
+        default="info",
+        help="least severe log event written to stderr (default: info); stdout carries only results",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
@@ -45,6 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    configure_cli_logging(args.log_level)
     handler: Handler = args.handler
     try:
         return handler(args)

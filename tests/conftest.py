@@ -3,6 +3,18 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+
+import pytest
+import structlog
 
 # MuJoCo renders offscreen without a GPU through EGL (Mesa llvmpipe); set before any mujoco import.
 os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+@pytest.fixture(autouse=True)
+def _structlog_defaults() -> Iterator[None]:
+    """CLI verbs point structlog at the stderr of the moment (a capture that closes after the test); later
+    tests must not log into it."""
+    yield
+    structlog.reset_defaults()

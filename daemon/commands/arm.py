@@ -4,13 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import math
 import sys
 from pathlib import Path
 
 import numpy as np
-import structlog
 
 from daemon.commands.bench import format_table
 from daemon.config import load_config
@@ -92,11 +90,6 @@ def _common(parser: argparse.ArgumentParser) -> None:
 
 
 def _arm(args: argparse.Namespace) -> ArmModel:
-    # stdout carries the result; the model's debug events would only get in the way of --json readers.
-    structlog.configure(
-        logger_factory=structlog.PrintLoggerFactory(sys.stderr),
-        wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING),
-    )
     try:
         return ArmModel.load(args.urdf)
     except ArmModelError as e:

@@ -21,7 +21,6 @@ import time
 from collections.abc import Iterator, Sequence
 
 import numpy as np
-import structlog
 
 from daemon.commands.bench import add_json_flag, emit
 from drivers.dynamixel import BusConfig, DynamixelArm, DynamixelBus, ServoChain, thesis_joints
@@ -142,7 +141,6 @@ def _pct(values: Sequence[float], q: float) -> float:
 
 
 def _run(args: argparse.Namespace) -> int:
-    structlog.configure(logger_factory=structlog.PrintLoggerFactory(sys.stderr))  # stdout is the result
     encode_us, decode_us = _codec_us()
     rows: list[list[object]] = [
         ["sync write encode (6 servos)", round(encode_us, 1), "us", ""],

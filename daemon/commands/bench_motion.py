@@ -12,16 +12,13 @@ the servos' standby draw) beside the thesis's proxy E = M g Δm (Eq 4.2).
 from __future__ import annotations
 
 import argparse
-import logging
 import math
 import statistics
-import sys
 import time
 import tomllib
 from collections.abc import Sequence
 
 import numpy as np
-import structlog
 
 from daemon.commands.bench import add_json_flag, emit
 from daemon.config import default_text
@@ -57,10 +54,6 @@ def run(args: argparse.Namespace) -> int:
     seed = _whole("--seed", args.seed, minimum=0)
     if args.dataset not in ("1", "2", "3"):
         raise UsageError(f"--dataset: expected 1, 2 or 3 (the robot-tray datasets), got {args.dataset!r}")
-    structlog.configure(
-        logger_factory=structlog.PrintLoggerFactory(sys.stderr),
-        wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING),
-    )
     arm = ArmModel.load()
     rows: list[list[object]] = []
     extra: dict[str, object] = {}

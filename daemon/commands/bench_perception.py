@@ -9,16 +9,13 @@ The detector sees only the depth frame; the scene's ground truth is used for sco
 from __future__ import annotations
 
 import argparse
-import logging
 import math
 import statistics
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
-import structlog
 
 from daemon.commands.bench import add_json_flag, emit
 from daemon.config import load_config
@@ -68,11 +65,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    # stdout carries the result; debug events would only get in the way of --json readers.
-    structlog.configure(
-        logger_factory=structlog.PrintLoggerFactory(sys.stderr),
-        wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING),
-    )
     if not 1 <= args.frames <= 1000:
         raise UsageError(f"--frames {args.frames}: use 1 to 1000")
     if not 1 <= args.repeat <= 100:

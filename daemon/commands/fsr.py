@@ -10,10 +10,7 @@ import argparse
 import asyncio
 import json
 import statistics
-import sys
 from collections.abc import Callable
-
-import structlog
 
 from daemon.errors import UsageError
 from drivers.errors import SensorFault
@@ -40,7 +37,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    structlog.configure(logger_factory=structlog.PrintLoggerFactory(sys.stderr))  # stdout is the result
     if not 0 < args.mass_kg <= 5:
         raise UsageError(f"--mass-kg {args.mass_kg} must be in (0, 5] kg")
     if not 0.2 <= args.seconds <= 60:

@@ -8,9 +8,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-
-import structlog
 
 from daemon.errors import UsageError
 from drivers.dynamixel import BusConfig, DynamixelBus
@@ -58,7 +55,6 @@ def _bus_flags(parser: argparse.ArgumentParser) -> None:
 
 
 def _config(args: argparse.Namespace, baudrate: int | None = None) -> BusConfig:
-    structlog.configure(logger_factory=structlog.PrintLoggerFactory(sys.stderr))  # stdout is the result
     try:
         return BusConfig(args.port, baudrate or args.baud, args.protocol)
     except ValueError as e:

@@ -11,8 +11,6 @@ import signal
 import sys
 import threading
 
-import structlog
-
 from daemon.errors import UsageError
 from drivers.dynamixel.tables import model
 from drivers.sim import ServoChainSimulator, default_chain
@@ -61,7 +59,6 @@ def parse_servos(text: str) -> list[tuple[int, str]]:
 
 
 def _bus(args: argparse.Namespace) -> int:
-    structlog.configure(logger_factory=structlog.PrintLoggerFactory(sys.stderr))  # stdout is the result
     servos = parse_servos(args.servos)
     if args.protocol not in (1, 2):
         raise UsageError(f"--protocol must be 1 or 2, got {args.protocol}")
