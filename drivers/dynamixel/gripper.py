@@ -2,10 +2,12 @@
 
 The thesis's real-robot runs ended because the AX-12A gripper tripped its overload protection while closing
 on a mug (§5.3.3). Here the gripper closes in small steps under a reduced torque limit, never letting the
-goal run more than two steps ahead of where the pads really are, and stops as soon as the force sensor
-passes the threshold (§4.3.1). When the servo still trips, it is stopped, relaxed, its torque restored
-(1.0: rewrite Torque Limit, which the servo dropped to 0; 2.0: reboot), re-enabled at its present position,
-and the close is retried under a lower limit; after ``overload_retries`` recoveries the fault stands.
+goal run more than two steps ahead of where the pads really are, and once the force sensor passes the
+threshold (§4.3.1) it keeps squeezing: the goal stays two steps past the pads, under that same limit, as a
+position-controlled Dynamixel gripper has to be driven to keep its grip. When the servo still trips, it is
+stopped, relaxed, its torque restored (1.0: rewrite Torque Limit, which the servo dropped to 0; 2.0: reboot),
+re-enabled at its present position, and the close is retried under a lower limit; after
+``overload_retries`` recoveries the fault stands.
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ class DynamixelGripper:
         self.timeout_s = timeout_s
         self.force_max_age_s = force_max_age_s
         self.overload_recoveries = 0
+        self._squeeze_goal_m: float | None = None  # set while the pads squeeze a mug, until the next open
         self._id = spec.servo_id
         self._log = log.bind(servo_id=spec.servo_id)
 
@@ -82,6 +85,7 @@ class DynamixelGripper:
 
     async def open(self) -> None:
         """Open to ``open_aperture_m`` at the full grip limit and wait until there (or the timeout)."""
+        self._squeeze_goal_m = None
         angle = self.spec.angle_for(self.spec.open_aperture_m)
         limit = self._limit_ticks(1.0)
 
@@ -101,6 +105,7 @@ class DynamixelGripper:
         """Close step by step until the force passes the threshold (held) or the opening gets too small."""
         limit = self.spec.grip_limit
         recoveries = 0
+        self._squeeze_goal_m = None
         await self._set_limit(limit)
         while True:
             try:
@@ -121,11 +126,17 @@ class DynamixelGripper:
                 await self._recover(limit)
 
     async def stop(self) -> None:
-        """Hold the present opening."""
+        """Stop the jaw: hold the present opening, or, while a held grasp squeezes a mug, keep squeezing
+        (a pause mid-carry must not let the mug slip out)."""
+        squeeze = self._squeeze_goal_m
+        speed = self.spec.speed_rad_s
 
         def hold(bus: DynamixelBus) -> None:
+            if squeeze is not None:
+                bus.write_goals({self._id: (self.spec.angle_for(squeeze), speed)})
+                return
             reading = bus.read_states([self._id])[self._id]
-            bus.write_goals({self._id: (reading.position_rad, self.spec.speed_rad_s)})
+            bus.write_goals({self._id: (reading.position_rad, speed)})
 
         await self._chain.call(hold)
 
@@ -160,8 +171,8 @@ class DynamixelGripper:
         while True:
             force = self._force()
             if force >= threshold_n:
-                await self.stop()
-                self._log.info("grasp_held", force_n=force, aperture_m=aperture)
+                squeeze = await self._hold_squeeze(aperture)
+                self._log.info("grasp_held", force_n=force, aperture_m=aperture, squeeze_goal_m=squeeze)
                 return GraspResult(True, force, aperture)
             if aperture < min_aperture_m:
                 await self.stop()
@@ -182,6 +193,20 @@ class DynamixelGripper:
             reading = (await self._chain.call(functools.partial(_write_then_read, goal=goal)))[self._id]
             aperture = spec.aperture_for(reading.position_rad)
             await asyncio.sleep(spec.step_period_s)
+
+    async def _hold_squeeze(self, aperture_m: float) -> float:
+        """Keep squeezing the mug: leave the goal ``2 * step_m`` past where the pads stopped.
+
+        A position servo pushes in proportion to how far its goal lies beyond where it stands, capped by its
+        torque limit (still the reduced grip limit of the close). Holding the *present* position, as
+        :meth:`stop` does, would let the squeeze relax to nothing within a second and the mug slip out; a
+        goal a little past contact keeps the force the close ended with, the same bounded error the close
+        itself never exceeds, so it cannot wind up towards an overload. Returns the goal aperture."""
+        goal_m = aperture_m - 2 * self.spec.step_m
+        goal = {self._id: (self.spec.angle_for(goal_m), self.spec.speed_rad_s)}
+        await self._chain.call(lambda bus: bus.write_goals(goal))
+        self._squeeze_goal_m = goal_m
+        return goal_m
 
     async def _recover(self, limit: float) -> None:
         """Stop, relax, restore the torque (1.0) or reboot (2.0), re-enable where the pads are."""

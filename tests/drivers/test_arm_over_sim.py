@@ -153,6 +153,27 @@ async def test_gripper_holds_a_mug_when_the_force_passes_the_threshold() -> None
 
 
 @async_test
+async def test_gripper_keeps_squeezing_the_mug_after_the_grasp_and_through_a_stop() -> None:
+    spec, plant = gripper_setup(0.074)
+    with ServoChainSimulator([(6, "AX-12A")], plant=plant) as sim:
+        async with (
+            ServoChain(BusConfig(sim.device_path), [(6, "AX-12A")], read_timeout_s=PATIENT_S) as chain,
+            DynamixelGripper(chain, spec, PlantForceSensor(plant)) as gripper,
+        ):
+            await gripper.open()
+            result = await gripper.close_on_mug(force_threshold_n=1.0, min_aperture_m=0.03)
+            assert result.held
+            await asyncio.sleep(0.5)
+            assert plant.force_n() >= 1.0  # the goal stays past contact: the squeeze does not relax
+            await gripper.stop()  # a pause mid-carry
+            await asyncio.sleep(0.2)
+            assert plant.force_n() >= 1.0
+            await gripper.open()
+            await gripper.stop()
+            assert plant.force_n() == 0.0
+
+
+@async_test
 async def test_gripper_reports_a_missed_grasp_when_the_aperture_gets_too_small() -> None:
     spec, plant = gripper_setup(None)
     with ServoChainSimulator([(6, "AX-12A")], plant=plant) as sim:
