@@ -55,6 +55,11 @@ class Associate(Protocol):
 
 # After a pause, a move is joined at its nearest sample; within this of it, without a bridging move.
 _ON_PATH_RAD = 0.02
+# A held grasp is confirmed by the FSR reader's debounced ``holding()``, which turns true only after the force
+# has stayed above its threshold for the debounce time (30 ms by default) and a sample has arrived after it.
+# The verify waits for that, polling, for at most this long: several debounce windows and sample periods.
+_GRASP_CONFIRM_S = 0.3
+_GRASP_POLL_S = 0.005
 
 T = TypeVar("T")
 
@@ -388,7 +393,7 @@ class Job:
         if leaf == "recover_lost_mug":
             return await self._recover()
         if leaf.endswith(".verify"):
-            return self._verify(leaf)
+            return await self._verify(leaf)
         return await self._steps(leaf)
 
     async def _detect(self) -> Outcome:
@@ -476,14 +481,25 @@ class Job:
         ctx.needs_plan = True
         return Outcome("recovered", {"mug_found": False})
 
-    def _verify(self, leaf: str) -> Outcome:
+    async def _verify(self, leaf: str) -> Outcome:
+        """The grasp holds when the gripper's close said so and the debounced FSR agrees within
+        ``_GRASP_CONFIRM_S`` (reading ``holding()`` at once would race the reader's debounce)."""
         ctx = self._ctx
-        held = ctx.grasp_held and self.backend.force.holding()
+        held = ctx.grasp_held and await self._force_confirms()
         ctx.carrying = held
         if not held:
             ctx.summary.grasp_failures += 1
             self._event("grasp_failed", state=leaf, mug_id=ctx.current.mug_id if ctx.current else "")
         return Outcome("verified", {"grasp_held": held})
+
+    async def _force_confirms(self, *, timeout_s: float = _GRASP_CONFIRM_S) -> bool:
+        """Whether the FSR reader's debounced ``holding()`` turns (or is) true within ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while not self.backend.force.holding():
+            if time.monotonic() >= deadline:
+                return False
+            await asyncio.sleep(_GRASP_POLL_S)
+        return True
 
     async def _steps(self, leaf: str) -> Outcome:
         """Execute the current cycle's steps of one phase, from where a pause left them."""
