@@ -18,7 +18,9 @@ from pathlib import Path
 from typing import Any
 
 from daemon.errors import ConfigError
+from drivers.dynamixel.tables import BAUD_CODES_1, BAUD_CODES_2, MODELS
 from planning.placement import METHODS
+from planning.thesis import JOINT_SERVOS
 
 _ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
@@ -27,6 +29,7 @@ _WORLDS = ("kinematic", "mujoco")
 PLANNER_FITNESS = ("rf", "ws")
 PLANNER_COSTS = ("bpc", "upc", "ec")
 _ENERGY_MODELS = ("thesis", "dynamics")
+_CAMERAS = ("realsense", "none")
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,6 +131,67 @@ class SimConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class ArmConfig:
+    """The arm's position correction (``dishbot calibrate``), applied by the cycle planner."""
+
+    calibration_file: Path | None
+
+
+@dataclass(frozen=True, slots=True)
+class ServoConfig:
+    """The servo driving one joint (or the gripper): its bus id and model."""
+
+    joint: str
+    id: int
+    model: str
+
+
+@dataclass(frozen=True, slots=True)
+class HardwareGripperConfig:
+    """The real gripper: its angle-to-aperture map (empty: the arm model's geometry) and overload policy."""
+
+    aperture_map: tuple[tuple[float, float], ...]
+    grip_limit: float
+    grip_limit_backoff: float
+    overload_retries: int
+
+
+@dataclass(frozen=True, slots=True)
+class FsrConfig:
+    """The FSR Arduino's port and the reader's calibration (``dishbot fsr calibrate`` prints these)."""
+
+    port: str
+    gain: float
+    threshold_n: float
+    release_n: float
+    debounce_s: float
+    stale_after_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class HardwareConfig:
+    """The robot's devices, used when ``backend = "hardware"``: the servo bus, each joint's servo, the
+    gripper, the FSR and the depth camera."""
+
+    servo_port: str
+    baudrate: int
+    protocol: int
+    retries: int
+    read_timeout_s: float
+    servos: tuple[ServoConfig, ...]
+    gripper: HardwareGripperConfig
+    fsr: FsrConfig
+    camera: str
+    camera_serial: str
+
+    def servo(self, joint: str) -> ServoConfig:
+        for servo in self.servos:
+            if servo.joint == joint:
+                return servo
+        raise KeyError(joint)
+
+
+@dataclass(frozen=True, slots=True)
 class Config:
     """The effective configuration of one daemon process."""
 
@@ -142,6 +206,8 @@ class Config:
     daemon: DaemonConfig
     grasp: GraspConfig
     sim: SimConfig
+    arm: ArmConfig
+    hardware: HardwareConfig
 
     def mug_type(self, name: str) -> MugTypeConfig:
         for mug in self.mug_types:
@@ -153,6 +219,8 @@ class Config:
         """The effective values as plain TOML/JSON types, in the file's layout."""
         out: dict[str, Any] = _plain(self)
         out["mug_types"] = {m["name"]: {k: v for k, v in m.items() if k != "name"} for m in out["mug_types"]}
+        hw = out["hardware"]
+        hw["servos"] = {s["joint"]: {"id": s["id"], "model": s["model"]} for s in hw["servos"]}
         return out
 
 
@@ -199,6 +267,8 @@ def parse_config(data: Mapping[str, Any]) -> Config:
         daemon=_daemon(root.section("daemon")),
         grasp=_grasp(root.section("grasp")),
         sim=_sim(root.section("sim")),
+        arm=_arm(root.section("arm")),
+        hardware=_hardware(root.section("hardware")),
     )
     root.finish()
     return config
@@ -334,6 +404,103 @@ def _sim(s: _Section) -> SimConfig:
         joint_speed_rad_s=s.number("joint_speed_rad_s", 0.05, 10.0),
         start_q_rad=s.floats("start_q_rad", 5, -math.pi, math.pi),
     )
+    s.finish()
+    return cfg
+
+
+def _arm(s: _Section) -> ArmConfig:
+    calibration = s.string("calibration_file")
+    cfg = ArmConfig(calibration_file=Path(calibration) if calibration else None)
+    s.finish()
+    return cfg
+
+
+def _hardware(s: _Section) -> HardwareConfig:
+    protocol = s.integer("protocol", 1, 2)
+    rates = BAUD_CODES_1 if protocol == 1 else BAUD_CODES_2
+    baudrate = s.integer("baudrate", min(rates), max(rates))
+    if baudrate not in rates:
+        allowed = ", ".join(str(r) for r in sorted(rates))
+        raise ConfigError(f"hardware.baudrate: {baudrate} is not a Protocol {protocol}.0 rate; use {allowed}")
+    cfg = HardwareConfig(
+        servo_port=s.text("servo_port"),
+        baudrate=baudrate,
+        protocol=protocol,
+        retries=s.integer("retries", 0, 10),
+        read_timeout_s=s.number("read_timeout_s", 0.001, 1.0),
+        servos=_servos(s.section("servos"), protocol),
+        gripper=_hardware_gripper(s.section("gripper")),
+        fsr=_fsr(s.section("fsr")),
+        camera=s.choice("camera", _CAMERAS),
+        camera_serial=s.string("camera_serial"),
+    )
+    s.finish()
+    return cfg
+
+
+def _servos(s: _Section, protocol: int) -> tuple[ServoConfig, ...]:
+    servos = []
+    for joint, _ in JOINT_SERVOS:
+        t = s.section(joint)
+        model = t.choice("model", tuple(MODELS))
+        if MODELS[model].protocol != protocol:
+            raise ConfigError(
+                f"hardware.servos.{joint}.model: {model} speaks Protocol {MODELS[model].protocol}.0 but "
+                f"hardware.protocol is {protocol}"
+            )
+        servos.append(ServoConfig(joint, t.integer("id", 0, 252), model))
+        t.finish()
+    s.finish()
+    seen: dict[int, str] = {}
+    for servo in servos:
+        if servo.id in seen:
+            raise ConfigError(
+                f"hardware.servos.{servo.joint}.id: {servo.id} is already the id of {seen[servo.id]}; "
+                "every servo on the bus needs its own id"
+            )
+        seen[servo.id] = servo.joint
+    return tuple(servos)
+
+
+def _hardware_gripper(s: _Section) -> HardwareGripperConfig:
+    points = []
+    for i, pair in enumerate(s._list("aperture_map", None)):
+        name = f"hardware.gripper.aperture_map[{i}]"
+        if not isinstance(pair, list) or len(pair) != 2:
+            raise ConfigError(f"{name}: expected [servo angle rad, aperture m], got {_show(pair)}")
+        points.append(
+            (_check_number(pair[0], name, -math.pi, math.pi), _check_number(pair[1], name, 0.0, 0.3))
+        )
+    angles = [a for a, _ in points]
+    if points and (len(points) < 2 or angles != sorted(set(angles))):
+        raise ConfigError(
+            "hardware.gripper.aperture_map: needs at least two [angle, aperture] points in strictly "
+            "increasing angle (or [] for the arm model's geometry)"
+        )
+    cfg = HardwareGripperConfig(
+        aperture_map=tuple(points),
+        grip_limit=s.number("grip_limit", 0.05, 1.0),
+        grip_limit_backoff=s.number("grip_limit_backoff", 0.1, 0.95),
+        overload_retries=s.integer("overload_retries", 0, 10),
+    )
+    s.finish()
+    return cfg
+
+
+def _fsr(s: _Section) -> FsrConfig:
+    cfg = FsrConfig(
+        port=s.text("port"),
+        gain=s.number("gain", 0.001, 1000.0),
+        threshold_n=s.number("threshold_n", 0.05, 50.0),
+        release_n=s.number("release_n", 0.0, 50.0),
+        debounce_s=s.number("debounce_s", 0.0, 1.0),
+        stale_after_s=s.number("stale_after_s", 0.02, 5.0),
+    )
+    if cfg.release_n >= cfg.threshold_n:
+        raise ConfigError(
+            f"hardware.fsr.release_n: {cfg.release_n:g} must be below threshold_n {cfg.threshold_n:g} "
+            "(the hysteresis of the grasp detection)"
+        )
     s.finish()
     return cfg
 
