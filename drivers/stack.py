@@ -13,6 +13,8 @@ import contextlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from drivers.dynamixel import (
     BusConfig,
     DeviceEvent,
@@ -24,7 +26,7 @@ from drivers.dynamixel import (
     tables,
 )
 from drivers.fsr.reader import FsrReader
-from planning.arm.description import JOINT_LIMITS
+from planning.arm.description import JOINT_LIMITS, GripperGeometry
 
 ARM_JOINTS = ("shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn")
 
@@ -88,6 +90,23 @@ def arm_joints(servos: Sequence[tuple[str, int, str]]) -> tuple[JointSpec, ...]:
     return tuple(joints)
 
 
+# The gripper's aperture map for the driver: the planner's finger geometry sampled over the finger's swing.
+_APERTURE_SAMPLES = 12
+
+
+def gripper_spec(geometry: GripperGeometry, *, servo_id: int = 6) -> GripperSpec:
+    """The driver's view of the gripper modelled by ``geometry``: angle-to-aperture from the same geometry as
+    the URDF (the simulated gripper, and the real one until its map is measured)."""
+    limit = JOINT_LIMITS["gripper"]
+    angles = np.linspace(limit.lower_rad, limit.upper_rad, _APERTURE_SAMPLES)
+    aperture_map = tuple((float(a), float(geometry.aperture_m(float(a)))) for a in angles)
+    return GripperSpec(
+        servo_id=servo_id,
+        aperture_map=aperture_map,
+        open_aperture_m=float(geometry.aperture_m(limit.lower_rad)),
+    )
+
+
 async def open_device_stack(
     spec: StackSpec,
     stack: contextlib.AsyncExitStack,
@@ -124,4 +143,12 @@ async def open_device_stack(
     return DeviceStack(chain=chain, arm=arm, gripper=gripper, force=force)
 
 
-__all__ = ["ARM_JOINTS", "DeviceStack", "FsrSettings", "StackSpec", "arm_joints", "open_device_stack"]
+__all__ = [
+    "ARM_JOINTS",
+    "DeviceStack",
+    "FsrSettings",
+    "StackSpec",
+    "arm_joints",
+    "gripper_spec",
+    "open_device_stack",
+]

@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
-import numpy as np
 import structlog
 
 from drivers.dynamixel import (
@@ -30,7 +29,6 @@ from drivers.dynamixel import (
     DeviceEvent,
     DynamixelArm,
     DynamixelGripper,
-    GripperSpec,
 )
 from drivers.fsr.reader import FsrReader
 from drivers.interfaces import Camera, RGBDFrame
@@ -41,30 +39,15 @@ from drivers.simworld.camera import DepthCamera, DepthNoise
 from drivers.simworld.collisions import TrayCollision, TrayCollisionCounter
 from drivers.simworld.scene import CAMERA_NAME, SceneLayout, SceneMug, build_mjcf
 from drivers.simworld.world import PhysicsConfig, SimWorld
-from drivers.stack import ARM_JOINTS, FsrSettings, StackSpec, arm_joints, open_device_stack
+from drivers.stack import ARM_JOINTS, FsrSettings, StackSpec, arm_joints, gripper_spec, open_device_stack
 from perception import CameraObserver
 from perception.interfaces import MugObserver
-from planning.arm.description import BUNDLED_URDF, JOINT_LIMITS, GripperGeometry
+from planning.arm.description import BUNDLED_URDF
 from planning.thesis import JOINT_SERVOS, MugSpec
 
 log = structlog.get_logger("drivers.simworld.cell")
 
 ObserverFactory = Callable[[Camera], MugObserver]
-
-# The gripper's aperture map for the driver: the planner's finger geometry sampled over the finger's swing.
-_APERTURE_SAMPLES = 12
-
-
-def gripper_spec(geometry: GripperGeometry, *, servo_id: int = 6) -> GripperSpec:
-    """The driver's view of the simulated gripper: angle-to-aperture from the same geometry as the URDF."""
-    limit = JOINT_LIMITS["gripper"]
-    angles = np.linspace(limit.lower_rad, limit.upper_rad, _APERTURE_SAMPLES)
-    aperture_map = tuple((float(a), float(geometry.aperture_m(float(a)))) for a in angles)
-    return GripperSpec(
-        servo_id=servo_id,
-        aperture_map=aperture_map,
-        open_aperture_m=float(geometry.aperture_m(limit.lower_rad)),
-    )
 
 
 class SnapshotCamera:
