@@ -13,9 +13,11 @@ import statistics
 import time
 
 from daemon.commands.bench import add_json_flag, emit, format_table
+from daemon.config import load_config
+from daemon.datasets import cell_dataset_problem
 from daemon.errors import UsageError
 from planning import thesis
-from planning.placement import METHODS, PlanOptions, PlanResult, dataset_problem, plan
+from planning.placement import METHODS, PlanOptions, PlanResult, plan
 from planning.placement.cost import CostFunction, Fitness, FitnessMethod, Metrics
 from planning.placement.heuristics import Heuristic
 from planning.placement.oracle import GridPacker
@@ -80,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         "metaheuristics_30_mugs_max_cpu_s": 0.0,
     }
     for n in datasets:
-        problem = dataset_problem(n)
+        problem = cell_dataset_problem(load_config().cell, n)
         optimum = plan(problem, PlanOptions(method="exact", time_limit_s=30.0))
         runs: dict[str, list[tuple[PlanResult, float, float]]] = {}
         for method in methods:
@@ -167,7 +169,7 @@ def packer_speed(datasets: list[int], *, repeats: int = 5) -> tuple[list[str], l
     columns = ["ds", "tray_mm", "orders", "grid_ms", "fast_ms", "speedup", "identical"]
     rows: list[list[object]] = []
     for n in datasets:
-        problem = dataset_problem(n)
+        problem = cell_dataset_problem(load_config().cell, n)
         orders = [sorted_order(problem, s) for s in Sort if s is not Sort.RO]
         grid_times, fast_times = [], []
         identical = True

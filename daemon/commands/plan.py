@@ -9,6 +9,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from daemon.config import load_config
+from daemon.datasets import cell_dataset_problem
 from daemon.errors import UsageError
 from planning import thesis
 from planning.placement import (
@@ -17,7 +19,6 @@ from planning.placement import (
     PlanOptions,
     PlanResult,
     Problem,
-    dataset_problem,
     plan,
 )
 from planning.placement.heuristics import Heuristic
@@ -77,6 +78,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="SEC",
         help="budget for auto and exact in seconds (default 1.0)",
     )
+    parser.add_argument(
+        "--config",
+        type=Path,
+        metavar="FILE",
+        help="config whose cell places the --dataset mugs on the counter (default: the embedded one)",
+    )
     parser.add_argument("--json", action="store_true", help="print the result as one JSON document")
     parser.add_argument("--svg", type=Path, metavar="FILE", help="also draw the plan as SVG")
     parser.add_argument("--png", type=Path, metavar="FILE", help="also draw the plan as PNG")
@@ -90,7 +97,7 @@ def load_problem(args: argparse.Namespace) -> Problem:
         known = {str(n): n for n in thesis.DATASETS}
         if args.dataset not in known:
             raise UsageError(f"--dataset: unknown dataset {args.dataset!r} (known: 1-{len(thesis.DATASETS)})")
-        return dataset_problem(known[args.dataset])
+        return cell_dataset_problem(load_config(args.config).cell, known[args.dataset])
     if args.problem is None:
         raise UsageError("give a PROBLEM.json (or - for stdin) or --dataset N")
     name = args.problem

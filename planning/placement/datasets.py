@@ -18,10 +18,10 @@ from planning.placement.errors import InvalidProblem
 from planning.placement.problem import CounterMug, Problem, default_mug_types
 
 GAP_MM = 20
-DEFAULT_COUNTER_REGION_M = (-0.30, 0.20, 0.25, 0.52)
+DEFAULT_COUNTER_REGION_M = (-0.45, 0.37, 0.45, 0.575)
 # The tray's corner nearest the arm base (world frame): the robot tray as in default_config.toml [cell],
 # the full-size tray centred on the arm's x axis.
-ROBOT_TRAY_ORIGIN_M = (0.15, -0.187)
+ROBOT_TRAY_ORIGIN_M = (0.34, -0.187)
 FULL_TRAY_ORIGIN_M = (0.25, -0.26)
 
 

@@ -8,6 +8,11 @@ from pathlib import Path
 import pytest
 
 from daemon.cli import main
+from daemon.config import load_config
+from daemon.datasets import cell_dataset_problem
+from planning.placement import PlanOptions, plan
+from planning.placement.heuristics import Heuristic
+from planning.placement.sorts import Sort
 from tests.placement.test_problem import EXAMPLE
 
 
@@ -39,8 +44,12 @@ def test_problem_file_with_the_documented_format_plans_around_the_mug_on_the_tra
 def test_summary_names_what_is_left_on_the_counter(capsys: pytest.CaptureFixture[str]) -> None:
     code, out, _ = run(capsys, "--dataset", "1", "--method", "bh", "--heuristic", "tlf", "--sort", "cif")
     assert code == 0
-    assert out.splitlines()[0].startswith("bh: 8 of 12 mugs placed in ")
-    assert "left on the counter: " in out
+    expected = plan(
+        cell_dataset_problem(load_config().cell, 1),
+        PlanOptions(method="bh", heuristic=Heuristic.TLF, sort=Sort.CIF),
+    )
+    assert out.splitlines()[0].startswith(f"bh: {expected.n} of 12 mugs placed in ")
+    assert f"left on the counter: {', '.join(expected.unplaced)}" in out
 
 
 def test_pictures_are_written(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
