@@ -139,9 +139,10 @@ async def _run(
         interval = notifier.watchdog_interval_s / 2.0
         tasks.append(asyncio.create_task(_every(interval, _ping(notifier)), name="watchdog"))
     if backend.on_event is not None:
-
+        # Device events (driver faults, tray collisions) may come from other threads: the job handles them
+        # on the loop, publishes them on `events` and faults when the device can no longer be trusted.
         def device_event(event: Mapping[str, object]) -> None:
-            loop.call_soon_threadsafe(bus.publish, "events", event)
+            loop.call_soon_threadsafe(job.device_event, event)
 
         backend.on_event(device_event)
     bus.serve(loop, lambda verb, payload: commands_handler.handle(job, verb, payload))

@@ -10,20 +10,25 @@ from __future__ import annotations
 
 import base64
 import concurrent.futures
+import contextlib
 import dataclasses
 import functools
 import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Protocol
+from pathlib import Path
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
 
 from daemon.config import CellConfig, Config, MugTypeConfig
 from daemon.errors import UsageError
+from drivers.dynamixel import BusConfig, DeviceEvent
+from drivers.errors import BusLost, DriverError
 from drivers.interfaces import (
     ArmDriver,
+    Camera,
     ForceReading,
     ForceSensor,
     GraspResult,
@@ -33,14 +38,16 @@ from drivers.interfaces import (
     JointTrajectory,
 )
 from drivers.simcell import MugGeometry, SimMug, open_kinematic_cell
+from drivers.stack import ARM_JOINTS, FsrSettings, StackSpec, arm_joints, gripper_spec, open_device_stack
 from perception.interfaces import Detection, MugObserver, Observation
 from perception.truth import TruthObserver
 from planning import thesis
 from planning.arm import ArmModel
+from planning.arm.calibration import PositionCorrection
 from planning.interfaces import CyclePlan, MotionPlanner, MugPose, TraySlot
-from planning.motion import CellLayout
+from planning.motion import CellLayout, DynamicsMoveCost
 from planning.motion.planner import CyclePlanner
-from planning.placement import Problem, dataset_problem
+from planning.placement import PlanOptions, PlanResult, Problem, dataset_problem, plan
 from planning.thesis import MugSpec
 
 
@@ -76,6 +83,31 @@ class CounterSetup(Protocol):
 
 
 EventListener = Callable[[Mapping[str, object]], None]
+
+
+def device_event_payload(event: DeviceEvent) -> dict[str, object]:
+    """A driver's fault or recovery as published on ``events``: ``kind`` (``servo_fault``, ``bus_lost``,
+    ``fsr_stale``, ...), ``device`` and its detail; ``t`` the wall clock, ``t_device`` the driver's clock."""
+    detail = {
+        k: v if isinstance(v, str | int | float | bool) or v is None else str(v)
+        for k, v in event.detail.items()
+    }
+    return {**detail, "kind": event.kind, "device": event.device, "t": time.time(), "t_device": event.t}
+
+
+class _DeviceEvents:
+    """Fans driver events out to the listeners registered through ``Backend.on_event``."""
+
+    def __init__(self) -> None:
+        self._listeners: list[EventListener] = []
+
+    def add(self, listener: EventListener) -> None:
+        self._listeners.append(listener)
+
+    def __call__(self, event: DeviceEvent) -> None:
+        payload = device_event_payload(event)
+        for listener in self._listeners:
+            listener(payload)
 
 
 async def _nothing() -> None:
@@ -282,9 +314,10 @@ def open_kinematic_backend(
     tray = counter.set_counter(dataset=dataset, mugs=None)
     cell = counter.cell
     observer = TruthObserver(counter.visible_mugs, noise_m=config.sim.detection_noise_m, seed=seed)
+    correction = load_correction(config)
 
     def motion_for(tray: Tray) -> MotionPlanner:
-        spec = CyclePlannerSpec(config.cell, tray, config.mug_types)
+        spec = CyclePlannerSpec(config.cell, tray, config.mug_types, correction)
         return spec.build(arm_model) if executor is None else ProcessMotionPlanner(spec, executor)
 
     return Backend(
@@ -363,28 +396,91 @@ class _KinematicCounter:
         return {**self.cell.world.scene(), "dataset": self.dataset}
 
 
+@runtime_checkable
+class SlotPlanner(Protocol):
+    """A motion planner that can fill a tray slot with another counter mug of the same type when the one the
+    slot names cannot be reached (``CyclePlanner.plan_for_slot``)."""
+
+    def plan_for_slot(
+        self,
+        start_q: Sequence[float],
+        slot: TraySlot,
+        counter: Sequence[MugPose],
+        on_tray: Sequence[TraySlot],
+    ) -> tuple[MugPose, CyclePlan]: ...
+
+
+def catalogue_of(config: Config) -> dict[str, MugSpec]:
+    """The configured mug catalogue as the planners take it."""
+    return {
+        m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in config.mug_types
+    }
+
+
+def load_correction(config: Config) -> PositionCorrection | None:
+    """The arm's position correction named by ``arm.calibration_file``; a bad file is a usage error."""
+    path = config.arm.calibration_file
+    if path is None:
+        return None
+    try:
+        return PositionCorrection.load(path)
+    except ValueError as e:  # CalibrationError
+        raise UsageError(f"arm.calibration_file: {e}") from e
+
+
+def check_cell_reachable(config: Config, arm: ArmModel) -> None:
+    """Refuse a configured cell the arm cannot serve: every counter, flip-area and tray corner must be
+    reachable with every mug type of the catalogue (``CellLayout.check_reachable``)."""
+    problems = CellLayout.from_config(config.cell).check_reachable(arm, catalogue_of(config))
+    if problems:
+        raise UsageError(f"the arm cannot serve the configured cell: {'; '.join(problems)}")
+
+
 @dataclass(frozen=True, slots=True)
 class CyclePlannerSpec:
     """Everything needed to build the cycle planner, hashable and picklable, so that a planning process can
-    build it once and reuse it."""
+    build it once and reuse it. ``correction`` is the arm's position correction (``arm.calibration_file``)."""
 
     cell: CellConfig
     tray: Tray
     mug_types: tuple[MugTypeConfig, ...]
+    correction: PositionCorrection | None = None
 
-    def build(self, arm: ArmModel | None = None) -> MotionPlanner:
+    def layout(self) -> CellLayout:
         layout = CellLayout.from_config(self.cell)
-        layout = dataclasses.replace(layout, tray_origin_m=self.tray.origin_m, tray_size_mm=self.tray.size_mm)
-        catalogue = {
+        return dataclasses.replace(layout, tray_origin_m=self.tray.origin_m, tray_size_mm=self.tray.size_mm)
+
+    def catalogue(self) -> dict[str, MugSpec]:
+        return {
             m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in self.mug_types
         }
-        planner: MotionPlanner = CyclePlanner(arm or ArmModel.load(), layout, catalogue)
-        return planner
+
+    def build(self, arm: ArmModel | None = None) -> CyclePlanner:
+        return CyclePlanner(
+            arm or ArmModel.load(), self.layout(), self.catalogue(), correction=self.correction
+        )
+
+    def move_cost(self) -> DynamicsMoveCost:
+        """The placement move cost from the arm's dynamics (``planner.energy_model = "dynamics"``)."""
+        return DynamicsMoveCost(ArmModel.load(), self.layout(), self.catalogue())
 
 
 @functools.lru_cache(maxsize=4)
-def _planner_in_this_process(spec: CyclePlannerSpec) -> MotionPlanner:
+def _planner_in_this_process(spec: CyclePlannerSpec) -> CyclePlanner:
     return spec.build()
+
+
+@functools.lru_cache(maxsize=4)
+def _move_cost_in_this_process(spec: CyclePlannerSpec) -> DynamicsMoveCost:
+    return spec.move_cost()
+
+
+def plan_placement(problem: Problem, options: PlanOptions, dynamics: CyclePlannerSpec | None) -> PlanResult:
+    """Placement planning; with ``dynamics``, move costs come from the arm's dynamics in that cell (built once
+    per process: it plans reference cycles). Module-level, so a process pool can run it."""
+    if dynamics is not None:
+        options = dataclasses.replace(options, move_cost=_move_cost_in_this_process(dynamics))
+    return plan(problem, options)
 
 
 def _build_in_this_process(spec: CyclePlannerSpec) -> None:
@@ -400,6 +496,16 @@ def _plan_cycle(
     counter: tuple[MugPose, ...],
 ) -> CyclePlan:
     return _planner_in_this_process(spec).plan_cycle(start_q, mug, slot, on_tray, counter=counter)
+
+
+def _plan_for_slot(
+    spec: CyclePlannerSpec,
+    start_q: tuple[float, ...],
+    slot: TraySlot,
+    counter: tuple[MugPose, ...],
+    on_tray: tuple[TraySlot, ...],
+) -> tuple[MugPose, CyclePlan]:
+    return _planner_in_this_process(spec).plan_for_slot(start_q, slot, counter, on_tray)
 
 
 def _plan_move(
@@ -437,6 +543,18 @@ class ProcessMotionPlanner:
         )
         return future.result()
 
+    def plan_for_slot(
+        self,
+        start_q: Sequence[float],
+        slot: TraySlot,
+        counter: Sequence[MugPose],
+        on_tray: Sequence[TraySlot],
+    ) -> tuple[MugPose, CyclePlan]:
+        future = self._executor.submit(
+            _plan_for_slot, self._spec, tuple(start_q), slot, tuple(counter), tuple(on_tray)
+        )
+        return future.result()
+
     def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
         return self._executor.submit(_plan_move, self._spec, tuple(start_q), tuple(goal_q), label).result()
 
@@ -455,9 +573,7 @@ async def open_mujoco_backend(
         layout = SceneLayout.from_config(plain["cell"], plain["camera"])
     except ValueError as e:
         raise UsageError(f"the MuJoCo cell cannot use this config: {e}") from e
-    catalogue = {
-        m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in config.mug_types
-    }
+    catalogue = catalogue_of(config)
     tray = Tray(config.cell.tray_origin_m, config.cell.tray_size_mm)
 
     def entries(
@@ -489,13 +605,14 @@ async def open_mujoco_backend(
         def scene(self) -> dict[str, object]:
             return {**cell.scene(), "dataset": self.dataset}
 
-    spec = CyclePlannerSpec(config.cell, tray, config.mug_types)
+    spec = CyclePlannerSpec(config.cell, tray, config.mug_types, load_correction(config))
     motion: MotionPlanner = spec.build() if executor is None else ProcessMotionPlanner(spec, executor)
 
     def on_event(listener: EventListener) -> None:
         cell.on_collision(
             lambda c: listener({**c.to_event(), "kind": "tray_collision", "t_sim": c.t, "t": time.time()})
         )
+        cell.on_device_event(lambda e: listener(device_event_payload(e)))
 
     return Backend(
         name="sim-mujoco",
@@ -509,3 +626,138 @@ async def open_mujoco_backend(
         closer=closer,
         on_event=on_event,
     )
+
+
+def hardware_stack_spec(config: Config, arm: ArmModel) -> StackSpec:
+    """The device stack of ``[hardware]``: each joint's servo with the URDF's limits, the gripper (its
+    measured aperture map, or the arm model's gripper geometry when none is given), the FSR and the bus."""
+    hw = config.hardware
+    try:
+        joints = arm_joints([(j, hw.servo(j).id, hw.servo(j).model) for j in ARM_JOINTS])
+        grip = hw.servo("gripper")
+        gripper = dataclasses.replace(
+            gripper_spec(arm.gripper, servo_id=grip.id),
+            model=grip.model,
+            grip_limit=hw.gripper.grip_limit,
+            grip_limit_backoff=hw.gripper.grip_limit_backoff,
+            overload_retries=hw.gripper.overload_retries,
+        )
+        if hw.gripper.aperture_map:
+            apertures = [m for _, m in hw.gripper.aperture_map]
+            gripper = dataclasses.replace(
+                gripper, aperture_map=hw.gripper.aperture_map, open_aperture_m=max(apertures)
+            )
+        fsr = hw.fsr
+        return StackSpec(
+            bus=BusConfig(hw.servo_port, hw.baudrate, 1 if hw.protocol == 1 else 2),
+            joints=joints,
+            gripper=gripper,
+            fsr=FsrSettings(
+                fsr.port,
+                threshold_n=fsr.threshold_n,
+                release_n=fsr.release_n,
+                gain=fsr.gain,
+                debounce_s=fsr.debounce_s,
+                stale_after_s=fsr.stale_after_s,
+            ),
+            retries=hw.retries,
+            read_timeout_s=hw.read_timeout_s,
+        )
+    except ValueError as e:
+        raise UsageError(f"hardware: {e}") from e
+
+
+class _NoCamera:
+    """``hardware.camera = "none"``: the devices run (telemetry, faults, commands) but the counter looks
+    empty, so a started job ends done at once."""
+
+    async def observe(self) -> Observation:
+        return Observation(t=time.monotonic(), detections=(), meta={"source": "none"})
+
+
+async def open_hardware_backend(
+    config: Config,
+    *,
+    executor: concurrent.futures.Executor | None = None,
+    camera: Camera | None = None,
+) -> Backend:
+    """The robot: the device stack of ``[hardware]`` on its serial ports (the same stack the MuJoCo cell
+    builds over pseudo-terminals) and the RealSense camera with the depth detector. ``camera`` replaces the
+    configured camera (a stand-in for tests). A missing port, a missing pyrealsense2 or a servo chain that
+    does not match the config is a one-line ``UsageError``. Call it on the event loop that will use the
+    devices."""
+    hw = config.hardware
+    for key, port in (("hardware.servo_port", hw.servo_port), ("hardware.fsr.port", hw.fsr.port)):
+        if not Path(port).exists():  # noqa: ASYNC240 (one stat at start-up, before any device runs)
+            raise UsageError(
+                f"{key}: {port} does not exist; plug the adapter in and install the udev rule "
+                "(docs/hardware.md), or set the port"
+            )
+    arm_model = ArmModel.load()
+    spec = hardware_stack_spec(config, arm_model)
+    correction = load_correction(config)
+    events = _DeviceEvents()
+    stack = contextlib.AsyncExitStack()
+    try:
+        devices = await open_device_stack(spec, stack, on_event=events)
+        observer = await _hardware_observer(config, stack, camera)
+    except BaseException as e:
+        await stack.aclose()
+        if isinstance(e, DriverError | BusLost):
+            raise UsageError(f"cannot open the robot's devices: {e}") from e
+        raise
+    tray = Tray(config.cell.tray_origin_m, config.cell.tray_size_mm)
+    planner_spec = CyclePlannerSpec(config.cell, tray, config.mug_types, correction)
+    motion: MotionPlanner = (
+        planner_spec.build(arm_model) if executor is None else ProcessMotionPlanner(planner_spec, executor)
+    )
+    return Backend(
+        name="hardware",
+        arm=devices.arm,
+        gripper=devices.gripper,
+        force=devices.force,
+        observer=observer,
+        motion=motion,
+        tray=tray,
+        closer=stack.aclose,
+        on_event=events.add,
+    )
+
+
+async def _hardware_observer(
+    config: Config, stack: contextlib.AsyncExitStack, camera: Camera | None
+) -> MugObserver:
+    """The mug observer on the configured camera: depth detection over the table, the tray left out."""
+    from drivers.camera import RealSenseCamera, load_pyrealsense
+    from drivers.simworld.scene import SceneLayout
+    from perception.calibration import camera_model
+    from perception.observer import cell_observer_factory
+
+    if camera is None and config.hardware.camera == "none":
+        return _NoCamera()
+    plain = config.to_dict()
+    c = config.camera
+    try:
+        layout = SceneLayout.from_config(plain["cell"], plain["camera"])
+        model = camera_model(
+            width=c.width,
+            height=c.height,
+            fovy_deg=c.fovy_deg,
+            position_m=c.position_m,
+            yaw_rad=c.yaw_rad,
+            pitch_rad=c.pitch_rad,
+            calibration_file=c.calibration_file,
+        )
+    except ValueError as e:
+        raise UsageError(f"camera: {e}") from e
+    if camera is None:
+        load_pyrealsense()  # CameraUnavailable (a DriverError) says which extra to install
+        camera = await stack.enter_async_context(
+            RealSenseCamera(
+                world_from_camera=model.world_from_camera,
+                width=c.width,
+                height=c.height,
+                serial_number=config.hardware.camera_serial or None,
+            )
+        )
+    return cell_observer_factory(layout, catalogue_of(config))(camera)

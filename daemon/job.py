@@ -26,14 +26,22 @@ from typing import Any, Protocol, TypeVar
 import numpy as np
 import structlog
 
-from daemon.backend import Backend, CounterMug, depth_preview_payload, observation_payload
+from daemon.backend import (
+    Backend,
+    CounterMug,
+    CyclePlannerSpec,
+    SlotPlanner,
+    depth_preview_payload,
+    observation_payload,
+    plan_placement,
+)
 from daemon.config import Config
 from drivers.errors import BusLost, DriverError, LimitViolation
 from drivers.interfaces import JointTrajectory
 from perception.interfaces import Detection
 from planning.interfaces import CyclePlan, MotionRefused, MugPose, Step, StepKind, TraySlot
 from planning.placement import CounterMug as PlanMug
-from planning.placement import InvalidProblem, PlanOptions, Problem, TrayMug, plan
+from planning.placement import InvalidProblem, PlanOptions, Problem, TrayMug
 from planning.placement import MugType as PlanMugType
 from statechart.chart import CARRYING, CYCLE_PHASES, top_level
 from statechart.errors import EventRefused
@@ -52,6 +60,9 @@ class Associate(Protocol):
         self, known: Sequence[Detection], seen: Sequence[Detection], *, target_id: str = ""
     ) -> Sequence[Detection]: ...
 
+
+# The states of the loading job that do work (and may move the arm).
+_WORKING = ("detect", "plan", "side_grasp", "flip", "place", "recover_lost_mug")
 
 # After a pause, a move is joined at its nearest sample; within this of it, without a bridging move.
 _ON_PATH_RAD = 0.02
@@ -218,6 +229,20 @@ class Job:
         with contextlib.suppress(CommandRefused):
             await self._submit(_Command("fault", None, reason, asyncio.get_running_loop().create_future()))
 
+    def device_event(self, event: Mapping[str, object]) -> None:
+        """A driver's fault or recovery (``backend.device_event_payload``), on the event loop: published on
+        ``events``; a lost bus, and a silent or unplugged force sensor while a job works (a drop could no
+        longer be seen), fault the job. Servo faults are only reported here: the gripper recovers overloads
+        itself, and a fault that stands reaches the job as the driver's exception."""
+        kind = str(event.get("kind", ""))
+        self._publish("events", {**event, "state": self.chart.state})
+        working = top_level(self.chart.state) in _WORKING
+        if kind == "bus_lost" or (kind in ("fsr_lost", "fsr_stale") and working):
+            reason = f"{kind} on {event.get('port', event.get('device', '?'))}"
+            if "error" in event:
+                reason += f": {event['error']}"
+            asyncio.get_running_loop().create_task(self.fault(reason))
+
     async def _submit(self, cmd: _Command) -> dict[str, object]:
         await self._inbox.put(cmd)
         return await cmd.reply
@@ -348,7 +373,7 @@ class Job:
     def _start_work(self) -> None:
         self._generation += 1
         leaf = self.chart.state
-        if top_level(leaf) not in ("detect", "plan", "side_grasp", "flip", "place", "recover_lost_mug"):
+        if top_level(leaf) not in _WORKING:
             return
         generation = self._generation
         self._work = asyncio.create_task(self._run_work(leaf, generation), name=f"work:{leaf}")
@@ -415,11 +440,12 @@ class Job:
         ctx = self._ctx
         try:
             problem = self._problem()
+            dynamics = self._dynamics_spec()
             if self._executor is None:
-                result = await asyncio.to_thread(plan, problem, ctx.planner)
+                result = await asyncio.to_thread(plan_placement, problem, ctx.planner, dynamics)
             else:
                 result = await asyncio.get_running_loop().run_in_executor(
-                    self._executor, plan, problem, ctx.planner
+                    self._executor, plan_placement, problem, ctx.planner, dynamics
                 )
         except InvalidProblem as e:
             self._event("warning", message=f"placement planning refused the problem: {e}")
@@ -629,7 +655,9 @@ class Job:
         self._event("mug_given_up", mug_id=mug_id, reason=reason)
 
     async def _prepare_next(self) -> bool:
-        """Take the next planned mug whose cycle can be planned; mugs whose motion is refused are skipped."""
+        """Take the next planned mug whose cycle can be planned. When the motion planner can fill a slot with
+        another mug of the same type (``SlotPlanner``), a blocked mug is swapped for a reachable one; mugs no
+        motion reaches are skipped."""
         ctx = self._ctx
         while ctx.queue:
             slot, tray_mug = ctx.queue.pop(0)
@@ -637,12 +665,45 @@ class Job:
             if mug is None or slot.mug_id in ctx.given_up:
                 continue
             ctx.current_tray_mug = tray_mug
-            if await self._plan_cycle(mug, slot, retry=False) is not None:
+            if isinstance(self.backend.motion, SlotPlanner):
+                if await self._plan_for_slot(slot, tray_mug):
+                    return True
+            elif await self._plan_cycle(mug, slot, retry=False) is not None:
                 return True
             self._give_up(slot.mug_id, "no motion reaches it")
         ctx.current = None
         ctx.cycle = None
         return False
+
+    async def _plan_for_slot(self, slot: TraySlot, tray_mug: TrayMug) -> bool:
+        """Plan the cycle filling ``slot`` with its mug or, when that one is blocked, with the nearest
+        reachable counter mug of the same type; the two mugs swap their places in the plan."""
+        ctx = self._ctx
+        assert isinstance(self.backend.motion, SlotPlanner)
+        js = await self.backend.arm.read_joints()
+        counter = tuple(m for m in ctx.counter.values() if m.mug_id not in ctx.given_up)
+        try:
+            mug, cycle = await asyncio.to_thread(
+                self.backend.motion.plan_for_slot, js.position_rad, slot, counter, tuple(ctx.on_tray)
+            )
+        except MotionRefused as e:
+            self._event("motion_refused", mug_id=slot.mug_id, reason=str(e))
+            return False
+        if mug.mug_id != slot.mug_id:
+            # The swapped-in mug's own slot (same type, so the same footprint) goes to the blocked mug.
+            ctx.queue = [
+                (replace(s, mug_id=slot.mug_id), replace(t, id=slot.mug_id))
+                if s.mug_id == mug.mug_id
+                else (s, t)
+                for s, t in ctx.queue
+            ]
+            self._event(
+                "mug_swapped", slot_for=slot.mug_id, mug_id=mug.mug_id, reason="blocked or out of reach"
+            )
+            slot = replace(slot, mug_id=mug.mug_id)
+            ctx.current_tray_mug = replace(tray_mug, id=mug.mug_id)
+        self._adopt_cycle(mug, slot, cycle, retry=False)
+        return True
 
     async def _plan_cycle(self, pose: MugPose, slot: TraySlot, *, retry: bool) -> CyclePlan | None:
         ctx = self._ctx
@@ -659,6 +720,12 @@ class Job:
         except MotionRefused as e:
             self._event("motion_refused", mug_id=pose.mug_id, reason=str(e))
             return None
+        self._adopt_cycle(pose, slot, cycle, retry=retry)
+        return cycle
+
+    def _adopt_cycle(self, pose: MugPose, slot: TraySlot, cycle: CyclePlan, *, retry: bool) -> None:
+        """Make ``cycle`` (taking ``pose`` to ``slot``) the current one, from its first step."""
+        ctx = self._ctx
         bad = [s.phase for s in cycle.steps if s.phase not in CYCLE_PHASES]
         if bad:
             raise MotionRefused(
@@ -675,7 +742,6 @@ class Job:
             duration_s=round(cycle.duration_s, 3),
             energy_j=round(cycle.energy_j, 3),
         )
-        return cycle
 
     def _placed(self) -> None:
         ctx = self._ctx
@@ -687,6 +753,13 @@ class Job:
         ctx.counter.pop(ctx.current.mug_id, None)
         ctx.summary.placed = len(ctx.on_tray)
         self._event("mug_placed", mug_id=ctx.current.mug_id, x_m=ctx.current.x_m, y_m=ctx.current.y_m)
+
+    def _dynamics_spec(self) -> CyclePlannerSpec | None:
+        """The cell whose arm dynamics cost the placement's moves (``planner.energy_model = "dynamics"``);
+        None for the thesis's potential-energy proxy."""
+        if self.config.planner.energy_model != "dynamics":
+            return None
+        return CyclePlannerSpec(self.config.cell, self.backend.tray, self.config.mug_types)
 
     def _problem(self) -> Problem:
         ctx = self._ctx

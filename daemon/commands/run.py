@@ -13,13 +13,20 @@ from pathlib import Path
 import structlog
 
 from daemon.app import RunOptions, RunResult, serve
-from daemon.backend import Backend, ProcessMotionPlanner, open_sim_backend
+from daemon.backend import (
+    Backend,
+    ProcessMotionPlanner,
+    check_cell_reachable,
+    open_hardware_backend,
+    open_sim_backend,
+)
 from daemon.config import Config, check_endpoint, load_config
 from daemon.errors import ConfigError, UsageError
 from daemon.job import Associate, StartRequest
 from daemon.sdnotify import SdNotifier
 from perception import associate
 from planning import thesis
+from planning.arm import ArmModel
 
 _PLANNING_NICENESS = 10
 
@@ -36,7 +43,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         ),
     )
     parser.add_argument(
-        "--sim", action="store_true", help="run on the simulated cell (default: config backend)"
+        "--sim",
+        action="store_true",
+        help="run on the simulated cell even when the config's backend is hardware (default: config backend)",
     )
     parser.add_argument(
         "--world",
@@ -46,9 +55,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser.add_argument(
         "--dataset",
         type=int,
-        default=1,
         metavar="N",
-        help=f"simulation: put the mugs of placement dataset N (1-{len(thesis.DATASETS)}) on the counter",
+        help=f"simulation: put the mugs of placement dataset N (1-{len(thesis.DATASETS)}) on the counter "
+        "(default 1)",
     )
     parser.add_argument(
         "--once", action="store_true", help="start at once, run one job, print a summary, exit"
@@ -82,7 +91,7 @@ def _run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     listen = tuple(_endpoints(args.listen, "--listen")) if args.listen else config.zenoh.listen
     connect = tuple(_endpoints(args.connect, "--connect")) if args.connect else config.zenoh.connect
-    if not 1 <= args.dataset <= len(thesis.DATASETS):
+    if args.dataset is not None and not 1 <= args.dataset <= len(thesis.DATASETS):
         raise UsageError(f"--dataset {args.dataset}: choose a dataset 1-{len(thesis.DATASETS)}")
     speed: float | None = args.speed
     if speed is not None and not 0.1 <= speed <= 1000.0:
@@ -138,13 +147,21 @@ async def _serve(
 async def _backend(
     args: argparse.Namespace, config: Config, speed: float | None, pool: concurrent.futures.Executor
 ) -> Backend:
-    if not args.sim and config.backend != "sim":
-        raise UsageError("the hardware backend is not wired into dishbot run yet; use --sim")
-    world = args.world or config.sim.world
-    seed = config.sim.seed if args.seed is None else args.seed
-    backend = await open_sim_backend(
-        config, world=world, dataset=args.dataset, speed=speed, seed=seed, executor=pool
-    )
+    # A cell the arm cannot serve is refused before any device moves (or any simulator starts).
+    check_cell_reachable(config, ArmModel.load())
+    if args.sim or config.backend == "sim":
+        world = args.world or config.sim.world
+        seed = config.sim.seed if args.seed is None else args.seed
+        backend = await open_sim_backend(
+            config, world=world, dataset=args.dataset or 1, speed=speed, seed=seed, executor=pool
+        )
+    else:
+        for flag, value in (("--world", args.world), ("--dataset", args.dataset), ("--seed", args.seed)):
+            if value is not None:
+                raise UsageError(f"{flag} sets up the simulated cell; add --sim (backend is hardware)")
+        if speed is not None:
+            raise UsageError("--speed sets up the simulated cell; add --sim (backend is hardware)")
+        backend = await open_hardware_backend(config, executor=pool)
     if isinstance(backend.motion, ProcessMotionPlanner):
         backend.motion.warm_up()
     return backend
