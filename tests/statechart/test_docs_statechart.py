@@ -5,12 +5,15 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import pytest
+
 from statechart.mermaid import to_mermaid
 
-DOCS = Path(__file__).parents[2] / "docs" / "daemon.md"
+ROOT = Path(__file__).parents[2]
 
 
-def test_the_documented_statechart_is_the_generated_one() -> None:
-    block = re.search(r"```mermaid\n(.*?)```", DOCS.read_text(encoding="utf-8"), re.DOTALL)
+@pytest.mark.parametrize("doc", ["README.md", "docs/daemon.md"])
+def test_the_documented_statechart_is_the_generated_one(doc: str) -> None:
+    block = re.search(r"```mermaid\n(.*?)```", (ROOT / doc).read_text(encoding="utf-8"), re.DOTALL)
     assert block is not None
     assert block.group(1) == to_mermaid()
