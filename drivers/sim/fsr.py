@@ -10,13 +10,12 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from types import TracebackType
 
 from drivers.fsr import protocol
-from drivers.sim.pty_link import PtyLink
+from drivers.sim.pty_link import PtyDevice
 
 
-class FsrSimulator:
+class FsrSimulator(PtyDevice):
     """Streams ``$FSR,seq,raw*HH`` lines on a pty and answers ``?V``; open :attr:`device_path`."""
 
     def __init__(
@@ -30,10 +29,7 @@ class FsrSimulator:
         self._force_n = force_n
         self.period_s = 1.0 / rate_hz
         self.version = version
-        self._name = name
-        self._link: PtyLink | None = None
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        super().__init__(name, thread_name="fsr-sim")
         self._lock = threading.Lock()
         self._seq = 0
         self._silent = False
@@ -43,35 +39,6 @@ class FsrSimulator:
         self._bad_checksums = 0
         self._torn = 0
         self.lines_sent = 0
-
-    @property
-    def device_path(self) -> str:
-        if self._link is None:
-            raise RuntimeError("the FSR simulator is not running; use it as a context manager first")
-        return self._link.device_path
-
-    def start(self) -> FsrSimulator:
-        self._link = PtyLink(self._name)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._serve, name="fsr-sim", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2)
-        if self._link is not None:
-            self._link.close()
-            self._link = None
-
-    def __enter__(self) -> FsrSimulator:
-        return self.start()
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.stop()
 
     # ------------------------------------------------------------------------------------------ fault hooks
 
@@ -102,14 +69,6 @@ class FsrSimulator:
         """Send only the first half of the next ``lines`` lines."""
         with self._lock:
             self._torn += lines
-
-    def unplug(self) -> None:
-        if self._link is not None:
-            self._link.unplug()
-
-    def replug(self) -> None:
-        if self._link is not None:
-            self._link.plug()
 
     # ------------------------------------------------------------------------------------------ serving
 

@@ -14,7 +14,6 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from types import TracebackType
 
 import structlog
 
@@ -22,7 +21,7 @@ from drivers.dynamixel import faults
 from drivers.dynamixel import protocol as p
 from drivers.dynamixel.tables import ModelSpec, baud_code, baud_from_code, model
 from drivers.sim.plant import FirstOrderPlant, ServoPlant
-from drivers.sim.pty_link import PtyLink
+from drivers.sim.pty_link import PtyDevice, PtyLink
 from planning.thesis import JOINT_SERVOS
 
 log = structlog.get_logger("drivers.sim.servo_chain")
@@ -56,7 +55,7 @@ class SimServo:
         self.table[reg.address : reg.address + reg.size] = p.le(value, reg.size)
 
 
-class ServoChainSimulator:
+class ServoChainSimulator(PtyDevice):
     """A chain of simulated servos on a pty; use as a context manager and open :attr:`device_path`.
 
     ``wire_timing`` makes answers take as long as their bytes would at ``baudrate`` (plus the return delay),
@@ -84,10 +83,7 @@ class ServoChainSimulator:
             if spec.protocol != protocol:
                 raise ValueError(f"{model_name} speaks Protocol {spec.protocol}.0, the chain {protocol}.0")
             self._servos.append(self._new_servo(spec, servo_id, baudrate, return_delay_ticks))
-        self._name = name
-        self._link: PtyLink | None = None
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        super().__init__(name, thread_name="servo-chain-sim")
         self._lock = threading.Lock()
         self._silent_all = False
         self._garbage = b""
@@ -126,36 +122,9 @@ class ServoChainSimulator:
 
     # ------------------------------------------------------------------------------------------ lifecycle
 
-    @property
-    def device_path(self) -> str:
-        if self._link is None:
-            raise RuntimeError("the simulator is not running; use it as a context manager first")
-        return self._link.device_path
-
-    def start(self) -> ServoChainSimulator:
-        self._link = PtyLink(self._name)
+    def _prepare(self) -> None:
         for servo in self._servos:
             self._sync_from_plant(servo)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._serve, name="servo-chain-sim", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2)
-        if self._link is not None:
-            self._link.close()
-            self._link = None
-
-    def __enter__(self) -> ServoChainSimulator:
-        return self.start()
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.stop()
 
     # ------------------------------------------------------------------------------------------ fault hooks
 
@@ -196,15 +165,6 @@ class ServoChainSimulator:
         """Bytes sent to the host before the next answer, as electrical noise on the line would be."""
         with self._lock:
             self._garbage += data
-
-    def unplug(self) -> None:
-        """Pull the USB adapter: the host's port fails and the device path disappears."""
-        if self._link is not None:
-            self._link.unplug()
-
-    def replug(self) -> None:
-        if self._link is not None:
-            self._link.plug()
 
     # ------------------------------------------------------------------------------------------ serving
 
