@@ -20,6 +20,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import structlog
+
 from daemon.backend import Backend, CounterMug, CyclePlannerSpec, ProcessMotionPlanner, Tray
 from daemon.commands.bench import add_json_flag, emit
 from daemon.commands.run import logs_to_stderr, planning_pool
@@ -37,6 +39,8 @@ from planning.placement import dataset_problem
 from planning.thesis import MugSpec
 
 DATASETS = (1, 2, 3)
+
+log = structlog.get_logger("daemon.bench_sim")
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,6 +93,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser.set_defaults(handler=run)
 
 
+def _log_job_event(key: str, payload: Mapping[str, object]) -> None:
+    """The job's events (grasp failures, drops, refusals, faults; not its state transitions) on stderr, so a
+    run shows why mugs were not placed."""
+    if key == "events" and payload.get("kind") != "transition":
+        log.info("job_event", **{str(k): v for k, v in payload.items()})
+
+
 def _datasets(text: str) -> list[int]:
     out = []
     for item in (t.strip() for t in text.split(",") if t.strip()):
@@ -125,6 +136,7 @@ def run(args: argparse.Namespace) -> int:
                     timeout_s=args.timeout,
                     fsr_debounce_s=args.fsr_debounce,
                     executor=pool,
+                    on_event=_log_job_event,
                 )
             )
             for n in datasets

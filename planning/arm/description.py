@@ -85,13 +85,14 @@ class JointLimit:
 
 # Mechanical limits of the brackets (estimates: the MX servos turn a full circle in joint mode, the AX-12A
 # 300°). Shoulder lift 0 is the upper arm pointing forward, negative raises it; the elbow folds down with
-# positive angles; the wrist turn keeps the upright (-pi/2) and upside-down (+pi/2) side grasps in range.
+# positive angles; the wrist turn is the AX-12A's whole travel (-150° to 149.7°), which keeps the upright
+# (-pi/2) and upside-down (+pi/2) side grasps in range.
 JOINT_LIMITS: Final[dict[str, JointLimit]] = {
     "shoulder_turn": JointLimit(-2.8, 2.8),
     "shoulder_lift": JointLimit(-2.0, 0.3),
     "elbow_lift": JointLimit(-1.0, 2.8),
     "wrist_lift": JointLimit(-2.8, 2.8),
-    "wrist_turn": JointLimit(-math.radians(150.0), math.radians(150.0)),
+    "wrist_turn": JointLimit(*SERVO_MODELS["AX-12A"].travel_rad),
     "gripper": JointLimit(-0.35, 1.5),
 }
 

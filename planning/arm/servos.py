@@ -34,6 +34,15 @@ class ServoModel:
     planning_speed_fraction: float = 0.5
 
     @property
+    def travel_rad(self) -> tuple[float, float]:
+        """The joint-mode travel about the centre position as the servo reaches it: ``resolution`` steps of
+        ``position_range_rad / resolution`` from -resolution/2 to resolution/2 - 1 (AX-12A: -150° to
+        149.7°), so a limit inside it never needs clamping to a position the servo can take."""
+        step = self.position_range_rad / self.resolution
+        half = self.resolution // 2
+        return -half * step, (half - 1) * step
+
+    @property
     def max_speed_rad_s(self) -> float:
         """The speed the planner allows: a fraction of the no-load speed, which loaded servos never reach."""
         return self.no_load_speed_rad_s * self.planning_speed_fraction

@@ -173,6 +173,27 @@ class CollisionWorld:
         pose, why = min(findings, key=lambda f: f[0])
         return f"{why} (pose {pose} of {len(positions)})"
 
+    def mugs_around(self, q: FloatArray, *, aperture_m: float) -> frozenset[str]:
+        """Ids of the mugs (named ``mug <id>``) the gripper overlaps at joint angles ``q``: after a failed or
+        abandoned grasp the open gripper still straddles the mug it let go of."""
+        if not len(self._cyl):
+            return frozenset()
+        spheres, radii = gripper_spheres(self.arm.gripper, aperture_m=aperture_m)
+        positions, rotations, _ = self._poses(np.asarray(q, dtype=np.float64)[None, :])
+        centres = positions[0][None, :] + spheres @ rotations[0].T
+        cyl = self._cyl
+        dxy = np.hypot(centres[:, None, 0] - cyl[None, :, 0], centres[:, None, 1] - cyl[None, :, 1])
+        r = radii[:, None]
+        overlap = (
+            (dxy < cyl[None, :, 2] + r)
+            & (centres[:, None, 2] + r > cyl[None, :, 3])
+            & (centres[:, None, 2] - r < cyl[None, :, 4])
+        )
+        names = (
+            self.cylinders[int(i)].name.removesuffix(" handle") for i in np.flatnonzero(overlap.any(axis=0))
+        )
+        return frozenset(n.removeprefix("mug ") for n in names if n.startswith("mug "))
+
     def _poses(self, q_samples: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Grasp-point positions (N, 3), rotations (N, 3, 3) and the heights of the joints after the shoulder
         turn (N, n-1), densified so the grasp point moves at most 1 cm between poses."""

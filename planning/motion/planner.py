@@ -365,6 +365,10 @@ class CyclePlanner:
         def approach(b: _Builder, d: float, side: float) -> None:
             pre = self._clear_of(pick, d, side)
             above = _at_z(pre, max(carry, pre.position_m[2]))
+            straddled = world.mugs_around(b.q, aperture_m=opened)
+            if straddled:
+                # After a failed grasp the open gripper still straddles that mug: lift straight off it first.
+                b.rise(phase, carry, world, aperture=opened, ignore=straddled)
             try:
                 b.joint_move(phase, above, world, aperture=opened)
             except MotionRefused:
@@ -554,11 +558,15 @@ class _Builder:
         self.q = trial.q
         self.motions = trial.motions
 
-    def rise(self, phase: str, z: float, world: CollisionWorld, *, aperture: float) -> None:
+    def rise(
+        self, phase: str, z: float, world: CollisionWorld, *, aperture: float, ignore: Ignore = ""
+    ) -> None:
         """Straight up to height ``z`` keeping the present orientation as well as the arm allows."""
         p, _ = self.p.arm.fk(self.q)
         if p[2] < z:
-            self.line(phase, GraspTarget((float(p[0]), float(p[1]), z)), world, aperture=aperture)
+            self.line(
+                phase, GraspTarget((float(p[0]), float(p[1]), z)), world, aperture=aperture, ignore=ignore
+            )
 
     def gripper(self, phase: str, kind: StepKind) -> None:
         still = self.p._plan(self.q[None, :], phase)[1]
@@ -595,7 +603,7 @@ class _Builder:
         aperture: float,
         held: HeldMug | None = None,
         mass: float = 0.0,
-        ignore: str = "",
+        ignore: Ignore = "",
     ) -> None:
         """A straight Cartesian move of the grasp point at fine speed, orientation per ``goal.kind``."""
         start_p, _ = self.p.arm.fk(self.q)
@@ -657,7 +665,7 @@ class _Builder:
         mass: float,
         fine: bool,
         length: float,
-        ignore: str = "",
+        ignore: Ignore = "",
     ) -> None:
         qs = [self.q]
         for t in targets:
@@ -702,12 +710,13 @@ class _Builder:
         mass: float,
         fine: bool,
         length: float,
-        ignore: str = "",
+        ignore: Ignore = "",
     ) -> None:
         trajectory, path = self.p._plan(waypoints, phase, tool_length_m=length, fine=fine)
         if path.duration == 0.0:
             return
-        skip = frozenset({f"mug {ignore}"}) if ignore else frozenset()
+        ids = {ignore} if isinstance(ignore, str) else ignore
+        skip = frozenset(f"mug {i}" for i in ids if i)
         if held is not None:
             skip = skip | {held.name}
         why = world.first_collision(trajectory.positions, aperture_m=aperture, held=held, ignore=skip)
@@ -716,6 +725,10 @@ class _Builder:
         lateral = held.lateral if held is not None else 0.0
         self.motions.append(_Motion(Step(phase, StepKind.MOVE, trajectory), path, mass, lateral))
         self.q = trajectory.positions[-1].copy()
+
+
+# Mugs a move may touch: one mug id, or several (a gripper lifting off the mugs it straddles).
+Ignore = str | frozenset[str]
 
 
 def _at_z(target: GraspTarget, z: float) -> GraspTarget:

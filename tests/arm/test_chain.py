@@ -117,3 +117,18 @@ def test_a_joint_without_a_known_servo_is_refused() -> None:
         ArmModelError, match=r"^joint 'shoulder_turn' of .*thesis_arm.urdf has servo None; map it to"
     ):
         ArmModel.load(servos={})
+
+
+def test_every_urdf_joint_limit_is_a_position_its_servo_can_take(arm: ArmModel) -> None:
+    """No limit the planner may use needs clamping by the driver: each lies within the servo's ticks."""
+    from drivers.dynamixel.tables import MODELS
+
+    servos = dict(thesis.JOINT_SERVOS)
+    for i, name in enumerate(arm.joint_names):
+        servo = MODELS[servos[name]]
+        low, high = servo.rad_from_ticks(0), servo.rad_from_ticks(servo.max_tick)
+        # The URDF keeps 9 significant digits, a few 1e-9 rad either way.
+        assert low - 1e-8 <= float(arm.lower[i]), name
+        assert float(arm.upper[i]) <= high + 1e-8, name
+    wrist = arm.joint_names.index("wrist_turn")
+    assert float(arm.upper[wrist]) == pytest.approx(math.radians(149.70703125))
