@@ -31,9 +31,14 @@ from daemon.job import Associate, Job, JobSummary, StartRequest
 from daemon.recording import Recorder
 from daemon.sdnotify import SdNotifier
 from daemon.zenoh_io import Bus
-from drivers.errors import BusLost, DriverError
+from drivers.dynamixel import BusTimeout
+from drivers.errors import BusLost, DriverError, ServoFault
 
 log = structlog.get_logger("daemon")
+
+# How long a servo may report a fault to the telemetry before the job faults: longer than the gripper's own
+# overload recovery (relax, restore the torque limit or reboot, retry: a few hundred milliseconds).
+_SERVO_FAULT_GRACE_S = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -204,19 +209,39 @@ async def _every(period_s: float, action: Callable[[], None]) -> None:
         await asyncio.sleep(max(0.0, next_t - time.monotonic()))
 
 
-async def _polled(period_s: float, read: Callable[[], Awaitable[None]], job: Job, what: str) -> None:
+async def _polled(
+    period_s: float,
+    read: Callable[[], Awaitable[None]],
+    job: Job,
+    what: str,
+    *,
+    servo_fault_grace_s: float = _SERVO_FAULT_GRACE_S,
+) -> None:
     """Call ``read`` every ``period_s``; a device failure faults the job once and is logged once, then
-    reading resumes quietly until it works again (logged once more)."""
+    reading resumes quietly until it works again (logged once more).
+
+    A lost bus or a servo that no longer answers faults at once. A servo reporting a fault (overload, say)
+    faults only when it still does after ``servo_fault_grace_s``: the gripper driver clears an overload
+    itself and retries the grasp, and the telemetry must not cut that recovery short."""
     next_t = time.monotonic()
     failing = False
+    servo_fault_since: float | None = None
     while True:
         try:
             await read()
+            servo_fault_since = None
             if failing:
                 log.info("telemetry_recovered", source=what)
                 failing = False
         except (DriverError, BusLost) as e:
-            if not failing:
+            now = time.monotonic()
+            recoverable = isinstance(e, ServoFault) and not isinstance(e, BusTimeout)
+            if recoverable and servo_fault_since is None:
+                servo_fault_since = now
+            persistent = not recoverable or (
+                servo_fault_since is not None and now - servo_fault_since >= servo_fault_grace_s
+            )
+            if persistent and not failing:
                 failing = True
                 log.error("telemetry_failed", source=what, error=str(e))
                 asyncio.get_running_loop().create_task(job.fault(f"{type(e).__name__}: {e}"))

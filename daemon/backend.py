@@ -21,6 +21,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
+import structlog
 
 from daemon.config import CellConfig, Config, MugTypeConfig
 from daemon.errors import UsageError
@@ -38,7 +39,15 @@ from drivers.interfaces import (
     JointTrajectory,
 )
 from drivers.simcell import MugGeometry, SimMug, open_kinematic_cell
-from drivers.stack import ARM_JOINTS, FsrSettings, StackSpec, arm_joints, gripper_spec, open_device_stack
+from drivers.stack import (
+    ARM_JOINTS,
+    DeviceStack,
+    FsrSettings,
+    StackSpec,
+    arm_joints,
+    gripper_spec,
+    open_device_stack,
+)
 from perception.interfaces import Detection, MugObserver, Observation
 from perception.truth import TruthObserver
 from planning import thesis
@@ -49,6 +58,8 @@ from planning.motion import CellLayout, DynamicsMoveCost
 from planning.motion.planner import CyclePlanner
 from planning.placement import PlanOptions, PlanResult, Problem, dataset_problem, plan
 from planning.thesis import MugSpec
+
+log = structlog.get_logger("daemon.backend")
 
 
 @dataclass(frozen=True, slots=True)
@@ -132,6 +143,8 @@ class Backend:
     # Devices that report events of their own (tray collisions in simulation) call the listener given here,
     # possibly from another thread.
     on_event: Callable[[EventListener], None] | None = None
+    # The Dynamixel/FSR device stack when the backend runs one (hardware): bus counters, diagnostics.
+    devices: DeviceStack | None = None
 
     def scene(self) -> dict[str, object]:
         """The initial scene for the recording's session header."""
@@ -708,6 +721,15 @@ async def open_hardware_backend(
         raise
     tray = Tray(config.cell.tray_origin_m, config.cell.tray_size_mm)
     planner_spec = CyclePlannerSpec(config.cell, tray, config.mug_types, correction)
+
+    async def close() -> None:
+        """Torque off and close the ports; a device that is already gone (unplugged, faulted) cannot be
+        switched off and is only logged, so the daemon still exits cleanly."""
+        try:
+            await stack.aclose()
+        except (DriverError, BusLost) as e:
+            log.warning("device_close_failed", error=str(e))
+
     motion: MotionPlanner = (
         planner_spec.build(arm_model) if executor is None else ProcessMotionPlanner(planner_spec, executor)
     )
@@ -719,8 +741,9 @@ async def open_hardware_backend(
         observer=observer,
         motion=motion,
         tray=tray,
-        closer=stack.aclose,
+        closer=close,
         on_event=events.add,
+        devices=devices,
     )
 
 

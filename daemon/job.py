@@ -64,6 +64,9 @@ class Associate(Protocol):
 # The states of the loading job that do work (and may move the arm).
 _WORKING = ("detect", "plan", "side_grasp", "flip", "place", "recover_lost_mug")
 
+# How long the force sensor may be lost or silent while the job works before it faults (see device_event).
+_FORCE_GRACE_S = 0.3
+
 # After a pause, a move is joined at its nearest sample; within this of it, without a bridging move.
 _ON_PATH_RAD = 0.02
 # A held grasp is confirmed by the FSR reader's debounced ``holding()``, which turns true only after the force
@@ -197,6 +200,7 @@ class Job:
         self._generation = 0
         self._ctx = _Context(planner=self._planner_options(PlannerRequest()))
         self._transitions = 0
+        self._force_down = 0  # FSR lost/stale reports since it was last restored
         self.finished = asyncio.Event()
         self.chart.subscribe(self._on_transition)
 
@@ -236,12 +240,24 @@ class Job:
         itself, and a fault that stands reaches the job as the driver's exception."""
         kind = str(event.get("kind", ""))
         self._publish("events", {**event, "state": self.chart.state})
-        working = top_level(self.chart.state) in _WORKING
-        if kind == "bus_lost" or (kind in ("fsr_lost", "fsr_stale") and working):
-            reason = f"{kind} on {event.get('port', event.get('device', '?'))}"
-            if "error" in event:
-                reason += f": {event['error']}"
+        reason = f"{kind} on {event.get('port', event.get('device', '?'))}"
+        if "error" in event:
+            reason += f": {event['error']}"
+        if kind == "bus_lost":
             asyncio.get_running_loop().create_task(self.fault(reason))
+        elif kind in ("fsr_lost", "fsr_stale"):
+            self._force_down += 1
+            if top_level(self.chart.state) in _WORKING:
+                asyncio.get_running_loop().create_task(self._fault_unless_force_back(reason))
+        elif kind == "fsr_restored":
+            self._force_down = 0
+
+    async def _fault_unless_force_back(self, reason: str, *, grace_s: float = _FORCE_GRACE_S) -> None:
+        """Fault the job when the force sensor is still lost or silent after ``grace_s``: a short stall of
+        the event loop must not end a job, a sensor that stays away must (no drop could be seen)."""
+        await asyncio.sleep(grace_s)
+        if self._force_down and top_level(self.chart.state) in _WORKING:
+            await self.fault(reason)
 
     async def _submit(self, cmd: _Command) -> dict[str, object]:
         await self._inbox.put(cmd)

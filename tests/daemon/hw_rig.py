@@ -1,0 +1,221 @@
+"""The hardware backend's test rig: the real device stack (dynamixel-sdk, pyserial) on the pseudo-terminals of
+the simulated servo chain and FSR Arduino, which is exactly the code path of the robot. Stand-ins are for the
+physical world only: the pad force rises when the gripper servo closes past a mug's width, the counter holds
+one mug until the job has put it on the tray, and a motion planner test double makes short, in-limit moves
+(a real cycle takes half a minute of wall time)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import json
+from collections.abc import AsyncIterator, Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from daemon.app import RunOptions, RunResult, serve
+from daemon.backend import Backend, open_hardware_backend
+from daemon.config import Config, load_config
+from daemon.sdnotify import SdNotifier
+from daemon.zenoh_io import Bus, session_config
+from drivers.interfaces import JointTrajectory
+from drivers.sim import FsrSimulator, ServoChainSimulator, default_chain
+from drivers.sim.plant import FirstOrderPlant
+from drivers.stack import ARM_JOINTS, gripper_spec
+from perception import associate
+from perception.interfaces import Detection, Observation
+from planning.arm import ArmModel
+from planning.interfaces import CyclePlan, MugPose, Step, StepKind, TraySlot
+from statechart.chart import CARRYING, CYCLE_PHASES
+from tests.daemon.conftest import free_port
+
+ROBOT = "hwtest"
+GRIPPER_ID = 6
+# The pads touch the mug when the opening is down to 8 cm: the force then rises to a firm grip.
+CONTACT_RAD = gripper_spec(ArmModel.load().gripper).angle_for(0.08)
+GRIP_N = 3.0
+MUG = Detection("big", 0.1, 0.45, False, 0.0, 0.95)
+
+
+@dataclass
+class Rig:
+    """The simulated devices behind the hardware backend and the knobs of the physical world."""
+
+    servos: ServoChainSimulator
+    fsr: FsrSimulator
+    plant: FirstOrderPlant
+    config: Config
+    placed: list[str] = field(default_factory=list)
+
+    def pad_force_n(self) -> float:
+        return GRIP_N if self.plant.present(GRIPPER_ID)[0] >= CONTACT_RAD else 0.0
+
+
+@contextlib.contextmanager
+def rig(**overrides: Any) -> Any:
+    """Simulated servo chain and FSR on pseudo-terminals, and a hardware config pointing at them."""
+    plant = FirstOrderPlant()
+    holder: list[Rig] = []
+    with (
+        ServoChainSimulator(default_chain(), plant=plant) as servos,
+        FsrSimulator(lambda: holder[0].pad_force_n() if holder else 0.0) as fsr,
+    ):
+        base: dict[str, Any] = {
+            "robot_id": ROBOT,
+            "backend": "hardware",
+            "planner": {"method": "bh"},
+            "daemon": {"drop_check_period_s": 0.01},
+            "hardware": {
+                "servo_port": servos.device_path,
+                "camera": "none",
+                "read_timeout_s": 0.05,
+                "fsr": {"port": fsr.device_path},
+            },
+        }
+        for key, value in overrides.items():
+            base[key] = {**base.get(key, {}), **value} if isinstance(value, dict) else value
+        config = load_config(overrides=base)
+        holder.append(Rig(servos, fsr, plant, config))
+        yield holder[0]
+
+
+class CounterStandIn:
+    """The counter as a camera would report it: one mug until the job placed it (``placed()``)."""
+
+    def __init__(self, placed: Callable[[], bool]) -> None:
+        self._placed = placed
+
+    async def observe(self) -> Observation:
+        return Observation(0.0, () if self._placed() else (MUG,), meta={"source": "stand-in"})
+
+
+class ShortMoves:
+    """A motion planner test double: each move turns the shoulder 0.05 rad and back, briefly; moves while a
+    mug is carried last longer so a test can act during them."""
+
+    def __init__(self, *, move_s: float = 0.1, carry_s: float = 0.4) -> None:
+        self.move_s = move_s
+        self.carry_s = carry_s
+
+    def plan_cycle(
+        self,
+        start_q: Sequence[float],
+        mug: MugPose,
+        slot: TraySlot,
+        on_tray: Sequence[TraySlot],
+        *,
+        counter: Sequence[MugPose] = (),
+    ) -> CyclePlan:
+        steps = []
+        q = np.asarray(start_q, dtype=np.float64)
+        for k, phase in enumerate(CYCLE_PHASES):
+            leaf = phase.split(".")[1]
+            if leaf == "close":
+                steps.append(Step(phase, StepKind.CLOSE))
+            elif leaf == "release":
+                steps.append(Step(phase, StepKind.OPEN))
+            elif leaf != "verify":
+                goal = q.copy()
+                goal[0] = 0.05 * (k % 2)
+                seconds = self.carry_s if phase in CARRYING else self.move_s
+                steps.append(Step(phase, StepKind.MOVE, _line(q, goal, seconds, f"{phase}:{mug.mug_id}")))
+                q = goal
+        return CyclePlan(mug.mug_id, tuple(steps), duration_s=1.0, energy_j=1.0)
+
+    def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
+        return _line(np.asarray(start_q), np.asarray(goal_q), self.move_s, label)
+
+
+def _line(a: np.ndarray, b: np.ndarray, seconds: float, label: str) -> JointTrajectory:
+    s = np.linspace(0.0, 1.0, 6)
+    return JointTrajectory(ARM_JOINTS, s * seconds, a + np.outer(s, b - a), label=label)
+
+
+@dataclass
+class Daemon:
+    """A running daemon on the hardware backend, and what a Zenoh subscriber received from it."""
+
+    backend: Backend
+    motion: ShortMoves = field(default_factory=ShortMoves)
+    events: list[dict[str, Any]] = field(default_factory=list)
+    states: list[str] = field(default_factory=list)
+    session: Any = None
+    endpoint: str = ""
+
+    def kinds(self) -> list[str]:
+        return [str(e["kind"]) for e in self.events]
+
+    def event(self, kind: str) -> dict[str, Any]:
+        return next(e for e in self.events if e["kind"] == kind)
+
+    async def until(self, condition: Callable[[], bool], *, timeout_s: float = 15.0) -> None:
+        async with asyncio.timeout(timeout_s):
+            while not condition():  # noqa: ASYNC110 (the subscriber's callbacks feed the condition)
+                await asyncio.sleep(0.01)
+
+    async def command(self, verb: str, body: dict[str, Any] | None = None) -> dict[str, Any]:
+        payload = json.dumps(body or {}).encode()
+
+        def query() -> dict[str, Any]:
+            replies = list(self.session.get(f"dishbot/{ROBOT}/cmd/{verb}", payload=payload, timeout=5.0))
+            reply: dict[str, Any] = json.loads(replies[0].ok.payload.to_bytes())
+            return reply
+
+        return await asyncio.to_thread(query)
+
+    @property
+    def state(self) -> str:
+        """The last state the subscriber saw published."""
+        return self.states[-1] if self.states else ""
+
+
+@contextlib.asynccontextmanager
+async def running_daemon(r: Rig, tmp_path: Path, *, carry_s: float = 0.4) -> AsyncIterator[Daemon]:
+    """``serve`` on the hardware backend of ``r`` over a real loopback Zenoh session, with a second session
+    subscribed to ``events`` and ``state`` (what a monitor on another machine sees)."""
+    backend = await open_hardware_backend(r.config)
+    d = Daemon(backend, ShortMoves(carry_s=carry_s))
+    backend = dataclasses.replace(
+        backend, observer=CounterStandIn(lambda: "mug_placed" in d.kinds()), motion=d.motion
+    )
+    d.backend = backend
+    d.endpoint = f"tcp/127.0.0.1:{free_port()}"
+    options = RunOptions(listen=(d.endpoint,), connect=(), record_dir=tmp_path)
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    ready = asyncio.Event()
+
+    def on_ready(bus: Bus, path: Path) -> None:
+        ready.set()
+
+    task: asyncio.Task[RunResult] = asyncio.create_task(
+        serve(r.config, backend, associate, options, notifier=SdNotifier(None), on_ready=on_ready, stop=stop)
+    )
+    await asyncio.wait_for(ready.wait(), 15)
+    with zenoh.open(session_config(listen=[], connect=[d.endpoint])) as session:
+        d.session = session
+
+        def on_event(sample: zenoh.Sample) -> None:
+            loop.call_soon_threadsafe(d.events.append, json.loads(sample.payload.to_bytes()))
+
+        def on_state(sample: zenoh.Sample) -> None:
+            state = json.loads(sample.payload.to_bytes())["state"]
+            loop.call_soon_threadsafe(d.states.append, state)
+
+        subs = [
+            session.declare_subscriber(f"dishbot/{ROBOT}/events", on_event),
+            session.declare_subscriber(f"dishbot/{ROBOT}/state", on_state),
+        ]
+        await asyncio.sleep(0.3)  # let the subscription reach the daemon's session
+        try:
+            yield d
+        finally:
+            stop.set()
+            await asyncio.wait_for(task, 30)
+            for sub in subs:
+                sub.undeclare()
