@@ -706,6 +706,13 @@ async def open_hardware_backend(
                 f"{key}: {port} does not exist; plug the adapter in and install the udev rule "
                 "(docs/hardware.md), or set the port"
             )
+    if camera is None and hw.camera == "realsense":
+        from drivers.camera import CameraUnavailable, load_pyrealsense
+
+        try:
+            load_pyrealsense()
+        except CameraUnavailable as e:
+            raise UsageError(f"hardware.camera: {e}") from e
     arm_model = ArmModel.load()
     spec = hardware_stack_spec(config, arm_model)
     correction = load_correction(config)
@@ -751,7 +758,7 @@ async def _hardware_observer(
     config: Config, stack: contextlib.AsyncExitStack, camera: Camera | None
 ) -> MugObserver:
     """The mug observer on the configured camera: depth detection over the table, the tray left out."""
-    from drivers.camera import RealSenseCamera, load_pyrealsense
+    from drivers.camera import RealSenseCamera
     from drivers.simworld.scene import SceneLayout
     from perception.calibration import camera_model
     from perception.observer import cell_observer_factory
@@ -774,7 +781,6 @@ async def _hardware_observer(
     except ValueError as e:
         raise UsageError(f"camera: {e}") from e
     if camera is None:
-        load_pyrealsense()  # CameraUnavailable (a DriverError) says which extra to install
         camera = await stack.enter_async_context(
             RealSenseCamera(
                 world_from_camera=model.world_from_camera,
