@@ -148,9 +148,14 @@ def link_parts(desc: ArmDescription) -> dict[str, list[Part]]:
             _servo_part(servos["wrist_turn"], (0.0, wrist / 2, 0.0), long_axis=1),
             Part(0.020, (0.04, wrist, 0.03), (0.0, wrist / 2, 0.0)),
         ],
-        # Gripper servo behind the palm, palm plate, and the fixed thumb (grasp y = -x of this frame).
+        # Gripper servo behind the palm plate (its whole length: a servo reaching past the plate would push
+        # a mug out of the grasp), palm plate, and the fixed thumb (grasp y = -x of this frame).
         "gripper_link": [
-            _servo_part(servos["gripper"], (0.0, 0.0, palm / 2), long_axis=2),
+            _servo_part(
+                servos["gripper"],
+                (0.0, 0.0, palm - t / 2 - SERVO_MODELS[servos["gripper"]].size_m[1] / 2),
+                long_axis=2,
+            ),
             # The palm plate spans from the thumb to the finger hinge (grasp y from -thumb to +hinge).
             Part(0.020, (palm_width, 0.04, 0.004), (palm_center_x, 0.0, palm)),
             Part(

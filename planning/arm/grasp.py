@@ -7,12 +7,19 @@ and to the right when the wrist is turned by pi (the ∓ of Eq 4.37). Solving fo
 angle gives Eq 4.33-4.35; the palm (the thesis's gripper position) is a finger length behind the grasp
 point (Eq 4.36-4.37). The inverse (Eq 4.38-4.39) maps a reachable grasp point back to the mug it holds,
 which is what the tray limits (Eq 4.40-4.45) are built from.
+
+One change from the thesis: its grasp point is the finger tip *on* the mug's widest line, so a squeeze
+pushes the mug out of the gripper (the finger touches the brim with its tip corner, and a finger leaning in
+wedges the mug outwards). Here the grasp point lies ``reach_past_axis_m`` further along the approach, so
+the fingers wrap past the brim's centre line and a squeeze presses the mug towards the palm; how far is
+bounded by the room between the mug and the palm.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Final
 
 import numpy as np
 
@@ -32,6 +39,21 @@ class SideGrasp:
     alpha_rad: float  # approach angle (Eq 4.28, = alpha' of Eq 4.35 with the base at the origin)
     theta_rad: float  # Eq 4.32
     delta_mg_m: float  # Eq 4.30
+    reach_m: float  # how far the grasp point lies past the mug axis along the approach
+
+
+# How far the finger tips reach past the mug's axis, as a fraction of its radius, and the gap kept between
+# the mug and the palm plate when the mug is that deep in the gripper.
+REACH_PAST_AXIS_FRACTION: Final = 0.35
+PALM_GAP_M: Final = 0.003
+
+
+def reach_past_axis_m(spec: MugSpec, gripper: GripperGeometry) -> float:
+    """How far along the approach the finger tips (the grasp point) lie beyond the mug's axis: a third of
+    the radius, less when the palm would come closer than ``PALM_GAP_M`` to the mug (big mugs: 6.7 mm)."""
+    r = spec.diameter_mm / 2000.0
+    room = gripper.finger_length_m - r - gripper.plate_thickness_m / 2 - PALM_GAP_M
+    return max(0.0, min(REACH_PAST_AXIS_FRACTION * r, room))
 
 
 def lateral_offset_m(spec: MugSpec, gripper: GripperGeometry) -> float:
@@ -67,7 +89,8 @@ def side_grasp(
     beta = math.atan2(mug_y_m, mug_x_m)  # Eq 4.33
     gamma = math.asin(delta / dist)  # Eq 4.34
     alpha = beta - sign * gamma  # Eq 4.35: the approach line passes beside the mug axis
-    rho = math.sqrt(dist * dist - delta * delta)
+    reach = reach_past_axis_m(spec, gripper)
+    rho = math.sqrt(dist * dist - delta * delta) + reach
     grasp_xy = (rho * math.cos(alpha), rho * math.sin(alpha))
     l_g = gripper.finger_length_m
     palm_xy = (grasp_xy[0] - l_g * math.cos(alpha), grasp_xy[1] - l_g * math.sin(alpha))
@@ -78,17 +101,20 @@ def side_grasp(
         alpha_rad=alpha,
         theta_rad=math.atan2(delta, l_g),  # Eq 4.32
         delta_mg_m=math.hypot(delta, l_g),  # Eq 4.30
+        reach_m=reach,
     )
 
 
 def mug_axis_from_grasp(
     grasp_xy_m: tuple[float, float], spec: MugSpec, gripper: GripperGeometry, kind: GraspKind
 ) -> FloatArray:
-    """Where the axis of a held mug is for a grasp point (Eq 4.38-4.39): beside the approach line."""
+    """Where the axis of a held mug is for a grasp point (Eq 4.38-4.39): beside the approach line, and
+    ``reach_past_axis_m`` back along it."""
     sign = _side_sign(kind)
     alpha = math.atan2(grasp_xy_m[1], grasp_xy_m[0])
     left = np.array([-math.sin(alpha), math.cos(alpha)])
-    return np.asarray(grasp_xy_m, dtype=np.float64) + sign * lateral_offset_m(spec, gripper) * left
+    back = -reach_past_axis_m(spec, gripper) * np.array([math.cos(alpha), math.sin(alpha)])
+    return np.asarray(grasp_xy_m, dtype=np.float64) + back + sign * lateral_offset_m(spec, gripper) * left
 
 
 def thesis_tray_limits(

@@ -55,14 +55,16 @@ class Box:
 
 @dataclass(frozen=True, slots=True)
 class HeldMug:
-    """A mug in the gripper, in the grasp frame: its axis runs along the frame's x through (0, lateral, 0),
-    the mug filling ``x_lo`` to ``x_hi`` along it."""
+    """A mug in the gripper, in the grasp frame: its axis runs along the frame's x through
+    (0, lateral, -behind) (the finger tips reach ``behind`` past it), the mug filling ``x_lo`` to ``x_hi``
+    along it."""
 
     name: str
     radius: float
     lateral: float
     x_lo: float
     x_hi: float
+    behind: float = 0.0
 
 
 def mug_obstacles(
@@ -256,7 +258,7 @@ class CollisionWorld:
     ) -> list[tuple[int, str]]:
         findings: list[tuple[int, str]] = []
         axis = rotations[:, :, 0]
-        centre = positions + rotations[:, :, 1] * held.lateral
+        centre = positions + rotations[:, :, 1] * held.lateral - rotations[:, :, 2] * held.behind
         base = centre + axis * held.x_lo
         top = centre + axis * held.x_hi
         vertical = np.abs(axis[:, 2]) > 0.999

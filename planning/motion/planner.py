@@ -23,7 +23,7 @@ from drivers.interfaces import FloatArray, JointTrajectory
 from planning import thesis
 from planning.arm.calibration import PositionCorrection
 from planning.arm.description import JOINT_LIMITS
-from planning.arm.grasp import lateral_offset_m, side_grasp
+from planning.arm.grasp import lateral_offset_m, reach_past_axis_m, side_grasp
 from planning.arm.model import ArmModel, JointValues
 from planning.arm.targets import GraspKind, GraspTarget
 from planning.interfaces import CyclePlan, MotionRefused, MugPose, Step, StepKind, TraySlot
@@ -528,6 +528,7 @@ class _CycleContext:
         self.lift_world = planner._world(self.others, self.placed)
         self.set_down: GraspTarget | None = None
         self._delta = lateral_offset_m(spec, planner.arm.gripper)
+        self._reach = reach_past_axis_m(spec, planner.arm.gripper)
 
     def held(self, kind: GraspKind) -> HeldMug:
         """The mug in the gripper, grasped 6 cm above its lower end: with the wrist level (x down) that end
@@ -536,8 +537,8 @@ class _CycleContext:
         z = thesis.GRASP_HEIGHT_M
         radius = self.spec.diameter_mm / 2000.0
         if kind is GraspKind.SIDE:
-            return HeldMug(f"mug {self.mug.mug_id}", radius, self._delta, z - h, z)
-        return HeldMug(f"mug {self.mug.mug_id}", radius, self._delta, -z, h - z)
+            return HeldMug(f"mug {self.mug.mug_id}", radius, self._delta, z - h, z, self._reach)
+        return HeldMug(f"mug {self.mug.mug_id}", radius, self._delta, -z, h - z, self._reach)
 
 
 class _Builder:

@@ -11,7 +11,7 @@ import pytest
 
 from planning import thesis
 from planning.arm import ArmModel, GraspKind, GraspTarget
-from planning.arm.grasp import lateral_offset_m
+from planning.arm.grasp import lateral_offset_m, reach_past_axis_m
 from planning.interfaces import CyclePlan, MotionPlanner, MotionRefused, MugPose, StepKind, TraySlot
 from planning.motion import CellLayout, CyclePlanner
 from planning.thesis import MUG_TYPES
@@ -119,7 +119,12 @@ def _end_of(plan: CyclePlan, phase: str) -> np.ndarray:
 
 def test_grasp_pose_holds_the_mug_axis_six_centimetres_up(plan: CyclePlan, arm: ArmModel) -> None:
     position, rotation = arm.fk(_end_of(plan, "side_grasp.approach"))
-    axis = position[:2] + lateral_offset_m(MUG_TYPES["big"], arm.gripper) * rotation[:2, 1]
+    reach = reach_past_axis_m(MUG_TYPES["big"], arm.gripper)
+    axis = (
+        position[:2]
+        + lateral_offset_m(MUG_TYPES["big"], arm.gripper) * rotation[:2, 1]
+        - reach * rotation[:2, 2]
+    )
     assert np.allclose(axis, [MUG.x_m, MUG.y_m], atol=1e-3)
     assert position[2] == pytest.approx(thesis.GRASP_HEIGHT_M, abs=1e-3)
     assert rotation[2, 0] == pytest.approx(-1.0, abs=1e-3)  # side grasp: the grasp frame's x points down
@@ -137,7 +142,12 @@ def test_flip_turns_the_wrist_by_half_a_turn_above_the_flip_area(plan: CyclePlan
 
 def test_release_on_the_tray_puts_the_inverted_mug_on_its_slot(plan: CyclePlan, arm: ArmModel) -> None:
     position, rotation = arm.fk(_end_of(plan, "place.descend"))
-    axis = position[:2] + lateral_offset_m(MUG_TYPES["big"], arm.gripper) * rotation[:2, 1]
+    reach = reach_past_axis_m(MUG_TYPES["big"], arm.gripper)
+    axis = (
+        position[:2]
+        + lateral_offset_m(MUG_TYPES["big"], arm.gripper) * rotation[:2, 1]
+        - reach * rotation[:2, 2]
+    )
     assert np.allclose(axis, [SLOT.x_m, SLOT.y_m], atol=1e-3)
     assert rotation[2, 0] == pytest.approx(1.0, abs=1e-3)  # upside down: x up
     # The brim, 6 cm below the grasp point, hangs just above the tray's base.
@@ -298,7 +308,12 @@ def test_a_neighbour_on_the_finger_side_makes_the_planner_place_with_the_wrist_l
     cycle = planner.plan_cycle(START_Q, MUG, SLOT, [right])
     position, rotation = arm.fk(_end_of(cycle, "place.descend"))
     assert rotation[2, 0] == pytest.approx(-1.0, abs=1e-3)  # wrist level: finger on the mug's left
-    axis = position[:2] + lateral_offset_m(MUG_TYPES["big"], arm.gripper) * rotation[:2, 1]
+    reach = reach_past_axis_m(MUG_TYPES["big"], arm.gripper)
+    axis = (
+        position[:2]
+        + lateral_offset_m(MUG_TYPES["big"], arm.gripper) * rotation[:2, 1]
+        - reach * rotation[:2, 2]
+    )
     assert np.allclose(axis, [SLOT.x_m, SLOT.y_m], atol=1e-3)
 
 

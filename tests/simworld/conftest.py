@@ -122,7 +122,9 @@ class Hand:
         along = np.array([math.cos(alpha), math.sin(alpha), 0.0])
         target = np.asarray(g.target.position_m)
         # The thumb is on the side of the grasp point away from the mug axis (Eq 4.29-4.30).
+        # (The grasp point also lies ahead of the axis, the finger tips reaching past it: take the side only.)
         thumb_side = np.append(target[:2] - np.array([x, y]), 0.0)
+        thumb_side -= float(thumb_side @ along) * along
         thumb_side /= np.linalg.norm(thumb_side)
         self.open()
         # Come in along the approach line with the mug centred between thumb and finger, then slide the
