@@ -298,6 +298,10 @@ class Job:
         if not self.chart.can(verb):
             raise CommandRefused(f"cannot {verb} in state {self.chart.state}")
         if verb == "start":
+            if self._force_down:
+                raise CommandRefused(
+                    "the gripper's force sensor is not reporting (lost or silent); check the FSR Arduino"
+                )
             self._begin(cmd.request or StartRequest())
             await self._fire(Outcome("start"))
             return {"state": self.chart.state}

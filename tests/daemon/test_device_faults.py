@@ -131,15 +131,21 @@ def test_a_silent_force_sensor_while_carrying_faults_the_job(tmp_path: Path) -> 
     _run(tmp_path, scenario, carry_s=1.5)
 
 
-def test_an_unplugged_force_sensor_while_idle_is_reported_without_a_fault(tmp_path: Path) -> None:
+def test_an_unplugged_force_sensor_while_idle_is_reported_and_refuses_a_start_until_back(
+    tmp_path: Path,
+) -> None:
     async def scenario(r: Rig, d: Daemon) -> None:
         r.fsr.unplug()
         await d.until(lambda: "fsr_lost" in d.kinds())
         assert d.event("fsr_lost")["port"] == r.fsr.device_path
+        assert (await d.command("start"))["error"] == (
+            "the gripper's force sensor is not reporting (lost or silent); check the FSR Arduino"
+        )
         r.fsr.replug()
         await d.until(lambda: "fsr_restored" in d.kinds())
         assert d.state == "idle"
         assert "fault" not in d.kinds()
+        assert (await d.command("start"))["ok"]
 
     _run(tmp_path, scenario)
 
