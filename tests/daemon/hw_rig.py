@@ -158,6 +158,11 @@ class Daemon:
             while not condition():  # noqa: ASYNC110 (the subscriber's callbacks feed the condition)
                 await asyncio.sleep(0.01)
 
+    def reached(self, *states: str) -> bool:
+        """Whether the ``events`` stream announced a transition into one of ``states``: every event the job
+        published before it has arrived too (one key keeps its order)."""
+        return any(e["kind"] == "transition" and e["dest"] in states for e in self.events)
+
     async def command(self, verb: str, body: dict[str, Any] | None = None) -> dict[str, Any]:
         payload = json.dumps(body or {}).encode()
 

@@ -27,8 +27,8 @@ def test_a_gripper_overload_is_recovered_reported_and_the_job_goes_on(tmp_path: 
         # The servo trips the first time a closing goal reaches it (a jam), then closes normally.
         r.servos.overload(GRIPPER_ID, now=False, repeats=1)
         assert (await d.command("start"))["ok"]
-        await d.until(lambda: d.state in ("done", "fault"))
-        assert d.state == "done"
+        await d.until(lambda: d.reached("done", "fault"))
+        assert d.reached("done")
         trip = d.event("servo_fault")
         assert (trip["device"], trip["servo_id"], trip["faults"]) == ("servo/6", 6, "['overload']")
         recovered = d.event("gripper_overload_recovered")
@@ -43,8 +43,8 @@ def test_a_gripper_that_keeps_tripping_faults_the_job_and_only_reset_leaves(tmp_
     async def scenario(r: Rig, d: Daemon) -> None:
         r.servos.overload(GRIPPER_ID, now=False, repeats=50)
         assert (await d.command("start"))["ok"]
-        await d.until(lambda: d.state in ("done", "fault"))
-        assert d.state == "fault"
+        await d.until(lambda: d.reached("done", "fault"))
+        assert d.reached("fault")
         # The gripper's own recoveries all ran (the telemetry did not cut them short), then the fault stood.
         assert d.kinds().count("gripper_overload_recovered") == 3
         assert d.event("fault")["reason"].startswith("ServoFault: gripper servo 6 overloaded")
@@ -57,8 +57,7 @@ def test_a_gripper_that_keeps_tripping_faults_the_job_and_only_reset_leaves(tmp_
 def test_an_arm_servo_that_stays_overloaded_faults_the_idle_daemon_after_the_grace(tmp_path: Path) -> None:
     async def scenario(r: Rig, d: Daemon) -> None:
         r.servos.overload(2)
-        await d.until(lambda: "fault" in d.kinds())
-        assert d.state == "fault"
+        await d.until(lambda: d.reached("fault"))
         assert d.event("servo_fault")["servo_id"] == 2
         fault = d.event("fault")
         assert fault["reason"].startswith("ServoFault: servo 2 on ")
@@ -72,8 +71,7 @@ def test_an_arm_servo_that_stays_overloaded_faults_the_idle_daemon_after_the_gra
 def test_a_servo_that_stops_answering_faults_the_daemon_naming_it(tmp_path: Path) -> None:
     async def scenario(r: Rig, d: Daemon) -> None:
         r.servos.silence(3)
-        await d.until(lambda: "fault" in d.kinds())
-        assert d.state == "fault"
+        await d.until(lambda: d.reached("fault"))
         assert (d.event("servo_fault")["servo_id"], d.event("servo_fault")["faults"]) == (3, "['no_status']")
         reason = d.event("fault")["reason"]
         assert reason.startswith("BusTimeout: servo")
@@ -104,8 +102,7 @@ def test_unplugging_the_servo_adapter_reports_the_lost_bus_and_faults(tmp_path: 
         assert (await d.command("start"))["ok"]
         await d.until(lambda: d.state.startswith("side_grasp"))
         r.servos.unplug()
-        await d.until(lambda: "fault" in d.kinds())
-        assert d.state == "fault"
+        await d.until(lambda: d.reached("fault"))
         lost = d.event("bus_lost")
         assert lost["device"] == "bus"
         assert lost["port"] == r.servos.device_path
@@ -120,8 +117,7 @@ def test_a_silent_force_sensor_while_carrying_faults_the_job(tmp_path: Path) -> 
         assert (await d.command("start"))["ok"]
         await d.until(lambda: d.state == "flip.transit")
         r.fsr.silence()
-        await d.until(lambda: "fault" in d.kinds())
-        assert d.state == "fault"
+        await d.until(lambda: d.reached("fault"))
         stale = d.event("fsr_stale")
         assert (stale["device"], stale["port"]) == ("fsr", r.fsr.device_path)
         assert d.event("fault")["reason"] == f"fsr_stale on {r.fsr.device_path}"
@@ -158,8 +154,8 @@ def test_the_force_dropping_while_carrying_recovers_the_lost_mug(tmp_path: Path)
         await d.until(lambda: d.state == "recover_lost_mug")
         r.fsr.drop_force(on=False)
         d.motion.carry_s = 0.1  # the second attempt need not be slow
-        await d.until(lambda: d.state in ("done", "fault"))
-        assert d.state == "done"
+        await d.until(lambda: d.reached("done", "fault"))
+        assert d.reached("done")
         dropped = d.event("mug_dropped")
         assert (dropped["state"], dropped["mug_id"]) == ("flip.transit", "m1")
         assert d.event("mug_found")["mug_id"] == "m1"
