@@ -685,8 +685,9 @@ class Job:
             if mug is None or slot.mug_id in ctx.given_up:
                 continue
             ctx.current_tray_mug = tray_mug
-            if isinstance(self.backend.motion, SlotPlanner):
-                if await self._plan_for_slot(slot, tray_mug):
+            motion = self.backend.motion
+            if isinstance(motion, SlotPlanner):
+                if await self._plan_for_slot(motion, slot, tray_mug):
                     return True
             elif await self._plan_cycle(mug, slot, retry=False) is not None:
                 return True
@@ -695,16 +696,15 @@ class Job:
         ctx.cycle = None
         return False
 
-    async def _plan_for_slot(self, slot: TraySlot, tray_mug: TrayMug) -> bool:
+    async def _plan_for_slot(self, motion: SlotPlanner, slot: TraySlot, tray_mug: TrayMug) -> bool:
         """Plan the cycle filling ``slot`` with its mug or, when that one is blocked, with the nearest
         reachable counter mug of the same type; the two mugs swap their places in the plan."""
         ctx = self._ctx
-        assert isinstance(self.backend.motion, SlotPlanner)
         js = await self.backend.arm.read_joints()
         counter = tuple(m for m in ctx.counter.values() if m.mug_id not in ctx.given_up)
         try:
             mug, cycle = await asyncio.to_thread(
-                self.backend.motion.plan_for_slot, js.position_rad, slot, counter, tuple(ctx.on_tray)
+                motion.plan_for_slot, js.position_rad, slot, counter, tuple(ctx.on_tray)
             )
         except MotionRefused as e:
             self._event("motion_refused", mug_id=slot.mug_id, reason=str(e))
