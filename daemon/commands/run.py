@@ -39,7 +39,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
             "Run the dishbot daemon: publish state, joints, gripper force, detections, plan, events and logs "
             "on Zenoh under dishbot/<robot_id>/, answer cmd/<verb> queries, record the session to MCAP. "
             "Without --once it waits in idle for a start command (dishbot start). SIGTERM or Ctrl-C stops "
-            "motion safely, finishes the recording and exits 0."
+            'motion safely, finishes the recording and exits 0. With the config\'s backend = "hardware" it '
+            "drives the robot on the [hardware] ports (see docs/hardware.md); a missing port or camera "
+            "package, a servo chain unlike the config or a cell the arm cannot reach exits 2 at once."
         ),
     )
     parser.add_argument(
