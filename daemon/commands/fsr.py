@@ -1,7 +1,7 @@
 """``dishbot fsr calibrate``: measure the gripper pad's FSR at rest and under a known weight.
 
 It prints the gain that makes the sensor read the weight in newtons and grasp thresholds above the noise,
-as TOML to paste into the ``[fsr]`` section of the config.
+as TOML to paste into the ``[hardware.fsr]`` table of the config.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result, indent=2))
     else:
-        print("[fsr]")
+        print("[hardware.fsr]")
         for key in ("gain", "threshold_n", "release_n"):
             print(f"{key} = {result[key]:.4g}")
     return 0
