@@ -325,6 +325,12 @@ def build_urdf(desc: ArmDescription | None = None) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Write the bundled URDF (or the path given as the only argument)."""
     args = list(sys.argv[1:] if argv is None else argv)
+    if len(args) > 1 or (args and args[0].startswith("-")):
+        print(
+            "usage: python -m planning.arm.description [OUT.urdf]  (default: the bundled URDF)",
+            file=sys.stderr,
+        )
+        return 2
     out = Path(args[0]) if args else BUNDLED_URDF
     out.write_text(build_urdf(), encoding="utf-8")
     print(out)
