@@ -44,7 +44,17 @@ def start_daemon(tmp_path: Path, notify: socket.socket) -> subprocess.Popen[byte
     }
     env.pop("WATCHDOG_PID", None)
     listen = f"tcp/127.0.0.1:{free_port()}"
-    command = [sys.executable, "-m", "daemon.cli", "run", "--sim", "--config", str(config)]
+    command = [
+        sys.executable,
+        "-m",
+        "daemon.cli",
+        "run",
+        "--sim",
+        "--world",
+        "kinematic",
+        "--config",
+        str(config),
+    ]
     command += ["--record-dir", str(tmp_path / "rec"), "--listen", listen]
     with (tmp_path / "stderr.log").open("wb") as stderr:
         return subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=stderr)
