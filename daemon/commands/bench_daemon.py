@@ -29,7 +29,7 @@ import zenoh
 from daemon.app import RunOptions, serve
 from daemon.backend import ProcessMotionPlanner, open_sim_backend
 from daemon.commands.bench import add_json_flag, emit
-from daemon.commands.run import association, logs_to_stderr, planning_pool
+from daemon.commands.run import association, planning_pool
 from daemon.config import load_config
 from daemon.errors import UsageError
 from daemon.job import StartRequest
@@ -84,7 +84,6 @@ class _Live:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    logs_to_stderr()
     if not 10 <= args.commands <= 100_000:
         raise UsageError(f"--commands {args.commands}: choose 10-100000")
     if not 1.0 <= args.seconds <= 600:
@@ -92,7 +91,7 @@ def _bench(args: argparse.Namespace) -> int:
     if not 1000 <= args.messages <= 10_000_000:
         raise UsageError(f"--messages {args.messages}: choose 1000-10000000")
     with tempfile.TemporaryDirectory(prefix="dishbot-bench-") as tmp:
-        live = asyncio.run(_live(Path(tmp), args.commands, args.seconds))
+        live = asyncio.run(_live(Path(tmp), args.commands, args.seconds, args.log_level))
         rate, mb_s, dropped = _recording_throughput(Path(tmp) / "throughput.mcap", args.messages)
     rows = [
         [
@@ -136,12 +135,12 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
-async def _live(tmp: Path, commands: int, seconds: float) -> _Live:
+async def _live(tmp: Path, commands: int, seconds: float, log_level: str) -> _Live:
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     config = load_config(
         overrides={"robot_id": ROBOT, "planner": {"method": "bh"}, "sim": {"speed": 5.0}},
     )
-    with planning_pool() as pool:
+    with planning_pool(log_level) as pool:
         backend = await open_sim_backend(
             config, world="kinematic", dataset=1, speed=config.sim.speed, seed=0, executor=pool
         )

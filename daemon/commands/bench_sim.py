@@ -24,7 +24,7 @@ import structlog
 
 from daemon.backend import Backend, CounterMug, CyclePlannerSpec, ProcessMotionPlanner, Tray
 from daemon.commands.bench import add_json_flag, emit
-from daemon.commands.run import logs_to_stderr, planning_pool
+from daemon.commands.run import planning_pool
 from daemon.config import Config, load_config
 from daemon.errors import UsageError
 from daemon.job import Associate, Job, StartRequest
@@ -118,13 +118,12 @@ def run(args: argparse.Namespace) -> int:
     if not 0.0 <= args.fsr_debounce <= 1.0:
         raise UsageError(f"--fsr-debounce: {args.fsr_debounce} must be in [0, 1] seconds")
     config = load_config(args.config)
-    logs_to_stderr()  # stdout carries the table or the JSON document
     detector = DepthMugDetector(catalogue_of(config))
 
     def observer_factory(camera: Camera) -> MugObserver:
         return CameraObserver(camera, detector)
 
-    with planning_pool() as pool:
+    with planning_pool(args.log_level) as pool:
         runs = [
             asyncio.run(
                 run_dataset(

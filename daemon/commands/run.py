@@ -10,8 +10,6 @@ import os
 import sys
 from pathlib import Path
 
-import structlog
-
 from daemon.app import RunOptions, RunResult, serve
 from daemon.backend import (
     Backend,
@@ -23,6 +21,7 @@ from daemon.backend import (
 from daemon.config import Config, check_endpoint, load_config
 from daemon.errors import ConfigError, UsageError
 from daemon.job import Associate, StartRequest
+from daemon.logs import configure_cli_logging
 from daemon.sdnotify import SdNotifier
 from perception import associate
 from planning import thesis
@@ -89,7 +88,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    logs_to_stderr()
     config = load_config(args.config)
     listen = tuple(_endpoints(args.listen, "--listen")) if args.listen else config.zenoh.listen
     connect = tuple(_endpoints(args.connect, "--connect")) if args.connect else config.zenoh.connect
@@ -105,7 +103,7 @@ def _run(args: argparse.Namespace) -> int:
         once=StartRequest() if args.once else None,
     )
     associate = association()
-    with planning_pool() as pool, SdNotifier.from_env() as notifier:
+    with planning_pool(args.log_level) as pool, SdNotifier.from_env() as notifier:
         result = asyncio.run(_serve(args, config, speed, options, associate, pool, notifier))
     if args.once:
         _print_summary(result)
@@ -113,23 +111,22 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def planning_pool() -> concurrent.futures.ProcessPoolExecutor:
-    """One worker process for placement and motion planning (forkserver: never fork Zenoh's threads)."""
+def planning_pool(log_level: str = "info") -> concurrent.futures.ProcessPoolExecutor:
+    """One worker process for placement and motion planning (forkserver: never fork Zenoh's threads),
+    logging to stderr at the command line's ``--log-level``."""
     return concurrent.futures.ProcessPoolExecutor(
-        max_workers=1, mp_context=multiprocessing.get_context("forkserver"), initializer=_planning_worker
+        max_workers=1,
+        mp_context=multiprocessing.get_context("forkserver"),
+        initializer=_planning_worker,
+        initargs=(log_level,),
     )
 
 
-def _planning_worker() -> None:
+def _planning_worker(log_level: str) -> None:
     """Planning is background work: below the daemon's priority, so a busy planner cannot delay the loop
     that publishes telemetry and answers commands when the CPUs are short."""
     os.nice(_PLANNING_NICENESS)
-    logs_to_stderr()
-
-
-def logs_to_stderr() -> None:
-    """Send structlog output to stderr: stdout carries summaries and tables."""
-    structlog.configure(logger_factory=structlog.PrintLoggerFactory(sys.stderr))
+    configure_cli_logging(log_level)
 
 
 async def _serve(
