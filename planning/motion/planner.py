@@ -268,14 +268,19 @@ class CyclePlanner:
         )
         world = self._world(c.others, c.placed, target=c.mug, target_spec=c.spec)
         self._first_move(plan, pick, world, c.mug.mug_id)
-        plan.gripper("side_grasp.close", StepKind.CLOSE)
-        held = c.held(kind)
+        self._close_and_lift(plan, c, kind, "side_grasp", pick)
+
+    def _close_and_lift(
+        self, plan: _Builder, c: _CycleContext, kind: GraspKind, state: str, grasp: GraspTarget
+    ) -> None:
+        """``<state>.close`` on the mug at ``grasp``, then ``<state>.lift`` it straight up to carry height."""
+        plan.gripper(f"{state}.close", StepKind.CLOSE)
         plan.line(
-            "side_grasp.lift",
-            _at_z(pick, self.carry_z_m),
+            f"{state}.lift",
+            _at_z(grasp, self.carry_z_m),
             c.lift_world,
             aperture=c.holding,
-            held=held,
+            held=c.held(kind),
             mass=c.mass,
         )
 
@@ -318,16 +323,7 @@ class CyclePlanner:
             b.line("flip.regrasp", regrasp, world, aperture=opened, ignore=c.mug.mug_id)
 
         self._try_offsets(plan, "flip.regrasp", moves)
-        plan.gripper("flip.close", StepKind.CLOSE)
-        held = c.held(kind)
-        plan.line(
-            "flip.lift",
-            _at_z(regrasp, self.carry_z_m),
-            c.lift_world,
-            aperture=c.holding,
-            held=held,
-            mass=c.mass,
-        )
+        self._close_and_lift(plan, c, kind, "flip", regrasp)
 
     def _place(self, plan: _Builder, c: _CycleContext, kind: GraspKind) -> None:
         """place: carry to above the slot, descend until the brim is just above the tray, let go, back off."""
