@@ -53,6 +53,7 @@ from perception.truth import TruthObserver
 from planning import thesis
 from planning.arm import ArmModel
 from planning.arm.calibration import PositionCorrection
+from planning.arm.grasp import handle_facing_away_rad
 from planning.interfaces import CyclePlan, MotionPlanner, MugPose, TraySlot
 from planning.motion import CellLayout, DynamicsMoveCost
 from planning.motion.planner import CyclePlanner
@@ -235,8 +236,8 @@ class _RecordedGripper:
     async def read(self) -> GripperState:
         return await self._inner.read()
 
-    async def open(self) -> None:
-        await self._inner.open()
+    async def open(self, aperture_m: float | None = None) -> None:
+        await self._inner.open(aperture_m)
 
     async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
         result = await self._inner.close_on_mug(
@@ -371,11 +372,18 @@ class _KinematicCounter:
 
     def set_counter(self, *, dataset: int | None, mugs: Sequence[CounterMug] | None) -> Tray:
         if mugs is not None:
-            sim_mugs = [SimMug(m.mug_id, m.type, m.x_m, m.y_m) for m in mugs]
+            sim_mugs = [
+                SimMug(m.mug_id, m.type, m.x_m, m.y_m, handle_yaw_rad=handle_facing_away_rad(m.x_m, m.y_m))
+                for m in mugs
+            ]
             tray = Tray(self._config.cell.tray_origin_m, self._config.cell.tray_size_mm)
         else:
             problem = self._dataset(dataset or 1)
-            sim_mugs = [SimMug(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs]
+            sim_mugs = [
+                SimMug(m.id, m.type, x, y, handle_yaw_rad=handle_facing_away_rad(x, y))
+                for m in problem.mugs
+                for x, y in [(m.x_mm / 1000.0, m.y_mm / 1000.0)]
+            ]
             origin = (problem.tray_origin_mm[0] / 1000.0, problem.tray_origin_mm[1] / 1000.0)
             tray = Tray(origin, problem.tray_size_mm)
         unknown = sorted({m.type for m in sim_mugs} - set(self._geometry))

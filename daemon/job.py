@@ -570,7 +570,7 @@ class Job:
                 )
                 ctx.grasp_held = result.held
             else:
-                await self._gripper_action(self.backend.gripper.open())
+                await self._gripper_action(self.backend.gripper.open(step.aperture_m))
                 ctx.carrying = False
                 if leaf == "place.release":
                     self._placed()
@@ -767,7 +767,8 @@ class Job:
         ctx = self._ctx
         if ctx.current is None:
             return
-        ctx.on_tray.append(ctx.current)
+        handle_yaw = ctx.cycle.handle_yaw_rad if ctx.cycle is not None else None
+        ctx.on_tray.append(replace(ctx.current, handle_yaw_rad=handle_yaw))
         if ctx.current_tray_mug is not None:
             ctx.tray_mugs.append(ctx.current_tray_mug)
         ctx.counter.pop(ctx.current.mug_id, None)

@@ -125,7 +125,11 @@ class GripperDriver(Protocol):
 
     async def read(self) -> GripperState: ...
 
-    async def open(self) -> None: ...
+    async def open(self, aperture_m: float | None = None) -> None:
+        """Open to ``aperture_m`` between the pads (at most fully, and never closing: a wider jaw stays as
+        it is), or fully when None, and return once there. Opening only a little wider than the mug lets go
+        of it between close neighbours without the finger swinging into them."""
+        ...
 
     async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
         """Close until the force sensor passes the threshold; not held when the aperture gets too small."""

@@ -35,6 +35,8 @@ class TraySlot:
     x_m: float
     y_m: float
     rotated: bool = False
+    # Where the handle of the mug placed there points (world yaw), when known; None: along +x (+y rotated).
+    handle_yaw_rad: float | None = None
 
 
 class StepKind(StrEnum):
@@ -46,11 +48,14 @@ class StepKind(StrEnum):
 @dataclass(frozen=True, slots=True)
 class Step:
     """One action of a pick-flip-place cycle. ``phase`` is the statechart state it belongs to, e.g.
-    ``side_grasp.approach`` or ``place.release``."""
+    ``side_grasp.approach`` or ``place.release``. An OPEN step opens the gripper to ``aperture_m`` (metres
+    between the pads), or fully when it is None: between close neighbours on the tray a full opening would
+    swing the finger into the next mug."""
 
     phase: str
     kind: StepKind
     trajectory: JointTrajectory | None = None
+    aperture_m: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -61,6 +66,9 @@ class CyclePlan:
     steps: tuple[Step, ...]
     duration_s: float
     energy_j: float
+    # Where the mug's handle will point on the tray (world yaw): the arm has no wrist yaw, so it follows from
+    # the handle's yaw on the counter and the grasps. None when the planner does not predict it.
+    handle_yaw_rad: float | None = None
 
     def steps_for(self, state: str) -> tuple[Step, ...]:
         """The steps of one top-level state (``side_grasp``, ``flip`` or ``place``), in order."""

@@ -25,6 +25,7 @@ from daemon.config import default_text
 from daemon.errors import UsageError
 from planning import thesis
 from planning.arm import ArmModel, GraspKind, GraspTarget
+from planning.arm.grasp import handle_facing_away_rad
 from planning.interfaces import MotionRefused, MugPose, StepKind, TraySlot
 from planning.motion import CellLayout, CyclePlanner, plan_path, thesis_energy_j
 
@@ -168,7 +169,10 @@ def _dataset_cycles(arm: ArmModel, dataset: int) -> dict[str, object]:
         dataset, counter_region_m=cell.counter_region_m, tray_origin_m=cell.tray_origin_m
     )
     layout = plan(problem, PlanOptions(method="sa", time_limit_s=1.0))
-    counter = {m.id: MugPose(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs}
+    counter = {}
+    for m in problem.mugs:
+        x, y = m.x_mm / 1000.0, m.y_mm / 1000.0
+        counter[m.id] = MugPose(m.id, m.type, x, y, handle_yaw_rad=handle_facing_away_rad(x, y))
     q: Sequence[float] = tuple(float(v) for v in tomllib.loads(default_text())["sim"]["start_q_rad"])
     placed: list[TraySlot] = []
     durations, dyn_motion, dyn_total, proxy, plan_times = [], [], [], [], []

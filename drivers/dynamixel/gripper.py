@@ -83,10 +83,15 @@ class DynamixelGripper:
         reading = await self._read()
         return GripperState(time.monotonic(), self.spec.aperture_for(reading.position_rad), reading.load)
 
-    async def open(self) -> None:
-        """Open to ``open_aperture_m`` at the full grip limit and wait until there (or the timeout)."""
+    async def open(self, aperture_m: float | None = None) -> None:
+        """Open to ``aperture_m`` (at most ``open_aperture_m``; never closing) or fully, at the full grip
+        limit, and wait until there (or the timeout)."""
         self._squeeze_goal_m = None
-        angle = self.spec.angle_for(self.spec.open_aperture_m)
+        target = self.spec.open_aperture_m
+        if aperture_m is not None:
+            present = self.spec.aperture_for((await self._read()).position_rad)
+            target = max(min(aperture_m, target), present)
+        angle = self.spec.angle_for(target)
         limit = self._limit_ticks(1.0)
 
         def command(bus: DynamixelBus) -> None:
@@ -99,7 +104,7 @@ class DynamixelGripper:
             if abs((await self._read()).position_rad - angle) < 0.05:
                 return
             await asyncio.sleep(self.spec.step_period_s)
-        self._log.warning("gripper_open_timeout")
+        self._log.warning("gripper_open_timeout", aperture_m=round(target, 4))
 
     async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
         """Close step by step until the force passes the threshold (held) or the opening gets too small."""

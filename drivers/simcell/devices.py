@@ -95,10 +95,11 @@ class SimGripper:
             load=min(1.0, self._world.pad_force_n() / 20.0),
         )
 
-    async def open(self) -> None:
+    async def open(self, aperture_m: float | None = None) -> None:
         self._world.check_bus()
         self._world.release()
-        await self._move_to(OPEN_APERTURE_M)
+        target = OPEN_APERTURE_M if aperture_m is None else min(aperture_m, OPEN_APERTURE_M)
+        await self._move_to(max(target, self._world.aperture_m))
 
     async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
         self._world.check_bus()

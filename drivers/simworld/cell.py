@@ -43,6 +43,7 @@ from drivers.stack import ARM_JOINTS, FsrSettings, StackSpec, arm_joints, grippe
 from perception import CameraObserver
 from perception.interfaces import MugObserver
 from planning.arm.description import BUNDLED_URDF
+from planning.arm.grasp import handle_facing_away_rad
 from planning.thesis import JOINT_SERVOS, MugSpec
 
 log = structlog.get_logger("drivers.simworld.cell")
@@ -199,13 +200,20 @@ class SimCell:
 def scene_mugs(
     entries: Sequence[tuple[str, str, float, float]], catalogue: Mapping[str, MugSpec]
 ) -> list[SceneMug]:
-    """Counter mugs from (id, type, x, y) entries, handles along +x, upright (as the placement datasets)."""
+    """Counter mugs from (id, type, x, y) entries, upright, each with its handle pointing away from the arm's
+    shoulder axis (``planning.arm.grasp.handle_facing_away_rad``): the side grasp comes from behind the mug,
+    and a mug taken that way ends on the tray with its handle within the slot's bearing (under 20 degrees) of
+    +x, inside the footprint the placement plans with. The arm has no wrist yaw: side grasp, flip and regrasp
+    mirror the handle's angle to the approach, so it lands at slot bearing + pick bearing - counter yaw."""
     unknown = sorted({t for _, t, _, _ in entries} - set(catalogue))
     if unknown:
         raise ValueError(
             f"mug types {', '.join(unknown)} are not in the catalogue ({', '.join(sorted(catalogue))})"
         )
-    return [SceneMug(mug_id, catalogue[kind], x, y) for mug_id, kind, x, y in entries]
+    return [
+        SceneMug(mug_id, catalogue[kind], x, y, yaw_rad=handle_facing_away_rad(x, y))
+        for mug_id, kind, x, y in entries
+    ]
 
 
 async def start_sim_cell(

@@ -56,6 +56,14 @@ def reach_past_axis_m(spec: MugSpec, gripper: GripperGeometry) -> float:
     return max(0.0, min(REACH_PAST_AXIS_FRACTION * r, room))
 
 
+def handle_facing_away_rad(x_m: float, y_m: float) -> float:
+    """The yaw of a handle pointing away from the shoulder axis for a mug standing at (x, y): out of the way
+    of a side grasp, which comes from behind the mug. Mugs set out that way end on the tray with the handle
+    near the slot's bearing (the simulated cells' and the benchmarks' counters; the thesis's Gazebo mugs
+    likewise ended "slightly rotated", §5.3.3)."""
+    return math.atan2(y_m, x_m)
+
+
 def lateral_offset_m(spec: MugSpec, gripper: GripperGeometry) -> float:
     """Distance between the mug axis and the grasp point, r_m - w_g (Eq 4.29-4.30)."""
     return spec.diameter_mm / 2000.0 - gripper.thumb_width_m

@@ -20,7 +20,7 @@ import structlog
 
 from drivers.interfaces import FloatArray
 from planning import thesis
-from planning.arm.grasp import lateral_offset_m, side_grasp
+from planning.arm.grasp import handle_facing_away_rad, lateral_offset_m, side_grasp
 from planning.arm.model import ArmModel
 from planning.arm.targets import GraspKind, GraspTarget
 from planning.interfaces import MotionRefused, MugPose, TraySlot
@@ -111,7 +111,7 @@ class DynamicsMoveCost:
         moves = self._moves(spec, spec.mass_kg, start, goal)
         if home is None or moves is None:
             return _Overhead(0.0, 0.0)
-        mug = MugPose("reference", spec.name, *start)
+        mug = MugPose("reference", spec.name, *start, handle_yaw_rad=handle_facing_away_rad(*start))
         slot = TraySlot("reference", spec.name, *goal)
         try:
             cycle = self._planner.plan_cycle(tuple(float(v) for v in home), mug, slot, [])

@@ -70,6 +70,7 @@ class CyclePlanner:
         back_off_m: Sequence[float] = (0.06, 0.03, 0.0),
         side_clearance_m: float = 0.004,
         release_gap_m: float = 0.008,
+        release_openings_m: Sequence[float] = (0.012, 0.006),
         fine_speed_m_s: float = 0.08,
         gripper_close_s: float = 1.0,
         gripper_open_s: float = 0.6,
@@ -87,6 +88,7 @@ class CyclePlanner:
         self.back_off_m = tuple(back_off_m)
         self.side_clearance_m = side_clearance_m
         self.release_gap_m = release_gap_m
+        self.release_openings_m = tuple(release_openings_m)
         self.fine_speed_m_s = fine_speed_m_s
         self.gripper_close_s = gripper_close_s
         self.gripper_open_s = gripper_open_s
@@ -160,7 +162,51 @@ class CyclePlanner:
                 raise MotionRefused(f"mug {mug.mug_id}: {name} is not finite")
         self._check_slot_in_tray(slot, spec)
         with self._lock:
-            return self._costed(mug, self._cycle_motions(start, mug, spec, slot, on_tray, counter))
+            motions = self._cycle_motions(start, mug, spec, slot, on_tray, counter)
+            handle_yaw = self._handle_yaw_on_tray(mug, motions)
+            self._check_handle(mug, slot, spec, handle_yaw, on_tray)
+            return replace(self._costed(mug, motions), handle_yaw_rad=handle_yaw)
+
+    def _handle_yaw_on_tray(self, mug: MugPose, motions: Sequence[_Motion]) -> float:
+        """Where the mug's handle points once placed: the mug turns with the gripper between each grasp and
+        its release, so its counter yaw is carried through pick -> set-down and regrasp -> place (a mug
+        already upside down: pick -> place)."""
+
+        def grasp_rotation(phase: str) -> FloatArray:
+            last = [m for m in motions if m.step.phase == phase and m.step.trajectory is not None][-1]
+            assert last.step.trajectory is not None
+            return self.arm.fk(last.step.trajectory.positions[-1])[1]
+
+        d = np.array([math.cos(mug.handle_yaw_rad), math.sin(mug.handle_yaw_rad), 0.0])
+        turns = [("side_grasp.approach", "place.descend")]
+        if not mug.upside_down:
+            turns = [("side_grasp.approach", "flip.set_down"), ("flip.regrasp", "place.descend")]
+        for grasped, released in turns:
+            d = grasp_rotation(released) @ grasp_rotation(grasped).T @ d
+        return math.atan2(float(d[1]), float(d[0]))
+
+    def _check_handle(
+        self, mug: MugPose, slot: TraySlot, spec: MugSpec, yaw: float, on_tray: Sequence[TraySlot]
+    ) -> None:
+        """Refuse a cycle that leaves the mug's handle in a placed mug or over the tray's wall (the packing
+        plans with the handle along +x; the arm cannot turn a mug about z)."""
+        floor = self.cell.tray_floor_m
+        body, handle = mug_obstacles(f"mug {mug.mug_id}", slot.x_m, slot.y_m, spec, handle_yaw_rad=yaw)
+        where = f"mug {mug.mug_id}'s handle would end at {math.degrees(yaw):.0f} deg"
+        x0, y0, x1, y1 = self.cell.tray_bounds_m
+        if not (x0 <= handle.x - handle.radius and handle.x + handle.radius <= x1) or not (
+            y0 <= handle.y - handle.radius and handle.y + handle.radius <= y1
+        ):
+            raise MotionRefused(f"place: {where}, over the tray's wall")
+        for s in on_tray:
+            yaw_s = s.handle_yaw_rad if s.handle_yaw_rad is not None else (math.pi / 2 if s.rotated else 0.0)
+            other = self._spec(s.type, f"mug {s.mug_id}")
+            for obstacle in mug_obstacles(
+                f"mug {s.mug_id}", s.x_m, s.y_m, other, handle_yaw_rad=yaw_s, floor_z=floor
+            ):
+                for mine in (body, handle) if obstacle.name.endswith("handle") else (handle,):
+                    if math.hypot(mine.x - obstacle.x, mine.y - obstacle.y) < mine.radius + obstacle.radius:
+                        raise MotionRefused(f"place: {where} and touch {obstacle.name}")
 
     def _costed(self, mug: MugPose, motions: Sequence[_Motion]) -> CyclePlan:
         """The plan of a cycle's motions with its predicted duration and electrical energy."""
@@ -311,8 +357,7 @@ class CyclePlanner:
         world = self._world(c.others, c.placed, target=flipped, target_spec=c.spec)
 
         def moves(b: _Builder, back: float, side: float) -> None:
-            off = self._clear_of(set_down, back, side)
-            b.line("flip.regrasp", off, world, aperture=opened, ignore=c.mug.mug_id)
+            off = self._back_off(b, "flip.regrasp", set_down, back, side, world, opened, c.mug.mug_id)
             pre = self._clear_of(regrasp, back, side)
             if kind is not set_down.kind:
                 # Rolling the wrist sweeps the palm round the approach axis: do it up at carry height.
@@ -336,19 +381,61 @@ class CyclePlanner:
             "place.transit", _at_z(place, carry), c.lift_world, aperture=c.holding, held=held, mass=c.mass
         )
         plan.line("place.descend", place, c.lift_world, aperture=c.holding, held=held, mass=c.mass)
-        plan.gripper("place.release", StepKind.OPEN)
         placed_now = MugPose(c.mug.mug_id, c.mug.type, c.slot.x_m, c.slot.y_m, upside_down=True)
         done_world = self._world(
             c.others, c.placed, target=placed_now, target_spec=c.spec, target_floor=tray_z
         )
-        opened = self.open_aperture_m
+        reasons = []
+        # Let go opening the jaw just wider than the mug (a full opening swings the finger into a neighbour
+        # 1 cm away, the packing tolerance), the thumb stepping off the brim by half that; back off, and
+        # open fully once up at carry height. A full opening at once is the last resort.
+        releases: list[tuple[float | None, float, tuple[float, ...]]] = [
+            (c.holding + extra, c.holding + extra, (extra / 2, 0.0)) for extra in self.release_openings_m
+        ]
+        releases.append((None, self.open_aperture_m, (self.side_clearance_m, 0.0)))
+        for aperture, jaw, sides in releases:
+            trial = plan.fork()
+            trial.gripper("place.release", StepKind.OPEN, aperture)
 
-        def retreat(b: _Builder, back: float, side: float) -> None:
-            clear = self._clear_of(place, back, side)
-            b.line("place.retreat", clear, done_world, aperture=opened, ignore=c.mug.mug_id)
-            b.line("place.retreat", _at_z(clear, carry), done_world, aperture=opened)
+            def retreat(b: _Builder, back: float, side: float, jaw: float = jaw) -> None:
+                clear = self._back_off(b, "place.retreat", place, back, side, done_world, jaw, c.mug.mug_id)
+                b.line("place.retreat", _at_z(clear, carry), done_world, aperture=jaw)
 
-        self._try_offsets(plan, "place.retreat", retreat)
+            try:
+                self._try_offsets(trial, "place.retreat", retreat, sides=sides)
+                if aperture is not None:
+                    why = done_world.first_collision(trial.q[None, :], aperture_m=self.open_aperture_m)
+                    if why:
+                        raise MotionRefused(f"place.retreat: opening fully at carry height: {why}")
+                    trial.gripper("place.retreat", StepKind.OPEN)
+            except MotionRefused as e:
+                reasons.append(str(e))
+                continue
+            plan.adopt(trial)
+            return
+        first, last = reasons[0], reasons[-1]
+        raise MotionRefused(first if first == last else f"{first}; opening fully: {last}")
+
+    def _back_off(
+        self,
+        plan: _Builder,
+        phase: str,
+        grasp: GraspTarget,
+        back_m: float,
+        side_m: float,
+        world: CollisionWorld,
+        aperture_m: float,
+        mug_id: str,
+    ) -> GraspTarget:
+        """From an opened grasp on a standing mug to ``_clear_of(grasp, back_m, side_m)``: the thumb first
+        steps sideways off the brim, then the gripper backs away along the approach. Backing off on the
+        diagonal drags the mug along by the thumb's friction (up to a centimetre, measured in the MuJoCo
+        cell), which is a collision with the next mug on the tray. Returns where it ends."""
+        if side_m > 0.0:
+            plan.line(phase, self._clear_of(grasp, 0.0, side_m), world, aperture=aperture_m, ignore=mug_id)
+        clear = self._clear_of(grasp, back_m, side_m)
+        plan.line(phase, clear, world, aperture=aperture_m, ignore=mug_id)
+        return clear
 
     def _first_move(self, plan: _Builder, pick: GraspTarget, world: CollisionWorld, mug_id: str) -> None:
         """side_grasp.approach: to above the pre-grasp point at carry height, down, then in to the grasp.
@@ -376,14 +463,19 @@ class CyclePlanner:
         self._try_offsets(plan, phase, approach)
 
     def _try_offsets(
-        self, plan: _Builder, phase: str, moves: Callable[[_Builder, float, float], object]
+        self,
+        plan: _Builder,
+        phase: str,
+        moves: Callable[[_Builder, float, float], object],
+        *,
+        sides: Sequence[float] | None = None,
     ) -> None:
         """Plan ``moves`` with the open gripper backed off by each of ``back_off_m`` in turn, first with the
-        thumb ``side_clearance_m`` off the brim, then touching it (tight between neighbours); keep the first
-        that works, or refuse with every reason."""
+        thumb ``side_clearance_m`` (or each of ``sides``) off the brim, then touching it (tight between
+        neighbours); keep the first that works, or refuse with every reason."""
         reasons = []
         for back in self.back_off_m:
-            for side in (self.side_clearance_m, 0.0):
+            for side in (self.side_clearance_m, 0.0) if sides is None else sides:
                 trial = plan.fork()
                 try:
                     moves(trial, back, side)
@@ -479,7 +571,7 @@ class CyclePlanner:
                 handle_yaw_rad=m.handle_yaw_rad,
             )
         for s in placed:
-            yaw = math.pi / 2 if s.rotated else 0.0
+            yaw = s.handle_yaw_rad if s.handle_yaw_rad is not None else (math.pi / 2 if s.rotated else 0.0)
             spec = self._spec(s.type, f"mug {s.mug_id}")
             floor = self.cell.tray_floor_m
             cylinders += mug_obstacles(
@@ -565,9 +657,9 @@ class _Builder:
                 phase, GraspTarget((float(p[0]), float(p[1]), z)), world, aperture=aperture, ignore=ignore
             )
 
-    def gripper(self, phase: str, kind: StepKind) -> None:
+    def gripper(self, phase: str, kind: StepKind, aperture_m: float | None = None) -> None:
         still = self.p._plan(self.q[None, :], phase)[1]
-        self.motions.append(_Motion(Step(phase, kind), still, 0.0))
+        self.motions.append(_Motion(Step(phase, kind, aperture_m=aperture_m), still, 0.0))
 
     def joint_move(
         self,

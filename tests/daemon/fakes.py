@@ -87,7 +87,7 @@ class FakeGripper:
     async def read(self) -> GripperState:
         return GripperState(0.0, 0.05 if self.w.held else 0.12, 0.0)
 
-    async def open(self) -> None:
+    async def open(self, aperture_m: float | None = None) -> None:
         self.w.log.append(f"open:{self.w.phase}")
         await asyncio.sleep(0.001)
         if self.w.held is not None:

@@ -152,6 +152,22 @@ def test_a_mug_released_over_the_tray_lands_on_the_tray(arm: ArmModel) -> None:
     assert cell.world.held is None
 
 
+def test_a_partial_opening_lets_go_and_stops_short_of_fully_open(arm: ArmModel) -> None:
+    cell = _cell(arm, [_mug_between_pads(arm, Q_LOW)])
+
+    async def go() -> tuple[float, float]:
+        held = await cell.gripper.close_on_mug(force_threshold_n=2.0, min_aperture_m=0.02)
+        await cell.gripper.open(held.aperture_m + 0.006)
+        partly = (await cell.gripper.read()).aperture_m
+        await cell.gripper.open(0.01)  # narrower than it is: never closes
+        return held.aperture_m, partly
+
+    grasped, partly = asyncio.run(go())
+    assert cell.world.held is None
+    assert partly == pytest.approx(grasped + 0.006, abs=1e-6)
+    assert cell.world.aperture_m == pytest.approx(partly, abs=1e-6)
+
+
 def test_a_lost_bus_fails_every_device_call(arm: ArmModel) -> None:
     cell = _cell(arm, [])
     cell.world.lose_bus("/dev/ttyUSB0")

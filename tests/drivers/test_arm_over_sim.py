@@ -174,6 +174,25 @@ async def test_gripper_keeps_squeezing_the_mug_after_the_grasp_and_through_a_sto
 
 
 @async_test
+async def test_gripper_lets_go_opening_only_as_far_as_asked_and_never_closes_to_get_there() -> None:
+    spec, plant = gripper_setup(0.074)
+    with ServoChainSimulator([(6, "AX-12A")], plant=plant) as sim:
+        async with (
+            ServoChain(BusConfig(sim.device_path), [(6, "AX-12A")], read_timeout_s=PATIENT_S) as chain,
+            DynamixelGripper(chain, spec, PlantForceSensor(plant)) as gripper,
+        ):
+            await gripper.open()
+            assert (await gripper.close_on_mug(force_threshold_n=1.0, min_aperture_m=0.03)).held
+            await gripper.open(0.080)  # 6 mm wider than the mug: let go between close neighbours
+            assert (await gripper.read()).aperture_m == pytest.approx(0.080, abs=0.004)
+            assert plant.force_n() == 0.0
+            await gripper.open(0.060)  # narrower than it is: stays where it is
+            assert (await gripper.read()).aperture_m == pytest.approx(0.080, abs=0.004)
+            await gripper.open(1.0)  # beyond the stop: fully open
+            assert (await gripper.read()).aperture_m == pytest.approx(spec.open_aperture_m, abs=0.004)
+
+
+@async_test
 async def test_gripper_reports_a_missed_grasp_when_the_aperture_gets_too_small() -> None:
     spec, plant = gripper_setup(None)
     with ServoChainSimulator([(6, "AX-12A")], plant=plant) as sim:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +35,7 @@ PHASES = [
     ("flip.regrasp", StepKind.MOVE),
     ("flip.regrasp", StepKind.MOVE),
     ("flip.regrasp", StepKind.MOVE),
+    ("flip.regrasp", StepKind.MOVE),
     ("flip.close", StepKind.CLOSE),
     ("flip.lift", StepKind.MOVE),
     ("place.transit", StepKind.MOVE),
@@ -41,6 +43,8 @@ PHASES = [
     ("place.release", StepKind.OPEN),
     ("place.retreat", StepKind.MOVE),
     ("place.retreat", StepKind.MOVE),
+    ("place.retreat", StepKind.MOVE),
+    ("place.retreat", StepKind.OPEN),
 ]
 
 
@@ -60,7 +64,8 @@ def planner(arm: ArmModel, cell: CellLayout) -> CyclePlanner:
     return CyclePlanner(arm, cell, MUG_TYPES)
 
 
-MUG = MugPose("m1", "big", -0.10, 0.45)
+# Handles point away from the arm, out of the side grasp's way (as the simulated cells set them out).
+MUG = MugPose("m1", "big", -0.10, 0.45, handle_yaw_rad=math.atan2(0.45, -0.10))
 NEIGHBOURS = [MugPose("m2", "small", 0.08, 0.45), MugPose("m3", "big", -0.10, 0.58)]
 SLOT = TraySlot("m1", "big", 0.45, 0.05)
 PLACED = [TraySlot("m4", "small", 0.45, -0.06), TraySlot("m5", "big", 0.60, 0.05)]
@@ -164,7 +169,7 @@ def test_carried_mug_stays_at_carry_height_in_transit(plan: CyclePlan, arm: ArmM
 
 def test_cycle_time_and_energy_are_predicted(plan: CyclePlan) -> None:
     moving = sum(s.trajectory.duration for s in plan.steps if s.trajectory is not None)
-    assert plan.duration_s == pytest.approx(moving + 2 * 1.0 + 2 * 0.6)
+    assert plan.duration_s == pytest.approx(moving + 2 * 1.0 + 3 * 0.6)
     assert plan.duration_s < thesis.MAX_SECONDS_PER_MUG
     standby_w = thesis.SUPPLY_VOLTAGE_V * (4 * 0.1 + 2 * 0.05)
     assert plan.energy_j > standby_w * plan.duration_s
@@ -299,15 +304,49 @@ def _plan_without_correction(arm: ArmModel, cell: CellLayout) -> CyclePlan:
     return CyclePlanner(arm, cell, MUG_TYPES).plan_cycle(START_Q, MUG, SLOT, [])
 
 
-def test_a_neighbour_on_the_finger_side_makes_the_planner_place_with_the_wrist_level(
+def _opens(cycle: CyclePlan) -> list[tuple[str, float | None]]:
+    return [(s.phase, s.aperture_m) for s in cycle.steps if s.kind is StepKind.OPEN]
+
+
+def test_the_jaw_lets_go_on_the_tray_opening_only_a_little_and_opens_fully_at_carry_height(
+    plan: CyclePlan, arm: ArmModel
+) -> None:
+    (flip, full_at_flip), (release, jaw), (retreat, full_after) = _opens(plan)
+    assert (flip, full_at_flip) == ("flip.release", None)  # nothing stands near the flip area
+    assert release == "place.release"
+    assert jaw is not None
+    assert 0.091 + 0.003 <= jaw <= 0.091 + 0.012  # wider than the big mug by more than the weld needs
+    assert (retreat, full_after) == ("place.retreat", None)
+    assert plan.steps[-1].kind is StepKind.OPEN
+    position, _ = arm.fk(_end_of(plan, "place.retreat"))
+    assert position[2] == pytest.approx(CARRY_Z, abs=1e-3)
+
+
+def test_the_thumb_steps_off_the_brim_before_the_gripper_backs_away(plan: CyclePlan, arm: ArmModel) -> None:
+    """Backing off on the diagonal drags the mug by the thumb's friction: the first move after each
+    release is sideways only, away from the mug."""
+    for phase in ("place.retreat", "flip.regrasp"):
+        first = next(s for s in plan.steps if s.phase == phase and s.trajectory is not None)
+        assert first.trajectory is not None
+        p0, rotation = arm.fk(first.trajectory.positions[0])
+        p1, _ = arm.fk(first.trajectory.positions[-1])
+        moved = np.asarray(p1) - np.asarray(p0)
+        approach, mug_side = rotation[:, 2], rotation[:, 1]
+        assert abs(float(moved @ approach)) < 5e-4, phase
+        assert abs(moved[2]) < 5e-4, phase
+        assert float(moved @ mug_side) < -0.002, phase  # away from the mug, on the thumb's side
+
+
+def test_a_neighbour_a_centimetre_from_the_finger_gets_a_jaw_opened_only_a_little(
     planner: CyclePlanner, arm: ArmModel
 ) -> None:
-    # A small mug 1 cm (the packing tolerance) to the right of the slot: the finger of the turned wrist,
-    # on the mug's right, would open into it.
+    # A small mug 1 cm (the packing tolerance) to the right of the slot: the finger of the turned wrist, on
+    # the mug's right, would open into it; it opens 6 mm and the slot is placed with the wrist turned.
     right = TraySlot("m4", "small", SLOT.x_m, SLOT.y_m - 0.0455 - 0.037 - 0.010)
     cycle = planner.plan_cycle(START_Q, MUG, SLOT, [right])
     position, rotation = arm.fk(_end_of(cycle, "place.descend"))
-    assert rotation[2, 0] == pytest.approx(-1.0, abs=1e-3)  # wrist level: finger on the mug's left
+    assert rotation[2, 0] == pytest.approx(1.0, abs=1e-3)  # wrist turned: finger on the mug's right
+    assert _opens(cycle)[1] == ("place.release", pytest.approx(0.091 + 0.006))
     reach = reach_past_axis_m(MUG_TYPES["big"], arm.gripper)
     axis = (
         position[:2]
@@ -317,15 +356,23 @@ def test_a_neighbour_on_the_finger_side_makes_the_planner_place_with_the_wrist_l
     assert np.allclose(axis, [SLOT.x_m, SLOT.y_m], atol=1e-3)
 
 
-def test_neighbours_on_both_sides_refuse_the_slot_naming_both_rolls(planner: CyclePlanner) -> None:
+def test_neighbours_a_centimetre_away_on_both_sides_still_take_the_mug(planner: CyclePlanner) -> None:
     gap = 0.0455 + 0.037 + 0.010
     tight = [
         TraySlot("m4", "small", SLOT.x_m, SLOT.y_m - gap),
         TraySlot("m5", "small", SLOT.x_m, SLOT.y_m + gap),
     ]
-    with pytest.raises(
-        MotionRefused, match=r"^place\.\w+: the gripper would hit mug m4 .*; with the wrist level: "
-    ):
+    cycle = planner.plan_cycle(START_Q, MUG, SLOT, tight)
+    assert _opens(cycle)[1] == ("place.release", pytest.approx(0.091 + 0.006))
+
+
+def test_neighbours_closer_than_the_thumb_on_both_sides_refuse_the_slot(planner: CyclePlanner) -> None:
+    gap = 0.0455 + 0.037 + 0.003
+    tight = [
+        TraySlot("m4", "small", SLOT.x_m, SLOT.y_m - gap),
+        TraySlot("m5", "small", SLOT.x_m, SLOT.y_m + gap),
+    ]
+    with pytest.raises(MotionRefused, match=r"^place\.descend: the gripper would hit mug m4"):
         planner.plan_cycle(START_Q, MUG, SLOT, tight)
 
 
@@ -365,3 +412,34 @@ def test_a_cycle_starting_with_the_open_gripper_around_a_mug_lifts_off_it_first(
     lifted = [arm.fk(q)[0] for q in first.positions[: len(first.positions) // 3]]
     assert all(np.hypot(p[0] - start_p[0], p[1] - start_p[1]) < 0.01 for p in lifted)  # straight up
     assert lifted[-1][2] > start_p[2] + 0.02
+
+
+def test_the_handle_lands_on_the_tray_where_the_grasps_carry_it(planner: CyclePlanner) -> None:
+    """No wrist yaw: pick, flip and regrasp mirror the handle's angle to the approach, so a handle facing away
+    from the arm on the counter ends near the slot's bearing, and one along +x ends far round."""
+    bearing_slot = math.atan2(SLOT.y_m, SLOT.x_m)
+    cycle = planner.plan_cycle(START_Q, MUG, SLOT, [])
+    assert cycle.handle_yaw_rad is not None
+    assert abs(math.remainder(cycle.handle_yaw_rad - bearing_slot, math.tau)) < math.radians(8)
+    along_x = planner.plan_cycle(START_Q, replace(MUG, handle_yaw_rad=0.0), SLOT, [])
+    assert along_x.handle_yaw_rad is not None
+    assert math.remainder(along_x.handle_yaw_rad - cycle.handle_yaw_rad, math.tau) == pytest.approx(
+        math.atan2(MUG.y_m, MUG.x_m), abs=math.radians(2)
+    )
+
+
+def test_a_handle_that_would_land_in_a_placed_mug_is_refused(planner: CyclePlanner) -> None:
+    # Handle along +x on the counter, straight ahead of the arm: on the tray it points about 100 degrees
+    # round, into a mug placed 1 cm beside the slot on that side.
+    beside = TraySlot("m4", "small", SLOT.x_m, SLOT.y_m + 0.0455 + 0.037 + 0.010)
+    with pytest.raises(MotionRefused, match=r"^place: mug m1's handle would end at \d+ deg and touch mug m4"):
+        planner.plan_cycle(START_Q, replace(MUG, handle_yaw_rad=0.0), SLOT, [beside])
+
+
+def test_a_placed_mug_is_an_obstacle_with_its_handle_where_it_really_points(planner: CyclePlanner) -> None:
+    # The same neighbour with its handle turned towards the slot (a known yaw) blocks it.
+    beside = TraySlot("m4", "small", SLOT.x_m, SLOT.y_m + 0.0455 + 0.037 + 0.010)
+    planner.plan_cycle(START_Q, MUG, SLOT, [beside])
+    turned = replace(beside, handle_yaw_rad=-math.pi / 2)
+    with pytest.raises(MotionRefused, match=r"mug m4"):
+        planner.plan_cycle(START_Q, MUG, SLOT, [turned])

@@ -150,7 +150,7 @@ def test_a_new_counter_brings_a_new_world_with_the_arm_where_it_was() -> None:
                     "type": "big",
                     "x_m": 0.1,
                     "y_m": 0.45,
-                    "handle_yaw_rad": 0.0,
+                    "handle_yaw_rad": round(math.atan2(0.45, 0.1), 4),  # away from the arm
                     "upside_down": False,
                 }
             ]
