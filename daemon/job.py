@@ -676,12 +676,16 @@ class Job:
 
     async def _prepare_next(self) -> bool:
         """Take the next planned mug whose cycle can be planned. When the motion planner can fill a slot with
-        another mug of the same type (``SlotPlanner``), a blocked mug is swapped for a reachable one; mugs no
-        motion reaches are skipped."""
+        another mug of the same type (``SlotPlanner``), a blocked mug is swapped for a reachable one. A slot
+        no motion reaches now keeps its place in the queue and is tried again after the next mug (taking
+        that mug off the counter may clear the way); it is given up only when no queued slot can be
+        planned."""
         ctx = self._ctx
-        while ctx.queue:
-            slot, tray_mug = ctx.queue.pop(0)
+        i = 0
+        while i < len(ctx.queue):
+            slot, tray_mug = ctx.queue[i]
             mug = ctx.counter.get(slot.mug_id)
+            del ctx.queue[i]
             if mug is None or slot.mug_id in ctx.given_up:
                 continue
             ctx.current_tray_mug = tray_mug
@@ -691,7 +695,12 @@ class Job:
                     return True
             elif await self._plan_cycle(mug, slot, retry=False) is not None:
                 return True
-            self._give_up(slot.mug_id, "no motion reaches it")
+            ctx.queue.insert(i, (slot, tray_mug))
+            i += 1
+        for slot, _ in ctx.queue:
+            if slot.mug_id in ctx.counter and slot.mug_id not in ctx.given_up:
+                self._give_up(slot.mug_id, "no motion reaches it")
+        ctx.queue = []
         ctx.current = None
         ctx.cycle = None
         return False
@@ -773,7 +782,10 @@ class Job:
             ctx.tray_mugs.append(ctx.current_tray_mug)
         ctx.counter.pop(ctx.current.mug_id, None)
         ctx.summary.placed = len(ctx.on_tray)
-        self._event("mug_placed", mug_id=ctx.current.mug_id, x_m=ctx.current.x_m, y_m=ctx.current.y_m)
+        placed = {"mug_id": ctx.current.mug_id, "x_m": ctx.current.x_m, "y_m": ctx.current.y_m}
+        if handle_yaw is not None:
+            placed["handle_yaw_rad"] = round(handle_yaw, 4)
+        self._event("mug_placed", **placed)
 
     def _dynamics_spec(self) -> CyclePlannerSpec | None:
         """The cell whose arm dynamics cost the placement's moves (``planner.energy_model = "dynamics"``);

@@ -147,6 +147,8 @@ class FakeMotion:
         self.refuse = set(refuse)
         self.bridges: list[str] = []
         self.obstacles: list[tuple[str, ...]] = []
+        self.on_tray_seen: list[tuple[TraySlot, ...]] = []
+        self.blocked_by: dict[str, str] = {}  # mug -> the counter mug that blocks it while still there
 
     def plan_cycle(
         self,
@@ -158,12 +160,15 @@ class FakeMotion:
         counter: Sequence[MugPose] = (),
     ) -> CyclePlan:
         self.obstacles.append(tuple(m.mug_id for m in counter))
+        self.on_tray_seen.append(tuple(on_tray))
         true_id = min(
             self.w.counter,
             key=lambda k: math.hypot(self.w.counter[k].x_m - mug.x_m, self.w.counter[k].y_m - mug.y_m),
         )
         if true_id in self.refuse:
             raise MotionRefused(f"{mug.mug_id} at ({mug.x_m:.3f}, {mug.y_m:.3f}) is out of reach")
+        if self.blocked_by.get(true_id) in self.w.counter:
+            raise MotionRefused(f"{mug.mug_id}: the gripper would hit the mug in front of it")
         self.w.target = true_id
         steps = []
         q = np.asarray(start_q, dtype=np.float64)
@@ -177,7 +182,9 @@ class FakeMotion:
                 goal = np.full(5, 0.1 * (k % 7))
                 steps.append(Step(phase, StepKind.MOVE, self._line(q, goal, label=f"{phase}:{mug.mug_id}")))
                 q = goal
-        return CyclePlan(mug.mug_id, tuple(steps), duration_s=1.0, energy_j=1.0)
+        # A predicted handle yaw per plan (0.1 rad per mug already on the tray), to follow through the job.
+        handle = 0.1 * len(on_tray)
+        return CyclePlan(mug.mug_id, tuple(steps), duration_s=1.0, energy_j=1.0, handle_yaw_rad=handle)
 
     def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
         self.bridges.append(label)

@@ -16,14 +16,19 @@ from tests.daemon.fakes import FakeMotion, FakeWorld, make_backend, make_world
 Published = list[tuple[str, dict[str, Any]]]
 
 
-def _job(world: FakeWorld, *, refuse: tuple[str, ...] = ()) -> tuple[Job, Published]:
+def _job(
+    world: FakeWorld, *, refuse: tuple[str, ...] = (), blocked_by: Mapping[str, str] | None = None
+) -> tuple[Job, Published]:
     published: Published = []
 
     def publish(topic: str, payload: Mapping[str, object]) -> None:
         published.append((topic, dict(payload)))
 
     config = load_config(overrides={"planner": {"method": "bh", "time_limit_s": 0.2}})
-    return Job(make_backend(world, refuse=refuse), config, publish, associate), published
+    backend = make_backend(world, refuse=refuse)
+    assert isinstance(backend.motion, FakeMotion)
+    backend.motion.blocked_by = dict(blocked_by or {})
+    return Job(backend, config, publish, associate), published
 
 
 def _run(world: FakeWorld, scenario: Callable[[Job], Awaitable[None]], **kw: Any) -> tuple[Job, Published]:
@@ -76,6 +81,10 @@ def test_a_whole_job_places_every_mug_and_ends_done() -> None:
     motion = job.backend.motion
     assert isinstance(motion, FakeMotion)
     assert [len(o) for o in motion.obstacles] == [2, 1, 0]  # the other counter mugs, for collision checks
+    # Where each placed mug's handle points (the plan's prediction) goes with it onto the tray.
+    placed = [p for t, p in published if t == "events" and p["kind"] == "mug_placed"]
+    assert [e["handle_yaw_rad"] for e in placed] == [0.0, 0.1, 0.2]
+    assert [s.handle_yaw_rad for s in motion.on_tray_seen[-1]] == [0.0, 0.1]
 
 
 def test_a_failed_grasp_recovers_the_mug_and_grasps_it_again() -> None:
@@ -122,6 +131,28 @@ def test_a_mug_the_arm_cannot_reach_is_skipped_and_counted_failed() -> None:
     assert (job.summary.failed, job.chart.state) == (1, "done")
     refused = [p for t, p in published if t == "events" and p["kind"] == "motion_refused"]
     assert [r["reason"] for r in refused] == ["m3 at (-0.200, 0.320) is out of reach"]
+
+
+def test_a_mug_blocked_by_another_counter_mug_waits_for_it_to_go_and_is_placed_after() -> None:
+    world = make_world(3)
+    _run(world, _start_and_finish)
+    order = list(world.placed)  # the placement's order, undisturbed
+    world = make_world(3)
+    job, published = _run(world, _start_and_finish, blocked_by={order[0]: order[1]})
+    assert world.placed == [order[1], order[0], order[2]]  # tried again as soon as the way was clear
+    assert (job.summary.placed, job.summary.failed, job.chart.state) == (3, 0, "done")
+    kinds = [p["kind"] for t, p in published if t == "events"]
+    assert "motion_refused" in kinds
+    assert "mug_given_up" not in kinds
+
+
+def test_mugs_blocking_each_other_are_given_up_once_nothing_else_can_move() -> None:
+    world = make_world(3)
+    job, published = _run(world, _start_and_finish, blocked_by={"true0": "true1", "true1": "true0"})
+    assert world.placed == ["true2"]
+    assert (job.summary.placed, job.summary.failed, job.chart.state) == (1, 2, "done")
+    given_up = [p["mug_id"] for t, p in published if t == "events" and p["kind"] == "mug_given_up"]
+    assert len(given_up) == 2
 
 
 def test_pause_stops_the_arm_mid_move_and_resume_rejoins_the_move() -> None:
