@@ -365,6 +365,8 @@ class CyclePlanner:
                 b.line("flip.regrasp", _at_z(off, carry), world, aperture=opened)
                 b.joint_move("flip.regrasp", _at_z(pre, carry), world, aperture=opened)
             b.line("flip.regrasp", pre, world, aperture=opened)
+            beside = self._clear_of(regrasp, 0.0, side)
+            b.line("flip.regrasp", beside, world, aperture=opened, ignore=c.mug.mug_id)
             b.line("flip.regrasp", regrasp, world, aperture=opened, ignore=c.mug.mug_id)
 
         self._try_offsets(plan, "flip.regrasp", moves)
@@ -389,9 +391,13 @@ class CyclePlanner:
         # Let go opening the jaw just wider than the mug (a full opening swings the finger into a neighbour
         # 1 cm away, the packing tolerance), the thumb stepping off the brim by half that; back off, and
         # open fully once up at carry height. A full opening at once is the last resort.
+        # Stepping the thumb off first matters more than how wide the jaw opens: backing straight off drags
+        # the mug (17 mm measured), so every opening with a side step is tried before any without.
+        partial = [(c.holding + extra, extra / 2) for extra in self.release_openings_m]
         releases: list[tuple[float | None, float, tuple[float, ...]]] = [
-            (c.holding + extra, c.holding + extra, (extra / 2, 0.0)) for extra in self.release_openings_m
+            (aperture, aperture, (side,)) for aperture, side in partial
         ]
+        releases += [(aperture, aperture, (0.0,)) for aperture, _ in partial]
         releases.append((None, self.open_aperture_m, (self.side_clearance_m, 0.0)))
         for aperture, jaw, sides in releases:
             trial = plan.fork()
@@ -444,6 +450,14 @@ class CyclePlanner:
         opened = self.open_aperture_m
         carry = self.carry_z_m
         phase = "side_grasp.approach"
+        # Every approach assumes the jaw fully open: open it first (the driver never closes to get there;
+        # at the start of a job it may still be where the last one left it, narrower than a big mug).
+        straddled = world.mugs_around(plan.q, aperture_m=opened)
+        skip = frozenset(f"mug {m}" for m in straddled)
+        why = world.first_collision(plan.q[None, :], aperture_m=opened, ignore=skip)
+        if why:
+            raise MotionRefused(f"{phase}: opening the gripper where the arm is: {why}")
+        plan.gripper(phase, StepKind.OPEN)
 
         def approach(b: _Builder, d: float, side: float) -> None:
             pre = self._clear_of(pick, d, side)
@@ -458,6 +472,9 @@ class CyclePlanner:
                 b.rise(phase, carry, world, aperture=opened)
                 b.joint_move(phase, above, world, aperture=opened)
             b.line(phase, pre, world, aperture=opened)
+            # In beside the mug, then the thumb sideways onto the brim: closing in on the diagonal pushes
+            # the mug along (10 mm measured on a big mug), off the grasp the rest of the cycle assumes.
+            b.line(phase, self._clear_of(pick, 0.0, side), world, aperture=opened, ignore=mug_id)
             b.line(phase, pick, world, aperture=opened, ignore=mug_id)
 
         self._try_offsets(plan, phase, approach)

@@ -23,6 +23,8 @@ TRAY_FLOOR = 0.006
 # The held mug's bottom 3 cm (+5 mm margin) above the tallest mug (106 mm) standing on the tray's base.
 CARRY_Z = 0.106 + TRAY_FLOOR + 0.03 + 0.06 + 0.005
 PHASES = [
+    ("side_grasp.approach", StepKind.OPEN),
+    ("side_grasp.approach", StepKind.MOVE),
     ("side_grasp.approach", StepKind.MOVE),
     ("side_grasp.approach", StepKind.MOVE),
     ("side_grasp.approach", StepKind.MOVE),
@@ -32,6 +34,7 @@ PHASES = [
     ("flip.turn", StepKind.MOVE),
     ("flip.set_down", StepKind.MOVE),
     ("flip.release", StepKind.OPEN),
+    ("flip.regrasp", StepKind.MOVE),
     ("flip.regrasp", StepKind.MOVE),
     ("flip.regrasp", StepKind.MOVE),
     ("flip.regrasp", StepKind.MOVE),
@@ -169,7 +172,7 @@ def test_carried_mug_stays_at_carry_height_in_transit(plan: CyclePlan, arm: ArmM
 
 def test_cycle_time_and_energy_are_predicted(plan: CyclePlan) -> None:
     moving = sum(s.trajectory.duration for s in plan.steps if s.trajectory is not None)
-    assert plan.duration_s == pytest.approx(moving + 2 * 1.0 + 3 * 0.6)
+    assert plan.duration_s == pytest.approx(moving + 2 * 1.0 + 4 * 0.6)
     assert plan.duration_s < thesis.MAX_SECONDS_PER_MUG
     standby_w = thesis.SUPPLY_VOLTAGE_V * (4 * 0.1 + 2 * 0.05)
     assert plan.energy_j > standby_w * plan.duration_s
@@ -311,7 +314,8 @@ def _opens(cycle: CyclePlan) -> list[tuple[str, float | None]]:
 def test_the_jaw_lets_go_on_the_tray_opening_only_a_little_and_opens_fully_at_carry_height(
     plan: CyclePlan, arm: ArmModel
 ) -> None:
-    (flip, full_at_flip), (release, jaw), (retreat, full_after) = _opens(plan)
+    (approach, full_first), (flip, full_at_flip), (release, jaw), (retreat, full_after) = _opens(plan)
+    assert (approach, full_first) == ("side_grasp.approach", None)  # whatever the jaw was left at
     assert (flip, full_at_flip) == ("flip.release", None)  # nothing stands near the flip area
     assert release == "place.release"
     assert jaw is not None
@@ -322,9 +326,11 @@ def test_the_jaw_lets_go_on_the_tray_opening_only_a_little_and_opens_fully_at_ca
     assert position[2] == pytest.approx(CARRY_Z, abs=1e-3)
 
 
-def test_the_thumb_steps_off_the_brim_before_the_gripper_backs_away(plan: CyclePlan, arm: ArmModel) -> None:
-    """Backing off on the diagonal drags the mug by the thumb's friction: the first move after each
-    release is sideways only, away from the mug."""
+def test_the_thumb_steps_off_the_brim_before_backing_away_and_onto_it_after_going_in(
+    plan: CyclePlan, arm: ArmModel
+) -> None:
+    """Moving on the diagonal next to a mug drags or pushes it by the thumb's friction: the first move after
+    each release is sideways only, away from the mug, and the last move of each approach sideways onto it."""
     for phase in ("place.retreat", "flip.regrasp"):
         first = next(s for s in plan.steps if s.phase == phase and s.trajectory is not None)
         assert first.trajectory is not None
@@ -335,6 +341,15 @@ def test_the_thumb_steps_off_the_brim_before_the_gripper_backs_away(plan: CycleP
         assert abs(float(moved @ approach)) < 5e-4, phase
         assert abs(moved[2]) < 5e-4, phase
         assert float(moved @ mug_side) < -0.002, phase  # away from the mug, on the thumb's side
+    # ... and the last move of each approach brings the thumb sideways onto the brim.
+    for phase in ("side_grasp.approach", "flip.regrasp"):
+        last = [s for s in plan.steps if s.phase == phase and s.trajectory is not None][-1]
+        assert last.trajectory is not None
+        p0, rotation = arm.fk(last.trajectory.positions[0])
+        p1, _ = arm.fk(last.trajectory.positions[-1])
+        moved = np.asarray(p1) - np.asarray(p0)
+        assert abs(float(moved @ rotation[:, 2])) < 5e-4, phase
+        assert float(moved @ rotation[:, 1]) > 0.002, phase
 
 
 def test_a_neighbour_a_centimetre_from_the_finger_gets_a_jaw_opened_only_a_little(
@@ -346,7 +361,7 @@ def test_a_neighbour_a_centimetre_from_the_finger_gets_a_jaw_opened_only_a_littl
     cycle = planner.plan_cycle(START_Q, MUG, SLOT, [right])
     position, rotation = arm.fk(_end_of(cycle, "place.descend"))
     assert rotation[2, 0] == pytest.approx(1.0, abs=1e-3)  # wrist turned: finger on the mug's right
-    assert _opens(cycle)[1] == ("place.release", pytest.approx(0.091 + 0.006))
+    assert _opens(cycle)[2] == ("place.release", pytest.approx(0.091 + 0.006))
     reach = reach_past_axis_m(MUG_TYPES["big"], arm.gripper)
     axis = (
         position[:2]
@@ -363,7 +378,7 @@ def test_neighbours_a_centimetre_away_on_both_sides_still_take_the_mug(planner: 
         TraySlot("m5", "small", SLOT.x_m, SLOT.y_m + gap),
     ]
     cycle = planner.plan_cycle(START_Q, MUG, SLOT, tight)
-    assert _opens(cycle)[1] == ("place.release", pytest.approx(0.091 + 0.006))
+    assert _opens(cycle)[2] == ("place.release", pytest.approx(0.091 + 0.006))
 
 
 def test_neighbours_closer_than_the_thumb_on_both_sides_refuse_the_slot(planner: CyclePlanner) -> None:
@@ -406,7 +421,8 @@ def test_a_cycle_starting_with_the_open_gripper_around_a_mug_lifts_off_it_first(
     cycle = planner.plan_cycle(
         around_m1, other, TraySlot(other.mug_id, other.type, 0.45, 0.05), [], counter=[MUG, NEIGHBOURS[1]]
     )
-    first = cycle.steps[0].trajectory
+    assert cycle.steps[0].kind is StepKind.OPEN  # opening around the mug it let go of is allowed
+    first = cycle.steps[1].trajectory
     assert first is not None
     start_p, _ = arm.fk(first.positions[0])
     lifted = [arm.fk(q)[0] for q in first.positions[: len(first.positions) // 3]]
