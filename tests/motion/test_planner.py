@@ -448,7 +448,9 @@ def test_a_handle_that_would_land_in_a_placed_mug_is_refused(planner: CyclePlann
     # Handle along +x on the counter, straight ahead of the arm: on the tray it points about 100 degrees
     # round, into a mug placed 1 cm beside the slot on that side.
     beside = TraySlot("m4", "small", SLOT.x_m, SLOT.y_m + 0.0455 + 0.037 + 0.010)
-    with pytest.raises(MotionRefused, match=r"^place: mug m1's handle would end at \d+ deg and touch mug m4"):
+    with pytest.raises(
+        MotionRefused, match=r"^place: mug m1's handle would end at \d+ deg, 0 mm from the body of mug m4"
+    ):
         planner.plan_cycle(START_Q, replace(MUG, handle_yaw_rad=0.0), SLOT, [beside])
 
 
@@ -459,3 +461,12 @@ def test_a_placed_mug_is_an_obstacle_with_its_handle_where_it_really_points(plan
     turned = replace(beside, handle_yaw_rad=-math.pi / 2)
     with pytest.raises(MotionRefused, match=r"mug m4"):
         planner.plan_cycle(START_Q, MUG, SLOT, [turned])
+
+
+def test_handle_bars_that_cross_are_touching_and_apart_ones_measure_their_gap() -> None:
+    from planning.motion.planner import _segment_segment_m
+
+    bar = ((0.0, 0.0), (0.02, 0.0))
+    assert _segment_segment_m(bar, ((0.01, -0.01), (0.01, 0.01))) == 0.0
+    assert _segment_segment_m(bar, ((0.03, -0.01), (0.03, 0.01))) == pytest.approx(0.01)
+    assert _segment_segment_m(bar, ((0.0, 0.004), (0.02, 0.004))) == pytest.approx(0.004)
