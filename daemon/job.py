@@ -645,7 +645,7 @@ class Job:
         # Mugs standing on the tray are the job's own work (it knows them); only counter mugs are to load.
         on_counter = tuple(d for d in obs.detections if not tray.contains(d.x_m, d.y_m))
         known = [
-            Detection(m.type, m.x_m, m.y_m, m.upside_down, m.handle_yaw_rad, 1.0, m.mug_id)
+            Detection(m.type, m.x_m, m.y_m, m.upside_down, m.handle_yaw_rad, 1.0, m.mug_id, m.handle_seen)
             for m in ctx.counter.values()
         ]
         associated = (
@@ -665,7 +665,7 @@ class Job:
 
     @staticmethod
     def _pose(d: Detection) -> MugPose:
-        return MugPose(d.mug_id, d.type, d.x_m, d.y_m, d.handle_yaw_rad, d.upside_down)
+        return MugPose(d.mug_id, d.type, d.x_m, d.y_m, d.handle_yaw_rad, d.upside_down, d.handle_seen)
 
     def _give_up(self, mug_id: str, reason: str) -> None:
         """Leave a mug on the counter for good (it stays known, so it is not mistaken for a new one)."""

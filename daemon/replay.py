@@ -74,6 +74,7 @@ def decode_observation(payload: Mapping[str, object], *, t: float) -> Observatio
                     handle_yaw_rad=_number(item, "handle_yaw_rad"),
                     confidence=_number(item, "confidence"),
                     mug_id=str(item.get("id", "")),
+                    handle_seen=_flag(item, "handle_seen") if "handle_seen" in item else True,
                 )
             )
         except ValueError as e:

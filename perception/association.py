@@ -90,6 +90,9 @@ def associate(
     for ki, si in _assign(known, seen, free_known, free_seen, limit_m=known_within_m):
         k = known[ki]
         assigned[si] = replace(seen[si], mug_id=k.mug_id, x_m=k.x_m, y_m=k.y_m)
+        if k.handle_seen and not seen[si].handle_seen:
+            # It has not moved: where its handle was seen before still holds.
+            assigned[si] = replace(assigned[si], handle_yaw_rad=k.handle_yaw_rad, handle_seen=True)
         kept.append(k.mug_id)
         free_known.discard(ki)
         free_seen.discard(si)

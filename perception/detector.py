@@ -164,6 +164,7 @@ class DepthMugDetector:
                     upside_down=fit.upside_down,
                     handle_yaw_rad=yaw,
                     confidence=_confidence(fit, seen, self._params),
+                    handle_seen=seen,
                 )
             )
         detections.sort(key=lambda d: (d.x_m, d.y_m))

@@ -20,6 +20,9 @@ class Detection:
     handle_yaw_rad: float  # direction of the handle from the mug axis, about +z
     confidence: float  # 0..1
     mug_id: str = ""  # stable id once associated with a known mug
+    # False when the handle was hidden (behind the mug or another one): handle_yaw_rad is then a guess,
+    # pointing away from the camera, and the arm cannot tell where the handle will land on the tray.
+    handle_seen: bool = True
 
     def to_json(self) -> dict[str, object]:
         return {
@@ -29,6 +32,7 @@ class Detection:
             "y_m": round(self.y_m, 5),
             "upside_down": self.upside_down,
             "handle_yaw_rad": round(self.handle_yaw_rad, 5),
+            "handle_seen": self.handle_seen,
             "confidence": round(self.confidence, 4),
         }
 

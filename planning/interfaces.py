@@ -24,6 +24,7 @@ class MugPose:
     y_m: float
     handle_yaw_rad: float = 0.0
     upside_down: bool = False
+    handle_seen: bool = True  # False: handle_yaw_rad is a guess (the camera did not see the handle)
 
 
 @dataclass(frozen=True, slots=True)

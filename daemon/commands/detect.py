@@ -109,6 +109,7 @@ def _print(mugs: list[Detection], *, as_json: bool) -> None:
                 "y_m": round(d.y_m, 4),
                 "upside_down": d.upside_down,
                 "handle_yaw_rad": round(d.handle_yaw_rad, 4),
+                "handle_seen": d.handle_seen,
                 "confidence": round(d.confidence, 3),
             }
             for d in mugs

@@ -163,6 +163,9 @@ class CyclePlanner:
         self._check_slot_in_tray(slot, spec)
         with self._lock:
             motions = self._cycle_motions(start, mug, spec, slot, on_tray, counter)
+            if not mug.handle_seen:
+                # Nothing to predict from: the packing's assumption (handle along +x) stands.
+                return self._costed(mug, motions)
             handle_yaw = self._handle_yaw_on_tray(mug, motions)
             self._check_handle(mug, slot, spec, handle_yaw, on_tray)
             return replace(self._costed(mug, motions), handle_yaw_rad=handle_yaw)

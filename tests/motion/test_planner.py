@@ -470,3 +470,12 @@ def test_handle_bars_that_cross_are_touching_and_apart_ones_measure_their_gap() 
     assert _segment_segment_m(bar, ((0.01, -0.01), (0.01, 0.01))) == 0.0
     assert _segment_segment_m(bar, ((0.03, -0.01), (0.03, 0.01))) == pytest.approx(0.01)
     assert _segment_segment_m(bar, ((0.0, 0.004), (0.02, 0.004))) == pytest.approx(0.004)
+
+
+def test_a_handle_the_camera_did_not_see_is_not_predicted_and_not_held_against_the_slot(
+    planner: CyclePlanner,
+) -> None:
+    beside = TraySlot("m4", "small", SLOT.x_m, SLOT.y_m + 0.0455 + 0.037 + 0.010)
+    guessed = replace(MUG, handle_yaw_rad=0.0, handle_seen=False)  # the same yaw refused above when seen
+    cycle = planner.plan_cycle(START_Q, guessed, SLOT, [beside])
+    assert cycle.handle_yaw_rad is None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 from hypothesis import given, settings
@@ -26,6 +27,17 @@ def test_mugs_within_a_centimetre_keep_their_ids_and_stored_positions() -> None:
     assert [(d.x_m, d.y_m) for d in result] == [(k.x_m, k.y_m) for k in KNOWN]
     assert result.kept == ("m1", "m2", "m3")
     assert not result.count_changed
+
+
+def test_a_mug_that_has_not_moved_keeps_the_handle_seen_before_when_it_is_hidden_now() -> None:
+    known = [replace(KNOWN[0], handle_yaw_rad=1.2), replace(KNOWN[1], handle_yaw_rad=0.3, handle_seen=False)]
+    seen = [
+        replace(mug(0.004, 0.405), handle_yaw_rad=-2.0, handle_seen=False),
+        replace(mug(0.147, 0.398, "small"), handle_yaw_rad=0.5),
+    ]
+    first, second = associate(known, seen)
+    assert (first.mug_id, first.handle_yaw_rad, first.handle_seen) == ("m1", 1.2, True)
+    assert (second.mug_id, second.handle_yaw_rad, second.handle_seen) == ("m2", 0.5, True)
 
 
 def test_the_dropped_target_is_the_unknown_mug_of_its_type_closest_to_the_robot() -> None:

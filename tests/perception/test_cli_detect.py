@@ -46,7 +46,15 @@ def test_detect_prints_the_mugs_as_json(
         (hit,) = [m for m in found if math.hypot(m["x_m"] - mug.x_m, m["y_m"] - mug.y_m) < 0.005]
         assert hit["type"] == mug.spec.name
         assert hit["upside_down"] == mug.upside_down
-        assert set(hit) == {"type", "x_m", "y_m", "upside_down", "handle_yaw_rad", "confidence"}
+        assert set(hit) == {
+            "type",
+            "x_m",
+            "y_m",
+            "upside_down",
+            "handle_yaw_rad",
+            "handle_seen",
+            "confidence",
+        }
 
 
 def test_detect_prints_a_table_without_json(
