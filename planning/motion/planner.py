@@ -405,9 +405,9 @@ class CyclePlanner:
         reasons = []
         # Let go opening the jaw just wider than the mug (a full opening swings the finger into a neighbour
         # 1 cm away, the packing tolerance), the thumb stepping off the brim by half that; back off, and
-        # open fully once up at carry height. A full opening at once is the last resort.
-        # Stepping the thumb off first matters more than how wide the jaw opens: backing straight off drags
-        # the mug (17 mm measured), so every opening with a side step is tried before any without.
+        # open fully once up at carry height. The side step matters more than the width (backing straight
+        # off dragged a mug 17 mm), so every opening with it is tried before any without; a full opening at
+        # once is the last resort.
         partial = [(c.holding + extra, extra / 2) for extra in self.release_openings_m]
         releases: list[tuple[float | None, float, tuple[float, ...]]] = [
             (aperture, aperture, (side,)) for aperture, side in partial
@@ -450,8 +450,8 @@ class CyclePlanner:
     ) -> GraspTarget:
         """From an opened grasp on a standing mug to ``_clear_of(grasp, back_m, side_m)``: the thumb first
         steps sideways off the brim, then the gripper backs away along the approach. Backing off on the
-        diagonal drags the mug along by the thumb's friction (up to a centimetre, measured in the MuJoCo
-        cell), which is a collision with the next mug on the tray. Returns where it ends."""
+        diagonal dragged the mug along by the thumb's friction (12-17 mm in the MuJoCo cell), into the next
+        mug on the tray. Returns where it ends."""
         if side_m > 0.0:
             plan.line(phase, self._clear_of(grasp, 0.0, side_m), world, aperture=aperture_m, ignore=mug_id)
         clear = self._clear_of(grasp, back_m, side_m)
