@@ -409,14 +409,13 @@ class CyclePlanner:
         # off dragged a mug 17 mm), so every opening with it is tried before any without; a full opening at
         # once is the last resort.
         partial = [(c.holding + extra, extra / 2) for extra in self.release_openings_m]
-        releases: list[tuple[float | None, float, tuple[float, ...]]] = [
-            (aperture, aperture, (side,)) for aperture, side in partial
-        ]
-        releases += [(aperture, aperture, (0.0,)) for aperture, _ in partial]
-        releases.append((None, self.open_aperture_m, (self.side_clearance_m, 0.0)))
-        for aperture, jaw, sides in releases:
+        releases: list[tuple[float | None, tuple[float, ...]]] = [(a, (side,)) for a, side in partial]
+        releases += [(a, (0.0,)) for a, _ in partial]
+        releases.append((None, (self.side_clearance_m, 0.0)))
+        for aperture, sides in releases:
             trial = plan.fork()
             trial.gripper("place.release", StepKind.OPEN, aperture)
+            jaw = self.open_aperture_m if aperture is None else aperture
 
             def retreat(b: _Builder, back: float, side: float, jaw: float = jaw) -> None:
                 clear = self._back_off(b, "place.retreat", place, back, side, done_world, jaw, c.mug.mug_id)
@@ -467,6 +466,7 @@ class CyclePlanner:
         phase = "side_grasp.approach"
         # Every approach assumes the jaw fully open: open it first (the driver never closes to get there;
         # at the start of a job it may still be where the last one left it, narrower than a big mug).
+        # Opening around a mug the gripper still straddles (after a failed grasp) is fine.
         straddled = world.mugs_around(plan.q, aperture_m=opened)
         skip = frozenset(f"mug {m}" for m in straddled)
         why = world.first_collision(plan.q[None, :], aperture_m=opened, ignore=skip)
@@ -477,7 +477,6 @@ class CyclePlanner:
         def approach(b: _Builder, d: float, side: float) -> None:
             pre = self._clear_of(pick, d, side)
             above = _at_z(pre, max(carry, pre.position_m[2]))
-            straddled = world.mugs_around(b.q, aperture_m=opened)
             if straddled:
                 # After a failed grasp the open gripper still straddles that mug: lift straight off it first.
                 b.rise(phase, carry, world, aperture=opened, ignore=straddled)

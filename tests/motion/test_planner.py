@@ -125,14 +125,16 @@ def _end_of(plan: CyclePlan, phase: str) -> np.ndarray:
     return moves[-1].trajectory.positions[-1]
 
 
+def _big_mug_axis(arm: ArmModel, position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """Where a big mug's axis is (x, y) for the grasp point at ``position`` with ``rotation``."""
+    reach = reach_past_axis_m(MUG_TYPES["big"], arm.gripper)
+    lateral = lateral_offset_m(MUG_TYPES["big"], arm.gripper)
+    return np.asarray(position[:2] + lateral * rotation[:2, 1] - reach * rotation[:2, 2])
+
+
 def test_grasp_pose_holds_the_mug_axis_six_centimetres_up(plan: CyclePlan, arm: ArmModel) -> None:
     position, rotation = arm.fk(_end_of(plan, "side_grasp.approach"))
-    reach = reach_past_axis_m(MUG_TYPES["big"], arm.gripper)
-    axis = (
-        position[:2]
-        + lateral_offset_m(MUG_TYPES["big"], arm.gripper) * rotation[:2, 1]
-        - reach * rotation[:2, 2]
-    )
+    axis = _big_mug_axis(arm, position, rotation)
     assert np.allclose(axis, [MUG.x_m, MUG.y_m], atol=1e-3)
     assert position[2] == pytest.approx(thesis.GRASP_HEIGHT_M, abs=1e-3)
     assert rotation[2, 0] == pytest.approx(-1.0, abs=1e-3)  # side grasp: the grasp frame's x points down
@@ -150,12 +152,7 @@ def test_flip_turns_the_wrist_by_half_a_turn_above_the_flip_area(plan: CyclePlan
 
 def test_release_on_the_tray_puts_the_inverted_mug_on_its_slot(plan: CyclePlan, arm: ArmModel) -> None:
     position, rotation = arm.fk(_end_of(plan, "place.descend"))
-    reach = reach_past_axis_m(MUG_TYPES["big"], arm.gripper)
-    axis = (
-        position[:2]
-        + lateral_offset_m(MUG_TYPES["big"], arm.gripper) * rotation[:2, 1]
-        - reach * rotation[:2, 2]
-    )
+    axis = _big_mug_axis(arm, position, rotation)
     assert np.allclose(axis, [SLOT.x_m, SLOT.y_m], atol=1e-3)
     assert rotation[2, 0] == pytest.approx(1.0, abs=1e-3)  # upside down: x up
     # The brim, 6 cm below the grasp point, hangs just above the tray's base.
@@ -362,12 +359,7 @@ def test_a_neighbour_a_centimetre_from_the_finger_gets_a_jaw_opened_only_a_littl
     position, rotation = arm.fk(_end_of(cycle, "place.descend"))
     assert rotation[2, 0] == pytest.approx(1.0, abs=1e-3)  # wrist turned: finger on the mug's right
     assert _opens(cycle)[2] == ("place.release", pytest.approx(0.091 + 0.006))
-    reach = reach_past_axis_m(MUG_TYPES["big"], arm.gripper)
-    axis = (
-        position[:2]
-        + lateral_offset_m(MUG_TYPES["big"], arm.gripper) * rotation[:2, 1]
-        - reach * rotation[:2, 2]
-    )
+    axis = _big_mug_axis(arm, position, rotation)
     assert np.allclose(axis, [SLOT.x_m, SLOT.y_m], atol=1e-3)
 
 
