@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import time
+from collections.abc import AsyncIterator
 
 import numpy as np
 import pytest
@@ -136,76 +138,71 @@ def gripper_setup(contact_aperture_m: float | None) -> tuple[GripperSpec, MugBet
     return spec, plant
 
 
-@async_test
-async def test_gripper_holds_a_mug_when_the_force_passes_the_threshold() -> None:
-    spec, plant = gripper_setup(0.074)  # small mug's brim diameter, §5.3
+@contextlib.asynccontextmanager
+async def gripper_on_pads(spec: GripperSpec, plant: MugBetweenPads) -> AsyncIterator[DynamixelGripper]:
+    """The gripper driver on a one-servo pty chain whose pads close on ``plant``; its FSR reads the plant."""
     with ServoChainSimulator([(6, "AX-12A")], plant=plant) as sim:
         async with (
             ServoChain(BusConfig(sim.device_path), [(6, "AX-12A")], read_timeout_s=PATIENT_S) as chain,
             DynamixelGripper(chain, spec, PlantForceSensor(plant)) as gripper,
         ):
-            assert isinstance(gripper, GripperDriver)
-            await gripper.open()
-            result = await gripper.close_on_mug(force_threshold_n=1.0, min_aperture_m=0.03)
-            assert result.held
-            assert result.force_n >= 1.0
-            assert result.aperture_m == pytest.approx(0.074, abs=0.004)
+            yield gripper
+
+
+@async_test
+async def test_gripper_holds_a_mug_when_the_force_passes_the_threshold() -> None:
+    spec, plant = gripper_setup(0.074)  # small mug's brim diameter, §5.3
+    async with gripper_on_pads(spec, plant) as gripper:
+        assert isinstance(gripper, GripperDriver)
+        await gripper.open()
+        result = await gripper.close_on_mug(force_threshold_n=1.0, min_aperture_m=0.03)
+        assert result.held
+        assert result.force_n >= 1.0
+        assert result.aperture_m == pytest.approx(0.074, abs=0.004)
 
 
 @async_test
 async def test_gripper_keeps_squeezing_the_mug_after_the_grasp_and_through_a_stop() -> None:
     spec, plant = gripper_setup(0.074)
-    with ServoChainSimulator([(6, "AX-12A")], plant=plant) as sim:
-        async with (
-            ServoChain(BusConfig(sim.device_path), [(6, "AX-12A")], read_timeout_s=PATIENT_S) as chain,
-            DynamixelGripper(chain, spec, PlantForceSensor(plant)) as gripper,
-        ):
-            await gripper.open()
-            result = await gripper.close_on_mug(force_threshold_n=1.0, min_aperture_m=0.03)
-            assert result.held
-            await asyncio.sleep(0.5)
-            assert plant.force_n() >= 1.0  # the goal stays past contact: the squeeze does not relax
-            await gripper.stop()  # a pause mid-carry
-            await asyncio.sleep(0.2)
-            assert plant.force_n() >= 1.0
-            await gripper.open()
-            await gripper.stop()
-            assert plant.force_n() == 0.0
+    async with gripper_on_pads(spec, plant) as gripper:
+        await gripper.open()
+        result = await gripper.close_on_mug(force_threshold_n=1.0, min_aperture_m=0.03)
+        assert result.held
+        await asyncio.sleep(0.5)
+        assert plant.force_n() >= 1.0  # the goal stays past contact: the squeeze does not relax
+        await gripper.stop()  # a pause mid-carry
+        await asyncio.sleep(0.2)
+        assert plant.force_n() >= 1.0
+        await gripper.open()
+        await gripper.stop()
+        assert plant.force_n() == 0.0
 
 
 @async_test
 async def test_gripper_lets_go_opening_only_as_far_as_asked_and_never_closes_to_get_there() -> None:
     spec, plant = gripper_setup(0.074)
-    with ServoChainSimulator([(6, "AX-12A")], plant=plant) as sim:
-        async with (
-            ServoChain(BusConfig(sim.device_path), [(6, "AX-12A")], read_timeout_s=PATIENT_S) as chain,
-            DynamixelGripper(chain, spec, PlantForceSensor(plant)) as gripper,
-        ):
-            await gripper.open()
-            assert (await gripper.close_on_mug(force_threshold_n=1.0, min_aperture_m=0.03)).held
-            await gripper.open(0.080)  # 6 mm wider than the mug: let go between close neighbours
-            assert (await gripper.read()).aperture_m == pytest.approx(0.080, abs=0.004)
-            assert plant.force_n() == 0.0
-            await gripper.open(0.060)  # narrower than it is: stays where it is
-            assert (await gripper.read()).aperture_m == pytest.approx(0.080, abs=0.004)
-            await gripper.open(1.0)  # beyond the stop: fully open
-            assert (await gripper.read()).aperture_m == pytest.approx(spec.open_aperture_m, abs=0.004)
+    async with gripper_on_pads(spec, plant) as gripper:
+        await gripper.open()
+        assert (await gripper.close_on_mug(force_threshold_n=1.0, min_aperture_m=0.03)).held
+        await gripper.open(0.080)  # 6 mm wider than the mug: let go between close neighbours
+        assert (await gripper.read()).aperture_m == pytest.approx(0.080, abs=0.004)
+        assert plant.force_n() == 0.0
+        await gripper.open(0.060)  # narrower than it is: stays where it is
+        assert (await gripper.read()).aperture_m == pytest.approx(0.080, abs=0.004)
+        await gripper.open(1.0)  # beyond the stop: fully open
+        assert (await gripper.read()).aperture_m == pytest.approx(spec.open_aperture_m, abs=0.004)
 
 
 @async_test
 async def test_gripper_reports_a_missed_grasp_when_the_aperture_gets_too_small() -> None:
     spec, plant = gripper_setup(None)
-    with ServoChainSimulator([(6, "AX-12A")], plant=plant) as sim:
-        async with (
-            ServoChain(BusConfig(sim.device_path), [(6, "AX-12A")], read_timeout_s=PATIENT_S) as chain,
-            DynamixelGripper(chain, spec, PlantForceSensor(plant)) as gripper,
-        ):
-            await gripper.open()
-            result = await gripper.close_on_mug(force_threshold_n=1.0, min_aperture_m=0.03)
-            assert not result.held
-            assert result.aperture_m < 0.03
-            assert result.reason.startswith("aperture 0.0")
-            assert "fell below 0.030 m before the force passed 1.00 N" in result.reason
+    async with gripper_on_pads(spec, plant) as gripper:
+        await gripper.open()
+        result = await gripper.close_on_mug(force_threshold_n=1.0, min_aperture_m=0.03)
+        assert not result.held
+        assert result.aperture_m < 0.03
+        assert result.reason.startswith("aperture 0.0")
+        assert "fell below 0.030 m before the force passed 1.00 N" in result.reason
 
 
 @async_test
