@@ -25,6 +25,8 @@ import structlog
 
 from daemon.config import CellConfig, Config, MugTypeConfig
 from daemon.errors import UsageError
+from description import thesis
+from description.thesis import MugSpec
 from drivers.dynamixel import BusConfig, DeviceEvent
 from drivers.errors import BusLost, DriverError
 from drivers.interfaces import (
@@ -38,7 +40,6 @@ from drivers.interfaces import (
     JointState,
     JointTrajectory,
 )
-from drivers.simcell import MugGeometry, SimMug, open_kinematic_cell
 from drivers.stack import (
     ARM_JOINTS,
     DeviceStack,
@@ -49,8 +50,6 @@ from drivers.stack import (
     open_device_stack,
 )
 from perception.interfaces import Detection, MugObserver, Observation
-from perception.truth import TruthObserver
-from planning import thesis
 from planning.arm import ArmModel
 from planning.arm.calibration import PositionCorrection
 from planning.arm.grasp import handle_facing_away_rad
@@ -58,7 +57,8 @@ from planning.interfaces import CyclePlan, MotionPlanner, MugPose, TraySlot
 from planning.motion import CellLayout, DynamicsMoveCost
 from planning.motion.planner import CyclePlanner
 from planning.placement import PlanOptions, PlanResult, Problem, dataset_problem, plan
-from planning.thesis import MugSpec
+from sim.kinematic import MugGeometry, SimMug, open_kinematic_cell
+from sim.truth import TruthObserver
 
 log = structlog.get_logger("daemon.backend")
 
@@ -322,7 +322,7 @@ def open_kinematic_backend(
     seed: int,
     executor: concurrent.futures.Executor | None = None,
 ) -> Backend:
-    """The kinematic placeholder cell (``drivers.simcell``), ``speed`` times faster than real time."""
+    """The kinematic placeholder cell (``sim.kinematic``), ``speed`` times faster than real time."""
     arm_model = ArmModel.load()
     counter = _KinematicCounter(config, arm_model, speed=speed)
     tray = counter.set_counter(dataset=dataset, mugs=None)
@@ -583,11 +583,11 @@ class ProcessMotionPlanner:
 async def open_mujoco_backend(
     config: Config, *, dataset: int, seed: int, executor: concurrent.futures.Executor | None = None
 ) -> Backend:
-    """The MuJoCo cell (``drivers.simworld``): real drivers over simulated servos and FSR, a rendered depth
+    """The MuJoCo cell (``sim.mujoco``): real drivers over simulated servos and FSR, a rendered depth
     camera and the depth detector; dataset ``dataset``'s mugs on the counter. It runs in real time (its
     drivers keep wall-clock time). Call it on the event loop that will use the devices."""
-    from drivers.simworld.cell import scene_mugs, start_sim_cell
-    from drivers.simworld.scene import SceneLayout
+    from description.cell import SceneLayout
+    from sim.mujoco.cell import scene_mugs, start_sim_cell
 
     plain = config.to_dict()
     try:
@@ -766,8 +766,8 @@ async def _hardware_observer(
     config: Config, stack: contextlib.AsyncExitStack, camera: Camera | None
 ) -> MugObserver:
     """The mug observer on the configured camera: depth detection over the table, the tray left out."""
+    from description.cell import SceneLayout
     from drivers.camera import RealSenseCamera
-    from drivers.simworld.scene import SceneLayout
     from perception.calibration import camera_model
     from perception.observer import cell_observer_factory
 

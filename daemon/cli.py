@@ -14,7 +14,7 @@ from daemon.logs import LEVELS, configure_cli_logging
 # Each module defines ``register(subparsers)``, which adds its verbs and sets ``handler`` on the parser:
 # a callable taking the parsed namespace and returning the exit code.
 COMMAND_MODULES: tuple[str, ...] = (
-    "daemon.commands.bench",
+    "bench.cli",
     "daemon.commands.config_cmd",
     "daemon.commands.statechart_cmd",
     "daemon.commands.record",

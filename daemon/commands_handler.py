@@ -16,7 +16,7 @@ from typing import Any
 from daemon.backend import CounterMug
 from daemon.config import PLANNER_COSTS, PLANNER_FITNESS, Config
 from daemon.job import CommandRefused, Job, PlannerRequest, StartRequest
-from planning import thesis
+from description import thesis
 from planning.placement import METHODS
 
 VERBS = ("status", "start", "pause", "resume", "stop", "estop", "reset")

@@ -18,9 +18,9 @@ from pathlib import Path
 from typing import Any
 
 from daemon.errors import ConfigError
+from description.thesis import JOINT_SERVOS
 from drivers.dynamixel.tables import BAUD_CODES_1, BAUD_CODES_2, MODELS
 from planning.placement import METHODS
-from planning.thesis import JOINT_SERVOS
 
 _ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")

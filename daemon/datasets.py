@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from daemon.config import CellConfig
-from planning import thesis
+from description import thesis
 from planning.placement import Problem, dataset_problem
 
 

@@ -14,7 +14,10 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import numpy.typing as npt
 
-FloatArray = npt.NDArray[np.float64]
+from description.arrays import FloatArray
+from description.camera import CameraIntrinsics
+
+__all__ = ["CameraIntrinsics", "FloatArray"]  # re-exported: the camera protocol speaks them
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,18 +72,6 @@ class GraspResult:
     force_n: float
     aperture_m: float
     reason: str = ""
-
-
-@dataclass(frozen=True, slots=True)
-class CameraIntrinsics:
-    """Pinhole model: the camera looks along +z, x right, y down."""
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
 
 
 @dataclass(frozen=True, slots=True)

@@ -3,7 +3,7 @@
 ``open_device_stack`` opens the FSR reader, the servo chain (every id and model verified before any torque),
 the arm's five joints and the gripper, on whatever serial ports it is given: ``/dev/dishbot-servos`` and
 ``/dev/dishbot-fsr`` on the robot, the pseudo-terminals of ``drivers.sim`` in the simulated cell. The daemon's
-hardware backend and ``drivers.simworld.cell.start_sim_cell`` both call it, so the simulation exercises the
+hardware backend and ``sim.mujoco.cell.start_sim_cell`` both call it, so the simulation exercises the
 exact stack the robot runs.
 """
 
@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from description.arm import JOINT_LIMITS, GripperGeometry
 from drivers.dynamixel import (
     BusConfig,
     DeviceEvent,
@@ -26,7 +27,6 @@ from drivers.dynamixel import (
     tables,
 )
 from drivers.fsr.reader import FsrReader
-from planning.arm.description import JOINT_LIMITS, GripperGeometry
 
 ARM_JOINTS = ("shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn")
 

@@ -17,8 +17,8 @@ from typing import overload
 
 import numpy as np
 
+from description.thesis import KNOWN_MUG_TOLERANCE_M
 from perception.interfaces import Detection
-from planning.thesis import KNOWN_MUG_TOLERANCE_M
 
 # Thesis §4.1, §4.3.1: a mug within this distance of its previous position has not moved.
 KNOWN_WITHIN_M = KNOWN_MUG_TOLERANCE_M

@@ -26,8 +26,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from description.camera import CameraSpec
 from drivers.interfaces import CameraIntrinsics, FloatArray
-from drivers.simworld.scene import CameraSpec
 from perception.errors import BoardNotFound, CalibrationError
 
 _INTRINSIC_KEYS = ("width", "height", "fx", "fy", "cx", "cy")

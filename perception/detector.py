@@ -30,10 +30,10 @@ import numpy as np
 import numpy.typing as npt
 import structlog
 
+from description.thesis import MugSpec
 from drivers.interfaces import CameraIntrinsics, FloatArray, RGBDFrame
 from perception.errors import FrameError
 from perception.interfaces import Detection
-from planning.thesis import MugSpec
 
 log = structlog.get_logger(__name__)
 

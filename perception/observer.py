@@ -12,11 +12,11 @@ import numpy as np
 import numpy.typing as npt
 import structlog
 
+from description.cell import TRAY_WALL_THICKNESS_M, SceneLayout
+from description.thesis import MUG_TYPES, MugSpec
 from drivers.interfaces import Camera, RGBDFrame
-from drivers.simworld.scene import TRAY_WALL_THICKNESS_M, SceneLayout
 from perception.detector import DepthMugDetector
 from perception.interfaces import Detection, Observation
-from planning.thesis import MUG_TYPES, MugSpec
 
 log = structlog.get_logger(__name__)
 

@@ -7,4 +7,5 @@ export MUJOCO_GL="${MUJOCO_GL:-egl}"
 .venv/bin/ruff check .
 .venv/bin/ruff format --check .
 .venv/bin/mypy
+.venv/bin/lint-imports --no-cache
 .venv/bin/pytest "$@"

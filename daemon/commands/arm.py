@@ -10,13 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from daemon.commands.bench import format_table
+from daemon.commands.output import format_table
 from daemon.config import load_config
 from daemon.errors import ConfigError, UsageError
+from description.thesis import MugSpec
 from planning.arm import ArmModel, ArmModelError, CalibrationError, GraspKind, GraspTarget
 from planning.arm.calibration import fit_correction, load_pairs
 from planning.motion import CellLayout
-from planning.thesis import MugSpec
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -18,7 +18,7 @@ import zenoh
 from daemon.config import PLANNER_COSTS, PLANNER_FITNESS, check_endpoint
 from daemon.errors import ConfigError, UsageError
 from daemon.zenoh_io import encode, key, session_config
-from planning import thesis
+from description import thesis
 from planning.placement import METHODS
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"

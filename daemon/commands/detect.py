@@ -15,12 +15,12 @@ import numpy.typing as npt
 
 from daemon.config import load_config
 from daemon.errors import UsageError
+from description.thesis import MugSpec
 from drivers.interfaces import RGBDFrame
 from perception.calibration import CameraModel, load_camera_json
 from perception.detector import DepthMugDetector
 from perception.errors import PerceptionError
 from perception.interfaces import Detection
-from planning.thesis import MugSpec
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -13,9 +13,9 @@ import statistics
 from collections.abc import Callable
 
 from daemon.errors import UsageError
+from description.thesis import GRAVITY_M_S2
 from drivers.errors import SensorFault
 from drivers.fsr import FsrReader
-from planning.thesis import GRAVITY_M_S2
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

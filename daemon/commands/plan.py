@@ -12,7 +12,7 @@ from pathlib import Path
 from daemon.config import load_config
 from daemon.datasets import cell_dataset_problem
 from daemon.errors import UsageError
-from planning import thesis
+from description import thesis
 from planning.placement import (
     METHODS,
     InvalidProblem,

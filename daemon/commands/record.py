@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from daemon.commands.bench import add_json_flag, format_table
+from daemon.commands.output import add_json_flag, format_table
 from daemon.errors import RecordingError, UsageError
 from daemon.recording import HEADER_TOPIC, RecordingRead, read_messages
 

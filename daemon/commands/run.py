@@ -23,8 +23,8 @@ from daemon.errors import ConfigError, UsageError
 from daemon.job import Associate, StartRequest
 from daemon.logs import configure_cli_logging
 from daemon.sdnotify import SdNotifier
+from description import thesis
 from perception import associate
-from planning import thesis
 from planning.arm import ArmModel
 
 _PLANNING_NICENESS = 10

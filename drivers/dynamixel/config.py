@@ -131,7 +131,7 @@ def thesis_joints(
     limits_rad: Sequence[tuple[float, float]] | None = None, *, first_id: int = 1
 ) -> tuple[JointSpec, ...]:
     """The thesis arm's five joints (gripper excluded) with ids from ``first_id`` (§3.2.1)."""
-    from planning.thesis import JOINT_SERVOS
+    from description.thesis import JOINT_SERVOS
 
     arm = [(name, servo) for name, servo in JOINT_SERVOS if name != "gripper"]
     limits = limits_rad or [(-2.6, 2.6)] * len(arm)

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Final
 
-from planning.thesis import FSR_PULLDOWN_OHM
+from description.thesis import FSR_PULLDOWN_OHM
 
 VERSION_QUERY: Final = b"?V\n"
 SKETCH_NAME: Final = "dishbot_fsr"

@@ -17,12 +17,12 @@ from dataclasses import dataclass, field
 
 import structlog
 
+from description.thesis import JOINT_SERVOS
 from drivers.dynamixel import faults
 from drivers.dynamixel import protocol as p
 from drivers.dynamixel.tables import ModelSpec, baud_code, baud_from_code, model
 from drivers.sim.plant import FirstOrderPlant, ServoPlant
 from drivers.sim.pty_link import PtyDevice, PtyLink
-from planning.thesis import JOINT_SERVOS
 
 log = structlog.get_logger("drivers.sim.servo_chain")
 

@@ -1,9 +1,9 @@
 """The arm: its URDF (generated from the thesis's Table 3.1), servo models, kinematics and grasp geometry."""
 
-from planning.arm.description import BUNDLED_URDF, GRASP_FRAME, GripperGeometry
+from description.arm import BUNDLED_URDF, GRASP_FRAME, GripperGeometry
+from description.servos import SERVO_MODELS, ServoModel
 from planning.arm.errors import ArmModelError, CalibrationError, InvalidTarget
 from planning.arm.model import ArmModel
-from planning.arm.servos import SERVO_MODELS, ServoModel
 from planning.arm.targets import GraspKind, GraspTarget, IkResult
 
 __all__ = [

@@ -23,10 +23,10 @@ from typing import Final
 
 import numpy as np
 
+from description.arm import GripperGeometry
+from description.thesis import MugSpec
 from drivers.interfaces import FloatArray
-from planning.arm.description import GripperGeometry
 from planning.arm.targets import GraspKind, GraspTarget
-from planning.thesis import MugSpec
 
 
 @dataclass(frozen=True, slots=True)

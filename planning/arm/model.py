@@ -19,11 +19,11 @@ import numpy as np
 import pinocchio as pin
 import structlog
 
+from description import thesis
+from description.arm import BUNDLED_URDF, GRASP_FRAME, GripperGeometry
+from description.servos import SERVO_MODELS, ServoModel
 from drivers.interfaces import FloatArray
-from planning import thesis
-from planning.arm.description import BUNDLED_URDF, GRASP_FRAME, GripperGeometry
 from planning.arm.errors import ArmModelError, InvalidTarget
-from planning.arm.servos import SERVO_MODELS, ServoModel
 from planning.arm.targets import GraspKind, GraspTarget, IkResult
 
 log = structlog.get_logger(__name__)

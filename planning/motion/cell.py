@@ -15,12 +15,12 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from planning import thesis
+from description import thesis
+from description.thesis import MugSpec
 from planning.arm.grasp import side_grasp
 from planning.arm.model import ArmModel
 from planning.arm.targets import GraspKind
 from planning.motion.errors import InvalidCell
-from planning.thesis import MugSpec
 
 _CARRY_MARGIN_M = 0.005
 

@@ -17,11 +17,11 @@ from typing import Final
 
 import numpy as np
 
+from description import thesis
+from description.arm import GripperGeometry
+from description.thesis import MugSpec
 from drivers.interfaces import FloatArray
-from planning import thesis
-from planning.arm.description import GripperGeometry
 from planning.arm.model import ArmModel
-from planning.thesis import MugSpec
 
 _FLOOR_MARGIN_M = 0.002
 _LINK_FLOOR_MARGIN_M = 0.01

@@ -19,10 +19,10 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from description import thesis
+from description.servos import SERVO_MODELS
 from drivers.interfaces import FloatArray
-from planning import thesis
 from planning.arm.model import ArmModel
-from planning.arm.servos import SERVO_MODELS
 from planning.motion.trajectory import JointPath
 
 

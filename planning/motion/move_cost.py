@@ -18,8 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 import structlog
 
+from description import thesis
+from description.thesis import MugSpec
 from drivers.interfaces import FloatArray
-from planning import thesis
 from planning.arm.grasp import handle_facing_away_rad, lateral_offset_m, side_grasp
 from planning.arm.model import ArmModel
 from planning.arm.targets import GraspKind, GraspTarget
@@ -28,7 +29,6 @@ from planning.motion.cell import CellLayout
 from planning.motion.energy import DynamicsEnergyModel
 from planning.motion.planner import CyclePlanner
 from planning.motion.trajectory import JointPath
-from planning.thesis import MugSpec
 
 log = structlog.get_logger(__name__)
 

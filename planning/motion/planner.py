@@ -19,10 +19,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 import structlog
 
+from description import thesis
+from description.arm import JOINT_LIMITS
+from description.thesis import MugSpec
 from drivers.interfaces import FloatArray, JointTrajectory
-from planning import thesis
 from planning.arm.calibration import PositionCorrection
-from planning.arm.description import JOINT_LIMITS
 from planning.arm.grasp import lateral_offset_m, reach_past_axis_m, side_grasp
 from planning.arm.model import ArmModel, JointValues
 from planning.arm.targets import GraspKind, GraspTarget
@@ -39,7 +40,6 @@ from planning.motion.collision import (
 )
 from planning.motion.energy import DynamicsEnergyModel
 from planning.motion.trajectory import JointPath, plan_path
-from planning.thesis import MugSpec
 
 log = structlog.get_logger(__name__)
 

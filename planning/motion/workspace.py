@@ -17,15 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
+from description import thesis
+from description.arm import JOINT_LIMITS
+from description.thesis import MugSpec
 from drivers.interfaces import FloatArray
-from planning import thesis
-from planning.arm.description import JOINT_LIMITS
 from planning.arm.grasp import lateral_offset_m, side_grasp
 from planning.arm.model import ArmModel
 from planning.arm.targets import GraspKind
 from planning.motion.cell import CellLayout, carry_height_m
 from planning.motion.collision import BASE_COLUMN, CollisionWorld
-from planning.thesis import MugSpec
 
 _STEP_M = 0.01
 _RESOLUTION_M = 0.0005

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Protocol
 
-from planning import thesis
+from description import thesis
 from planning.placement.packing import Packing
 from planning.placement.problem import Problem
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import random
 
-from planning import thesis
+from description import thesis
 from planning.placement.errors import InvalidProblem
 from planning.placement.problem import CounterMug, Problem, default_mug_types
 
@@ -31,7 +31,7 @@ def dataset_problem(
     counter_region_m: tuple[float, float, float, float] = DEFAULT_COUNTER_REGION_M,
     tray_origin_m: tuple[float, float] | None = None,
 ) -> Problem:
-    """Dataset ``n`` (1-6) of §5.3 as a problem: counts and tray from ``planning.thesis``."""
+    """Dataset ``n`` (1-6) of §5.3 as a problem: counts and tray from ``description.thesis``."""
     if n not in thesis.DATASETS:
         raise InvalidProblem(f"dataset: unknown dataset {n} (known: 1-{len(thesis.DATASETS)})")
     ds = thesis.DATASETS[n]

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import random
 
-from planning import thesis
+from description import thesis
 from planning.placement.cost import Metrics
 from planning.placement.packing import Packing
 from planning.placement.planner import Candidate, Context

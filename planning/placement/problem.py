@@ -11,7 +11,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from planning import thesis
+from description import thesis
 from planning.placement.errors import InvalidProblem
 
 # Not from the thesis (it leaves V_a open): a conservative mean end-effector speed for the low-cost arm.

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from planning import thesis
+from description import thesis
 from planning.placement.cost import Fitness, Metrics
 from planning.placement.packing import Packing
 from planning.placement.planner import Candidate, Context

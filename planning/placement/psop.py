@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from planning import thesis
+from description import thesis
 from planning.placement.cost import Fitness, Metrics, size_sorted
 from planning.placement.planner import Candidate, Context
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 
-from planning import thesis
+from description import thesis
 from planning.placement.packing import Packer, Packing
 from planning.placement.planner import Candidate, Context
 

@@ -22,7 +22,7 @@ from daemon.sdnotify import SdNotifier
 from daemon.zenoh_io import session_config
 from perception import associate
 from tests.daemon.conftest import free_port
-from tests.daemon.fakes import make_backend, make_world
+from tests.fakes.job import make_backend, make_world
 
 ROBOT = "cmdtest"
 

@@ -10,7 +10,7 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
-from tests.daemon.hw_rig import GRIPPER_ID, Daemon, Rig, rig, running_daemon
+from tests.fakes.hw_rig import GRIPPER_ID, Daemon, Rig, rig, running_daemon
 
 
 def _run(tmp_path: Path, scenario: Callable[[Rig, Daemon], Awaitable[None]], **kw: Any) -> None:

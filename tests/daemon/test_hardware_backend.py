@@ -16,14 +16,14 @@ from daemon.backend import check_cell_reachable, load_correction, open_hardware_
 from daemon.cli import main
 from daemon.config import load_config
 from daemon.errors import ConfigError, UsageError
+from description.camera import CameraSpec
+from description.thesis import JOINT_SERVOS
 from drivers.interfaces import RGBDFrame
 from drivers.sim import default_chain
-from drivers.simworld.scene import CameraSpec
 from drivers.stack import ARM_JOINTS
 from planning.arm import ArmModel
 from planning.arm.calibration import PositionCorrection
-from planning.thesis import JOINT_SERVOS
-from tests.daemon.hw_rig import rig
+from tests.fakes.hw_rig import rig
 
 
 class TableCamera:

@@ -11,7 +11,7 @@ import pytest
 from daemon.config import load_config
 from daemon.job import CommandRefused, Job, StartRequest
 from perception import associate
-from tests.daemon.fakes import FakeMotion, FakeWorld, make_backend, make_world
+from tests.fakes.job import FakeMotion, FakeWorld, make_backend, make_world
 
 Published = list[tuple[str, dict[str, Any]]]
 

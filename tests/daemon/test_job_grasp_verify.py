@@ -9,7 +9,7 @@ from collections.abc import Mapping
 from daemon.config import load_config
 from daemon.job import Job, StartRequest
 from perception import associate
-from tests.daemon.fakes import FakeForce, FakeWorld, make_backend, make_world
+from tests.fakes.job import FakeForce, FakeWorld, make_backend, make_world
 
 
 class DebouncedForce(FakeForce):

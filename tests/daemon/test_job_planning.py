@@ -15,7 +15,7 @@ from daemon.job import Job, StartRequest
 from perception import associate
 from planning.interfaces import CyclePlan, MotionRefused, MugPose, TraySlot
 from planning.placement import PlanOptions, dataset_problem
-from tests.daemon.fakes import FakeMotion, FakeWorld, make_backend, make_world
+from tests.fakes.job import FakeMotion, FakeWorld, make_backend, make_world
 
 
 class SwappingMotion(FakeMotion):

@@ -10,6 +10,7 @@ from collections.abc import AsyncIterator
 import numpy as np
 import pytest
 
+from description.thesis import JOINT_SERVOS
 from drivers.dynamixel import (
     BusConfig,
     ChainMismatch,
@@ -25,8 +26,7 @@ from drivers.errors import LimitViolation
 from drivers.interfaces import ArmDriver, ForceReading, GripperDriver, JointTrajectory
 from drivers.sim.plant import FirstOrderPlant
 from drivers.sim.servo_chain import ServoChainSimulator, default_chain
-from planning.thesis import JOINT_SERVOS
-from tests.drivers.fakes import PATIENT_S, MugBetweenPads, PlantForceSensor, async_test
+from tests.fakes.devices import PATIENT_S, MugBetweenPads, PlantForceSensor, async_test
 
 X_CHAIN = ((1, "XL430-W250"), (2, "XM430-W350"), (3, "XL330-M288"))
 

@@ -20,7 +20,7 @@ from drivers.dynamixel.faults import error_names, hardware_error_names
 from drivers.dynamixel.protocol import encode_status
 from drivers.errors import BusLost, DriverError, ServoFault
 from drivers.sim.servo_chain import ServoChainSimulator, default_chain
-from tests.drivers.fakes import PATIENT_S, MugBetweenPads, PlantForceSensor, async_test
+from tests.fakes.devices import PATIENT_S, MugBetweenPads, PlantForceSensor, async_test
 
 
 @pytest.fixture

@@ -9,7 +9,7 @@ import pytest
 
 from drivers.camera import CameraUnavailable, RealSenseCamera, depth_in_metres, load_pyrealsense
 from drivers.interfaces import Camera
-from tests.drivers.fakes import async_test
+from tests.fakes.devices import async_test
 
 
 def test_realsense_camera_implements_the_camera_protocol() -> None:

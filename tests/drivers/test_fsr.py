@@ -15,7 +15,7 @@ from drivers.fsr import FsrReader
 from drivers.fsr import protocol as fp
 from drivers.interfaces import ForceSensor
 from drivers.sim.fsr import FsrSimulator
-from tests.drivers.fakes import async_test
+from tests.fakes.devices import async_test
 
 
 class Pad:

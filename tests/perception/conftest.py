@@ -9,7 +9,7 @@ from importlib import resources
 import pytest
 import structlog
 
-from drivers.simworld.scene import SceneLayout
+from description.cell import SceneLayout
 
 
 def default_layout() -> SceneLayout:

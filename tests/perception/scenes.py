@@ -6,9 +6,10 @@ from collections.abc import Sequence
 
 import mujoco
 
+from description.cell import SceneLayout, SceneMug
 from drivers.interfaces import RGBDFrame
-from drivers.simworld.camera import DepthCamera, DepthNoise
-from drivers.simworld.scene import SceneLayout, SceneMug, build_mjcf
+from sim.mujoco.camera import DepthCamera, DepthNoise
+from sim.mujoco.scene import build_mjcf
 
 
 def render(

@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 from daemon.cli import main
-from drivers.simworld.camera import DepthCamera
-from drivers.simworld.scene import SceneLayout, build_mjcf, calibration_board_xml
+from description.cell import SceneLayout
 from perception.calibration import (
     CharucoBoard,
     board_on_table,
@@ -22,6 +21,8 @@ from perception.calibration import (
     load_camera_json,
 )
 from perception.errors import BoardNotFound, CalibrationError
+from sim.mujoco.camera import DepthCamera
+from sim.mujoco.scene import build_mjcf, calibration_board_xml
 
 BOARD = CharucoBoard()
 ORIGIN = (-0.21, 0.56)

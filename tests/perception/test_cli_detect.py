@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from daemon.cli import main
-from drivers.simworld.camera import DepthNoise
-from drivers.simworld.scene import SceneLayout, SceneMug
+from description.cell import SceneLayout, SceneMug
+from description.thesis import BIG_MUG, SMALL_MUG
 from perception.calibration import CameraModel
-from planning.thesis import BIG_MUG, SMALL_MUG
+from sim.mujoco.camera import DepthNoise
 from tests.perception.scenes import render
 
 

@@ -8,13 +8,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from description.cell import SceneLayout, SceneMug
+from description.thesis import BIG_MUG, MUG_TYPES, SMALL_MUG
 from drivers.interfaces import RGBDFrame
-from drivers.simworld.camera import DepthNoise
-from drivers.simworld.scene import SceneLayout, SceneMug
 from perception.detector import DepthMugDetector
 from perception.errors import FrameError
-from perception.evaluation import clutter_xml, dataset_mugs, score_frame
-from planning.thesis import BIG_MUG, MUG_TYPES, SMALL_MUG
+from sim.mujoco.camera import DepthNoise
+from sim.scoring import clutter_xml, dataset_mugs, score_frame
 from tests.perception.scenes import render
 
 

@@ -9,13 +9,14 @@ import mujoco
 import numpy as np
 import pytest
 
+from description.cell import SceneLayout, SceneMug
+from description.thesis import BIG_MUG, MUG_TYPES, SMALL_MUG
 from drivers.interfaces import RGBDFrame
-from drivers.simworld.camera import DepthCamera, DepthNoise
-from drivers.simworld.scene import SceneLayout, SceneMug, build_mjcf
 from perception import CameraObserver, DepthMugDetector
 from perception.errors import FrameError
 from perception.interfaces import MugObserver
-from planning.thesis import BIG_MUG, MUG_TYPES, SMALL_MUG
+from sim.mujoco.camera import DepthCamera, DepthNoise
+from sim.mujoco.scene import build_mjcf
 
 
 class StillCamera:

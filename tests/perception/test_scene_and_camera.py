@@ -9,17 +9,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from drivers.simworld.camera import DepthCamera, DepthNoise
-from drivers.simworld.scene import (
-    CAMERA_NAME,
-    THESIS_CAMERA_POSE,
-    SceneLayout,
-    SceneMug,
-    build_mjcf,
-    mug_mesh,
-    thesis_camera_pose,
-)
-from planning.thesis import BIG_MUG, SMALL_MUG
+from description.cell import THESIS_CAMERA_POSE, SceneLayout, SceneMug, thesis_camera_pose
+from description.thesis import BIG_MUG, SMALL_MUG
+from sim.mujoco.camera import DepthCamera, DepthNoise
+from sim.mujoco.scene import CAMERA_NAME, build_mjcf, mug_mesh
 
 MUGS = (
     SceneMug("a", BIG_MUG, -0.20, 0.30, yaw_rad=0.5),

@@ -1,0 +1,1 @@
+"""``dishbot bench …``: the benchmarks, one module each. The top layer: nothing imports it."""

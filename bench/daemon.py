@@ -1,0 +1,323 @@
+"""``dishbot bench daemon``: command latency, publish latency, event-loop jitter and recording throughput.
+
+The daemon runs in this process on the simulated kinematic cell, listening on a free loopback port, with a
+loading job going (so every topic is published and recorded); a second Zenoh session, as a remote client
+would, sends ``status`` queries one after another and subscribes to ``state`` and ``joints``. A probe task on
+the daemon's own event loop wakes at 50 Hz and measures how late each wake-up is. Separately, a recorder
+writes joint samples as fast as it accepts them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import multiprocessing
+import multiprocessing.queues
+import os
+import socket
+import statistics
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import zenoh
+
+from daemon.app import RunOptions, serve
+from daemon.backend import ProcessMotionPlanner, open_sim_backend
+from daemon.commands.output import add_json_flag, emit
+from daemon.commands.run import association, planning_pool
+from daemon.config import load_config
+from daemon.errors import UsageError
+from daemon.job import StartRequest
+from daemon.recording import Recorder
+from daemon.sdnotify import SdNotifier
+from daemon.zenoh_io import encode, key, session_config
+
+ROBOT = "bench"
+PROBE_HZ = 50.0
+_CLIENT_SETTLE_S = 1.5  # the client process starts, connects and subscribes before the loop is probed
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser(
+        "daemon",
+        help="command round trip, state publish latency, event-loop jitter at 50 Hz, recording throughput",
+        description=(
+            "Run the daemon in-process on the simulated cell with a job going and measure over loopback "
+            "Zenoh: command round trip (status), state and joints publish-to-receive latency, the event "
+            "loop's 50 Hz period jitter while publishing and recording everything, and recording throughput."
+        ),
+    )
+    parser.add_argument(
+        "--commands", type=int, default=500, metavar="N", help="status round trips (default 500)"
+    )
+    parser.add_argument(
+        "--seconds",
+        type=float,
+        default=4.0,
+        metavar="S",
+        help="measuring time for latency and jitter (default 4)",
+    )
+    parser.add_argument(
+        "--messages",
+        type=int,
+        default=50_000,
+        metavar="N",
+        help="messages for the recording test (default 50000)",
+    )
+    add_json_flag(parser)
+    parser.set_defaults(handler=_bench)
+
+
+@dataclass(frozen=True, slots=True)
+class _Live:
+    round_trip_ms: list[float]
+    state_ms: list[float]
+    joints_ms: list[float]
+    jitter_ms: list[float]
+    baseline_jitter_ms: list[float]
+    states_seen: int
+
+
+def _bench(args: argparse.Namespace) -> int:
+    if not 10 <= args.commands <= 100_000:
+        raise UsageError(f"--commands {args.commands}: choose 10-100000")
+    if not 1.0 <= args.seconds <= 600:
+        raise UsageError(f"--seconds {args.seconds:g}: choose 1-600")
+    if not 1000 <= args.messages <= 10_000_000:
+        raise UsageError(f"--messages {args.messages}: choose 1000-10000000")
+    with tempfile.TemporaryDirectory(prefix="dishbot-bench-") as tmp:
+        live = asyncio.run(_live(Path(tmp), args.commands, args.seconds, args.log_level))
+        rate, mb_s, dropped = _recording_throughput(Path(tmp) / "throughput.mcap", args.messages)
+    rows = [
+        [
+            "command round trip (status)",
+            "ms",
+            *_percentiles(live.round_trip_ms),
+            len(live.round_trip_ms),
+            "p99 <= 5",
+        ],
+        ["state publish -> receive", "ms", *_percentiles(live.state_ms), len(live.state_ms), ""],
+        ["joints publish -> receive", "ms", *_percentiles(live.joints_ms), len(live.joints_ms), ""],
+        [
+            "event loop period error at 50 Hz",
+            "ms",
+            *_percentiles(live.jitter_ms),
+            len(live.jitter_ms),
+            "p99 <= 5",
+        ],
+        [
+            "same, bare loop in another process",
+            "ms",
+            *_percentiles(live.baseline_jitter_ms),
+            len(live.baseline_jitter_ms),
+            "machine floor",
+        ],
+    ]
+    emit(
+        "dishbot bench daemon",
+        ["measure", "unit", "p50", "p99", "max", "samples", "target"],
+        rows,
+        as_json=args.json,
+        extra={
+            "recording_messages_per_s": round(rate),
+            "recording_mb_per_s": round(mb_s, 2),
+            "recording_queue_full_waits": dropped,
+            "state_changes_seen": live.states_seen,
+            "load_average_1m": round(os.getloadavg()[0], 2),
+            "cpus": os.cpu_count(),
+        },
+    )
+    return 0
+
+
+async def _live(tmp: Path, commands: int, seconds: float, log_level: str) -> _Live:
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    config = load_config(
+        overrides={"robot_id": ROBOT, "planner": {"method": "bh"}, "sim": {"speed": 5.0}},
+    )
+    with planning_pool(log_level) as pool:
+        backend = await open_sim_backend(
+            config, world="kinematic", dataset=1, speed=config.sim.speed, seed=0, executor=pool
+        )
+        if isinstance(backend.motion, ProcessMotionPlanner):
+            await asyncio.wrap_future(backend.motion.warm_up())
+        options = RunOptions(listen=(endpoint,), connect=(), record_dir=tmp, once=None)
+        stop = asyncio.Event()
+        ready = asyncio.Event()
+        daemon = asyncio.create_task(
+            serve(
+                config,
+                backend,
+                association(),
+                options,
+                notifier=SdNotifier(None),
+                on_ready=lambda bus, path: ready.set(),
+                stop=stop,
+                executor=pool,
+            )
+        )
+        await asyncio.wait_for(ready.wait(), 30)
+        probe_errors: list[float] = []
+        # Start the helper processes first: spawning them blocks this loop, which must not be measured.
+        baseline = _start_bare_probe(seconds + _CLIENT_SETTLE_S)
+        client = asyncio.create_task(asyncio.to_thread(_client_process, endpoint, commands, seconds))
+        await asyncio.sleep(_CLIENT_SETTLE_S)
+        probing = asyncio.create_task(_probe(probe_errors))
+        try:
+            result = await client
+            baseline_errors = await asyncio.to_thread(_finish_bare_probe, baseline)
+        finally:
+            probing.cancel()
+            stop.set()
+            await daemon
+    round_trip, state, joints, states_seen = result
+    return _Live(round_trip, state, joints, probe_errors, baseline_errors, states_seen)
+
+
+_BareProbe = tuple[multiprocessing.process.BaseProcess, "multiprocessing.queues.Queue[list[float]]"]
+
+
+def _start_bare_probe(seconds: float) -> _BareProbe:
+    """The same 50 Hz probe on an idle event loop in its own process: what the machine's load alone costs."""
+    context = multiprocessing.get_context("spawn")
+    results: multiprocessing.queues.Queue[list[float]] = context.Queue()
+    process = context.Process(target=_bare_probe, args=(seconds, results), daemon=True)
+    process.start()
+    return process, results
+
+
+def _finish_bare_probe(probe: _BareProbe) -> list[float]:
+    process, results = probe
+    try:
+        return results.get(timeout=120)
+    finally:
+        process.join(timeout=10)
+
+
+def _bare_probe(seconds: float, results: multiprocessing.queues.Queue[list[float]]) -> None:
+    async def run() -> list[float]:
+        errors: list[float] = []
+        task = asyncio.create_task(_probe(errors))
+        await asyncio.sleep(seconds)
+        task.cancel()
+        return errors
+
+    results.put(asyncio.run(run()))
+
+
+async def _probe(errors: list[float]) -> None:
+    """Wake at 50 Hz on the daemon's loop; record how far each period is from 20 ms."""
+    period = 1.0 / PROBE_HZ
+    last = time.perf_counter()
+    next_t = time.monotonic() + period
+    while True:
+        await asyncio.sleep(max(0.0, next_t - time.monotonic()))
+        now = time.perf_counter()
+        errors.append(abs((now - last) - period) * 1000.0)
+        last = now
+        next_t += period
+
+
+_ClientResult = tuple[list[float], list[float], list[float], int]
+
+
+def _client_process(endpoint: str, commands: int, seconds: float) -> _ClientResult:
+    """Run the client in its own process, as a remote monitor would be: it must not share the daemon's GIL."""
+    context = multiprocessing.get_context("spawn")
+    results: multiprocessing.queues.Queue[_ClientResult] = context.Queue()
+    process = context.Process(target=_client, args=(endpoint, commands, seconds, results), daemon=True)
+    process.start()
+    try:
+        return results.get(timeout=seconds + commands * 0.1 + 60)
+    finally:
+        process.join(timeout=10)
+
+
+def _client(
+    endpoint: str, commands: int, seconds: float, results: multiprocessing.queues.Queue[_ClientResult]
+) -> None:
+    """Query ``status`` ``commands`` times and follow state and joints for ``seconds``; put the numbers."""
+    state_ms: list[float] = []
+    joints_ms: list[float] = []
+    states: set[str] = set()
+    lock = threading.Lock()
+
+    def latency(into: list[float]) -> Callable[[zenoh.Sample], None]:
+        def on_sample(sample: zenoh.Sample) -> None:
+            received = time.time()
+            payload = json.loads(sample.payload.to_bytes())
+            with lock:
+                into.append((received - float(payload["t"])) * 1000.0)
+                if "state" in payload:
+                    states.add(payload["state"])
+
+        return on_sample
+
+    with zenoh.open(session_config(listen=[], connect=[endpoint])) as session:
+        subscribers = [
+            session.declare_subscriber(key(ROBOT, "state"), latency(state_ms)),
+            session.declare_subscriber(key(ROBOT, "joints"), latency(joints_ms)),
+        ]
+        time.sleep(_CLIENT_SETTLE_S)  # until the daemon-side probe runs
+        _query(session, "start", StartRequest())
+        start = time.monotonic()
+        round_trip: list[float] = []
+        for _ in range(commands):
+            t0 = time.perf_counter()
+            _query(session, "status", None)
+            round_trip.append((time.perf_counter() - t0) * 1000.0)
+        time.sleep(max(0.0, seconds - (time.monotonic() - start)))
+        del subscribers
+    with lock:
+        results.put((round_trip, list(state_ms), list(joints_ms), len(states)))
+
+
+def _query(session: zenoh.Session, verb: str, request: StartRequest | None) -> None:
+    payload = encode({"dataset": 1}) if request is not None else b""
+    replies = list(session.get(key(ROBOT, f"cmd/{verb}"), payload=payload, timeout=5.0))
+    if not replies or replies[0].ok is None:
+        raise UsageError(f"the daemon did not answer {verb} during the benchmark")
+
+
+def _recording_throughput(path: Path, messages: int) -> tuple[float, float, int]:
+    """Messages per second and MB/s the recorder takes, from the first write until the file is finished."""
+    payload = {
+        "t": 0.0,
+        "names": ["shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn"],
+        "position_rad": [0.1, -1.2, 1.5, 0.3, -1.5708],
+        "velocity_rad_s": [0.0] * 5,
+        "load": [0.01] * 5,
+    }
+    topic = key(ROBOT, "joints")
+    start = time.perf_counter()
+    full = 0
+    with Recorder(path, chunk_size=65536) as recorder:
+        for i in range(messages):
+            payload["t"] = i * 0.001
+            while not recorder.write(topic, payload, log_time_ns=time.time_ns()):
+                full += 1  # the queue is full: wait for the writer, as a sustained rate must
+                time.sleep(0.001)
+    elapsed = time.perf_counter() - start
+    size = path.stat().st_size
+    return messages / elapsed, size / elapsed / 1e6, full
+
+
+def _percentiles(values: list[float]) -> list[float]:
+    if not values:
+        return [float("nan")] * 3
+    ordered = sorted(values)
+    p50 = statistics.median(ordered)
+    p99 = ordered[min(len(ordered) - 1, round(0.99 * (len(ordered) - 1)))]
+    return [round(p50, 3), round(p99, 3), round(ordered[-1], 3)]
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port

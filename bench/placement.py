@@ -1,0 +1,224 @@
+"""``dishbot bench placement``: every placement method on the six datasets, beside the thesis's figures.
+
+Per dataset and method: mugs placed (mean ± sd over seeded runs), the proven optimum, a comparable cost,
+wall and CPU time per run, and the thesis's run time and best count. The cost is Eq 5.2's weighted sum with
+n, E and t normalised over every run of every method on that dataset, as the thesis compared its methods in
+§5.3.2. A second table times the fast packer against the literal occupancy-matrix packer on the same orders.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+from daemon.commands.output import add_json_flag, emit, format_table
+from daemon.config import load_config
+from daemon.datasets import cell_dataset_problem
+from daemon.errors import UsageError
+from description import thesis
+from planning.placement import METHODS, PlanOptions, PlanResult, plan
+from planning.placement.cost import CostFunction, Fitness, FitnessMethod, Metrics
+from planning.placement.heuristics import Heuristic
+from planning.placement.oracle import GridPacker
+from planning.placement.packing import Packer
+from planning.placement.sorts import Sort, sorted_order
+
+METAHEURISTICS = ("sa", "ga", "psop-n", "psop-i", "psok-n", "psok-i")
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser(
+        "placement",
+        help="placement methods on datasets 1-6 next to the thesis's results",
+        description=(
+            "Run every placement method on the thesis's six datasets (seeds 0..RUNS-1) and print mugs "
+            "placed, cost and time per run beside the thesis's figures, then the fast packer's speed-up over "
+            "the literal 1 mm occupancy-matrix packer. Times are per run on this machine; CPU time is shown "
+            "too because wall time grows with whatever else the machine runs."
+        ),
+    )
+    parser.add_argument("--runs", default="5", help="seeded runs per dataset and method (default 5)")
+    parser.add_argument(
+        "--methods", default=",".join(METHODS), help=f"comma-separated subset of {', '.join(METHODS)}"
+    )
+    parser.add_argument("--datasets", default="1,2,3,4,5,6", help="comma-separated subset of 1-6")
+    parser.add_argument(
+        "--time-limit", default="1.0", metavar="SEC", help="budget for auto and exact (default 1.0)"
+    )
+    add_json_flag(parser)
+    parser.set_defaults(handler=run)
+
+
+def _parse_list(text: str, allowed: tuple[str, ...], flag: str) -> list[str]:
+    items = [t.strip() for t in text.split(",") if t.strip()]
+    for t in items:
+        if t not in allowed:
+            raise UsageError(f"{flag}: unknown entry {t!r} (known: {', '.join(allowed)})")
+    if not items:
+        raise UsageError(f"{flag}: name at least one")
+    return items
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.runs.isdigit() or int(args.runs) < 1:
+        raise UsageError(f"--runs: expected a whole number, at least 1, got {args.runs!r}")
+    n_runs = int(args.runs)
+    try:
+        time_limit = float(args.time_limit)
+    except ValueError as e:
+        raise UsageError(f"--time-limit: expected a number of seconds, got {args.time_limit!r}") from e
+    if not 0 < time_limit < float("inf"):
+        raise UsageError(f"--time-limit: must be positive, got {args.time_limit!r}")
+    methods = _parse_list(args.methods, METHODS, "--methods")
+    datasets = [
+        int(d) for d in _parse_list(args.datasets, tuple(str(n) for n in thesis.DATASETS), "--datasets")
+    ]
+    rows: list[list[object]] = []
+    targets = {
+        "auto_optimal_within_limit": True,
+        "exact_proves_all": True,
+        "metaheuristics_30_mugs_max_s": 0.0,
+        "metaheuristics_30_mugs_max_cpu_s": 0.0,
+    }
+    for n in datasets:
+        problem = cell_dataset_problem(load_config().cell, n)
+        optimum = plan(problem, PlanOptions(method="exact", time_limit_s=30.0))
+        runs: dict[str, list[tuple[PlanResult, float, float]]] = {}
+        for method in methods:
+            runs[method] = []
+            for seed in range(n_runs):
+                wall, cpu = time.perf_counter(), time.process_time()
+                result = plan(problem, PlanOptions(method=method, seed=seed, time_limit_s=time_limit))
+                runs[method].append((result, time.perf_counter() - wall, time.process_time() - cpu))
+        scorer = Fitness.build(FitnessMethod.WS, CostFunction.UPC)
+        for results in runs.values():
+            for r, _, _ in results:
+                scorer.norm.observe(_metrics(r))
+        ds = thesis.DATASETS[n]
+        ranks = _ranking_fitness_ranks(runs)
+        for method, results in runs.items():
+            placed = [r.n for r, _, _ in results]
+            walls = [w for _, w, _ in results]
+            cpus = [c for _, _, c in results]
+            cost = statistics.fmean(scorer.value(_metrics(r)) for r, _, _ in results)
+            thesis_minutes = thesis.THESIS_RUN_MINUTES.get(method)
+            rows.append(
+                [
+                    n,
+                    method,
+                    _mean_sd(placed),
+                    optimum.n if optimum.optimal else f"<= {optimum.upper_bound}",
+                    round(cost, 3),
+                    ranks[method],
+                    round(statistics.median(walls), 3),
+                    round(statistics.median(cpus), 3),
+                    "-" if thesis_minutes is None else round(thesis_minutes[n - 1] * 60, 3),
+                    ds.thesis_best_placed,
+                    ds.human_placed,
+                ]
+            )
+            if method == "auto":
+                ok = all(r.optimal and r.n == optimum.n for r, _, _ in results) and max(walls) <= time_limit
+                targets["auto_optimal_within_limit"] = bool(targets["auto_optimal_within_limit"]) and ok
+            if method == "exact":
+                targets["exact_proves_all"] = bool(targets["exact_proves_all"]) and all(
+                    r.optimal for r, _, _ in results
+                )
+            if method in METAHEURISTICS and len(problem.mugs) == 30:
+                targets["metaheuristics_30_mugs_max_s"] = max(
+                    float(targets["metaheuristics_30_mugs_max_s"]), max(walls)
+                )
+                targets["metaheuristics_30_mugs_max_cpu_s"] = max(
+                    float(targets["metaheuristics_30_mugs_max_cpu_s"]), max(cpus)
+                )
+    columns = [
+        "ds",
+        "method",
+        "placed",
+        "optimum",
+        "ws_cost",
+        "rf_rank",
+        "wall_s",
+        "cpu_s",
+        "thesis_s",
+        "thesis_best",
+        "people",
+    ]
+    speed_columns, speed_rows = packer_speed(datasets)
+    extra: dict[str, object] = {
+        "runs": n_runs,
+        "ws_cost": "mean Eq 5.2 weighted sum, n/E/t normalised over all runs on the dataset (lower: better)",
+        "rf_rank": "rank of the mean (n, A, E, t, s) under the Eq 5.5 ranking among the methods (1 is best)",
+        "wall_s, cpu_s": "median per run",
+        **targets,
+    }
+    if args.json:
+        extra["packer_speed"] = [dict(zip(speed_columns, r, strict=True)) for r in speed_rows]
+        emit("placement", columns, rows, as_json=True, extra=extra)
+        return 0
+    emit("placement", columns, rows, as_json=False, extra=extra)
+    print()
+    print("fast packer vs literal 1 mm occupancy matrix (same orders, no caching)")
+    print(format_table(speed_columns, speed_rows))
+    return 0
+
+
+def packer_speed(datasets: list[int], *, repeats: int = 5) -> tuple[list[str], list[list[object]]]:
+    """Median time to pack each deterministic sort order with LTF, fresh packers so no cache helps."""
+    columns = ["ds", "tray_mm", "orders", "grid_ms", "fast_ms", "speedup", "identical"]
+    rows: list[list[object]] = []
+    for n in datasets:
+        problem = cell_dataset_problem(load_config().cell, n)
+        orders = [sorted_order(problem, s) for s in Sort if s is not Sort.RO]
+        grid_times, fast_times = [], []
+        identical = True
+        Packer(problem, Heuristic.LTF).pack(orders[0])  # warm up
+        for _ in range(repeats):
+            start = time.perf_counter()
+            grid = [GridPacker(problem, Heuristic.LTF).pack(o) for o in orders]
+            grid_times.append(time.perf_counter() - start)
+            start = time.perf_counter()
+            fast = [Packer(problem, Heuristic.LTF).pack(o) for o in orders]
+            fast_times.append(time.perf_counter() - start)
+            identical = identical and grid == fast
+        g, f = statistics.median(grid_times), statistics.median(fast_times)
+        rows.append(
+            [
+                n,
+                "x".join(map(str, problem.tray_size_mm)),
+                len(orders),
+                round(g * 1000, 2),
+                round(f * 1000, 3),
+                round(g / f),
+                identical,
+            ]
+        )
+    return columns, rows
+
+
+def _ranking_fitness_ranks(runs: dict[str, list[tuple[PlanResult, float, float]]]) -> dict[str, int]:
+    """Eq 5.5 applied to each method's mean parameters: more mugs, then more area, less energy, less time,
+    sorted; equal keys share a rank."""
+    keys = {
+        method: (
+            -statistics.fmean(r.n for r, _, _ in results),
+            -statistics.fmean(r.A_mm2 for r, _, _ in results),
+            statistics.fmean(r.E_j for r, _, _ in results),
+            statistics.fmean(r.t_s for r, _, _ in results),
+            -statistics.fmean(r.s for r, _, _ in results),
+        )
+        for method, results in runs.items()
+    }
+    ordered = sorted(set(keys.values()))
+    return {method: ordered.index(key) + 1 for method, key in keys.items()}
+
+
+def _metrics(r: PlanResult) -> Metrics:
+    return Metrics(r.n, r.A_mm2, r.E_j, r.t_s, r.s)
+
+
+def _mean_sd(values: list[int]) -> str:
+    mean = statistics.fmean(values)
+    sd = statistics.pstdev(values) if len(values) > 1 else 0.0
+    return f"{mean:.2f} ± {sd:.2f}"

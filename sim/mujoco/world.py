@@ -1,0 +1,643 @@
+"""The simulated cell's physics: MuJoCo stepping the arm, the gripper and the mugs in real time × speed.
+
+``SimWorld`` is the physical world behind the simulated devices. The pseudo-terminal servo chain
+(``drivers.sim``) talks to it through the ``ServoPlant`` methods (``set_goal``, ``present``, ``set_torque``),
+the FSR simulator reads ``gripper_force_n``, the depth camera renders its state. Nothing above ``drivers/``
+sees it, except tests and benchmarks, which may read the true mug poses (``mug_truths``) to judge the robot.
+
+Servos are modelled as their firmware behaves: a goal and a moving speed go in, the internal set-point walks
+towards the goal at that speed (capped at the no-load speed), and a torque-limited position controller — a
+MuJoCo position actuator — follows the set-point. Mugs are held by friction between the pads; once a grasp is
+confirmed (pad force above ``weld_force_n`` with the mug touching both pads) a weld equality is switched on so
+a long carry does not creep, and it is switched off as soon as the jaw opens or the force falls, so a mug can
+still slip, fall, tip and collide.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Final, Literal
+
+import mujoco
+import numpy as np
+import structlog
+
+from sim.mujoco.arm import (
+    ARM_PREFIX,
+    FINGER_PAD_GEOM,
+    FSR_PAD_GEOM,
+    TCP_SITE,
+    ArmMjcf,
+)
+from sim.mujoco.errors import SimModelError, SimWorldStopped
+
+log = structlog.get_logger("sim.mujoco")
+
+MUG_BODY_PREFIX: Final = "mug/"
+# Where the arm stands when the world is built: upper arm up, forearm forward, gripper pointing down, well
+# clear of the counter and the mugs (radians, by joint name).
+READY_POSE_RAD: Final[dict[str, float]] = {
+    "shoulder_turn": 0.0,
+    "shoulder_lift": -1.5,
+    "elbow_lift": 1.5,
+    "wrist_lift": 0.0,
+    "wrist_turn": 0.0,
+    "gripper": 0.0,
+}
+WELD_PREFIX: Final = "grasp/"
+
+Orientation = Literal["upright", "inverted", "tipped"]
+
+
+@dataclass(frozen=True, slots=True)
+class PhysicsConfig:
+    """Solver settings and grasp thresholds; defaults keep a 12-mug cell many times faster than real time."""
+
+    timestep_s: float = 0.002
+    solver_iterations: int = 30
+    # How often the grasp monitor, the force reading and the collision accounting run (simulated seconds).
+    monitor_period_s: float = 0.004
+    weld_force_n: float = 1.5  # pad force that confirms a grasp and welds the mug to the gripper
+    release_force_n: float = 0.3  # below this for ``release_after_s`` the weld lets go
+    release_after_s: float = 0.03
+    release_opening_m: float = 0.003  # jaw opened this much past the grasp: let go
+    # A held mug pressed onto something with more than this is no longer welded: friction alone holds it.
+    support_force_n: float = 0.5
+    max_batch_s: float = 0.02  # longest stretch stepped while holding the lock
+
+    def __post_init__(self) -> None:
+        checks = (
+            ("timestep_s", self.timestep_s, 1e-4, 0.01),
+            ("monitor_period_s", self.monitor_period_s, self.timestep_s, 0.1),
+            ("weld_force_n", self.weld_force_n, 0.05, 100.0),
+            ("release_force_n", self.release_force_n, 0.0, self.weld_force_n),
+        )
+        for name, value, lo, hi in checks:
+            if not lo <= value <= hi:
+                raise ValueError(f"PhysicsConfig.{name} = {value} is outside [{lo}, {hi}]")
+
+
+@dataclass(frozen=True, slots=True)
+class MugTruth:
+    """Where a mug really is (for tests and benchmarks only; the robot must not see this)."""
+
+    mug_id: str
+    position_m: tuple[float, float, float]  # body origin in the world frame
+    quat_wxyz: tuple[float, float, float, float]
+    axis_z: float  # z component of the mug's axis (bottom to brim): 1 upright, -1 upside down
+    held: bool
+    speed_m_s: float
+
+    @property
+    def orientation(self) -> Orientation:
+        if self.axis_z > math.cos(math.radians(20.0)):
+            return "upright"
+        if self.axis_z < -math.cos(math.radians(20.0)):
+            return "inverted"
+        return "tipped"
+
+
+@dataclass(slots=True)
+class _Servo:
+    """A servo's fixed facts; its goal, speed and set-point live in the world's arrays at ``index``."""
+
+    index: int
+    servo_id: int
+    joint: str
+    actuator: int
+    qpos_adr: int
+    dof_adr: int
+    lower: float
+    upper: float
+    max_speed: float
+    stall_torque: float
+    gainprm: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    biasprm: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    torque_on: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class ContactSample:
+    """One monitor-tick contact between two interesting bodies (used by the collision accounting)."""
+
+    geom1: int
+    geom2: int
+    position: tuple[float, float, float]
+    normal_force_n: float
+
+
+@dataclass(slots=True)
+class _GripContacts:
+    contacts: list[ContactSample] = field(default_factory=list)
+    pad_force_n: float = 0.0  # on the FSR
+    finger_force_n: float = 0.0  # on the finger link and its pad
+    support_force_n: float = 0.0  # on the held mug from anything but the gripper (a table, the tray, a mug)
+    thumb_mugs: set[int] = field(default_factory=set)  # mugs touching the thumb side (the tool link)
+    finger_mugs: set[int] = field(default_factory=set)
+
+
+ContactListener = Callable[["SimWorld", float, Sequence[ContactSample]], None]
+
+
+class SimWorld:
+    """A MuJoCo model of the cell stepping in its own thread; also the servo chain's ``ServoPlant``.
+
+    Build it with ``SimWorld(mjcf_xml, arm, mug_ids=...)`` (or ``sim.mujoco.cell`` which does it from
+    the configured layout), then ``start()``/``stop()`` or use it as a context manager. Without the thread,
+    ``step_for(seconds)`` advances it synchronously (tests).
+    """
+
+    def __init__(
+        self,
+        mjcf_xml: str,
+        arm: ArmMjcf,
+        *,
+        mug_ids: Sequence[str],
+        speed: float = 1.0,
+        physics: PhysicsConfig | None = None,
+        initial_pose_rad: Mapping[str, float] | None = None,
+    ) -> None:
+        if not (math.isfinite(speed) and 0.0 < speed <= 1000.0):
+            raise ValueError(f"speed = {speed} must be in (0, 1000] (simulated seconds per wall second)")
+        self.physics = physics or PhysicsConfig()
+        self.speed = speed
+        self.arm = arm
+        self.mug_ids = tuple(mug_ids)
+        self.model = self._compile(mjcf_xml)
+        self.data = mujoco.MjData(self.model)
+        # Held by the physics thread while it steps; take it to read or render a consistent state.
+        self.lock = threading.RLock()
+        self._servos = self._bind_servos()
+        ordered = sorted(self._servos.values(), key=lambda sv: sv.index)
+        # Per-servo state as arrays, so driving the servos and publishing their state costs a few numpy
+        # operations per step rather than a Python loop (the bus simulator shares the GIL with this thread).
+        self._actuators = np.array([sv.actuator for sv in ordered], dtype=np.int64)
+        self._qpos_adr = np.array([sv.qpos_adr for sv in ordered], dtype=np.int64)
+        self._dof_adr = np.array([sv.dof_adr for sv in ordered], dtype=np.int64)
+        self._stall = np.array([sv.stall_torque for sv in ordered])
+        self._goal = np.zeros(len(ordered))
+        self._speed = np.zeros(len(ordered))
+        self._setpoint = np.zeros(len(ordered))
+        self._present = (np.zeros(len(ordered)), np.zeros(len(ordered)), np.zeros(len(ordered)))
+        self._mug_body = {m: self._id(mujoco.mjtObj.mjOBJ_BODY, MUG_BODY_PREFIX + m) for m in self.mug_ids}
+        self._weld = {m: self._id(mujoco.mjtObj.mjOBJ_EQUALITY, WELD_PREFIX + m) for m in self.mug_ids}
+        self._fsr_pad = self._id(mujoco.mjtObj.mjOBJ_GEOM, FSR_PAD_GEOM)
+        self._finger_pad = self._id(mujoco.mjtObj.mjOBJ_GEOM, FINGER_PAD_GEOM)
+        self._tool_body = int(self.model.geom_bodyid[self._fsr_pad])
+        self._finger_body = int(self.model.geom_bodyid[self._finger_pad])
+        self._tcp_site = self._id(mujoco.mjtObj.mjOBJ_SITE, TCP_SITE)
+        self.geom_mug = self._geom_mug_index()
+        self.geom_gripper = self._geom_gripper_mask()
+        self._mug_index = {m: i for i, m in enumerate(self.mug_ids)}
+        self._gripper_servo = next(s for s in self._servos.values() if s.joint == "gripper")
+        self._held: str | None = None
+        self._held_aperture_m = 0.0
+        self._held_force_n = 0.0
+        self._low_force_since: float | None = None
+        self._slipping: set[str] = set()
+        self._gripper_geoms = np.flatnonzero(self.geom_gripper)
+        self._gripper_friction = self.model.geom_friction[self._gripper_geoms].copy()
+        self._force_n = 0.0
+        self._next_monitor = 0.0
+        self._listeners: list[ContactListener] = []
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._failure: BaseException | None = None
+        self.wall_stepping_s = 0.0
+        self._settle_at_start(READY_POSE_RAD if initial_pose_rad is None else initial_pose_rad)
+
+    # ------------------------------------------------------------------------------------------- building
+
+    def _compile(self, mjcf_xml: str) -> mujoco.MjModel:
+        try:
+            spec = mujoco.MjSpec.from_string(mjcf_xml)
+        except ValueError as e:
+            raise SimModelError(f"MuJoCo refused the cell's MJCF: {e}") from e
+        cfg = self.physics
+        spec.option.timestep = cfg.timestep_s
+        spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+        spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+        spec.option.iterations = cfg.solver_iterations
+        spec.option.ls_iterations = 10
+        # Mugs at rest on the counter sleep (no contacts solved) until something touches them: a dozen
+        # resting mugs otherwise cost most of the step.
+        spec.option.enableflags |= mujoco.mjtEnableBit.mjENBL_SLEEP
+        # Torsional and rolling friction on the mugs: without them a mug rocking on its rim walks across the
+        # tray and a tipped one rolls off the table forever.
+        for geom in spec.geoms:
+            if geom.name.startswith(MUG_BODY_PREFIX) and geom.contype:
+                geom.condim = 6
+        tool = self.arm.tool_body
+        for mug in self.mug_ids:
+            if spec.body(MUG_BODY_PREFIX + mug) is None:
+                raise SimModelError(f"the MJCF has no body {MUG_BODY_PREFIX + mug!r} for mug {mug!r}")
+            spec.add_equality(
+                name=WELD_PREFIX + mug,
+                type=mujoco.mjtEq.mjEQ_WELD,
+                objtype=mujoco.mjtObj.mjOBJ_BODY,
+                name1=tool,
+                name2=MUG_BODY_PREFIX + mug,
+                active=0,
+                solref=[0.01, 1.0],
+            )
+        try:
+            return spec.compile()
+        except ValueError as e:
+            raise SimModelError(f"MuJoCo could not compile the cell: {e}") from e
+
+    def _id(self, kind: mujoco.mjtObj, name: str) -> int:
+        i = int(mujoco.mj_name2id(self.model, kind, name))
+        if i < 0:
+            raise SimModelError(f"the compiled cell has no {kind.name[6:].lower()} named {name!r}")
+        return i
+
+    def _bind_servos(self) -> dict[int, _Servo]:
+        servos: dict[int, _Servo] = {}
+        for index, s in enumerate(self.arm.servos):
+            j = self._id(mujoco.mjtObj.mjOBJ_JOINT, s.mj_joint)
+            a = self._id(mujoco.mjtObj.mjOBJ_ACTUATOR, s.mj_actuator)
+            servos[s.servo_id] = _Servo(
+                index=index,
+                servo_id=s.servo_id,
+                joint=s.joint,
+                actuator=a,
+                qpos_adr=int(self.model.jnt_qposadr[j]),
+                dof_adr=int(self.model.jnt_dofadr[j]),
+                lower=s.lower_rad,
+                upper=s.upper_rad,
+                max_speed=s.model.no_load_speed_rad_s,
+                stall_torque=s.model.stall_torque_nm,
+                gainprm=self.model.actuator_gainprm[a].copy(),
+                biasprm=self.model.actuator_biasprm[a].copy(),
+            )
+        return servos
+
+    def _geom_mug_index(self) -> np.ndarray:
+        """For every geom, the index of the mug it belongs to, or -1."""
+        index = np.full(self.model.ngeom, -1, dtype=np.int64)
+        body_to_mug = {b: i for i, b in enumerate(self._mug_body.values())}
+        for g in range(self.model.ngeom):
+            index[g] = body_to_mug.get(int(self.model.geom_bodyid[g]), -1)
+        return index
+
+    def _geom_gripper_mask(self) -> np.ndarray:
+        """Geoms of the gripper (palm, thumb, finger, pads): their touch on a mug is a gripper contact."""
+        bodies = {int(self.model.geom_bodyid[self._fsr_pad]), int(self.model.geom_bodyid[self._finger_pad])}
+        return np.isin(self.model.geom_bodyid, sorted(bodies))
+
+    def _settle_at_start(self, pose: Mapping[str, float]) -> None:
+        """Put the arm in ``pose``, hold it there and let the mugs settle before anyone looks."""
+        unknown = set(pose) - {s.joint for s in self._servos.values()}
+        if unknown:
+            raise ValueError(f"initial pose names unknown joints {sorted(unknown)}")
+        for s in self._servos.values():
+            self.data.qpos[s.qpos_adr] = min(max(pose.get(s.joint, 0.0), s.lower), s.upper)
+        mujoco.mj_forward(self.model, self.data)
+        self._setpoint[:] = self._goal[:] = self.data.qpos[self._qpos_adr]
+        self.data.ctrl[self._actuators] = self._setpoint
+        self._advance(0.3)
+        self._publish_present()
+        self.data.time = 0.0
+        self._next_monitor = 0.0
+
+    # --------------------------------------------------------------------------------- the servo plant
+
+    def set_goal(self, servo_id: int, position_rad: float, speed_rad_s: float) -> None:
+        """A new goal position and moving speed for one servo (``speed_rad_s`` <= 0: as fast as it can).
+
+        Lock-free (two attribute writes the physics thread reads each step): the bus simulator must never
+        wait for a batch of physics steps, or the driver sees a servo that does not answer."""
+        s = self._servo(servo_id)
+        self._speed[s.index] = s.max_speed if speed_rad_s <= 0.0 else min(speed_rad_s, s.max_speed)
+        self._goal[s.index] = min(max(position_rad, s.lower), s.upper)
+
+    def present(self, servo_id: int) -> tuple[float, float, float]:
+        """Present position (rad), velocity (rad/s) and load (signed fraction of the stall torque), as of
+        the last physics step. Lock-free, like ``set_goal``."""
+        k = self._servo(servo_id).index
+        position, velocity, load = self._present
+        return float(position[k]), float(velocity[k]), float(load[k])
+
+    def set_torque(self, servo_id: int, on: bool) -> None:
+        """Torque on holds the present position; torque off lets the joint hang on its gearbox friction."""
+        s = self._servo(servo_id)
+        with self.lock:
+            if on and not s.torque_on:
+                self._setpoint[s.index] = self._goal[s.index] = float(self.data.qpos[s.qpos_adr])
+                self.model.actuator_gainprm[s.actuator] = s.gainprm
+                self.model.actuator_biasprm[s.actuator] = s.biasprm
+            elif not on and s.torque_on:
+                self.model.actuator_gainprm[s.actuator] = 0.0
+                self.model.actuator_biasprm[s.actuator] = 0.0
+            s.torque_on = on
+
+    def _servo(self, servo_id: int) -> _Servo:
+        try:
+            return self._servos[servo_id]
+        except KeyError:
+            known = ", ".join(str(i) for i in sorted(self._servos))
+            raise KeyError(f"no servo with id {servo_id} in the simulated arm (ids: {known})") from None
+
+    @property
+    def servo_ids(self) -> tuple[int, ...]:
+        return tuple(sorted(self._servos))
+
+    # --------------------------------------------------------------------------------------- sensors
+
+    def gripper_force_n(self) -> float:
+        """Normal force on the FSR pad from mugs, as of the last monitor tick (thread-safe, never blocks)."""
+        return self._force_n
+
+    def time(self) -> float:
+        """Simulated seconds since the world was built (after the initial settling)."""
+        return float(self.data.time)
+
+    @property
+    def held_mug(self) -> str | None:
+        """The mug welded to the gripper by a confirmed grasp, if any."""
+        return self._held
+
+    def tcp_position(self) -> tuple[float, float, float]:
+        with self.lock:
+            p = self.data.site_xpos[self._tcp_site]
+            return float(p[0]), float(p[1]), float(p[2])
+
+    def mug_truths(self) -> dict[str, MugTruth]:
+        """True mug poses (tests and benchmarks only)."""
+        out: dict[str, MugTruth] = {}
+        with self.lock:
+            for mug, body in self._mug_body.items():
+                pos = self.data.xpos[body]
+                quat = self.data.xquat[body]
+                axis_z = float(self.data.xmat[body][8])
+                vel = np.zeros(6)
+                mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_BODY, body, vel, 0)
+                out[mug] = MugTruth(
+                    mug,
+                    (float(pos[0]), float(pos[1]), float(pos[2])),
+                    (float(quat[0]), float(quat[1]), float(quat[2]), float(quat[3])),
+                    axis_z,
+                    held=mug == self._held,
+                    speed_m_s=float(np.linalg.norm(vel[3:])),
+                )
+        return out
+
+    def add_contact_listener(self, listener: ContactListener) -> None:
+        """Call ``listener(world, t, contacts)`` on every monitor tick, from the physics thread, with the lock
+        held: mug-mug and gripper-mug contacts. It must be quick and must not block."""
+        self._listeners.append(listener)
+
+    # ------------------------------------------------------------------------------------ fault injection
+
+    def slip(self) -> str | None:
+        """Make the held mug slip out of the gripper: drop the weld and the pads' grip until the jaw opens.
+
+        Returns the mug that slipped (None when nothing was held). Used by fault-injection tests.
+        """
+        with self.lock:
+            mug = self._held
+            if mug is None:
+                return None
+            self._release(reason="injected_slip")
+            self._slipping.add(mug)
+            # A higher priority makes the gripper's (now slick) friction win over the mug's in every contact.
+            self.model.geom_friction[self._gripper_geoms, 0] = 0.02
+            self.model.geom_priority[self._gripper_geoms] = 1
+            return mug
+
+    # ------------------------------------------------------------------------------------------ stepping
+
+    def start(self) -> None:
+        """Step in a background thread at real time × ``speed``."""
+        if self._thread is not None:
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="simworld", daemon=True)
+        self._thread.start()
+        log.info(
+            "simworld_started", speed=self.speed, timestep_s=self.physics.timestep_s, mugs=len(self.mug_ids)
+        )
+
+    def stop(self) -> None:
+        thread, self._thread = self._thread, None
+        if thread is None:
+            return
+        self._stop.set()
+        thread.join(timeout=5.0)
+        log.info("simworld_stopped", t=round(self.time(), 3), wall_stepping_s=round(self.wall_stepping_s, 3))
+
+    def __enter__(self) -> SimWorld:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def check_alive(self) -> None:
+        """Raise ``SimWorldStopped`` when the physics thread died (diverged) or is not running."""
+        if self._failure is not None:
+            raise SimWorldStopped(f"the physics thread died: {self._failure}") from self._failure
+        if self._thread is None or not self._thread.is_alive():
+            raise SimWorldStopped("the physics thread is not running; call SimWorld.start()")
+
+    def step_for(self, seconds: float) -> None:
+        """Advance the simulation synchronously (only while the thread is not running)."""
+        if self._thread is not None:
+            raise RuntimeError("step_for() while the physics thread runs; stop() the world first")
+        with self.lock:
+            self._advance(seconds)
+
+    @contextmanager
+    def paused(self) -> Iterator[None]:
+        """Hold the physics still (e.g. to render or inspect a consistent state)."""
+        with self.lock:
+            yield
+
+    def _run(self) -> None:
+        wall0 = time.monotonic()
+        sim0 = self.time()
+        behind_logged = False
+        try:
+            while not self._stop.is_set():
+                target = sim0 + (time.monotonic() - wall0) * self.speed
+                lag = target - self.time()
+                if lag <= 0.0:
+                    time.sleep(min(0.002, -lag / self.speed + 0.0005))
+                    continue
+                started = time.perf_counter()
+                with self.lock:
+                    self._advance(min(lag, self.physics.max_batch_s))
+                self.wall_stepping_s += time.perf_counter() - started
+                if lag > 0.5 and not behind_logged:
+                    log.warning("simworld_behind_real_time", lag_s=round(lag, 3), speed=self.speed)
+                    behind_logged = True
+                elif lag < 0.05 and behind_logged:
+                    log.info("simworld_caught_up", speed=self.speed)
+                    behind_logged = False
+                time.sleep(0)  # let the servo simulator and the event loop have the GIL
+        except BaseException as e:
+            self._failure = e
+            log.error("simworld_died", error=str(e), t=round(self.time(), 3))
+
+    def _advance(self, seconds: float) -> None:
+        dt = self.physics.timestep_s
+        steps = max(1, round(seconds / dt))
+        for _ in range(steps):
+            self._drive_servos(dt)
+            mujoco.mj_step(self.model, self.data)
+            self._publish_present()
+            if self.data.time >= self._next_monitor:
+                self._next_monitor = self.data.time + self.physics.monitor_period_s
+                self._monitor()
+        if not np.all(np.isfinite(self.data.qpos)):
+            raise SimModelError(f"the simulation diverged at t={self.time():.3f} s (non-finite positions)")
+
+    def _publish_present(self) -> None:
+        """Swap in a fresh snapshot of every servo's state (one reference assignment: atomic for readers)."""
+        d = self.data
+        load = np.clip(d.actuator_force[self._actuators] / self._stall, -1.0, 1.0)
+        self._present = (d.qpos[self._qpos_adr].copy(), d.qvel[self._dof_adr].copy(), load)
+
+    def _drive_servos(self, dt: float) -> None:
+        """Walk each set-point towards its goal at the commanded speed, as the servo firmware does."""
+        step = self._speed * dt
+        self._setpoint += np.clip(self._goal - self._setpoint, -step, step)
+        self.data.ctrl[self._actuators] = self._setpoint
+
+    # ------------------------------------------------------------------------- grasp and contact monitor
+
+    def _monitor(self) -> None:
+        grip = self._scan_contacts()
+        now = self.time()
+        jaw = self._gripper_servo
+        aperture = self.arm.gripper.aperture_m(float(self.data.qpos[jaw.qpos_adr]))
+        self._force_n = self._squeeze_n(aperture) if self._held is not None else grip.pad_force_n
+        if self._held is not None and grip.support_force_n > self.physics.support_force_n:
+            # Pressed onto something: from here friction alone decides, so the mug can slide in the grasp.
+            self._release(reason="supported")
+            self._force_n = grip.pad_force_n
+        elif self._held is None:
+            between = grip.thumb_mugs & grip.finger_mugs
+            if (
+                grip.pad_force_n >= self.physics.weld_force_n
+                and len(between) == 1
+                and grip.support_force_n <= 0.1 * self.physics.support_force_n
+            ):
+                mug = self.mug_ids[next(iter(between))]
+                if mug not in self._slipping:
+                    self._weld_mug(mug, aperture)
+        else:
+            opened = aperture >= self._held_aperture_m + self.physics.release_opening_m
+            if self._force_n < self.physics.release_force_n:
+                self._low_force_since = self._low_force_since if self._low_force_since is not None else now
+            else:
+                self._low_force_since = None
+            weak = (
+                self._low_force_since is not None
+                and now - self._low_force_since >= self.physics.release_after_s
+            )
+            if opened or weak:
+                self._release(reason="opened" if opened else "force_lost")
+        if (
+            self._slipping
+            and self.arm.gripper.aperture_m(float(self._goal[jaw.index])) > self._held_aperture_m + 0.005
+        ):
+            self._slipping.clear()
+            self.model.geom_friction[self._gripper_geoms] = self._gripper_friction
+            self.model.geom_priority[self._gripper_geoms] = 0
+        for listener in self._listeners:
+            listener(self, now, grip.contacts)
+
+    def _squeeze_n(self, aperture_m: float) -> float:
+        """What the FSR reads while the weld carries the mug.
+
+        The weld stands in for friction, and it also takes up part of the squeeze, so the contact forces
+        then swing with every jolt of the arm (a dip to zero would look like a drop). The pads are treated as
+        a linear spring instead: the force at the confirmed grasp, falling to zero as the jaw opens by
+        ``release_opening_m`` and rising as it closes further."""
+        opening = (aperture_m - self._held_aperture_m) / self.physics.release_opening_m
+        return self._held_force_n * min(max(1.0 - opening, 0.0), 2.0)
+
+    def _scan_contacts(self) -> _GripContacts:
+        """Mug-mug and gripper-mug contacts of this instant, and what they mean for the grasp."""
+        grip = _GripContacts()
+        ncon = int(self.data.ncon)
+        if ncon == 0:
+            return grip
+        g1 = self.data.contact.geom1[:ncon]
+        g2 = self.data.contact.geom2[:ncon]
+        m1, m2 = self.geom_mug[g1], self.geom_mug[g2]
+        interesting = (
+            ((m1 >= 0) & (m2 >= 0) & (m1 != m2))
+            | ((m1 >= 0) & self.geom_gripper[g2])
+            | ((m2 >= 0) & self.geom_gripper[g1])
+        )
+        wrench = np.zeros(6)
+        body = self.model.geom_bodyid
+        for i in np.flatnonzero(interesting):
+            mujoco.mj_contactForce(self.model, self.data, int(i), wrench)
+            force = float(wrench[0])
+            a, b = int(g1[i]), int(g2[i])
+            other, mug = (b, int(m1[i])) if m1[i] >= 0 and m2[i] < 0 else (a, int(m2[i]))
+            if other == self._fsr_pad:
+                grip.pad_force_n += force
+            if body[other] == self._tool_body and force > 0.0:
+                grip.thumb_mugs.add(mug)
+            elif body[other] == self._finger_body and force > 0.0:
+                grip.finger_mugs.add(mug)
+                grip.finger_force_n += force
+            pos = self.data.contact.pos[i]
+            grip.contacts.append(ContactSample(a, b, (float(pos[0]), float(pos[1]), float(pos[2])), force))
+        # What else pushes on the mug in the gripper (or about to be): the table, the tray, another mug.
+        candidates = list(grip.thumb_mugs & grip.finger_mugs)
+        if self._held is not None:
+            candidates.append(self._mug_index[self._held])
+        if candidates:
+            mine = (
+                np.isin(m1, candidates) & ~self.geom_gripper[g2]
+                | np.isin(m2, candidates) & ~self.geom_gripper[g1]
+            )
+            for i in np.flatnonzero(mine):
+                mujoco.mj_contactForce(self.model, self.data, int(i), wrench)
+                grip.support_force_n += float(wrench[0])
+        return grip
+
+    def _weld_mug(self, mug: str, aperture_m: float) -> None:
+        eq = self._weld[mug]
+        body = self._mug_body[mug]
+        tool = self._tool_body
+        inv = np.zeros(4)
+        mujoco.mju_negQuat(inv, self.data.xquat[tool])
+        rel_pos = np.zeros(3)
+        mujoco.mju_rotVecQuat(rel_pos, self.data.xpos[body] - self.data.xpos[tool], inv)
+        rel_quat = np.zeros(4)
+        mujoco.mju_mulQuat(rel_quat, inv, self.data.xquat[body])
+        self.model.eq_data[eq, 0:3] = 0.0
+        self.model.eq_data[eq, 3:6] = rel_pos
+        self.model.eq_data[eq, 6:10] = rel_quat
+        self.model.eq_data[eq, 10] = 1.0
+        self.data.eq_active[eq] = 1
+        self._held = mug
+        self._held_aperture_m = aperture_m
+        self._held_force_n = self._force_n
+        self._low_force_since = None
+        log.debug(
+            "simworld_grasp_welded", mug_id=mug, force_n=round(self._force_n, 2), t=round(self.time(), 3)
+        )
+
+    def _release(self, *, reason: str) -> None:
+        mug = self._held
+        if mug is None:
+            return
+        self.data.eq_active[self._weld[mug]] = 0
+        self._held = None
+        self._low_force_since = None
+        log.debug("simworld_grasp_released", mug_id=mug, reason=reason, t=round(self.time(), 3))
+
+
+__all__ = ["ARM_PREFIX", "MUG_BODY_PREFIX", "ContactSample", "MugTruth", "PhysicsConfig", "SimWorld"]
