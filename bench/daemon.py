@@ -35,7 +35,7 @@ from daemon.errors import UsageError
 from daemon.job import StartRequest
 from daemon.recording import Recorder
 from daemon.sdnotify import SdNotifier
-from daemon.zenoh_io import encode, key, session_config
+from daemon.zenoh_session import encode, key, session_config
 
 ROBOT = "bench"
 PROBE_HZ = 50.0

@@ -30,7 +30,7 @@ from daemon.errors import RecordingError, UsageError
 from daemon.job import Associate, Job, JobSummary, StartRequest
 from daemon.recording import Recorder
 from daemon.sdnotify import SdNotifier
-from daemon.zenoh_io import Bus
+from daemon.zenoh_session import ZenohSession
 from drivers.dynamixel import BusTimeout
 from drivers.errors import BusLost, DriverError, ServoFault
 
@@ -70,7 +70,7 @@ async def serve(
     options: RunOptions,
     *,
     notifier: SdNotifier,
-    on_ready: Callable[[Bus, Path], None] | None = None,
+    on_ready: Callable[[ZenohSession, Path], None] | None = None,
     stop: asyncio.Event | None = None,
     executor: concurrent.futures.Executor | None = None,
 ) -> RunResult:
@@ -86,7 +86,7 @@ async def serve(
     except RecordingError as e:
         raise UsageError(str(e)) from e
     try:
-        bus = Bus.open(
+        session = ZenohSession.open(
             config.robot_id,
             listen=options.listen,
             connect=options.connect,
@@ -95,15 +95,15 @@ async def serve(
     except zenoh.ZError as e:
         recorder.close()
         raise UsageError(f"cannot open the Zenoh session (listen {list(options.listen)}): {e}") from e
-    bus.attach_recorder(recorder)
-    with _logs_published(bus):
+    session.attach_recorder(recorder)
+    with _logs_published(session):
         return await _run(
             config,
             backend,
             associate,
             options,
             notifier,
-            bus,
+            session,
             recorder,
             path,
             on_ready,
@@ -118,27 +118,29 @@ async def _run(
     associate: Associate,
     options: RunOptions,
     notifier: SdNotifier,
-    bus: Bus,
+    session: ZenohSession,
     recorder: Recorder,
     path: Path,
-    on_ready: Callable[[Bus, Path], None] | None,
+    on_ready: Callable[[ZenohSession, Path], None] | None,
     stop: asyncio.Event,
     executor: concurrent.futures.Executor | None,
 ) -> RunResult:
     loop = asyncio.get_running_loop()
     # Every read at the driver boundary (the telemetry's too) is recorded as an input for replay.
-    backend = recorded(backend, bus.record)
-    job = Job(backend, config, bus.publish, associate, executor=executor)
+    backend = recorded(backend, session.record)
+    job = Job(backend, config, session.publish, associate, executor=executor)
     recorder.write_header(config.to_dict(), backend.scene())
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
     tasks = [
         asyncio.create_task(job.run(), name="job"),
         asyncio.create_task(
-            _every(1.0 / config.daemon.state_rate_hz, lambda: _state(bus, job)), name="state"
+            _every(1.0 / config.daemon.state_rate_hz, lambda: _state(session, job)), name="state"
         ),
-        asyncio.create_task(_joints_loop(bus, backend, job, config.daemon.joints_rate_hz), name="joints"),
-        asyncio.create_task(_gripper_loop(bus, backend, job, config.daemon.gripper_rate_hz), name="gripper"),
+        asyncio.create_task(_joints_loop(session, backend, job, config.daemon.joints_rate_hz), name="joints"),
+        asyncio.create_task(
+            _gripper_loop(session, backend, job, config.daemon.gripper_rate_hz), name="gripper"
+        ),
     ]
     if notifier.watchdog_interval_s is not None:
         interval = notifier.watchdog_interval_s / 2.0
@@ -150,8 +152,8 @@ async def _run(
             loop.call_soon_threadsafe(job.device_event, event)
 
         backend.on_event(device_event)
-    bus.serve(loop, lambda verb, payload: commands_handler.handle(job, verb, payload))
-    bus.publish("state", job.status())
+    session.serve(loop, lambda verb, payload: commands_handler.handle(job, verb, payload))
+    session.publish("state", job.status())
     # Everything allocated so far lives as long as the process: keep it out of the cyclic collector's
     # scans, whose full passes over it stalled the loop for tens of milliseconds.
     gc.collect()
@@ -159,7 +161,7 @@ async def _run(
     notifier.ready(f"robot {config.robot_id} idle")
     log.info("daemon_ready", robot_id=config.robot_id, listen=list(options.listen), recording=str(path))
     if on_ready is not None:
-        on_ready(bus, path)
+        on_ready(session, path)
     try:
         if options.once is not None:
             await job.command("start", options.once)
@@ -174,7 +176,7 @@ async def _run(
         notifier.stopping("stopping motion and finishing the recording")
         log.info("daemon_stopping")
         await job.shutdown()
-        bus.publish("state", job.status())
+        session.publish("state", job.status())
         for task in tasks:
             task.cancel()
         for task in tasks:
@@ -182,15 +184,15 @@ async def _run(
                 await task
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.remove_signal_handler(sig)
-        bus.attach_recorder(None)
-        bus.close()
+        session.attach_recorder(None)
+        session.close()
         await asyncio.to_thread(recorder.close)
         await backend.close()
     return RunResult(job.summary, path, job.chart.state)
 
 
-def _state(bus: Bus, job: Job) -> None:
-    bus.publish("state", job.status())
+def _state(session: ZenohSession, job: Job) -> None:
+    session.publish("state", job.status())
 
 
 def _ping(notifier: SdNotifier) -> Callable[[], None]:
@@ -249,18 +251,18 @@ async def _polled(
         await asyncio.sleep(max(0.0, next_t - time.monotonic()))
 
 
-async def _joints_loop(bus: Bus, backend: Backend, job: Job, rate_hz: float) -> None:
+async def _joints_loop(session: ZenohSession, backend: Backend, job: Job, rate_hz: float) -> None:
     async def read() -> None:
-        bus.publish("joints", joints_payload(await backend.arm.read_joints()))
+        session.publish("joints", joints_payload(await backend.arm.read_joints()))
 
     await _polled(1.0 / rate_hz, read, job, "joints")
 
 
-async def _gripper_loop(bus: Bus, backend: Backend, job: Job, rate_hz: float) -> None:
+async def _gripper_loop(session: ZenohSession, backend: Backend, job: Job, rate_hz: float) -> None:
     async def read() -> None:
         gs = await backend.gripper.read()
         reading = backend.force.latest()
-        bus.publish(
+        session.publish(
             "gripper",
             {
                 "t": time.time(),
@@ -280,8 +282,8 @@ async def _gripper_loop(bus: Bus, backend: Backend, job: Job, rate_hz: float) ->
 class _LogForwarder:
     """A structlog processor publishing every record on ``log`` (and so recording it)."""
 
-    def __init__(self, bus: Bus) -> None:
-        self.bus = bus
+    def __init__(self, session: ZenohSession) -> None:
+        self.session = session
 
     def __call__(self, logger: object, method: str, event: Mapping[str, object]) -> Mapping[str, object]:
         record = {
@@ -289,15 +291,15 @@ class _LogForwarder:
         }
         record.setdefault("level", method)
         with contextlib.suppress(Exception):  # logging must never take the daemon down
-            self.bus.publish("log", record)
+            self.session.publish("log", record)
         return event
 
 
 @contextlib.contextmanager
-def _logs_published(bus: Bus) -> Iterator[None]:
+def _logs_published(session: ZenohSession) -> Iterator[None]:
     """While active, structlog records are also published on ``log`` (before the final renderer)."""
     before = list(structlog.get_config()["processors"])
-    structlog.configure(processors=[*before[:-1], _LogForwarder(bus), *before[-1:]])
+    structlog.configure(processors=[*before[:-1], _LogForwarder(session), *before[-1:]])
     try:
         yield
     finally:

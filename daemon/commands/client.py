@@ -17,7 +17,7 @@ import zenoh
 
 from daemon.config import PLANNER_COSTS, PLANNER_FITNESS, check_endpoint
 from daemon.errors import ConfigError, UsageError
-from daemon.zenoh_io import encode, key, session_config
+from daemon.zenoh_session import encode, key, session_config
 from description import thesis
 from planning.placement import METHODS
 

@@ -18,7 +18,7 @@ import zenoh
 from daemon.commands.client import DEFAULT_ENDPOINT
 from daemon.config import check_endpoint
 from daemon.errors import ConfigError, UsageError
-from daemon.zenoh_io import key, session_config
+from daemon.zenoh_session import key, session_config
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

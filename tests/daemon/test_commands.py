@@ -19,7 +19,7 @@ from daemon.commands.client import request
 from daemon.commands_handler import BadCommand, parse
 from daemon.config import load_config
 from daemon.sdnotify import SdNotifier
-from daemon.zenoh_io import session_config
+from daemon.zenoh_session import session_config
 from perception import associate
 from tests.daemon.conftest import free_port
 from tests.fakes.job import make_backend, make_world

@@ -22,7 +22,7 @@ import zenoh
 
 from daemon.config import load_config
 from daemon.recording import read_messages
-from daemon.zenoh_io import session_config
+from daemon.zenoh_session import session_config
 from planning.placement import dataset_problem
 from tests.daemon.conftest import free_port
 

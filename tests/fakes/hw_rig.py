@@ -22,7 +22,7 @@ from daemon.app import RunOptions, RunResult, serve
 from daemon.backend import Backend, open_hardware_backend
 from daemon.config import Config, load_config
 from daemon.sdnotify import SdNotifier
-from daemon.zenoh_io import Bus, session_config
+from daemon.zenoh_session import ZenohSession, session_config
 from drivers.interfaces import JointTrajectory
 from drivers.sim import FsrSimulator, ServoChainSimulator, default_chain
 from drivers.sim.plant import FirstOrderPlant
@@ -195,7 +195,7 @@ async def running_daemon(r: Rig, tmp_path: Path, *, carry_s: float = 0.4) -> Asy
     stop = asyncio.Event()
     ready = asyncio.Event()
 
-    def on_ready(bus: Bus, path: Path) -> None:
+    def on_ready(session: ZenohSession, path: Path) -> None:
         ready.set()
 
     task: asyncio.Task[RunResult] = asyncio.create_task(

@@ -29,7 +29,7 @@ CommandHandler = Callable[[str, bytes], Awaitable[dict[str, object]]]
 
 
 class RecordSink(Protocol):
-    """What the bus writes to: ``daemon.recording.Recorder`` fits."""
+    """What the session records to: ``daemon.recording.Recorder`` fits."""
 
     def write(self, topic: str, payload: Mapping[str, object], *, log_time_ns: int) -> bool: ...
 
@@ -53,7 +53,7 @@ def encode(payload: Mapping[str, object]) -> bytes:
     return json.dumps(payload, separators=(",", ":"), default=str, allow_nan=False).encode()
 
 
-class Bus:
+class ZenohSession:
     """Publishing, recording and command serving for one robot id over one open session."""
 
     def __init__(self, session: zenoh.Session, robot_id: str, *, max_command_bytes: int) -> None:
@@ -71,7 +71,7 @@ class Bus:
     @classmethod
     def open(
         cls, robot_id: str, *, listen: Sequence[str], connect: Sequence[str], max_command_bytes: int
-    ) -> Bus:
+    ) -> ZenohSession:
         """Open the session; raises ``zenoh.ZError`` when an endpoint cannot be listened on."""
         session = zenoh.open(session_config(listen=listen, connect=connect))
         return cls(session, robot_id, max_command_bytes=max_command_bytes)
