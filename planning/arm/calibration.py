@@ -99,7 +99,7 @@ class PositionCorrection:
 
 
 def fit_correction(
-    commanded: Sequence[Sequence[float]], reached: Sequence[Sequence[float]]
+    commanded: Sequence[Sequence[float]] | FloatArray, reached: Sequence[Sequence[float]] | FloatArray
 ) -> PositionCorrection:
     """Least-squares fit of the reached-minus-commanded error; needs at least 14 well-spread pairs."""
     try:

@@ -77,7 +77,7 @@ def wait_for(sock: socket.socket, prefix: str, proc: subprocess.Popen[bytes]) ->
 
 
 def notify_dir(sock: socket.socket) -> str:
-    return os.path.dirname(sock.getsockname())
+    return os.path.dirname(str(sock.getsockname()))
 
 
 def the_recording(tmp_path: Path) -> Path:

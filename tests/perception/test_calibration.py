@@ -118,7 +118,9 @@ def test_write_board_writes_the_printable_board(tmp_path: Path, capsys: pytest.C
     out = tmp_path / "board.png"
     assert main(["calibrate", "--write-board", str(out)]) == 0
     assert capsys.readouterr().out == f"wrote {out}: print it 42 cm x 28 cm\n"
-    assert cv2.imread(str(out), cv2.IMREAD_GRAYSCALE).shape == (800, 1200)
+    board = cv2.imread(str(out), cv2.IMREAD_GRAYSCALE)
+    assert board is not None
+    assert board.shape == (800, 1200)
 
 
 def test_markers_as_large_as_squares_are_refused() -> None:

@@ -6,6 +6,7 @@ import itertools
 import re
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import HealthCheck, event, given, settings
@@ -60,7 +61,7 @@ fault_steps = st.lists(
 )
 
 
-def build(steps: list[tuple[object, ...]]) -> FaultPlan:
+def build(steps: list[tuple[Any, ...]]) -> FaultPlan:
     plan = FaultPlan()
     for step in steps:
         match step:

@@ -25,7 +25,7 @@ def _craig(a: float, d: float, alpha: float, theta: float) -> np.ndarray:
     rz = np.array([[ct, -st, 0, 0], [st, ct, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
     tz = np.eye(4)
     tz[2, 3] = d
-    return rx @ tx @ rz @ tz
+    return np.asarray(rx @ tx @ rz @ tz)
 
 
 def test_bundled_urdf_is_what_the_generator_writes() -> None:

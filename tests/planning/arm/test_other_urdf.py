@@ -57,7 +57,7 @@ def test_a_six_dof_arm_solves_position_targets(tmp_path: Path) -> None:
     for _ in range(10):
         q = rng.uniform(arm.lower * 0.7, arm.upper * 0.7)
         position, _ = arm.fk(q)
-        result = arm.ik(GraspTarget(tuple(float(v) for v in position)))
+        result = arm.ik(GraspTarget((float(position[0]), float(position[1]), float(position[2]))))
         if result.ok:
             solved += 1
             assert result.q is not None

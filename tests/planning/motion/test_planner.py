@@ -122,7 +122,7 @@ def test_trajectories_are_sampled_at_the_control_rate_within_the_servo_limits(
 def _end_of(plan: CyclePlan, phase: str) -> np.ndarray:
     moves = [s for s in plan.steps if s.phase == phase and s.trajectory is not None]
     assert moves[-1].trajectory is not None
-    return moves[-1].trajectory.positions[-1]
+    return np.asarray(moves[-1].trajectory.positions[-1])
 
 
 def _big_mug_axis(arm: ArmModel, position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
@@ -358,7 +358,9 @@ def test_a_neighbour_a_centimetre_from_the_finger_gets_a_jaw_opened_only_a_littl
     cycle = planner.plan_cycle(START_Q, MUG, SLOT, [right])
     position, rotation = arm.fk(_end_of(cycle, "place.descend"))
     assert rotation[2, 0] == pytest.approx(1.0, abs=1e-3)  # wrist turned: finger on the mug's right
-    assert _opens(cycle)[2] == ("place.release", pytest.approx(0.091 + 0.006))
+    phase, aperture = _opens(cycle)[2]
+    assert phase == "place.release"
+    assert aperture == pytest.approx(0.091 + 0.006)
     axis = _big_mug_axis(arm, position, rotation)
     assert np.allclose(axis, [SLOT.x_m, SLOT.y_m], atol=1e-3)
 
@@ -370,7 +372,9 @@ def test_neighbours_a_centimetre_away_on_both_sides_still_take_the_mug(planner: 
         TraySlot("m5", "small", SLOT.x_m, SLOT.y_m + gap),
     ]
     cycle = planner.plan_cycle(START_Q, MUG, SLOT, tight)
-    assert _opens(cycle)[2] == ("place.release", pytest.approx(0.091 + 0.006))
+    phase, aperture = _opens(cycle)[2]
+    assert phase == "place.release"
+    assert aperture == pytest.approx(0.091 + 0.006)
 
 
 def test_neighbours_closer_than_the_thumb_on_both_sides_refuse_the_slot(planner: CyclePlanner) -> None:
@@ -411,7 +415,11 @@ def test_a_cycle_starting_with_the_open_gripper_around_a_mug_lifts_off_it_first(
     around_m1 = _end_of(plan, "side_grasp.approach")
     other = NEIGHBOURS[0]
     cycle = planner.plan_cycle(
-        around_m1, other, TraySlot(other.mug_id, other.type, 0.45, 0.05), [], counter=[MUG, NEIGHBOURS[1]]
+        [float(v) for v in around_m1],
+        other,
+        TraySlot(other.mug_id, other.type, 0.45, 0.05),
+        [],
+        counter=[MUG, NEIGHBOURS[1]],
     )
     assert cycle.steps[0].kind is StepKind.OPEN  # opening around the mug it let go of is allowed
     first = cycle.steps[1].trajectory
