@@ -71,17 +71,19 @@ class Deferral:
 
     @classmethod
     def of(cls, blockers: Iterable[str], counter: Mapping[str, MugPose], slot: TraySlot) -> Deferral:
-        return cls(tuple((b, counter.get(b)) for b in sorted(blockers)), tuple(candidates_for(slot, counter)))
+        return cls(
+            tuple((b, counter.get(b)) for b in sorted(blockers)), tuple(_candidates_for(slot, counter))
+        )
 
     def still_blocked(self, counter: Mapping[str, MugPose], slot: TraySlot) -> bool:
         """Whether nothing the refusal depended on changed, so planning again would be refused again."""
         tried = {m.mug_id: m for m in self.candidates}
         return all(_stands_as(counter.get(b), then) for b, then in self.blockers) and all(
-            _stands_as(m, tried.get(m.mug_id)) for m in candidates_for(slot, counter)
+            _stands_as(m, tried.get(m.mug_id)) for m in _candidates_for(slot, counter)
         )
 
 
-def candidates_for(slot: TraySlot, counter: Mapping[str, MugPose]) -> Iterable[MugPose]:
+def _candidates_for(slot: TraySlot, counter: Mapping[str, MugPose]) -> Iterable[MugPose]:
     """The counter mugs a slot may be filled with: its own and those of its type (``plan_for_slot``)."""
     return (m for m in counter.values() if m.type == slot.type or m.mug_id == slot.mug_id)
 

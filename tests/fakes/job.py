@@ -147,7 +147,8 @@ class FakeMotion:
     manipulation phase, a CLOSE at each close phase, an OPEN at each release phase. ``refuse`` lists the
     (true) mugs it cannot reach; ``blocked_by`` maps a mug to the counter mug that blocks it while that one
     is still there. ``plan_for_slot`` fills a slot as ``CyclePlanner.plan_for_slot`` does: the mug it names,
-    else another of its type, nearest the arm first. ``calls`` counts the planning requests."""
+    else another of its type, nearest the arm first (a lone candidate's refusal is passed on as it is).
+    ``calls`` lists the planning requests."""
 
     def __init__(self, world: FakeWorld, refuse: Sequence[str] = ()) -> None:
         self.w = world
