@@ -27,13 +27,13 @@ from daemon.commands.output import add_json_flag, emit
 from daemon.commands.run import planning_pool
 from daemon.config import Config, load_config
 from daemon.errors import UsageError
-from daemon.job import Associate, Job, StartRequest
+from daemon.job import Job, StartRequest
 from description import thesis
 from description.cell import SceneLayout
 from description.thesis import MugSpec
 from drivers.interfaces import Camera
 from perception import CameraObserver, DepthMugDetector, associate
-from perception.interfaces import MugObserver
+from perception.interfaces import Associate, MugObserver
 from planning.placement import dataset_problem
 from sim.mujoco.cell import ObserverFactory, SimCell, scene_mugs, start_sim_cell
 from sim.mujoco.collisions import TrayCollision

@@ -27,12 +27,13 @@ from daemon import commands_handler
 from daemon.backend import Backend, joints_payload, recorded
 from daemon.config import Config
 from daemon.errors import RecordingError, UsageError
-from daemon.job import Associate, Job, JobSummary, StartRequest
+from daemon.job import Job, JobSummary, StartRequest
 from daemon.recording import Recorder
 from daemon.sdnotify import SdNotifier
 from daemon.zenoh_session import ZenohSession
 from drivers.dynamixel import BusTimeout
 from drivers.errors import BusLost, DriverError, ServoFault
+from perception.interfaces import Associate
 
 log = structlog.get_logger("daemon")
 

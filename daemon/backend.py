@@ -17,7 +17,7 @@ import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -415,20 +415,6 @@ class _KinematicCounter:
 
     def scene(self) -> dict[str, object]:
         return {**self.cell.world.scene(), "dataset": self.dataset}
-
-
-@runtime_checkable
-class SlotPlanner(Protocol):
-    """A motion planner that can fill a tray slot with another counter mug of the same type when the one the
-    slot names cannot be reached (``CyclePlanner.plan_for_slot``)."""
-
-    def plan_for_slot(
-        self,
-        start_q: Sequence[float],
-        slot: TraySlot,
-        counter: Sequence[MugPose],
-        on_tray: Sequence[TraySlot],
-    ) -> tuple[MugPose, CyclePlan]: ...
 
 
 def catalogue_of(config: Config) -> dict[str, MugSpec]:

@@ -1,7 +1,9 @@
-"""The seam between perception and the rest: what the daemon asks of "seeing the counter"."""
+"""The seams between perception and the rest: what the daemon asks of "seeing the counter" (``MugObserver``)
+and of telling which mug seen now is which mug seen before (``Associate``)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
@@ -53,3 +55,12 @@ class MugObserver(Protocol):
     """Looks at the counter and reports the mugs on it."""
 
     async def observe(self) -> Observation: ...
+
+
+class Associate(Protocol):
+    """Lost-mug association (``perception.associate``): the seen detections, each with the id of the known
+    mug it is ("" when new). ``target_id`` names the mug the arm was handling (it may have moved)."""
+
+    def __call__(
+        self, known: Sequence[Detection], seen: Sequence[Detection], *, target_id: str = ""
+    ) -> Sequence[Detection]: ...

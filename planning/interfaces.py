@@ -1,17 +1,21 @@
 """The seams between planning and the rest: placement problems go in, cycle plans of joint motions come out.
 
 The placement planner itself lives in ``planning.placement`` (problem and result formats are the JSON
-contract of ``dishbot plan``); the statechart depends only on the protocols below.
+contract of ``dishbot plan``), the cycle planner in ``planning.motion``; the daemon's job depends only on the
+protocols below (``PlacementPlanner``, ``MotionPlanner``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 from drivers.interfaces import JointTrajectory
+
+if TYPE_CHECKING:  # planning.placement imports this module
+    from planning.placement import PlanOptions, PlanResult, Problem
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,12 +81,25 @@ class CyclePlan:
 
 
 class MotionRefused(ValueError):
-    """No safe motion exists (unreachable target, joint limit, collision); the arm was not commanded."""
+    """No safe motion exists (unreachable target, joint limit, collision); the arm was not commanded.
+
+    ``blockers`` names the mugs (by id, on the counter or the tray) whose presence made the motion
+    impossible: the same request is refused again until one of them moves or goes. It is empty when no mug
+    is to blame (out of reach, a joint limit, the tray's walls, the counter top)."""
+
+    def __init__(self, message: str, *, blockers: Iterable[str] = ()) -> None:
+        super().__init__(message)
+        self.blockers = frozenset(blockers)
+
+    @classmethod
+    def combining(cls, message: str, causes: Iterable[MotionRefused]) -> MotionRefused:
+        """A refusal summing up several (every alternative tried failed): blocked by what blocked any."""
+        return cls(message, blockers=frozenset().union(*(c.blockers for c in causes)))
 
 
 @runtime_checkable
 class MotionPlanner(Protocol):
-    """Plans the joint motions of a pick-flip-place cycle."""
+    """Plans the joint motions of a pick-flip-place cycle (``planning.motion.CyclePlanner``)."""
 
     def plan_cycle(
         self,
@@ -97,6 +114,27 @@ class MotionPlanner(Protocol):
         lists the other mugs still on the counter, obstacles for the approach and the carry."""
         ...
 
+    def plan_for_slot(
+        self,
+        start_q: Sequence[float],
+        slot: TraySlot,
+        counter: Sequence[MugPose],
+        on_tray: Sequence[TraySlot],
+    ) -> tuple[MugPose, CyclePlan]:
+        """The cycle filling ``slot`` with the mug it names or, when that one cannot be moved there, with
+        another mug of ``counter`` of the slot's type (the mug used and its plan; the plan's steps name
+        it). ``counter`` is every mug on the counter, the candidates and the obstacles. Each candidate is
+        planned on its own, so taking a candidate away never makes a refused slot possible; the refusal's
+        ``blockers`` are those of every candidate."""
+        ...
+
     def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
         """A joint-space move within the servo limits (used for parking and recovery)."""
         ...
+
+
+class PlacementPlanner(Protocol):
+    """Plans where each counter mug goes on the tray and in which order (``planning.placement.plan``).
+    The daemon may run it in another process: an implementation must pickle."""
+
+    def __call__(self, problem: Problem, options: PlanOptions, /) -> PlanResult: ...

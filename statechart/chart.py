@@ -166,6 +166,12 @@ def guards_of(trigger: str) -> tuple[str, ...]:
     return tuple(dict.fromkeys(names))
 
 
+def triggers_from(leaf: str) -> tuple[str, ...]:
+    """The events with a transition out of ``leaf`` (rows whose sources name it or its top-level state)."""
+    sources = {leaf, top_level(leaf)}
+    return tuple(dict.fromkeys(t.trigger for t in TRANSITIONS if sources & set(t.sources)))
+
+
 def top_level(path: str) -> str:
     """``side_grasp.close`` → ``side_grasp``."""
     return path.split(SEPARATOR, 1)[0]

@@ -20,11 +20,12 @@ from daemon.backend import (
 )
 from daemon.config import Config, check_endpoint, load_config
 from daemon.errors import ConfigError, UsageError
-from daemon.job import Associate, StartRequest
+from daemon.job import StartRequest
 from daemon.logs import configure_cli_logging
 from daemon.sdnotify import SdNotifier
 from description import thesis
 from perception import associate
+from perception.interfaces import Associate
 from planning.arm import ArmModel
 
 _PLANNING_NICENESS = 10

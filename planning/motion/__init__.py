@@ -1,5 +1,6 @@
 """Motion planning of the pick-flip-place cycle: cell, trajectories, collision checks, time and energy."""
 
+from planning.interfaces import MotionPlanner, MotionRefused
 from planning.motion.cell import CellLayout, carry_height_m
 from planning.motion.energy import DynamicsEnergyModel, EnergyBreakdown, thesis_energy_j
 from planning.motion.errors import InvalidCell
@@ -15,6 +16,8 @@ __all__ = [
     "EnergyBreakdown",
     "InvalidCell",
     "JointPath",
+    "MotionPlanner",
+    "MotionRefused",
     "carry_height_m",
     "plan_path",
     "thesis_energy_j",

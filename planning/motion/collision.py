@@ -26,6 +26,10 @@ from planning.arm.model import ArmModel
 _FLOOR_MARGIN_M = 0.002
 _LINK_FLOOR_MARGIN_M = 0.01
 _CHECK_STEP_M = 0.01
+_COUNTER = "the counter"
+
+# A collision found at one pose of a motion: the pose's index, why, and the obstacle's name.
+_Finding = tuple[int, str, str]
 
 
 @dataclass(frozen=True, slots=True)
@@ -51,6 +55,24 @@ class Box:
     name: str
     lo: tuple[float, float, float]
     hi: tuple[float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class Collision:
+    """The first collision along a motion: why, and the obstacle met (its name, e.g. ``mug m9 handle``,
+    ``the tray's near wall``, ``the counter``)."""
+
+    why: str
+    obstacle: str
+
+    @property
+    def mug_ids(self) -> frozenset[str]:
+        """The id of the mug met, when the obstacle is a mug (obstacles of mugs are named ``mug <id>``)."""
+        name = self.obstacle.removesuffix(" handle")
+        return frozenset({name.removeprefix("mug ")}) if name.startswith("mug ") else frozenset()
+
+    def __str__(self) -> str:
+        return self.why
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,8 +164,8 @@ class CollisionWorld:
         aperture_m: float,
         held: HeldMug | None = None,
         ignore: frozenset[str] = frozenset(),
-    ) -> str:
-        """Why the first colliding pose collides ('' when every pose is clear). Poses are checked at the
+    ) -> Collision | None:
+        """The first colliding pose's collision (None when every pose is clear). Poses are checked at the
         given samples and between them wherever the grasp point moved more than 1 cm."""
         spheres, radii = gripper_spheres(self.arm.gripper, aperture_m=aperture_m)
         active = np.array(
@@ -151,29 +173,30 @@ class CollisionWorld:
             dtype=bool,
         )
         positions, rotations, joint_z = self._poses(q_samples)
-        findings: list[tuple[int, str]] = []
+        findings: list[_Finding] = []
         low_joint = np.min(joint_z, axis=1) if joint_z.shape[1] else np.full(len(positions), np.inf)
         bad = np.flatnonzero(low_joint < self.floor_z + _LINK_FLOOR_MARGIN_M)
         if len(bad):
             i = int(bad[0])
             j = int(np.argmin(joint_z[i]))
             joint = self.arm.joint_names[j + 1]
-            findings.append((i, f"the {joint} joint would go below the counter (z={joint_z[i, j]:.3f} m)"))
+            why = f"the {joint} joint would go below the counter (z={joint_z[i, j]:.3f} m)"
+            findings.append((i, why, _COUNTER))
         world = positions[:, None, :] + np.einsum("nij,sj->nsi", rotations, spheres)
         low = np.min(world[:, :, 2] - radii[None, :], axis=1)
         bad = np.flatnonzero(low < self.floor_z + _FLOOR_MARGIN_M)
         if len(bad):
             i = int(bad[0])
-            findings.append((i, f"the gripper would touch the counter (z={low[i]:.3f} m)"))
+            findings.append((i, f"the gripper would touch the counter (z={low[i]:.3f} m)", _COUNTER))
         hit_pose, name = self._spheres_vs_obstacles(world, radii, active)
         if name:
-            findings.append((hit_pose, f"the gripper would hit {name}"))
+            findings.append((hit_pose, f"the gripper would hit {name}", name))
         if held is not None:
             findings += self._held_collisions(positions, rotations, held, active)
         if not findings:
-            return ""
-        pose, why = min(findings, key=lambda f: f[0])
-        return f"{why} (pose {pose} of {len(positions)})"
+            return None
+        pose, why, obstacle = min(findings, key=lambda f: f[0])
+        return Collision(f"{why} (pose {pose} of {len(positions)})", obstacle)
 
     def mugs_around(self, q: FloatArray, *, aperture_m: float) -> frozenset[str]:
         """Ids of the mugs (named ``mug <id>``) the gripper overlaps at joint angles ``q``: after a failed or
@@ -255,8 +278,8 @@ class CollisionWorld:
 
     def _held_collisions(
         self, positions: FloatArray, rotations: FloatArray, held: HeldMug, active: FloatArray
-    ) -> list[tuple[int, str]]:
-        findings: list[tuple[int, str]] = []
+    ) -> list[_Finding]:
+        findings: list[_Finding] = []
         axis = rotations[:, :, 0]
         centre = positions + rotations[:, :, 1] * held.lateral - rotations[:, :, 2] * held.behind
         base = centre + axis * held.x_lo
@@ -265,13 +288,14 @@ class CollisionWorld:
         for i in np.flatnonzero(vertical):
             z_lo, z_hi = sorted((float(base[i, 2]), float(top[i, 2])))
             if z_lo < self.floor_z - 1e-6:
-                findings.append((int(i), f"the held {held.name} would touch the counter (z={z_lo:.3f} m)"))
+                why = f"the held {held.name} would touch the counter (z={z_lo:.3f} m)"
+                findings.append((int(i), why, _COUNTER))
                 break
             hit = self._held_cylinder_vs_obstacles(
                 float(base[i, 0]), float(base[i, 1]), held.radius, z_lo, z_hi, active
             )
             if hit:
-                findings.append((int(i), f"the held {held.name} would hit {hit}"))
+                findings.append((int(i), f"the held {held.name} would hit {hit}", hit))
                 break
         tilted = np.flatnonzero(~vertical)
         if len(tilted):
@@ -282,12 +306,12 @@ class CollisionWorld:
             low = np.min(chain[:, :, 2], axis=1) - held.radius
             bad = np.flatnonzero(low < self.floor_z)
             if len(bad):
-                findings.append(
-                    (int(tilted[bad[0]]), f"the held {held.name} would touch the counter while turning")
-                )
+                why = f"the held {held.name} would touch the counter while turning"
+                findings.append((int(tilted[bad[0]]), why, _COUNTER))
             pose, name = self._spheres_vs_obstacles(chain, mug_radii, active)
             if name:
-                findings.append((int(tilted[pose]), f"the held {held.name} would hit {name} while turning"))
+                why = f"the held {held.name} would hit {name} while turning"
+                findings.append((int(tilted[pose]), why, name))
         return findings
 
     def _held_cylinder_vs_obstacles(

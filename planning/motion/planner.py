@@ -127,9 +127,9 @@ class CyclePlanner:
         with self._lock:
             trajectory, _ = self._plan(np.array([start, goal]), label)
             world = self._world(counter, on_tray)
-            why = world.first_collision(trajectory.positions, aperture_m=self.open_aperture_m)
-        if why:
-            raise MotionRefused(f"{label}: {why}")
+            hit = world.first_collision(trajectory.positions, aperture_m=self.open_aperture_m)
+        if hit is not None:
+            raise MotionRefused(f"{label}: {hit}", blockers=hit.mug_ids)
         return trajectory
 
     def plan_cycle(
@@ -220,7 +220,8 @@ class CyclePlanner:
             for gap, part in gaps:
                 if gap < HANDLE_CLEARANCE_M:
                     raise MotionRefused(
-                        f"place: {where}, {max(gap, 0.0) * 1000:.0f} mm from the {part} of mug {s.mug_id}"
+                        f"place: {where}, {max(gap, 0.0) * 1000:.0f} mm from the {part} of mug {s.mug_id}",
+                        blockers=(s.mug_id,),
                     )
 
     def _costed(self, mug: MugPose, motions: Sequence[_Motion]) -> CyclePlan:
@@ -262,20 +263,21 @@ class CyclePlanner:
             (m for m in counter if m.type == slot.type and m.mug_id != slot.mug_id),
             key=lambda m: (math.hypot(m.x_m, m.y_m), m.mug_id),
         )
-        reasons = []
+        reasons: list[tuple[str, MotionRefused]] = []
         for mug in [*named, *others]:
             try:
                 plan = self.plan_cycle(
                     start_q, mug, replace(slot, mug_id=mug.mug_id), on_tray, counter=counter
                 )
             except MotionRefused as e:
-                reasons.append(f"{mug.mug_id}: {e}")
+                reasons.append((mug.mug_id, e))
                 continue
             return mug, plan
         if not reasons:
             raise MotionRefused(f"slot for {slot.mug_id}: no {slot.type} mug left on the counter")
-        raise MotionRefused(
-            f"slot for {slot.mug_id}: no {slot.type} mug can be moved there ({'; '.join(reasons)})"
+        why = "; ".join(f"{mug_id}: {e}" for mug_id, e in reasons)
+        raise MotionRefused.combining(
+            f"slot for {slot.mug_id}: no {slot.type} mug can be moved there ({why})", (e for _, e in reasons)
         )
 
     def _cycle_motions(
@@ -309,18 +311,19 @@ class CyclePlanner:
         """Finish the cycle holding the inverted mug with the wrist turned (finger on the mug's right, as
         the thesis did) or, when that collides, with the wrist level (finger on the left): between close
         neighbours on the tray the opening finger needs the free side."""
-        reasons = []
+        reasons: list[tuple[str, MotionRefused]] = []
         for kind, roll in ((GraspKind.SIDE_UPSIDE_DOWN, "wrist turned"), (GraspKind.SIDE, "wrist level")):
             trial = plan.fork()
             try:
                 moves(trial, kind)
             except MotionRefused as e:
-                reasons.append((roll, str(e)))
+                reasons.append((roll, e))
                 continue
             plan.adopt(trial)
             return plan.motions
         (_, first), (roll, second) = reasons
-        raise MotionRefused(first if first == second else f"{first}; with the {roll}: {second}")
+        why = str(first) if str(first) == str(second) else f"{first}; with the {roll}: {second}"
+        raise MotionRefused.combining(why, (first, second))
 
     def _pick(self, plan: _Builder, c: _CycleContext, kind: GraspKind) -> None:
         """side_grasp: from above and behind the mug down to grasp height, in, close, up."""
@@ -402,7 +405,7 @@ class CyclePlanner:
         done_world = self._world(
             c.others, c.placed, target=placed_now, target_spec=c.spec, target_floor=tray_z
         )
-        reasons = []
+        reasons: list[MotionRefused] = []
         # Let go opening the jaw just wider than the mug (a full opening swings the finger into a neighbour
         # 1 cm away, the packing tolerance), the thumb stepping off the brim by half that; back off, and
         # open fully once up at carry height. The side step matters more than the width (backing straight
@@ -424,17 +427,19 @@ class CyclePlanner:
             try:
                 self._try_offsets(trial, "place.retreat", retreat, sides=sides)
                 if aperture is not None:
-                    why = done_world.first_collision(trial.q[None, :], aperture_m=self.open_aperture_m)
-                    if why:
-                        raise MotionRefused(f"place.retreat: opening fully at carry height: {why}")
+                    hit = done_world.first_collision(trial.q[None, :], aperture_m=self.open_aperture_m)
+                    if hit is not None:
+                        raise MotionRefused(
+                            f"place.retreat: opening fully at carry height: {hit}", blockers=hit.mug_ids
+                        )
                     trial.gripper("place.retreat", StepKind.OPEN)
             except MotionRefused as e:
-                reasons.append(str(e))
+                reasons.append(e)
                 continue
             plan.adopt(trial)
             return
-        first, last = reasons[0], reasons[-1]
-        raise MotionRefused(first if first == last else f"{first}; opening fully: {last}")
+        first, last = str(reasons[0]), str(reasons[-1])
+        raise MotionRefused.combining(first if first == last else f"{first}; opening fully: {last}", reasons)
 
     def _back_off(
         self,
@@ -469,9 +474,9 @@ class CyclePlanner:
         # Opening around a mug the gripper still straddles (after a failed grasp) is fine.
         straddled = world.mugs_around(plan.q, aperture_m=opened)
         skip = frozenset(f"mug {m}" for m in straddled)
-        why = world.first_collision(plan.q[None, :], aperture_m=opened, ignore=skip)
-        if why:
-            raise MotionRefused(f"{phase}: opening the gripper where the arm is: {why}")
+        hit = world.first_collision(plan.q[None, :], aperture_m=opened, ignore=skip)
+        if hit is not None:
+            raise MotionRefused(f"{phase}: opening the gripper where the arm is: {hit}", blockers=hit.mug_ids)
         plan.gripper(phase, StepKind.OPEN)
 
         def approach(b: _Builder, d: float, side: float) -> None:
@@ -482,9 +487,12 @@ class CyclePlanner:
                 b.rise(phase, carry, world, aperture=opened, ignore=straddled)
             try:
                 b.joint_move(phase, above, world, aperture=opened)
-            except MotionRefused:
-                b.rise(phase, carry, world, aperture=opened)
-                b.joint_move(phase, above, world, aperture=opened)
+            except MotionRefused as direct:
+                try:
+                    b.rise(phase, carry, world, aperture=opened)
+                    b.joint_move(phase, above, world, aperture=opened)
+                except MotionRefused as e:
+                    raise MotionRefused.combining(str(e), (direct, e)) from e
             b.line(phase, pre, world, aperture=opened)
             # In beside the mug, then the thumb sideways onto the brim: closing in on the diagonal pushes
             # the mug along (10 mm measured on a big mug), off the grasp the rest of the cycle assumes.
@@ -504,21 +512,21 @@ class CyclePlanner:
         """Plan ``moves`` with the open gripper backed off by each of ``back_off_m`` in turn, first with the
         thumb ``side_clearance_m`` (or each of ``sides``) off the brim, then touching it (tight between
         neighbours); keep the first that works, or refuse with every reason."""
-        reasons = []
+        reasons: list[MotionRefused] = []
         for back in self.back_off_m:
             for side in (self.side_clearance_m, 0.0) if sides is None else sides:
                 trial = plan.fork()
                 try:
                     moves(trial, back, side)
                 except MotionRefused as e:
-                    reasons.append(str(e).removeprefix(f"{phase}: "))
+                    reasons.append(e)
                     continue
                 plan.adopt(trial)
                 return
-        first, last = reasons[0], reasons[-1]
+        first, last = (str(reasons[i]).removeprefix(f"{phase}: ") for i in (0, -1))
         if _POSE_SUFFIX.sub("", first) == _POSE_SUFFIX.sub("", last):
-            raise MotionRefused(f"{phase}: {first}")
-        raise MotionRefused(f"{phase}: {first}; straight from above: {last}")
+            raise MotionRefused.combining(f"{phase}: {first}", reasons)
+        raise MotionRefused.combining(f"{phase}: {first}; straight from above: {last}", reasons)
 
     def _plan(
         self, waypoints: FloatArray, label: str, *, tool_length_m: float = 0.0, fine: bool = False
@@ -839,9 +847,9 @@ class _Builder:
         skip = frozenset(f"mug {i}" for i in ids if i)
         if held is not None:
             skip = skip | {held.name}
-        why = world.first_collision(trajectory.positions, aperture_m=aperture, held=held, ignore=skip)
-        if why:
-            raise MotionRefused(f"{phase}: {why}")
+        hit = world.first_collision(trajectory.positions, aperture_m=aperture, held=held, ignore=skip)
+        if hit is not None:
+            raise MotionRefused(f"{phase}: {hit}", blockers=hit.mug_ids)
         lateral = held.lateral if held is not None else 0.0
         self.motions.append(_Motion(Step(phase, StepKind.MOVE, trajectory), path, mass, lateral))
         self.q = trajectory.positions[-1].copy()

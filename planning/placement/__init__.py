@@ -4,6 +4,7 @@ Every method of the thesis (§4.2: packing heuristics, SA, GA, PSOp, PSOk, best 
 model that proves the largest number of mugs that fit, and ``auto``, which combines them within a time budget.
 """
 
+from planning.interfaces import PlacementPlanner
 from planning.placement.cost import MoveCost, ThesisMoveCost
 from planning.placement.datasets import dataset_problem
 from planning.placement.errors import InvalidProblem
@@ -17,6 +18,7 @@ __all__ = [
     "MoveCost",
     "MugType",
     "PlacedMug",
+    "PlacementPlanner",
     "PlanOptions",
     "PlanResult",
     "Problem",

@@ -1,20 +1,24 @@
 """The job's use of the planners: a blocked mug's slot goes to a reachable mug of the same type
-(``plan_for_slot``), and ``planner.energy_model = "dynamics"`` costs the placement's moves with the arm's
-dynamics."""
+(``plan_for_slot``), a slot no motion reaches is planned again only when what blocked it changed, and
+``planner.energy_model = "dynamics"`` costs the placement's moves with the arm's dynamics."""
 
 from __future__ import annotations
 
 import asyncio
 import math
+from collections import Counter
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 from daemon.backend import CyclePlannerSpec, Tray, plan_placement
 from daemon.config import load_config
-from daemon.job import Job, StartRequest
+from daemon.job import Job, JobContext, Services, StartRequest
+from daemon.job.cycles import take_next_cycle
 from perception import associate
+from perception.interfaces import Detection
 from planning.interfaces import CyclePlan, MotionRefused, MugPose, TraySlot
-from planning.placement import PlanOptions, dataset_problem
+from planning.placement import PlanOptions, TrayMug, dataset_problem
 from tests.fakes.job import FakeMotion, FakeWorld, make_backend, make_world
 
 
@@ -104,3 +108,145 @@ def test_the_dynamics_energy_model_costs_placement_moves_from_the_arm() -> None:
     # electrical work over whole moves, far more.
     assert thesis.n == dynamics.n > 0
     assert dynamics.E_j > 5 * thesis.E_j
+
+
+# --- deferred slots: planned again only when what blocked them changed --------------------------------------
+
+
+def _services(world: FakeWorld, published: list[tuple[str, dict[str, Any]]] | None = None) -> Services:
+    out = [] if published is None else published
+    return Services(
+        make_backend(world),
+        load_config(),
+        lambda topic, payload: out.append((topic, dict(payload))),
+        associate,
+        state=lambda: "detect",
+    )
+
+
+def _counter_and_queue(world: FakeWorld, order: Sequence[str]) -> JobContext:
+    """A job that planned the world's mugs (ids as in the world) into slots in ``order``."""
+    counter = {k: MugPose(k, d.type, d.x_m, d.y_m) for k, d in world.counter.items()}
+    queue = [
+        (TraySlot(k, counter[k].type, 0.4 + 0.1 * i, 0.0), TrayMug(k, counter[k].type, 100 * i, 0, False))
+        for i, k in enumerate(order)
+    ]
+    return JobContext(planner=PlanOptions(), counter=counter, queue=queue, needs_plan=False)
+
+
+def _world_big_and_two_small() -> FakeWorld:
+    return FakeWorld(
+        counter={
+            "A": Detection("big", -0.10, 0.30, False, 0.0, 1.0),
+            "B": Detection("small", -0.20, 0.32, False, 0.0, 1.0),
+            "C": Detection("small", -0.30, 0.34, False, 0.0, 1.0),
+        }
+    )
+
+
+def _taken_off(world: FakeWorld, ctx: JobContext, mug_id: str) -> None:
+    """The mug went from the counter to the tray."""
+    del world.counter[mug_id]
+    del ctx.counter[mug_id]
+
+
+def _calls(services: Services) -> list[str]:
+    assert isinstance(services.backend.motion, FakeMotion)
+    return services.backend.motion.calls
+
+
+def test_a_deferred_slot_is_planned_again_only_once_its_blocker_left_the_counter() -> None:
+    world = _world_big_and_two_small()
+    published: list[tuple[str, dict[str, Any]]] = []
+    services = _services(world, published)
+    assert isinstance(services.backend.motion, FakeMotion)
+    services.backend.motion.blocked_by = {"A": "C"}  # the big mug stands behind small C
+    ctx = _counter_and_queue(world, ["A", "B", "C"])
+
+    async def go() -> list[str | None]:
+        taken = []
+        for mug in ("B", "C", None):
+            assert await take_next_cycle(services, ctx)
+            taken.append(ctx.current.mug_id if ctx.current else None)
+            if mug is not None:
+                _taken_off(world, ctx, mug)
+        return taken
+
+    assert asyncio.run(go()) == ["B", "C", "A"]
+    # A was refused once; while C stood in front of it, planning B's successor did not try A again.
+    assert _calls(services) == ["slot:A", "slot:B", "slot:C", "slot:A"]
+    refused = [p for t, p in published if t == "events" and p["kind"] == "motion_refused"]
+    assert [(r["mug_id"], r["reason"]) for r in refused] == [
+        ("A", "A: the gripper would hit the mug in front of it")
+    ]
+
+
+def test_a_deferred_slot_is_planned_again_when_its_blocker_moved_not_when_its_handle_jitters() -> None:
+    world = _world_big_and_two_small()
+    world.counter["D"] = Detection("small", -0.40, 0.36, False, 0.0, 1.0)
+    services = _services(world)
+    assert isinstance(services.backend.motion, FakeMotion)
+    services.backend.motion.blocked_by = {"A": "C"}
+    ctx = _counter_and_queue(world, ["A", "B", "D", "C"])
+
+    async def go() -> None:
+        assert await take_next_cycle(services, ctx)  # A refused, B taken
+        _taken_off(world, ctx, "B")
+        ctx.counter["C"] = replace(ctx.counter["C"], handle_yaw_rad=math.radians(2.0))  # detection noise
+        assert await take_next_cycle(services, ctx)  # A not tried, D taken
+        _taken_off(world, ctx, "D")
+        ctx.counter["C"] = replace(ctx.counter["C"], x_m=-0.33)  # seen 3 cm from where it stood
+        assert await take_next_cycle(services, ctx)  # A tried again (still blocked), C taken
+
+    asyncio.run(go())
+    assert _calls(services) == ["slot:A", "slot:B", "slot:D", "slot:A", "slot:C"]
+
+
+def test_a_deferred_slot_is_planned_again_when_a_mug_of_its_type_came() -> None:
+    world = _world_big_and_two_small()
+    services = _services(world)
+    assert isinstance(services.backend.motion, FakeMotion)
+    services.backend.motion.blocked_by = {"A": "C"}
+    ctx = _counter_and_queue(world, ["A", "B", "C"])
+
+    async def go() -> str:
+        assert await take_next_cycle(services, ctx)  # A refused, B taken
+        _taken_off(world, ctx, "B")
+        world.counter["D"] = Detection("big", -0.05, 0.45, False, 0.0, 1.0)
+        ctx.counter["D"] = MugPose("D", "big", -0.05, 0.45)
+        assert await take_next_cycle(services, ctx)  # A's slot goes to the new big mug
+        assert ctx.current is not None
+        return ctx.current.mug_id
+
+    assert asyncio.run(go()) == "D"
+    assert _calls(services) == ["slot:A", "slot:B", "slot:A"]
+
+
+def test_slots_no_motion_reaches_are_planned_once_in_a_whole_job_and_then_given_up() -> None:
+    world = make_world(5)  # small true0, true2 and true4, big true1 and true3; a big slot is planned first
+    published: list[tuple[str, dict[str, Any]]] = []
+    backend = make_backend(world, refuse=("true3",))  # big true3 is out of reach ...
+    assert isinstance(backend.motion, FakeMotion)
+    backend.motion.blocked_by = {"true1": "true3"}  # ... and stands in front of big true1
+    config = load_config(overrides={"planner": {"method": "bh", "time_limit_s": 0.2}})
+    job = Job(backend, config, lambda t, p: published.append((t, dict(p))), associate)
+
+    async def go() -> None:
+        control = asyncio.create_task(job.run())
+        try:
+            await job.command("start", StartRequest())
+            await asyncio.wait_for(job.finished.wait(), 20)
+        finally:
+            await job.shutdown()
+            control.cancel()
+
+    asyncio.run(go())
+    assert (job.chart.state, sorted(world.placed)) == ("done", ["true0", "true2", "true4"])
+    events = [p for t, p in published if t == "events"]
+    given_up = [e["mug_id"] for e in events if e["kind"] == "mug_given_up"]
+    assert len(given_up) == 2
+    assert [e["dest"] for e in events if e["kind"] == "transition"].count("detect") == 4
+    # Each big mug's slot was planned once, though more mugs were placed after: nothing that blocked them
+    # changed.
+    slots = Counter(c for c in backend.motion.calls if c.startswith("slot:"))
+    assert [slots[f"slot:{m}"] for m in given_up] == [1, 1]

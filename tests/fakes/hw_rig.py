@@ -30,7 +30,7 @@ from drivers.stack import ARM_JOINTS, gripper_spec
 from perception import associate
 from perception.interfaces import Detection, Observation
 from planning.arm import ArmModel
-from planning.interfaces import CyclePlan, MugPose, Step, StepKind, TraySlot
+from planning.interfaces import CyclePlan, MotionRefused, MugPose, Step, StepKind, TraySlot
 from statechart.chart import CARRYING, CYCLE_PHASES
 from tests.daemon.conftest import free_port
 
@@ -126,6 +126,19 @@ class ShortMoves:
                 steps.append(Step(phase, StepKind.MOVE, _line(q, goal, seconds, f"{phase}:{mug.mug_id}")))
                 q = goal
         return CyclePlan(mug.mug_id, tuple(steps), duration_s=1.0, energy_j=1.0)
+
+    def plan_for_slot(
+        self,
+        start_q: Sequence[float],
+        slot: TraySlot,
+        counter: Sequence[MugPose],
+        on_tray: Sequence[TraySlot],
+    ) -> tuple[MugPose, CyclePlan]:
+        """The mug the slot names: nothing blocks it on this counter."""
+        mug = next((m for m in counter if m.mug_id == slot.mug_id), None)
+        if mug is None:
+            raise MotionRefused(f"slot for {slot.mug_id}: the mug is not on the counter")
+        return mug, self.plan_cycle(start_q, mug, slot, on_tray, counter=counter)
 
     def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
         return _line(np.asarray(start_q), np.asarray(goal_q), self.move_s, label)

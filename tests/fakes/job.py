@@ -134,13 +134,21 @@ class FakeObserver:
     async def observe(self) -> Observation:
         await asyncio.sleep(0)
         seen = [d for k, d in self.w.counter.items() if k != self.w.held]
-        seen += [Detection("big", 0.3 + 0.1 * i, 0.0, True, 0.0, 0.9) for i, _ in enumerate(self.w.placed)]
+        # The placed mugs, in rows of three on the tray (the job leaves them out: they are its own work).
+        seen += [
+            Detection("big", 0.3 + 0.1 * (i % 3), -0.15 + 0.1 * (i // 3), True, 0.0, 0.9)
+            for i, _ in enumerate(self.w.placed)
+        ]
         return Observation(0.0, tuple(Detection(d.type, d.x_m, d.y_m, False, 0.0, 0.9) for d in seen))
 
 
 class FakeMotion:
-    """A motion planner test double: one short joint move per manipulation phase, a CLOSE at each close
-    phase, an OPEN at each release phase. ``refuse`` lists mug ids it cannot reach."""
+    """A motion planner test double (a whole ``planning.interfaces.MotionPlanner``): one short joint move per
+    manipulation phase, a CLOSE at each close phase, an OPEN at each release phase. ``refuse`` lists the
+    (true) mugs it cannot reach; ``blocked_by`` maps a mug to the counter mug that blocks it while that one
+    is still there. ``plan_for_slot`` fills a slot as ``CyclePlanner.plan_for_slot`` does: the mug it names,
+    else another of its type, nearest the arm first (a lone candidate's refusal is passed on as it is).
+    ``calls`` lists the planning requests."""
 
     def __init__(self, world: FakeWorld, refuse: Sequence[str] = ()) -> None:
         self.w = world
@@ -149,6 +157,33 @@ class FakeMotion:
         self.obstacles: list[tuple[str, ...]] = []
         self.on_tray_seen: list[tuple[TraySlot, ...]] = []
         self.blocked_by: dict[str, str] = {}  # mug -> the counter mug that blocks it while still there
+        self.calls: list[str] = []  # "cycle:<id>" or "slot:<id>" per request
+
+    def plan_for_slot(
+        self,
+        start_q: Sequence[float],
+        slot: TraySlot,
+        counter: Sequence[MugPose],
+        on_tray: Sequence[TraySlot],
+    ) -> tuple[MugPose, CyclePlan]:
+        self.calls.append(f"slot:{slot.mug_id}")
+        named = [m for m in counter if m.mug_id == slot.mug_id]
+        others = sorted(
+            (m for m in counter if m.type == slot.type and m.mug_id != slot.mug_id),
+            key=lambda m: (math.hypot(m.x_m, m.y_m), m.mug_id),
+        )
+        refusals = []
+        for mug in [*named, *others]:
+            try:
+                return mug, self._cycle(start_q, mug, on_tray, counter)
+            except MotionRefused as e:
+                refusals.append(e)
+        if len(refusals) == 1:
+            raise refusals[0]
+        why = "; ".join(map(str, refusals))
+        raise MotionRefused.combining(
+            f"slot for {slot.mug_id}: no {slot.type} mug can be moved there ({why})", refusals
+        )
 
     def plan_cycle(
         self,
@@ -159,16 +194,25 @@ class FakeMotion:
         *,
         counter: Sequence[MugPose] = (),
     ) -> CyclePlan:
-        self.obstacles.append(tuple(m.mug_id for m in counter))
+        self.calls.append(f"cycle:{mug.mug_id}")
+        return self._cycle(start_q, mug, on_tray, [*counter, mug])
+
+    def _cycle(
+        self, start_q: Sequence[float], mug: MugPose, on_tray: Sequence[TraySlot], counter: Sequence[MugPose]
+    ) -> CyclePlan:
+        """``mug``'s cycle; ``counter`` holds every mug on the counter (``mug`` too)."""
+        others = [m for m in counter if m.mug_id != mug.mug_id]
+        self.obstacles.append(tuple(m.mug_id for m in others))
         self.on_tray_seen.append(tuple(on_tray))
-        true_id = min(
-            self.w.counter,
-            key=lambda k: math.hypot(self.w.counter[k].x_m - mug.x_m, self.w.counter[k].y_m - mug.y_m),
-        )
+        true_id = self._true(mug)
         if true_id in self.refuse:
             raise MotionRefused(f"{mug.mug_id} at ({mug.x_m:.3f}, {mug.y_m:.3f}) is out of reach")
-        if self.blocked_by.get(true_id) in self.w.counter:
-            raise MotionRefused(f"{mug.mug_id}: the gripper would hit the mug in front of it")
+        blocker = self.blocked_by.get(true_id)
+        if blocker in self.w.counter:
+            in_front = [m.mug_id for m in others if self._true(m) == blocker]
+            raise MotionRefused(
+                f"{mug.mug_id}: the gripper would hit the mug in front of it", blockers=in_front
+            )
         self.w.target = true_id
         steps = []
         q = np.asarray(start_q, dtype=np.float64)
@@ -185,6 +229,11 @@ class FakeMotion:
         # A predicted handle yaw per plan (0.1 rad per mug already on the tray), to follow through the job.
         handle = 0.1 * len(on_tray)
         return CyclePlan(mug.mug_id, tuple(steps), duration_s=1.0, energy_j=1.0, handle_yaw_rad=handle)
+
+    def _true(self, mug: MugPose) -> str:
+        """The world's mug nearest where the job thinks ``mug`` is."""
+        c = self.w.counter
+        return min(c, key=lambda k: math.hypot(c[k].x_m - mug.x_m, c[k].y_m - mug.y_m))
 
     def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
         self.bridges.append(label)

@@ -1,0 +1,55 @@
+"""The counter as the job knows it: looking at it (observe, associate, name new mugs, publish the
+detections) and leaving a mug on it for good. Used by ``detect``, ``recover_lost_mug`` and ``cycles``."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from daemon.backend import depth_preview_payload, observation_payload
+from daemon.job.context import JobContext
+from daemon.job.services import Services
+from perception.interfaces import Detection
+from planning.interfaces import MugPose
+
+# The context keys these touch, for the declarations of the units that call them.
+LOOK_READS = frozenset({"counter"})
+LOOK_WRITES = frozenset({"next_id"})
+GIVE_UP_WRITES = frozenset({"given_up", "summary"})
+
+
+async def look(services: Services, ctx: JobContext, *, target_id: str = "") -> dict[str, MugPose]:
+    """Observe the counter and give each detection the id of the known mug it is, or a new id; publish the
+    detections. ``target_id`` names the mug the arm was handling. Returns the counter by id."""
+    obs = await services.backend.observer.observe()
+    tray = services.backend.tray
+    # Mugs standing on the tray are the job's own work (it knows them); only counter mugs are to load.
+    on_counter = tuple(d for d in obs.detections if not tray.contains(d.x_m, d.y_m))
+    known = [
+        Detection(m.type, m.x_m, m.y_m, m.upside_down, m.handle_yaw_rad, 1.0, m.mug_id, m.handle_seen)
+        for m in ctx.counter.values()
+    ]
+    associated = (
+        list(services.associate(known, on_counter, target_id=target_id)) if known else list(on_counter)
+    )
+    seen = []
+    for d in sorted(associated, key=lambda d: (d.mug_id == "", -d.x_m, d.y_m)):
+        if not d.mug_id:
+            d = replace(d, mug_id=f"m{ctx.next_id}")
+            ctx.next_id += 1
+        seen.append(d)
+    payload = observation_payload(replace(obs, detections=tuple(seen)))
+    if obs.depth_preview is not None:
+        payload["depth_preview"] = depth_preview_payload(obs.depth_preview)
+    services.publish("detections", payload)
+    return {d.mug_id: _pose(d) for d in seen}
+
+
+def give_up(services: Services, ctx: JobContext, mug_id: str, reason: str) -> None:
+    """Leave a mug on the counter for good (it stays known, so it is not mistaken for a new one)."""
+    ctx.given_up.add(mug_id)
+    ctx.summary.failed = len(ctx.given_up)
+    services.event("mug_given_up", mug_id=mug_id, reason=reason)
+
+
+def _pose(d: Detection) -> MugPose:
+    return MugPose(d.mug_id, d.type, d.x_m, d.y_m, d.handle_yaw_rad, d.upside_down, d.handle_seen)

@@ -1,0 +1,97 @@
+"""``plan``: placement planning of the counter's mugs around those already on the tray (a
+``planning.interfaces.PlacementPlanner``), published on ``plan``; then the first cycle is taken
+(``cycles.take_next_cycle``)."""
+
+from __future__ import annotations
+
+import functools
+
+from daemon.backend import CyclePlannerSpec, Tray, plan_placement
+from daemon.config import Config
+from daemon.job.context import JobContext, Outcome
+from daemon.job.cycles import NEXT_CYCLE_READS, NEXT_CYCLE_WRITES, take_next_cycle
+from daemon.job.services import Services
+from daemon.job.unit import Unit
+from planning.interfaces import PlacementPlanner, TraySlot
+from planning.placement import CounterMug, InvalidProblem, MugType, PlanResult, Problem, TrayMug, plan
+
+
+class Plan(Unit):
+    """Plan the tray slots and their order; ``planned`` with ``has_next_mug``."""
+
+    reads = NEXT_CYCLE_READS | {"planner", "tray_mugs", "given_up", "on_tray"}
+    writes = NEXT_CYCLE_WRITES | {"queue", "needs_plan", "summary"}
+
+    def __init__(self) -> None:
+        super().__init__("plan", ("planned",))
+
+    async def run(self, services: Services, ctx: JobContext) -> Outcome:
+        ctx.queue = []
+        ctx.needs_plan = False
+        try:
+            problem = problem_of(services, ctx)
+            planner = placement_planner(services.config, services.backend.tray)
+            result = await services.plan_placement(planner, problem, ctx.planner)
+        except InvalidProblem as e:
+            services.event("warning", message=f"placement planning refused the problem: {e}")
+            return Outcome("planned", {"has_next_mug": False})
+        ctx.queue = _slots(result, problem, ctx)
+        ctx.summary.planned = len(ctx.on_tray) + len(ctx.queue)
+        payload = result.to_json()
+        payload["slots"] = [
+            {
+                "id": s.mug_id,
+                "type": s.type,
+                "x_m": round(s.x_m, 5),
+                "y_m": round(s.y_m, 5),
+                "rotated": s.rotated,
+            }
+            for s, _ in ctx.queue
+        ]
+        payload["t"] = services.wall_time()
+        services.publish("plan", payload)
+        return Outcome("planned", {"has_next_mug": await take_next_cycle(services, ctx)})
+
+
+def placement_planner(config: Config, tray: Tray) -> PlacementPlanner:
+    """``planning.placement.plan``; with ``planner.energy_model = "dynamics"``, move costs from the arm's
+    dynamics in this cell (built once per planning process)."""
+    if config.planner.energy_model != "dynamics":
+        return plan
+    return functools.partial(plan_placement, dynamics=CyclePlannerSpec(config.cell, tray, config.mug_types))
+
+
+def problem_of(services: Services, ctx: JobContext) -> Problem:
+    """The placement problem of the counter's mugs (those given up left out) around the mugs on the tray."""
+    tray = services.backend.tray
+    config = services.config
+    types = {
+        m.name: MugType(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in config.mug_types
+    }
+    mugs = tuple(
+        CounterMug(m.mug_id, m.type, m.x_m * 1000.0, m.y_m * 1000.0)
+        for m in ctx.counter.values()
+        if m.mug_id not in ctx.given_up
+    )
+    return Problem(
+        tray_size_mm=tray.size_mm,
+        tray_origin_mm=(tray.origin_m[0] * 1000.0, tray.origin_m[1] * 1000.0),
+        mugs=mugs,
+        mug_types=types,
+        placed=tuple(ctx.tray_mugs),
+        tolerance_mm=config.planner.tolerance_mm,
+        allow_rotation=config.planner.allow_rotation,
+    )
+
+
+def _slots(result: PlanResult, problem: Problem, ctx: JobContext) -> list[tuple[TraySlot, TrayMug]]:
+    """The planned slots in placing order (world frame for the arm, tray frame for the next placement)."""
+    queue = []
+    for placed in sorted(result.placed, key=lambda p: p.order):
+        if placed.id not in ctx.counter or placed.id in ctx.given_up:
+            continue
+        bx, by = problem.brim_centre_on_tray(placed.type, placed.x_mm, placed.y_mm)
+        wx, wy = problem.to_world_mm(bx, by)
+        slot = TraySlot(placed.id, placed.type, wx / 1000.0, wy / 1000.0, placed.rotated)
+        queue.append((slot, TrayMug(placed.id, placed.type, placed.x_mm, placed.y_mm, placed.rotated)))
+    return queue

@@ -1,0 +1,295 @@
+"""The job runner: owns the chart, answers commands, and dispatches each leaf state to its unit of work.
+
+One control task owns the chart. The unit of the current leaf (``registry.UNITS``) runs as a separate asyncio
+task; when it ends it posts its outcome (an event with guard values) to the control task's inbox, and
+commands arrive through the same inbox, so every transition is fired from one task, one at a time. That
+matters because transitions' AsyncMachine cancels whatever a model's callbacks are still awaiting when
+another transition starts: here the callbacks never await anything and the long work is never inside one.
+
+Leaving a state whose work still runs (pause, stop, fault, estop) cancels that work and waits for it; units
+leave the arm holding still when cancelled (``manipulation``). Work is resumable: the cycle's next step index
+is kept in the context, and ``resume`` asks the next move to join the interrupted trajectory.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import contextlib
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import structlog
+
+from daemon.backend import Backend
+from daemon.config import Config
+from daemon.job.context import JobContext, JobSummary, Outcome
+from daemon.job.errors import CommandRefused
+from daemon.job.registry import UNITS
+from daemon.job.requests import PlannerRequest, StartRequest
+from daemon.job.services import Publish, Services
+from daemon.job.unit import Unit
+from drivers.errors import BusLost, DriverError, LimitViolation
+from perception.interfaces import Associate
+from planning.interfaces import MotionRefused
+from statechart.chart import JOB_STATES, top_level
+from statechart.errors import EventRefused
+from statechart.machine import StateChart, Transition
+
+log = structlog.get_logger("daemon.job")
+
+# How long the force sensor may be lost or silent while the job works before it faults (see device_event).
+_FORCE_GRACE_S = 0.3
+
+
+@dataclass(slots=True)
+class _Command:
+    verb: str
+    request: StartRequest | None
+    reason: str
+    reply: asyncio.Future[dict[str, object]]
+
+
+class Job:
+    """Runs loading jobs on a backend: owns the chart, dispatches each state's work, answers commands."""
+
+    def __init__(
+        self,
+        backend: Backend,
+        config: Config,
+        publish: Publish,
+        associate: Associate,
+        *,
+        chart: StateChart | None = None,
+        executor: concurrent.futures.Executor | None = None,
+    ) -> None:
+        """``executor`` (a process pool) runs placement planning off this process, so its CPU time does not
+        hold the GIL against the event loop; without it, planning runs in a thread."""
+        self.backend = backend
+        self.config = config
+        self.chart = chart or StateChart()
+        self._services = Services(
+            backend, config, publish, associate, state=lambda: self.chart.state, executor=executor
+        )
+        self._inbox: asyncio.Queue[_Command | tuple[int, Outcome]] = asyncio.Queue()
+        self._work: asyncio.Task[None] | None = None
+        self._generation = 0
+        self._ctx = JobContext(planner=PlannerRequest().options(config.planner))
+        self._transitions = 0
+        self._force_down = 0  # FSR lost/stale reports since it was last restored
+        self.finished = asyncio.Event()
+        self.chart.subscribe(self._on_transition)
+
+    # --- public surface ------------------------------------------------------------------------------------
+
+    @property
+    def summary(self) -> JobSummary:
+        return self._ctx.summary
+
+    def status(self) -> dict[str, object]:
+        """The ``state`` payload: where the chart is and how far the job got."""
+        ctx = self._ctx
+        return {
+            "state": self.chart.state,
+            "mugs_total": len(ctx.counter) + len(ctx.on_tray),
+            "mugs_planned": ctx.summary.planned,
+            "mugs_placed": len(ctx.on_tray),
+            "mugs_failed": ctx.summary.failed,
+            "current_mug": ctx.current.mug_id if ctx.current else None,
+            "transitions": self._transitions,
+            "t": self._services.wall_time(),
+        }
+
+    async def command(self, verb: str, request: StartRequest | None = None) -> dict[str, object]:
+        """Queue a command for the control task and wait for its reply; ``CommandRefused`` when refused."""
+        return await self._submit(_Command(verb, request, "", asyncio.get_running_loop().create_future()))
+
+    async def fault(self, reason: str) -> None:
+        """A device failed outside a state's work (e.g. while reading telemetry): enter fault."""
+        with contextlib.suppress(CommandRefused):
+            await self._submit(_Command("fault", None, reason, asyncio.get_running_loop().create_future()))
+
+    def device_event(self, event: Mapping[str, object]) -> None:
+        """A driver's fault or recovery (``backend.device_event_payload``), on the event loop: published on
+        ``events``; a lost bus, and a silent or unplugged force sensor while a job works (a drop could no
+        longer be seen), fault the job. Servo faults are only reported here: the gripper recovers overloads
+        itself, and a fault that stands reaches the job as the driver's exception."""
+        kind = str(event.get("kind", ""))
+        self._services.publish("events", {**event, "state": self.chart.state})
+        reason = f"{kind} on {event.get('port', event.get('device', '?'))}"
+        if "error" in event:
+            reason += f": {event['error']}"
+        if kind == "bus_lost":
+            asyncio.get_running_loop().create_task(self.fault(reason))
+        elif kind in ("fsr_lost", "fsr_stale"):
+            self._force_down += 1
+            if self._working():
+                asyncio.get_running_loop().create_task(self._fault_unless_force_back(reason))
+        elif kind == "fsr_restored":
+            self._force_down = 0
+
+    async def run(self) -> None:
+        """The control task: fire each outcome or command in turn. Cancel it to stop (after ``shutdown``)."""
+        while True:
+            item = await self._inbox.get()
+            if isinstance(item, _Command):
+                await self._handle(item)
+                continue
+            generation, outcome = item
+            if generation != self._generation:
+                continue  # the state this work belonged to was left already
+            await self._advance(outcome)
+
+    async def shutdown(self) -> None:
+        """Stop any motion safely (the process is exiting)."""
+        await self._cancel_work()
+        with contextlib.suppress(DriverError, BusLost):
+            await self.backend.arm.stop()
+
+    # --- commands ------------------------------------------------------------------------------------------
+
+    async def _submit(self, cmd: _Command) -> dict[str, object]:
+        await self._inbox.put(cmd)
+        return await cmd.reply
+
+    async def _handle(self, cmd: _Command) -> None:
+        try:
+            result = await self._execute(cmd)
+        except CommandRefused as e:
+            if not cmd.reply.done():
+                cmd.reply.set_exception(e)
+            return
+        if not cmd.reply.done():
+            cmd.reply.set_result(result)
+
+    async def _execute(self, cmd: _Command) -> dict[str, object]:
+        verb = cmd.verb
+        if not self.chart.can(verb):
+            raise CommandRefused(f"cannot {verb} in state {self.chart.state}")
+        if verb == "start":
+            if self._force_down:
+                raise CommandRefused(
+                    "the gripper's force sensor is not reporting (lost or silent); check the FSR Arduino"
+                )
+            self._begin(cmd.request or StartRequest())
+            await self._fire(Outcome("start"))
+        elif verb in ("pause", "stop"):
+            await self._cancel_work()
+            await self._safe_stop()
+            await self._fire(Outcome(verb))
+        elif verb == "fault":
+            await self._cancel_work()
+            await self._advance(Outcome("fault", {"reason": cmd.reason}))
+        elif verb == "estop":
+            await self._cancel_work()
+            await self._safe_stop()
+            with contextlib.suppress(DriverError, BusLost):
+                await self.backend.arm.relax()
+            await self._fire(Outcome("estop"))
+        elif verb in ("resume", "reset"):
+            self._ctx.rejoin = verb == "resume"
+            await self._fire(Outcome(verb))
+        else:
+            raise CommandRefused(f"unknown command {verb!r}")
+        return {"state": self.chart.state}
+
+    def _begin(self, request: StartRequest) -> None:
+        """A new job's context: a new scene (a dataset or mugs to set the simulated counter up with) starts
+        with an empty tray; on the same scene, what earlier jobs put on the tray is still there."""
+        options = request.planner.options(self.config.planner)
+        if request.dataset is not None or request.mugs is not None:
+            self._set_counter(request)
+            self._ctx = JobContext(planner=options)
+        else:
+            self._ctx = self._ctx.next_job(options)
+        self._ctx.summary.started_at = self._services.monotonic()
+        self.finished.clear()
+
+    def _set_counter(self, request: StartRequest) -> None:
+        backend = self.backend
+        if backend.counter is None:
+            raise CommandRefused("dataset and mugs set up a simulated counter; this backend is real hardware")
+        try:
+            tray = backend.counter.set_counter(dataset=request.dataset, mugs=request.mugs)
+        except ValueError as e:
+            raise CommandRefused(str(e)) from e
+        if tray != backend.tray and backend.motion_for is not None:
+            backend.motion = backend.motion_for(tray)
+        backend.tray = tray
+        self._services.event("scene_set", scene=backend.scene())  # the recording's header has the first
+
+    # --- driving the chart ---------------------------------------------------------------------------------
+
+    async def _advance(self, outcome: Outcome) -> None:
+        if outcome.trigger == "fault":
+            await self._safe_stop()
+            log.error("fault", reason=outcome.values.get("reason", ""))
+            self._services.event("fault", **dict(outcome.values))
+        await self._fire(outcome)
+
+    async def _fire(self, outcome: Outcome) -> None:
+        try:
+            await self.chart.fire(outcome.trigger, **dict(outcome.values))
+        except EventRefused as e:
+            raise CommandRefused(str(e)) from e
+        self._start_work()
+
+    def _on_transition(self, change: Transition) -> None:
+        self._transitions += 1
+        detail = {k: v for k, v in change.detail.items() if isinstance(v, str | int | float | bool)}
+        self._services.event(
+            "transition", trigger=change.trigger, source=change.source, dest=change.dest, **detail
+        )
+        self._services.publish("state", self.status())
+        if change.dest in ("done", "fault", "estop") or (change.dest == "idle" and change.trigger == "stop"):
+            self._ctx.summary.ended_at = self._services.monotonic()
+            self._ctx.summary.end_state = change.dest
+            self.finished.set()
+
+    def _working(self) -> bool:
+        return top_level(self.chart.state) in JOB_STATES
+
+    def _start_work(self) -> None:
+        """Start the unit of the leaf the chart is in now (if it is one of the job's)."""
+        self._generation += 1
+        unit = UNITS.get(self.chart.state)
+        if unit is None:
+            return
+        self._work = asyncio.create_task(self._run_work(unit, self._generation), name=f"work:{unit.leaf}")
+
+    async def _run_work(self, unit: Unit, generation: int) -> None:
+        bound = log.bind(state=unit.leaf, mug_id=self._ctx.current.mug_id if self._ctx.current else None)
+        try:
+            outcome = await unit.work(self._services, self._ctx)
+        except asyncio.CancelledError:
+            raise
+        except (DriverError, BusLost, LimitViolation) as e:
+            bound.error("device_failed", error=str(e))
+            outcome = Outcome("fault", {"reason": f"{type(e).__name__}: {e}"})
+        except MotionRefused as e:
+            outcome = Outcome("fault", {"reason": f"motion refused: {e}"})
+        except Exception as e:  # a bug must not leave the job hanging in a state with no work
+            bound.exception("work_crashed")
+            outcome = Outcome("fault", {"reason": f"internal error in {unit.leaf}: {e!r}"})
+        await self._inbox.put((generation, outcome))
+
+    async def _cancel_work(self) -> None:
+        self._generation += 1
+        work, self._work = self._work, None
+        if work is not None and not work.done():
+            work.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await work
+
+    async def _fault_unless_force_back(self, reason: str, *, grace_s: float = _FORCE_GRACE_S) -> None:
+        """Fault the job when the force sensor is still lost or silent after ``grace_s``: a short stall of
+        the event loop must not end a job, a sensor that stays away must (no drop could be seen)."""
+        await self._services.sleep(grace_s)
+        if self._force_down and self._working():
+            await self.fault(reason)
+
+    async def _safe_stop(self) -> None:
+        with contextlib.suppress(DriverError, BusLost):
+            await self.backend.arm.stop()
+        with contextlib.suppress(DriverError, BusLost):
+            await self.backend.gripper.stop()

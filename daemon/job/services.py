@@ -1,0 +1,71 @@
+"""What the job's units work with: the backend's devices and planners, the configuration, the publisher, the
+association and the planning process, plus the job's only reads of time.
+
+The runner builds one ``Services`` and hands it to every unit of work; units never reach the runner itself.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from daemon.backend import Backend
+from daemon.config import Config
+from perception.interfaces import Associate
+from planning.interfaces import PlacementPlanner
+from planning.placement import PlanOptions, PlanResult, Problem
+
+Publish = Callable[[str, Mapping[str, object]], None]
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True, slots=True)
+class Services:
+    """The job's means, shared by its units. ``backend`` is mutable: a new simulated counter may bring a
+    new tray and the motion planner for it."""
+
+    backend: Backend
+    config: Config
+    publish: Publish
+    associate: Associate
+    state: Callable[[], str]  # the chart's current leaf, for event payloads
+    # A process pool for placement planning (its CPU time must not hold the GIL against the event loop);
+    # None: a thread.
+    executor: concurrent.futures.Executor | None = None
+
+    def event(self, kind: str, **detail: Any) -> None:
+        """Publish one job event on ``events``: its kind, the chart's state, the wall clock and the detail."""
+        self.publish("events", {"kind": kind, "state": self.state(), "t": self.wall_time(), **detail})
+
+    async def plan_placement(
+        self, planner: PlacementPlanner, problem: Problem, options: PlanOptions
+    ) -> PlanResult:
+        """Run placement planning off the event loop: in the planning process when there is one."""
+        if self.executor is None:
+            return await asyncio.to_thread(planner, problem, options)
+        return await asyncio.get_running_loop().run_in_executor(self.executor, planner, problem, options)
+
+    # The job's reads of time, all of them: the wall clock for payloads, the monotonic clock for durations
+    # and deadlines, and the waits.
+
+    @staticmethod
+    def wall_time() -> float:
+        return time.time()
+
+    @staticmethod
+    def monotonic() -> float:
+        return time.monotonic()
+
+    @staticmethod
+    async def sleep(seconds: float) -> None:
+        await asyncio.sleep(seconds)
+
+    @staticmethod
+    async def wait_done(task: asyncio.Task[T], timeout_s: float | None) -> None:
+        """Wait until ``task`` is done or ``timeout_s`` has passed (None: no limit)."""
+        await asyncio.wait({task}, timeout=timeout_s)
