@@ -1,4 +1,9 @@
-"""The ``dishbot`` command line. Each verb lives in its own module under ``daemon.commands``."""
+"""The ``dishbot`` command line. Each verb lives in its own module under ``daemon.commands``.
+
+Building the parser imports every verb module, so each keeps its heavy imports (MuJoCo, scipy, Pinocchio,
+OpenCV, OR-Tools, numpy) inside the functions that run the verb: ``--help`` and the client verbs start fast
+and a plain install can run them (tests/daemon/test_cli_imports.py checks).
+"""
 
 from __future__ import annotations
 

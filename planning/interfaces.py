@@ -9,9 +9,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
-from drivers.interfaces import JointTrajectory
+if TYPE_CHECKING:  # only annotations here: the placement planner's users need not load numpy
+    from drivers.interfaces import JointTrajectory
 
 
 @dataclass(frozen=True, slots=True)
