@@ -20,13 +20,9 @@ import sys
 import time
 from collections.abc import Iterator, Sequence
 
-import numpy as np
-
 from daemon.commands.output import add_json_flag, emit
-from drivers.dynamixel import BusConfig, DynamixelArm, DynamixelBus, ServoChain, thesis_joints
+from drivers.dynamixel import BusConfig, thesis_joints
 from drivers.dynamixel import protocol as p
-from drivers.interfaces import JointTrajectory
-from drivers.sim import ServoChainSimulator, default_chain
 
 X_CHAIN = (
     (1, "XM430-W350"),
@@ -87,6 +83,8 @@ def _cycle(
     path: str, protocol: int, servos: Sequence[tuple[int, str]], seconds: float
 ) -> tuple[list[float], int]:
     """Durations of back-to-back bus cycles, and how many answers had to be asked for again."""
+    from drivers.dynamixel import DynamixelBus
+
     ids = [i for i, _ in servos]
     with DynamixelBus(BusConfig(path, protocol=protocol)) as bus:  # type: ignore[arg-type]
         bus.verify(servos)
@@ -104,6 +102,12 @@ def _cycle(
 
 async def _jitter(path: str, seconds: float, *, with_bus: bool) -> tuple[list[float], float]:
     """Wake-up lateness of a 1 ms sleeper, while (or without) the arm following a trajectory at 50 Hz."""
+    import numpy as np
+
+    from drivers.dynamixel import DynamixelArm, ServoChain
+    from drivers.interfaces import JointTrajectory
+    from drivers.sim import default_chain
+
     lateness: list[float] = []
     loop = asyncio.get_running_loop()
 
@@ -137,10 +141,14 @@ async def _jitter(path: str, seconds: float, *, with_bus: bool) -> tuple[list[fl
 
 
 def _pct(values: Sequence[float], q: float) -> float:
+    import numpy as np
+
     return float(np.percentile(np.asarray(values), q))
 
 
 def _run(args: argparse.Namespace) -> int:
+    from drivers.sim import ServoChainSimulator, default_chain
+
     encode_us, decode_us = _codec_us()
     rows: list[list[object]] = [
         ["sync write encode (6 servos)", round(encode_us, 1), "us", ""],

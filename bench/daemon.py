@@ -23,19 +23,17 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import zenoh
-
-from daemon.app import RunOptions, serve
-from daemon.backend import ProcessMotionPlanner, open_sim_backend
 from daemon.commands.output import add_json_flag, emit
 from daemon.commands.run import association, planning_pool
 from daemon.config import load_config
 from daemon.errors import UsageError
-from daemon.job import StartRequest
-from daemon.recording import Recorder
-from daemon.sdnotify import SdNotifier
-from daemon.zenoh_session import encode, key, session_config
+
+if TYPE_CHECKING:
+    import zenoh
+
+    from daemon.job import StartRequest
 
 ROBOT = "bench"
 PROBE_HZ = 50.0
@@ -136,6 +134,10 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 async def _live(tmp: Path, commands: int, seconds: float, log_level: str) -> _Live:
+    from daemon.app import RunOptions, serve
+    from daemon.backend import ProcessMotionPlanner, open_sim_backend
+    from daemon.sdnotify import SdNotifier
+
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     config = load_config(
         overrides={"robot_id": ROBOT, "planner": {"method": "bh"}, "sim": {"speed": 5.0}},
@@ -242,6 +244,11 @@ def _client(
     endpoint: str, commands: int, seconds: float, results: multiprocessing.queues.Queue[_ClientResult]
 ) -> None:
     """Query ``status`` ``commands`` times and follow state and joints for ``seconds``; put the numbers."""
+    import zenoh
+
+    from daemon.job import StartRequest
+    from daemon.zenoh_session import key, session_config
+
     state_ms: list[float] = []
     joints_ms: list[float] = []
     states: set[str] = set()
@@ -278,6 +285,8 @@ def _client(
 
 
 def _query(session: zenoh.Session, verb: str, request: StartRequest | None) -> None:
+    from daemon.zenoh_session import encode, key
+
     payload = encode({"dataset": 1}) if request is not None else b""
     replies = list(session.get(key(ROBOT, f"cmd/{verb}"), payload=payload, timeout=5.0))
     if not replies or replies[0].ok is None:
@@ -286,6 +295,9 @@ def _query(session: zenoh.Session, verb: str, request: StartRequest | None) -> N
 
 def _recording_throughput(path: Path, messages: int) -> tuple[float, float, int]:
     """Messages per second and MB/s the recorder takes, from the first write until the file is finished."""
+    from daemon.recording import Recorder
+    from daemon.zenoh_session import key
+
     payload = {
         "t": 0.0,
         "names": ["shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn"],

@@ -17,17 +17,18 @@ import statistics
 import time
 import tomllib
 from collections.abc import Sequence
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from daemon.commands.output import add_json_flag, emit
 from daemon.config import default_text
 from daemon.errors import UsageError
 from description import thesis
-from planning.arm import ArmModel, GraspKind, GraspTarget
-from planning.arm.grasp import handle_facing_away_rad
 from planning.interfaces import MotionRefused, MugPose, StepKind, TraySlot
-from planning.motion import CellLayout, CyclePlanner, plan_path, thesis_energy_j
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from planning.arm import ArmModel, GraspTarget
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -55,6 +56,10 @@ def run(args: argparse.Namespace) -> int:
     seed = _whole("--seed", args.seed, minimum=0)
     if args.dataset not in ("1", "2", "3"):
         raise UsageError(f"--dataset: expected 1, 2 or 3 (the robot-tray datasets), got {args.dataset!r}")
+    import numpy as np
+
+    from planning.arm import ArmModel
+
     arm = ArmModel.load()
     rows: list[list[object]] = []
     extra: dict[str, object] = {}
@@ -89,10 +94,14 @@ def _whole(flag: str, text: str, *, minimum: int) -> int:
 
 
 def _pct(values: Sequence[float], q: float) -> float:
+    import numpy as np
+
     return float(np.percentile(values, q)) if len(values) else math.nan
 
 
 def _position_targets(arm: ArmModel, rng: np.random.Generator, n: int) -> list[GraspTarget]:
+    from planning.arm import GraspTarget
+
     out: list[GraspTarget] = []
     while len(out) < n:
         q = rng.uniform(arm.lower, arm.upper)
@@ -104,6 +113,8 @@ def _position_targets(arm: ArmModel, rng: np.random.Generator, n: int) -> list[G
 
 def _side_targets(arm: ArmModel, rng: np.random.Generator, n: int) -> list[GraspTarget]:
     """FK of horizontal-approach poses: the lifts sum to -pi/2, the wrist turned to +-pi/2."""
+    from planning.arm import GraspKind, GraspTarget
+
     out: list[GraspTarget] = []
     while len(out) < n:
         q = rng.uniform(arm.lower, arm.upper)
@@ -144,6 +155,10 @@ def _ik_run(
 
 
 def _trajectory_times(arm: ArmModel, rng: np.random.Generator, n: int) -> list[float]:
+    import numpy as np
+
+    from planning.motion import plan_path
+
     times = []
     for _ in range(n):
         a, b = rng.uniform(arm.lower, arm.upper), rng.uniform(arm.lower, arm.upper)
@@ -161,6 +176,8 @@ def _trajectory_times(arm: ArmModel, rng: np.random.Generator, n: int) -> list[f
 
 
 def _dataset_cycles(arm: ArmModel, dataset: int) -> dict[str, object]:
+    from planning.arm.grasp import handle_facing_away_rad
+    from planning.motion import CellLayout, CyclePlanner, thesis_energy_j
     from planning.placement import PlanOptions, dataset_problem, plan
 
     cell = CellLayout.from_mapping(tomllib.loads(default_text())["cell"])

@@ -13,19 +13,19 @@ import math
 import statistics
 import time
 from pathlib import Path
-
-import numpy as np
-import numpy.typing as npt
+from typing import TYPE_CHECKING
 
 from daemon.commands.output import add_json_flag, emit
 from daemon.config import load_config
 from daemon.errors import UsageError
-from description.cell import SceneLayout
 from description.thesis import MugSpec
-from perception.detector import DepthMugDetector
-from perception.interfaces import Detection
-from sim.mujoco.scene import build_mjcf
-from sim.scoring import FrameScore, clutter_xml, dataset_mugs, score_frame
+
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
+
+    from perception.interfaces import Detection
+    from sim.scoring import FrameScore
 
 DATASETS = (1, 2, 3)
 # The issue's targets for this benchmark.
@@ -70,10 +70,15 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--frames {args.frames}: use 1 to 1000")
     if not 1 <= args.repeat <= 100:
         raise UsageError(f"--repeat {args.repeat}: use 1 to 100")
-    # Imported here so that every other `dishbot` command starts without loading MuJoCo.
+    # Imported here so that every other `dishbot` command starts without loading MuJoCo or OpenCV.
     import mujoco
+    import numpy as np
 
+    from description.cell import SceneLayout
+    from perception.detector import DepthMugDetector
     from sim.mujoco.camera import DepthCamera, DepthNoise
+    from sim.mujoco.scene import build_mjcf
+    from sim.scoring import clutter_xml, dataset_mugs, score_frame
 
     config = load_config(args.config)
     plain = config.to_dict()
@@ -177,6 +182,8 @@ def _row(
     number: int, frames: int, s: list[FrameScore], wall: list[float], cpu: list[float]
 ) -> tuple[list[object], npt.NDArray[np.int64]]:
     """One dataset's table row and its counts (true/false positives, misses, right types, right flips)."""
+    import numpy as np
+
     tp = sum(x.true_positives for x in s)
     fp = sum(x.false_positives for x in s)
     fn = sum(x.false_negatives for x in s)

@@ -20,7 +20,6 @@ from description import thesis
 from planning.placement import METHODS, PlanOptions, PlanResult, plan
 from planning.placement.cost import CostFunction, Fitness, FitnessMethod, Metrics
 from planning.placement.heuristics import Heuristic
-from planning.placement.oracle import GridPacker
 from planning.placement.packing import Packer
 from planning.placement.sorts import Sort, sorted_order
 
@@ -166,6 +165,8 @@ def run(args: argparse.Namespace) -> int:
 
 def packer_speed(datasets: list[int], *, repeats: int = 5) -> tuple[list[str], list[list[object]]]:
     """Median time to pack each deterministic sort order with LTF, fresh packers so no cache helps."""
+    from planning.placement.oracle import GridPacker  # the literal occupancy matrix, on numpy
+
     columns = ["ds", "tray_mm", "orders", "grid_ms", "fast_ms", "speedup", "identical"]
     rows: list[list[object]] = []
     for n in datasets:

@@ -19,28 +19,25 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import structlog
-
-from daemon.backend import Backend, CounterMug, CyclePlannerSpec, ProcessMotionPlanner, Tray
 from daemon.commands.output import add_json_flag, emit
 from daemon.commands.run import planning_pool
 from daemon.config import Config, load_config
 from daemon.errors import UsageError
-from daemon.job import Job, StartRequest
 from description import thesis
-from description.cell import SceneLayout
 from description.thesis import MugSpec
-from drivers.interfaces import Camera
-from perception import CameraObserver, DepthMugDetector, associate
-from perception.interfaces import Associate, MugObserver
 from planning.placement import dataset_problem
-from sim.mujoco.cell import ObserverFactory, SimCell, scene_mugs, start_sim_cell
-from sim.mujoco.collisions import TrayCollision
+
+if TYPE_CHECKING:
+    from daemon.backend import Backend, CounterMug, Tray
+    from description.cell import SceneLayout
+    from drivers.interfaces import Camera
+    from perception.interfaces import Associate, MugObserver
+    from sim.mujoco.cell import ObserverFactory, SimCell
+    from sim.mujoco.collisions import TrayCollision
 
 DATASETS = (1, 2, 3)
-
-log = structlog.get_logger("daemon.bench_sim")
 
 
 @dataclass(frozen=True, slots=True)
@@ -96,8 +93,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def _log_job_event(key: str, payload: Mapping[str, object]) -> None:
     """The job's events (grasp failures, drops, refusals, faults; not its state transitions) on stderr, so a
     run shows why mugs were not placed."""
+    import structlog
+
     if key == "events" and payload.get("kind") != "transition":
-        log.info("job_event", **{str(k): v for k, v in payload.items()})
+        structlog.get_logger("daemon.bench_sim").info("job_event", **{str(k): v for k, v in payload.items()})
 
 
 def _datasets(text: str) -> list[int]:
@@ -117,6 +116,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--timeout: {args.timeout} must be > 0 seconds")
     if not 0.0 <= args.fsr_debounce <= 1.0:
         raise UsageError(f"--fsr-debounce: {args.fsr_debounce} must be in [0, 1] seconds")
+    from perception import CameraObserver, DepthMugDetector, associate
+
     config = load_config(args.config)
     detector = DepthMugDetector(catalogue_of(config))
 
@@ -190,6 +191,7 @@ def catalogue_of(config: Config) -> dict[str, MugSpec]:
 def layout_of(config: Config) -> SceneLayout:
     """The simulated cell's layout from the config's ``[cell]`` and ``[camera]`` sections."""
     from description.camera import CameraSpec
+    from description.cell import SceneLayout
 
     c, cam = config.cell, config.camera
     return SceneLayout(
@@ -208,12 +210,16 @@ class MujocoCounter:
     mugs where ``planning.placement.dataset_problem`` puts them, or an explicit list."""
 
     def __init__(self, cell: SimCell, config: Config) -> None:
+        from daemon.backend import Tray
+
         self._cell = cell
         self._config = config
         self._catalogue = catalogue_of(config)
         self.tray = Tray(config.cell.tray_origin_m, config.cell.tray_size_mm)
 
     def set_counter(self, *, dataset: int | None, mugs: Sequence[CounterMug] | None) -> Tray:
+        from sim.mujoco.cell import scene_mugs
+
         if mugs is None:
             n = dataset or 1
             if thesis.DATASETS[n].tray_mm != thesis.ROBOT_TRAY_MM:
@@ -247,6 +253,9 @@ async def open_mujoco_backend(
 
     With ``executor`` (a process pool) motion planning runs there, as in ``dishbot run``: in this process it
     would hold the GIL against the physics thread and the device simulators."""
+    from daemon.backend import Backend, CyclePlannerSpec, ProcessMotionPlanner
+    from sim.mujoco.cell import start_sim_cell
+
     layout = layout_of(config)
     cell, close = await start_sim_cell(
         layout,
@@ -288,6 +297,8 @@ async def run_dataset(
     on_event: Callable[[str, Mapping[str, object]], None] | None = None,
 ) -> SimRun:
     """One loading job of ``dataset`` in a fresh MuJoCo cell, measured."""
+    from daemon.job import Job, StartRequest
+
     backend, cell = await open_mujoco_backend(
         config, observer_factory=observer_factory, seed=seed, fsr_debounce_s=fsr_debounce_s, executor=executor
     )

@@ -1,4 +1,9 @@
-"""The ``dishbot`` command line. Each verb lives in its own module under ``daemon.commands``."""
+"""The ``dishbot`` command line. Each verb lives in its own module under ``daemon.commands``.
+
+Building the parser imports every verb module, so each keeps its heavy imports (MuJoCo, scipy, Pinocchio,
+OpenCV, OR-Tools, numpy) inside the functions that run the verb: ``--help`` and the client verbs start fast
+and a plain install (no ``sim`` extra) can run them (tests/daemon/test_cli_imports.py checks).
+"""
 
 from __future__ import annotations
 
@@ -9,10 +14,12 @@ import sys
 from collections.abc import Callable, Sequence
 
 from daemon.errors import ConfigError, UsageError
+from daemon.extras import missing_extra
 from daemon.logs import LEVELS, configure_cli_logging
 
 # Each module defines ``register(subparsers)``, which adds its verbs and sets ``handler`` on the parser:
-# a callable taking the parsed namespace and returning the exit code.
+# a callable taking the parsed namespace and returning the exit code. Named, not imported: the benchmarks
+# are the top layer, which nothing imports statically.
 COMMAND_MODULES: tuple[str, ...] = (
     "bench.cli",
     "daemon.commands.config_cmd",
@@ -59,6 +66,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return handler(args)
     except (UsageError, ConfigError) as e:
         print(f"dishbot {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except ModuleNotFoundError as e:
+        message = missing_extra(e)
+        if message is None:
+            raise
+        print(f"dishbot {args.command}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

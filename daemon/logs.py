@@ -5,8 +5,6 @@ from __future__ import annotations
 import logging
 import sys
 
-import structlog
-
 LEVELS: dict[str, int] = {
     "debug": logging.DEBUG,
     "info": logging.INFO,
@@ -17,6 +15,8 @@ LEVELS: dict[str, int] = {
 
 def configure_cli_logging(level: str = "info") -> None:
     """Send structlog events at ``level`` or above to stderr (tables, JSON and summaries own stdout)."""
+    import structlog  # here, not above: `dishbot --help` builds the parser without it
+
     structlog.configure(
         logger_factory=structlog.PrintLoggerFactory(sys.stderr),
         wrapper_class=structlog.make_filtering_bound_logger(LEVELS[level]),

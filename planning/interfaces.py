@@ -12,7 +12,8 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
-from drivers.interfaces import JointTrajectory
+if TYPE_CHECKING:  # only annotations here: the placement planner's users need not load numpy
+    from drivers.interfaces import JointTrajectory
 
 if TYPE_CHECKING:  # planning.placement imports this module
     from planning.placement import PlanOptions, PlanResult, Problem

@@ -7,16 +7,19 @@ import json
 import math
 import sys
 from pathlib import Path
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from daemon.commands.output import format_table
 from daemon.config import load_config
 from daemon.errors import ConfigError, UsageError
 from description.thesis import MugSpec
-from planning.arm import ArmModel, ArmModelError, CalibrationError, GraspKind, GraspTarget
-from planning.arm.calibration import fit_correction, load_pairs
-from planning.motion import CellLayout
+
+if TYPE_CHECKING:
+    from planning.arm import ArmModel
+
+# planning.arm.GraspKind's side grasps, spelled out so that building the parser loads no numpy
+# (tests/daemon/test_cli_imports.py holds the two lists equal).
+SIDE_GRASPS = ("side", "side-upside-down")
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -53,7 +56,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         ik.add_argument(name, metavar=name.upper(), help=f"target {name} in metres")
     ik.add_argument(
         "--grasp",
-        choices=[GraspKind.SIDE.value, GraspKind.SIDE_UPSIDE_DOWN.value],
+        choices=SIDE_GRASPS,
         help="side grasp orientation (default: position only)",
     )
     _common(ik)
@@ -90,6 +93,8 @@ def _common(parser: argparse.ArgumentParser) -> None:
 
 
 def _arm(args: argparse.Namespace) -> ArmModel:
+    from planning.arm import ArmModel, ArmModelError
+
     try:
         return ArmModel.load(args.urdf)
     except ArmModelError as e:
@@ -129,6 +134,8 @@ def run_fk(args: argparse.Namespace) -> int:
 
 
 def run_ik(args: argparse.Namespace) -> int:
+    from planning.arm import GraspKind, GraspTarget
+
     arm = _arm(args)
     target = GraspTarget(
         (_finite("X", args.x), _finite("Y", args.y), _finite("Z", args.z)),
@@ -156,6 +163,7 @@ def run_ik(args: argparse.Namespace) -> int:
 
 
 def run_workspace(args: argparse.Namespace) -> int:
+    from planning.motion import CellLayout
     from planning.motion.workspace import describe, draw_workspace, served_tray, workspace
 
     if args.png is not None and not args.png.parent.resolve().is_dir():
@@ -202,6 +210,11 @@ def run_workspace(args: argparse.Namespace) -> int:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from planning.arm import CalibrationError
+    from planning.arm.calibration import fit_correction, load_pairs
+
     if args.out is not None and not args.out.parent.resolve().is_dir():
         raise UsageError(f"--out: directory {str(args.out.parent)!r} does not exist")
     try:

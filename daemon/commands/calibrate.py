@@ -8,22 +8,15 @@ import math
 import re
 import sys
 from pathlib import Path
-
-import cv2
-import numpy as np
-import numpy.typing as npt
+from typing import TYPE_CHECKING
 
 from daemon.config import load_config
 from daemon.errors import UsageError
-from perception.calibration import (
-    CameraModel,
-    CharucoBoard,
-    board_on_table,
-    calibrate_extrinsics,
-    camera_model,
-    load_camera_json,
-)
-from perception.errors import PerceptionError
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    from perception.calibration import CameraModel, CharucoBoard
 
 _BOARD = re.compile(r"^(\d+)x(\d+)$")
 
@@ -84,6 +77,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import cv2
+    import numpy as np
+
+    from perception.calibration import CameraModel, board_on_table, calibrate_extrinsics
+    from perception.errors import PerceptionError
+
     board = _board(args)
     if args.write_board is not None:
         if not cv2.imwrite(str(args.write_board), board.image()):
@@ -138,6 +137,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _board(args: argparse.Namespace) -> CharucoBoard:
+    from perception.calibration import CharucoBoard
+    from perception.errors import PerceptionError
+
     m = _BOARD.match(args.board)
     if m is None:
         raise UsageError(f"--board {args.board!r}: expected COLSxROWS, e.g. 6x4")
@@ -148,6 +150,9 @@ def _board(args: argparse.Namespace) -> CharucoBoard:
 
 
 def _intrinsics(args: argparse.Namespace) -> CameraModel:
+    from perception.calibration import camera_model, load_camera_json
+    from perception.errors import PerceptionError
+
     try:
         if args.camera is not None:
             return load_camera_json(args.camera)

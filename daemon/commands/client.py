@@ -13,11 +13,8 @@ import sys
 from collections.abc import Mapping
 from typing import Any
 
-import zenoh
-
 from daemon.config import PLANNER_COSTS, PLANNER_FITNESS, check_endpoint
 from daemon.errors import ConfigError, UsageError
-from daemon.zenoh_session import encode, key, session_config
 from description import thesis
 from planning.placement import METHODS
 
@@ -107,6 +104,10 @@ def request(
     endpoint: str, robot: str, verb: str, body: Mapping[str, object], *, timeout_s: float
 ) -> dict[str, Any] | None:
     """Send one command and return the decoded reply, or None when nobody answered in time."""
+    import zenoh
+
+    from daemon.zenoh_session import encode, key, session_config
+
     with zenoh.open(session_config(listen=[], connect=[endpoint])) as session:
         payload = encode(body) if body else b""
         for reply in session.get(key(robot, f"cmd/{verb}"), payload=payload, timeout=timeout_s):

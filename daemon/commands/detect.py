@@ -8,19 +8,18 @@ import math
 import sys
 import time
 from pathlib import Path
-
-import cv2
-import numpy as np
-import numpy.typing as npt
+from typing import TYPE_CHECKING
 
 from daemon.config import load_config
 from daemon.errors import UsageError
 from description.thesis import MugSpec
-from drivers.interfaces import RGBDFrame
-from perception.calibration import CameraModel, load_camera_json
-from perception.detector import DepthMugDetector
-from perception.errors import PerceptionError
-from perception.interfaces import Detection
+
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
+
+    from perception.calibration import CameraModel
+    from perception.interfaces import Detection
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -56,6 +55,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from drivers.interfaces import RGBDFrame
+    from perception.detector import DepthMugDetector
+    from perception.errors import PerceptionError
+
     camera = _camera(args.camera)
     depth = read_depth_png(args.depth, camera)
     config = load_config(args.config)
@@ -72,6 +75,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _camera(path: Path) -> CameraModel:
+    from perception.calibration import load_camera_json
+    from perception.errors import PerceptionError
+
     try:
         return load_camera_json(path)
     except PerceptionError as e:
@@ -80,6 +86,9 @@ def _camera(path: Path) -> CameraModel:
 
 def read_depth_png(path: Path, camera: CameraModel) -> npt.NDArray[np.float32]:
     """The depth image in metres (0 = no reading); ``UsageError`` when it is not what the camera produces."""
+    import cv2
+    import numpy as np
+
     if not path.is_file():
         raise UsageError(f"depth image {path}: no such file")
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)

@@ -11,11 +11,14 @@ import asyncio
 import json
 import statistics
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from daemon.errors import UsageError
 from description.thesis import GRAVITY_M_S2
 from drivers.errors import SensorFault
-from drivers.fsr import FsrReader
+
+if TYPE_CHECKING:
+    from drivers.fsr import FsrReader
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -58,6 +61,8 @@ async def calibrate(
     port: str, mass_kg: float, seconds: float, *, prompt: Callable[[str], str]
 ) -> dict[str, float]:
     """Sample at rest and loaded; the gain maps the loaded reading to m·g, thresholds sit between."""
+    from drivers.fsr import FsrReader
+
     async with FsrReader(port, threshold_n=1e9, release_n=0.0) as reader:
         await asyncio.to_thread(prompt, "Take everything off the gripper pad, then press Enter: ")
         rest = await _sample(reader, seconds)

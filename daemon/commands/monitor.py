@@ -11,14 +11,14 @@ import json
 import sys
 import threading
 import time
-from typing import Any
-
-import zenoh
+from typing import TYPE_CHECKING, Any
 
 from daemon.commands.client import DEFAULT_ENDPOINT
 from daemon.config import check_endpoint
 from daemon.errors import ConfigError, UsageError
-from daemon.zenoh_session import key, session_config
+
+if TYPE_CHECKING:
+    import zenoh
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -73,6 +73,10 @@ class _Latest:
 
 
 def _monitor(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from daemon.zenoh_session import key, session_config
+
     try:
         endpoint = check_endpoint(args.connect, "--connect")
     except ConfigError as e:

@@ -22,7 +22,6 @@ from planning.placement import (
     plan,
 )
 from planning.placement.heuristics import Heuristic
-from planning.placement.render import to_png, to_svg
 from planning.placement.sorts import Sort
 
 
@@ -118,6 +117,8 @@ def load_problem(args: argparse.Namespace) -> Problem:
 
 
 def run(args: argparse.Namespace) -> int:
+    from planning.placement.render import to_png, to_svg  # OpenCV draws the PNG
+
     time_limit = _number("--time-limit", args.time_limit, float)
     if not 0 < time_limit < float("inf"):
         raise UsageError(f"--time-limit: must be a positive number of seconds, got {args.time_limit!r}")

@@ -8,10 +8,13 @@ import sys
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from daemon.commands.output import add_json_flag, format_table
 from daemon.errors import RecordingError, UsageError
-from daemon.recording import HEADER_TOPIC, RecordingRead, read_messages
+
+if TYPE_CHECKING:
+    from daemon.recording import RecordingRead
 
 # Log times from 2000-01-01 on are wall-clock (Unix epoch) stamps; earlier ones come from a session clock.
 _EPOCH_FLOOR_NS = 946_684_800 * 10**9
@@ -39,6 +42,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run_info(args: argparse.Namespace) -> int:
+    from daemon.recording import HEADER_TOPIC, read_messages
+
     try:
         rec = read_messages(args.file, keep=lambda topic: topic == HEADER_TOPIC)
     except RecordingError as e:

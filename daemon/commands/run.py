@@ -9,24 +9,19 @@ import multiprocessing
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from daemon.app import RunOptions, RunResult, serve
-from daemon.backend import (
-    Backend,
-    ProcessMotionPlanner,
-    check_cell_reachable,
-    open_hardware_backend,
-    open_sim_backend,
-)
-from daemon.config import Config, check_endpoint, load_config
+from daemon.config import check_endpoint, load_config
 from daemon.errors import ConfigError, UsageError
-from daemon.job import StartRequest
 from daemon.logs import configure_cli_logging
-from daemon.sdnotify import SdNotifier
 from description import thesis
-from perception import associate
-from perception.interfaces import Associate
-from planning.arm import ArmModel
+
+if TYPE_CHECKING:
+    from daemon.app import RunOptions, RunResult
+    from daemon.backend import Backend
+    from daemon.config import Config
+    from daemon.sdnotify import SdNotifier
+    from perception.interfaces import Associate
 
 _PLANNING_NICENESS = 10
 
@@ -89,6 +84,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from daemon.app import RunOptions
+    from daemon.job import StartRequest
+    from daemon.sdnotify import SdNotifier
+
     config = load_config(args.config)
     listen = tuple(_endpoints(args.listen, "--listen")) if args.listen else config.zenoh.listen
     connect = tuple(_endpoints(args.connect, "--connect")) if args.connect else config.zenoh.connect
@@ -140,6 +139,8 @@ async def _serve(
     notifier: SdNotifier,
 ) -> RunResult:
     """Open the backend on the event loop that will drive its devices, then serve."""
+    from daemon.app import serve
+
     backend = await _backend(args, config, speed, pool)
     return await serve(config, backend, associate, options, notifier=notifier, executor=pool)
 
@@ -147,6 +148,14 @@ async def _serve(
 async def _backend(
     args: argparse.Namespace, config: Config, speed: float | None, pool: concurrent.futures.Executor
 ) -> Backend:
+    from daemon.backend import (
+        ProcessMotionPlanner,
+        check_cell_reachable,
+        open_hardware_backend,
+        open_sim_backend,
+    )
+    from planning.arm import ArmModel
+
     # A cell the arm cannot serve is refused before any device moves (or any simulator starts).
     check_cell_reachable(config, ArmModel.load())
     if args.sim or config.backend == "sim":
@@ -169,6 +178,8 @@ async def _backend(
 
 def association() -> Associate:
     """Lost-mug association (thesis §4.3.1)."""
+    from perception import associate
+
     return associate
 
 

@@ -8,12 +8,16 @@ from __future__ import annotations
 
 import argparse
 import json
+from typing import TYPE_CHECKING
 
 from daemon.errors import UsageError
-from drivers.dynamixel import BusConfig, DynamixelBus
+from drivers.dynamixel import BusConfig
 from drivers.dynamixel.protocol import MAX_ID
 from drivers.dynamixel.tables import BAUD_CODES_1, BAUD_CODES_2, MODELS_BY_NUMBER, baud_code
 from drivers.errors import BusLost, DriverError
+
+if TYPE_CHECKING:
+    from drivers.dynamixel import DynamixelBus
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -67,6 +71,8 @@ def _check_id(name: str, value: int) -> None:
 
 
 def _open(config: BusConfig) -> DynamixelBus:
+    from drivers.dynamixel import DynamixelBus  # dynamixel-sdk
+
     bus = DynamixelBus(config, read_timeout_s=0.01, retries=0)
     try:
         bus.open()

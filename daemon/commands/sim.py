@@ -13,7 +13,6 @@ import threading
 
 from daemon.errors import UsageError
 from drivers.dynamixel.tables import model
-from drivers.sim import ServoChainSimulator, default_chain
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -23,11 +22,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "bus",
         help="a simulated Dynamixel chain; prints its device path on the first line, runs until Ctrl-C",
     )
-    bus.add_argument(
-        "--servos",
-        default=",".join(f"{i}:{m}" for i, m in default_chain()),
-        help="comma-separated ID:MODEL list (default: the thesis arm, ids 1-6)",
-    )
+    bus.add_argument("--servos", help="comma-separated ID:MODEL list (default: the thesis arm, ids 1-6)")
     bus.add_argument("--protocol", type=int, default=1, help="Dynamixel protocol version, 1 or 2 (default 1)")
     bus.add_argument("--baud", type=int, default=1_000_000, help="the servos' baud rate (default 1000000)")
     bus.add_argument(
@@ -59,7 +54,9 @@ def parse_servos(text: str) -> list[tuple[int, str]]:
 
 
 def _bus(args: argparse.Namespace) -> int:
-    servos = parse_servos(args.servos)
+    from drivers.sim import ServoChainSimulator, default_chain
+
+    servos = parse_servos(args.servos) if args.servos is not None else list(default_chain())
     if args.protocol not in (1, 2):
         raise UsageError(f"--protocol must be 1 or 2, got {args.protocol}")
     try:

@@ -1,0 +1,145 @@
+"""Command-line verbs import what they use when they run (STYLE.md rule 14): every help screen,
+``config show``, ``statechart`` and the client verbs load none of the heavy libraries, so they start fast and
+a plain install (no ``sim`` extra) runs them. Each case runs ``dishbot`` in a fresh interpreter and reads back
+the modules it had loaded when the verb returned: a check of what was imported, not of how long it took."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import subprocess
+import sys
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from daemon.app import RunOptions, serve
+from daemon.cli import build_parser
+from daemon.commands.arm import SIDE_GRASPS
+from daemon.config import load_config
+from daemon.sdnotify import SdNotifier
+from perception import associate
+from planning.arm import GraspKind
+from tests.daemon.conftest import free_port
+from tests.fakes.job import make_backend, make_world
+
+HEAVY = frozenset({"mujoco", "scipy", "pinocchio", "cv2", "ortools", "numpy"})
+ROBOT = "importtest"
+
+# Runs daemon.cli.main on each argv of the JSON list argv[1], in order, and writes to the file argv[2] the
+# exit code of each and the top-level packages it was the first to load (importing daemon.cli counts for the
+# first argv).
+_PROBE = """
+import json, sys
+loaded = {m.partition(".")[0] for m in sys.modules}
+from daemon.cli import main
+cases, out = json.loads(sys.argv[1]), sys.argv[2]
+done = []
+for argv in cases:
+    try:
+        code = main(argv)
+    except SystemExit as e:
+        code = e.code
+    now = {m.partition(".")[0] for m in sys.modules}
+    done.append({"argv": argv, "code": code, "new": sorted(now - loaded)})
+    loaded = now
+with open(out, "w", encoding="utf-8") as f:
+    json.dump(done, f)
+"""
+
+
+def run_cli(tmp_path: Path, *cases: Sequence[str]) -> list[dict[str, Any]]:
+    """Run each argv in one fresh interpreter; per argv: exit code and the packages it loaded first."""
+    out = tmp_path / f"probe-{len(list(tmp_path.iterdir()))}.json"
+    proc = subprocess.run(
+        [sys.executable, "-c", _PROBE, json.dumps([list(c) for c in cases]), str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    result: list[dict[str, Any]] = json.loads(out.read_text(encoding="utf-8"))
+    return result
+
+
+def heavy_loaded(results: list[dict[str, Any]]) -> dict[str, list[str]]:
+    """Which verb loaded which heavy library first (empty: none did)."""
+    return {
+        " ".join(r["argv"]): sorted(HEAVY.intersection(r["new"]))
+        for r in results
+        if HEAVY.intersection(r["new"])
+    }
+
+
+def command_paths(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()) -> Iterator[tuple[str, ...]]:
+    """Every verb and sub-verb of the command line, found in the parser itself (new verbs are covered)."""
+    yield path
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from command_paths(sub, (*path, name))
+
+
+def test_no_help_screen_loads_a_heavy_library(tmp_path: Path) -> None:
+    paths = list(command_paths(build_parser()))
+    assert ("bench", "sim") in paths
+    assert ("config", "show") in paths
+    results = run_cli(tmp_path, *[(*p, "--help") for p in paths])
+    assert [r["code"] for r in results] == [0] * len(paths)
+    assert heavy_loaded(results) == {}
+
+
+@pytest.mark.parametrize(
+    "argv", [("config", "show"), ("config", "show", "--json"), ("statechart",)], ids=" ".join
+)
+def test_a_local_verb_loads_no_heavy_library(tmp_path: Path, argv: tuple[str, ...]) -> None:
+    [result] = run_cli(tmp_path, argv)
+    assert result["code"] == 0
+    assert heavy_loaded([result]) == {}
+
+
+def test_the_client_verbs_load_no_heavy_library_while_they_command_a_daemon(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    base = ("--connect", endpoint, "--robot", ROBOT)
+    # From idle: pause, resume and stop are refused (exit 1), estop and reset accepted, start starts a job.
+    verbs = {"status": 0, "pause": 1, "resume": 1, "stop": 1, "estop": 0, "reset": 0, "start": 0}
+    config = load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}})
+    options = RunOptions(listen=(endpoint,), connect=(), record_dir=tmp_path / "recordings")
+
+    async def go() -> list[dict[str, Any]]:
+        stop = asyncio.Event()
+        ready = asyncio.Event()
+        daemon = asyncio.create_task(
+            serve(
+                config,
+                make_backend(make_world(2)),
+                associate,
+                options,
+                notifier=SdNotifier(None),
+                on_ready=lambda session, path: ready.set(),
+                stop=stop,
+            )
+        )
+        try:
+            await asyncio.wait_for(ready.wait(), 10)
+            results = []
+            for verb in verbs:  # one interpreter each, in this order
+                results += await asyncio.to_thread(run_cli, tmp_path, (verb, *base))
+            results += await asyncio.to_thread(run_cli, tmp_path, ("monitor", *base, "--duration", "0.3"))
+            return results
+        finally:
+            stop.set()
+            await asyncio.wait_for(daemon, 20)
+
+    results = asyncio.run(go())
+    assert [r["code"] for r in results] == [*verbs.values(), 0]
+    assert heavy_loaded(results) == {}
+
+
+def test_the_arm_verbs_name_the_side_grasps_of_the_arm_model() -> None:
+    """``arm ik --grasp`` spells the choices out so its parser needs no numpy; they must stay the model's."""
+    assert tuple(k.value for k in GraspKind if k is not GraspKind.POSITION) == SIDE_GRASPS
