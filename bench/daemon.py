@@ -27,7 +27,7 @@ from pathlib import Path
 import zenoh
 
 from daemon.app import RunOptions, serve
-from daemon.backend import ProcessMotionPlanner, open_sim_backend
+from daemon.backend import ProcessMotionPlanner, SimOptions, open_backend
 from daemon.commands.output import add_json_flag, emit
 from daemon.commands.run import association, planning_pool
 from daemon.config import load_config
@@ -141,9 +141,8 @@ async def _live(tmp: Path, commands: int, seconds: float, log_level: str) -> _Li
         overrides={"robot_id": ROBOT, "planner": {"method": "bh"}, "sim": {"speed": 5.0}},
     )
     with planning_pool(log_level) as pool:
-        backend = await open_sim_backend(
-            config, world="kinematic", dataset=1, speed=config.sim.speed, seed=0, executor=pool
-        )
+        sim = SimOptions(world="kinematic", dataset=1, speed=config.sim.speed, seed=0)
+        backend = await open_backend(config, sim=sim, executor=pool)
         if isinstance(backend.motion, ProcessMotionPlanner):
             await asyncio.wrap_future(backend.motion.warm_up())
         options = RunOptions(listen=(endpoint,), connect=(), record_dir=tmp, once=None)

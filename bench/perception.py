@@ -1,9 +1,10 @@
 """``dishbot bench perception``: the depth mug detector on rendered, noisy frames of datasets 1–3.
 
-Each frame renders the configured cell with a dataset's twelve mugs where ``dataset_problem`` puts them on the
-counter (handles near +x, a few upside down), plus a ball and two boxes beside the flip area that must not be
-reported, through the structured-light noise model (sigma growing with z², disparity quantisation, dropouts).
-The detector sees only the depth frame; the scene's ground truth is used for scoring alone.
+Each frame renders the configured cell with a dataset's twelve mugs where the simulated counter
+(``sim.counter``) puts them (handles near +x, a few upside down), plus a ball and two boxes beside the flip
+area that must not be reported, through the structured-light noise model (sigma growing with z², disparity
+quantisation, dropouts). The detector sees only the depth frame; the scene's ground truth is used for
+scoring alone.
 """
 
 from __future__ import annotations
@@ -20,8 +21,6 @@ import numpy.typing as npt
 from daemon.commands.output import add_json_flag, emit
 from daemon.config import load_config
 from daemon.errors import UsageError
-from description.cell import SceneLayout
-from description.thesis import MugSpec
 from perception.detector import DepthMugDetector
 from perception.interfaces import Detection
 from sim.mujoco.scene import build_mjcf
@@ -76,15 +75,12 @@ def run(args: argparse.Namespace) -> int:
     from sim.mujoco.camera import DepthCamera, DepthNoise
 
     config = load_config(args.config)
-    plain = config.to_dict()
-    layout = SceneLayout.from_config(plain["cell"], plain["camera"])
-    catalogue = {
-        m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in config.mug_types
-    }
+    layout = config.cell
+    catalogue = config.mug_catalogue()
     missing = [t for t in ("big", "small") if t not in catalogue]
     if missing:
         raise UsageError(f"the datasets need mug types big and small; the config lacks {', '.join(missing)}")
-    detector = DepthMugDetector(catalogue, region_m=layout.table_region_m())
+    detector = DepthMugDetector(catalogue, region_m=layout.table_region_m)
     noise = DepthNoise()
     rows: list[list[object]] = []
     totals: dict[str, list[float]] = {"wall": [], "cpu": [], "render": [], "err": [], "handle": []}

@@ -13,10 +13,9 @@ import numpy as np
 from daemon.commands.output import format_table
 from daemon.config import load_config
 from daemon.errors import ConfigError, UsageError
-from description.thesis import MugSpec
 from planning.arm import ArmModel, ArmModelError, CalibrationError, GraspKind, GraspTarget
 from planning.arm.calibration import fit_correction, load_pairs
-from planning.motion import CellLayout
+from planning.motion import check_reachable
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -165,13 +164,11 @@ def run_workspace(args: argparse.Namespace) -> int:
         config = load_config(args.config)
     except ConfigError as e:
         raise UsageError(f"--config: {e}") from e
-    cell = CellLayout.from_config(config.cell)
-    catalogue = {
-        m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in config.mug_types
-    }
-    ws = workspace(arm, catalogue, tray_floor_m=cell.tray_floor_m)
+    cell = config.cell
+    catalogue = config.mug_catalogue()
+    ws = workspace(arm, catalogue, tray_floor_m=cell.tray.base_m)
     tray = served_tray(arm, ws, catalogue, tolerance_mm=cell.tolerance_mm)
-    problems = cell.check_reachable(arm, catalogue)
+    problems = check_reachable(cell, arm, catalogue)
     if args.png is not None:
         draw_workspace(arm, cell, ws, args.png)
     rows = describe(ws)

@@ -11,13 +11,7 @@ import sys
 from pathlib import Path
 
 from daemon.app import RunOptions, RunResult, serve
-from daemon.backend import (
-    Backend,
-    ProcessMotionPlanner,
-    check_cell_reachable,
-    open_hardware_backend,
-    open_sim_backend,
-)
+from daemon.backend import Backend, SimOptions, open_backend
 from daemon.config import Config, check_endpoint, load_config
 from daemon.errors import ConfigError, UsageError
 from daemon.job import StartRequest
@@ -26,7 +20,6 @@ from daemon.sdnotify import SdNotifier
 from description import thesis
 from perception import associate
 from perception.interfaces import Associate
-from planning.arm import ArmModel
 
 _PLANNING_NICENESS = 10
 
@@ -147,24 +140,16 @@ async def _serve(
 async def _backend(
     args: argparse.Namespace, config: Config, speed: float | None, pool: concurrent.futures.Executor
 ) -> Backend:
-    # A cell the arm cannot serve is refused before any device moves (or any simulator starts).
-    check_cell_reachable(config, ArmModel.load())
+    sim: SimOptions | None = None
     if args.sim or config.backend == "sim":
-        world = args.world or config.sim.world
-        seed = config.sim.seed if args.seed is None else args.seed
-        backend = await open_sim_backend(
-            config, world=world, dataset=args.dataset or 1, speed=speed, seed=seed, executor=pool
-        )
+        sim = SimOptions(world=args.world, dataset=args.dataset or 1, speed=speed, seed=args.seed)
     else:
         for flag, value in (("--world", args.world), ("--dataset", args.dataset), ("--seed", args.seed)):
             if value is not None:
                 raise UsageError(f"{flag} sets up the simulated cell; add --sim (backend is hardware)")
         if speed is not None:
             raise UsageError("--speed sets up the simulated cell; add --sim (backend is hardware)")
-        backend = await open_hardware_backend(config, executor=pool)
-    if isinstance(backend.motion, ProcessMotionPlanner):
-        backend.motion.warm_up()
-    return backend
+    return await open_backend(config, sim=sim, executor=pool)
 
 
 def association() -> Associate:
