@@ -135,7 +135,7 @@ def _bench(args: argparse.Namespace) -> int:
 
 async def _live(tmp: Path, commands: int, seconds: float, log_level: str) -> _Live:
     from daemon.app import RunOptions, serve
-    from daemon.backend import ProcessMotionPlanner, open_sim_backend
+    from daemon.backend import ProcessMotionPlanner, SimOptions, open_backend
     from daemon.sdnotify import SdNotifier
 
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
@@ -143,9 +143,8 @@ async def _live(tmp: Path, commands: int, seconds: float, log_level: str) -> _Li
         overrides={"robot_id": ROBOT, "planner": {"method": "bh"}, "sim": {"speed": 5.0}},
     )
     with planning_pool(log_level) as pool:
-        backend = await open_sim_backend(
-            config, world="kinematic", dataset=1, speed=config.sim.speed, seed=0, executor=pool
-        )
+        sim = SimOptions(world="kinematic", dataset=1, speed=config.sim.speed, seed=0)
+        backend = await open_backend(config, sim=sim, executor=pool)
         if isinstance(backend.motion, ProcessMotionPlanner):
             await asyncio.wrap_future(backend.motion.warm_up())
         options = RunOptions(listen=(endpoint,), connect=(), record_dir=tmp, once=None)

@@ -15,12 +15,11 @@ import argparse
 import math
 import statistics
 import time
-import tomllib
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from daemon.commands.output import add_json_flag, emit
-from daemon.config import default_text
+from daemon.config import load_config
 from daemon.errors import UsageError
 from description import thesis
 from planning.interfaces import MotionRefused, MugPose, StepKind, TraySlot
@@ -177,20 +176,18 @@ def _trajectory_times(arm: ArmModel, rng: np.random.Generator, n: int) -> list[f
 
 def _dataset_cycles(arm: ArmModel, dataset: int) -> dict[str, object]:
     from planning.arm.grasp import handle_facing_away_rad
-    from planning.motion import CellLayout, CyclePlanner, thesis_energy_j
-    from planning.placement import PlanOptions, dataset_problem, plan
+    from planning.motion import CyclePlanner, thesis_energy_j
+    from planning.placement import PlanOptions, cell_dataset_problem, plan
 
-    cell = CellLayout.from_mapping(tomllib.loads(default_text())["cell"])
-    planner = CyclePlanner(arm, cell, thesis.MUG_TYPES)
-    problem = dataset_problem(
-        dataset, counter_region_m=cell.counter_region_m, tray_origin_m=cell.tray_origin_m
-    )
+    config = load_config()
+    planner = CyclePlanner(arm, config.cell, thesis.MUG_TYPES)
+    problem = cell_dataset_problem(config.cell, dataset)
     layout = plan(problem, PlanOptions(method="sa", time_limit_s=1.0))
     counter = {}
     for m in problem.mugs:
         x, y = m.x_mm / 1000.0, m.y_mm / 1000.0
         counter[m.id] = MugPose(m.id, m.type, x, y, handle_yaw_rad=handle_facing_away_rad(x, y))
-    q: Sequence[float] = tuple(float(v) for v in tomllib.loads(default_text())["sim"]["start_q_rad"])
+    q: Sequence[float] = config.sim.start_q_rad
     placed: list[TraySlot] = []
     durations, dyn_motion, dyn_total, proxy, plan_times = [], [], [], [], []
     refused: list[str] = []

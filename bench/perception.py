@@ -1,9 +1,10 @@
 """``dishbot bench perception``: the depth mug detector on rendered, noisy frames of datasets 1–3.
 
-Each frame renders the configured cell with a dataset's twelve mugs where ``dataset_problem`` puts them on the
-counter (handles near +x, a few upside down), plus a ball and two boxes beside the flip area that must not be
-reported, through the structured-light noise model (sigma growing with z², disparity quantisation, dropouts).
-The detector sees only the depth frame; the scene's ground truth is used for scoring alone.
+Each frame renders the configured cell with a dataset's twelve mugs where the simulated counter
+(``sim.counter``) puts them (handles near +x, a few upside down), plus a ball and two boxes beside the flip
+area that must not be reported, through the structured-light noise model (sigma growing with z², disparity
+quantisation, dropouts). The detector sees only the depth frame; the scene's ground truth is used for
+scoring alone.
 """
 
 from __future__ import annotations
@@ -18,7 +19,6 @@ from typing import TYPE_CHECKING
 from daemon.commands.output import add_json_flag, emit
 from daemon.config import load_config
 from daemon.errors import UsageError
-from description.thesis import MugSpec
 
 if TYPE_CHECKING:
     import numpy as np
@@ -74,22 +74,18 @@ def run(args: argparse.Namespace) -> int:
     import mujoco
     import numpy as np
 
-    from description.cell import SceneLayout
     from perception.detector import DepthMugDetector
     from sim.mujoco.camera import DepthCamera, DepthNoise
     from sim.mujoco.scene import build_mjcf
     from sim.scoring import clutter_xml, dataset_mugs, score_frame
 
     config = load_config(args.config)
-    plain = config.to_dict()
-    layout = SceneLayout.from_config(plain["cell"], plain["camera"])
-    catalogue = {
-        m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in config.mug_types
-    }
+    layout = config.cell
+    catalogue = config.mug_catalogue()
     missing = [t for t in ("big", "small") if t not in catalogue]
     if missing:
         raise UsageError(f"the datasets need mug types big and small; the config lacks {', '.join(missing)}")
-    detector = DepthMugDetector(catalogue, region_m=layout.table_region_m())
+    detector = DepthMugDetector(catalogue, region_m=layout.table_region_m)
     noise = DepthNoise()
     rows: list[list[object]] = []
     totals: dict[str, list[float]] = {"wall": [], "cpu": [], "render": [], "err": [], "handle": []}

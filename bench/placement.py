@@ -14,11 +14,11 @@ import time
 
 from daemon.commands.output import add_json_flag, emit, format_table
 from daemon.config import load_config
-from daemon.datasets import cell_dataset_problem
 from daemon.errors import UsageError
 from description import thesis
 from planning.placement import METHODS, PlanOptions, PlanResult, plan
 from planning.placement.cost import CostFunction, Fitness, FitnessMethod, Metrics
+from planning.placement.datasets import cell_dataset_problem
 from planning.placement.heuristics import Heuristic
 from planning.placement.packing import Packer
 from planning.placement.sorts import Sort, sorted_order

@@ -1,12 +1,14 @@
 """``dishbot bench sim``: datasets 1-3 loaded end to end in the MuJoCo cell by the daemon's own job runner.
 
-Each dataset gets a fresh simulated cell (``sim.mujoco.cell``) with its mugs on the counter where the
-placement datasets put them. The daemon's ``Job`` runs one loading job on it exactly as ``dishbot run --sim``
-does — perception on rendered depth frames, the placement planner, the cycle planner, the real Dynamixel and
-FSR drivers over pseudo-terminals — and the bench reads the outcome from the job's summary and the world's
-ground truth: mugs detected, planned, placed (standing on the tray, upright or inverted as planned), tray
-collisions (the thesis's tolerance test asks for none, Table 5.19), simulated time per placed mug (the
-thesis's Gazebo runs took about 55 s, Table 5.26) and wall time.
+Each dataset gets a fresh simulated cell from the daemon's own builder (``daemon.backend.open_backend``,
+the cell ``dishbot run --sim --world mujoco --dataset N`` runs: the same start pose, arm calibration, mug
+catalogue and detector) with its mugs on the counter where ``sim.counter`` puts them. The daemon's ``Job``
+runs one loading job on it exactly as ``dishbot run --once`` does — perception on rendered depth frames, the
+placement planner, the cycle planner, the real Dynamixel and FSR drivers over pseudo-terminals — and the
+bench reads the outcome from the job's summary and the world's ground truth: mugs detected, planned, placed
+(standing on the tray, upright or inverted as planned), tray collisions (the thesis's tolerance test asks for
+none, Table 5.19), simulated time per placed mug (the thesis's Gazebo runs took about 55 s, Table 5.26) and
+wall time.
 """
 
 from __future__ import annotations
@@ -16,25 +18,20 @@ import asyncio
 import concurrent.futures
 import contextlib
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from daemon.commands.output import add_json_flag, emit
-from daemon.commands.run import planning_pool
+from daemon.commands.run import association, planning_pool
 from daemon.config import Config, load_config
 from daemon.errors import UsageError
 from description import thesis
-from description.thesis import MugSpec
-from planning.placement import dataset_problem
 
 if TYPE_CHECKING:
-    from daemon.backend import Backend, CounterMug, Tray
-    from description.cell import SceneLayout
-    from drivers.interfaces import Camera
-    from perception.interfaces import Associate, MugObserver
-    from sim.mujoco.cell import ObserverFactory, SimCell
+    from perception.interfaces import Associate
+    from sim.mujoco.cell import SimCell
     from sim.mujoco.collisions import TrayCollision
 
 DATASETS = (1, 2, 3)
@@ -73,8 +70,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
             "wall-clock time, so a dataset takes about as long as the arm needs to load it."
         ),
     )
-    parser.add_argument("--datasets", default="1,2,3", help="comma-separated subset of 1,2,3 (default all)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the depth noise and the planners")
+    parser.add_argument(
+        "--datasets",
+        default="1,2,3",
+        help="comma-separated datasets (default 1,2,3: those planned on the robot tray, the MuJoCo cell's)",
+    )
+    parser.add_argument(
+        "--seed", type=int, default=None, help="seed of the depth noise (default: the config's sim.seed)"
+    )
     parser.add_argument(
         "--timeout", type=float, default=1800.0, metavar="SEC", help="give a job up after SEC (default 1800)"
     )
@@ -99,11 +102,19 @@ def _log_job_event(key: str, payload: Mapping[str, object]) -> None:
         structlog.get_logger("daemon.bench_sim").info("job_event", **{str(k): v for k, v in payload.items()})
 
 
-def _datasets(text: str) -> list[int]:
+def _datasets(text: str, config: Config) -> list[int]:
+    """The datasets to run; one the MuJoCo cell cannot set out (a full-size-tray dataset) is refused with
+    the message ``dishbot run --sim --world mujoco`` gives."""
+    from daemon.sim_backend import mujoco_counter
+
     out = []
     for item in (t.strip() for t in text.split(",") if t.strip()):
-        if not item.isdigit() or int(item) not in DATASETS:
-            raise UsageError(f"--datasets: unknown dataset {item!r} (the simulated cell runs 1, 2 and 3)")
+        if not item.isdigit() or int(item) not in thesis.DATASETS:
+            raise UsageError(f"--datasets: unknown dataset {item!r} (datasets 1-{len(thesis.DATASETS)})")
+        try:
+            mujoco_counter(config, int(item))
+        except ValueError as e:
+            raise UsageError(str(e)) from e
         out.append(int(item))
     if not out:
         raise UsageError("--datasets: name at least one of 1, 2, 3")
@@ -111,27 +122,20 @@ def _datasets(text: str) -> list[int]:
 
 
 def run(args: argparse.Namespace) -> int:
-    datasets = _datasets(args.datasets)
     if not args.timeout > 0:
         raise UsageError(f"--timeout: {args.timeout} must be > 0 seconds")
     if not 0.0 <= args.fsr_debounce <= 1.0:
         raise UsageError(f"--fsr-debounce: {args.fsr_debounce} must be in [0, 1] seconds")
-    from perception import CameraObserver, DepthMugDetector, associate
 
     config = load_config(args.config)
-    detector = DepthMugDetector(catalogue_of(config))
-
-    def observer_factory(camera: Camera) -> MugObserver:
-        return CameraObserver(camera, detector)
-
+    datasets = _datasets(args.datasets, config)
     with planning_pool(args.log_level) as pool:
         runs = [
             asyncio.run(
                 run_dataset(
                     n,
                     config,
-                    observer_factory=observer_factory,
-                    associate=associate,
+                    associate=association(),
                     seed=args.seed,
                     timeout_s=args.timeout,
                     fsr_debounce_s=args.fsr_debounce,
@@ -182,126 +186,26 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def catalogue_of(config: Config) -> dict[str, MugSpec]:
-    return {
-        m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in config.mug_types
-    }
-
-
-def layout_of(config: Config) -> SceneLayout:
-    """The simulated cell's layout from the config's ``[cell]`` and ``[camera]`` sections."""
-    from description.camera import CameraSpec
-    from description.cell import SceneLayout
-
-    c, cam = config.cell, config.camera
-    return SceneLayout(
-        counter_region_m=c.counter_region_m,
-        flip_area_center_m=c.flip_area_center_m,
-        flip_area_radius_m=c.flip_area_radius_m,
-        tray_origin_m=c.tray_origin_m,
-        tray_size_mm=c.tray_size_mm,
-        camera=CameraSpec(cam.width, cam.height, cam.fovy_deg, cam.position_m, cam.yaw_rad, cam.pitch_rad),
-        table_height_above_floor_m=c.table_height_above_floor_m,
-    )
-
-
-class MujocoCounter:
-    """Sets the MuJoCo cell's counter up for a job (``daemon.backend.CounterSetup``): a placement dataset's
-    mugs where ``planning.placement.dataset_problem`` puts them, or an explicit list."""
-
-    def __init__(self, cell: SimCell, config: Config) -> None:
-        from daemon.backend import Tray
-
-        self._cell = cell
-        self._config = config
-        self._catalogue = catalogue_of(config)
-        self.tray = Tray(config.cell.tray_origin_m, config.cell.tray_size_mm)
-
-    def set_counter(self, *, dataset: int | None, mugs: Sequence[CounterMug] | None) -> Tray:
-        from sim.mujoco.cell import scene_mugs
-
-        if mugs is None:
-            n = dataset or 1
-            if thesis.DATASETS[n].tray_mm != thesis.ROBOT_TRAY_MM:
-                raise ValueError(
-                    f"dataset {n} needs the full-size tray, which the simulated cell does not have"
-                )
-            problem = dataset_problem(
-                n,
-                counter_region_m=self._config.cell.counter_region_m,
-                tray_origin_m=self._config.cell.tray_origin_m,
-            )
-            entries = [(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs]
-        else:
-            entries = [(m.mug_id, m.type, m.x_m, m.y_m) for m in mugs]
-        self._cell.set_counter(scene_mugs(entries, self._catalogue))
-        return self.tray
-
-    def scene(self) -> dict[str, object]:
-        return self._cell.scene()
-
-
-async def open_mujoco_backend(
-    config: Config,
-    *,
-    observer_factory: ObserverFactory,
-    seed: int = 0,
-    fsr_debounce_s: float = 0.03,
-    executor: concurrent.futures.Executor | None = None,
-) -> tuple[Backend, SimCell]:
-    """A daemon backend on a fresh MuJoCo cell (empty counter; a job's ``start`` puts the mugs on it).
-
-    With ``executor`` (a process pool) motion planning runs there, as in ``dishbot run``: in this process it
-    would hold the GIL against the physics thread and the device simulators."""
-    from daemon.backend import Backend, CyclePlannerSpec, ProcessMotionPlanner
-    from sim.mujoco.cell import start_sim_cell
-
-    layout = layout_of(config)
-    cell, close = await start_sim_cell(
-        layout,
-        [],
-        seed=seed,
-        start_pose_rad=config.sim.start_q_rad,
-        # As the kinematic cell: "holding" at half the grasp threshold.
-        holding_threshold_n=config.grasp.force_threshold_n / 2.0,
-        fsr_debounce_s=fsr_debounce_s,
-        observer_factory=observer_factory,
-    )
-    counter = MujocoCounter(cell, config)
-    spec = CyclePlannerSpec(config.cell, counter.tray, config.mug_types)
-    motion = spec.build() if executor is None else ProcessMotionPlanner(spec, executor)
-    backend = Backend(
-        name="sim-mujoco",
-        arm=cell.arm,
-        gripper=cell.gripper,
-        force=cell.force,
-        observer=cell.observer,
-        motion=motion,
-        tray=counter.tray,
-        counter=counter,
-        closer=close,
-    )
-    return backend, cell
-
-
 async def run_dataset(
     dataset: int,
     config: Config,
     *,
-    observer_factory: ObserverFactory,
     associate: Associate,
-    seed: int = 0,
+    seed: int | None = None,
     timeout_s: float = 1800.0,
     fsr_debounce_s: float = 0.03,
     executor: concurrent.futures.Executor | None = None,
     on_event: Callable[[str, Mapping[str, object]], None] | None = None,
 ) -> SimRun:
-    """One loading job of ``dataset`` in a fresh MuJoCo cell, measured."""
+    """One loading job of ``dataset`` in a fresh MuJoCo cell, measured: the cell ``dishbot run --sim --world
+    mujoco --dataset N --once`` runs (``daemon.backend.open_backend``), and the same job."""
+    from daemon.backend import SimOptions, open_backend
     from daemon.job import Job, StartRequest
+    from daemon.sim_backend import mujoco_cell
 
-    backend, cell = await open_mujoco_backend(
-        config, observer_factory=observer_factory, seed=seed, fsr_debounce_s=fsr_debounce_s, executor=executor
-    )
+    options = SimOptions(world="mujoco", dataset=dataset, seed=seed, fsr_debounce_s=fsr_debounce_s)
+    backend = await open_backend(config, sim=options, executor=executor)
+    cell = mujoco_cell(backend)
     collisions: list[TrayCollision] = []
     cell.on_collision(collisions.append)
 
@@ -313,8 +217,8 @@ async def run_dataset(
     control = asyncio.create_task(job.run())
     started = time.monotonic()
     try:
-        await job.command("start", StartRequest(dataset=dataset))
         sim_start = cell.world.time()
+        await job.command("start", StartRequest())
         try:
             await asyncio.wait_for(job.finished.wait(), timeout_s)
         except TimeoutError:
@@ -347,13 +251,12 @@ async def run_dataset(
 
 def _standing_on_tray(cell: SimCell) -> int:
     """Mugs at rest on the tray, upright or upside down (not tipped, not held)."""
-    x0, y0, x1, y1 = cell.layout.tray_region_m()
     count = 0
     for truth in cell.world.mug_truths().values():
         x, y, _ = truth.position_m
-        if x0 <= x <= x1 and y0 <= y <= y1 and truth.orientation != "tipped" and not truth.held:
+        if cell.layout.tray.contains(x, y) and truth.orientation != "tipped" and not truth.held:
             count += 1
     return count
 
 
-__all__ = ["MujocoCounter", "SimRun", "open_mujoco_backend", "register", "run_dataset"]
+__all__ = ["SimRun", "register", "run_dataset"]

@@ -1,9 +1,11 @@
 """What a loading job runs on: the devices, the observer and the motion planner, bundled as a ``Backend``.
 
 The job runner only sees the protocols of ``drivers.interfaces``, ``perception.interfaces`` and
-``planning.interfaces``. ``open_backend`` builds the bundle the configuration asks for; ``recorded`` wraps one
-so that every input crossing the driver boundary (joint feedback, force readings, grasp results, observations)
-is also handed to the recording, which is what a replay needs.
+``planning.interfaces``. ``open_backend`` is the one builder: ``dishbot run`` and every bench get their cell
+from it, the robot (here) or a simulated cell (``daemon.sim_backend``, imported only for one, so the
+hardware backend loads neither the simulated worlds nor MuJoCo). ``recorded`` wraps a backend so that every
+input crossing the driver boundary (joint feedback, force readings, grasp results, observations) is also
+handed to the recording, which is what a replay needs.
 """
 
 from __future__ import annotations
@@ -23,10 +25,10 @@ import numpy as np
 import numpy.typing as npt
 import structlog
 
-from daemon.config import CellConfig, Config, MugTypeConfig
+from daemon.config import Config
 from daemon.errors import UsageError
-from description import thesis
-from description.thesis import MugSpec
+from description.cell import CellLayout, Tray
+from description.thesis import MugSpec, mug_catalogue
 from drivers.dynamixel import BusConfig, DeviceEvent
 from drivers.errors import BusLost, DriverError
 from drivers.interfaces import (
@@ -49,31 +51,15 @@ from drivers.stack import (
     gripper_spec,
     open_device_stack,
 )
-from perception.interfaces import Detection, MugObserver, Observation
+from perception.interfaces import MugObserver, Observation
 from planning.arm import ArmModel
 from planning.arm.calibration import PositionCorrection
-from planning.arm.grasp import handle_facing_away_rad
 from planning.interfaces import CyclePlan, MotionPlanner, MugPose, TraySlot
-from planning.motion import CellLayout, DynamicsMoveCost
+from planning.motion import DynamicsMoveCost, check_reachable
 from planning.motion.planner import CyclePlanner
-from planning.placement import PlanOptions, PlanResult, Problem, dataset_problem, plan
-from sim.kinematic import MugGeometry, SimMug, open_kinematic_cell
-from sim.truth import TruthObserver
+from planning.placement import PlanOptions, PlanResult, Problem, plan
 
 log = structlog.get_logger("daemon.backend")
-
-
-@dataclass(frozen=True, slots=True)
-class Tray:
-    """The tray in the world frame: the corner nearest the arm base, and its extent in mm (as planned)."""
-
-    origin_m: tuple[float, float]
-    size_mm: tuple[int, int]
-
-    def contains(self, x_m: float, y_m: float) -> bool:
-        """Whether a point of the world frame lies over the tray."""
-        x0, y0 = self.origin_m
-        return x0 <= x_m <= x0 + self.size_mm[0] / 1000.0 and y0 <= y_m <= y0 + self.size_mm[1] / 1000.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -289,141 +275,6 @@ class _RecordedObserver:
         return obs
 
 
-async def open_sim_backend(
-    config: Config,
-    *,
-    world: str,
-    dataset: int,
-    speed: float | None,
-    seed: int,
-    executor: concurrent.futures.Executor | None = None,
-) -> Backend:
-    """The simulated cell with dataset ``dataset``'s mugs on its counter: ``kinematic`` (the placeholder
-    cell, ``speed`` (default ``sim.speed``) times real time) or ``mujoco`` (the physics simulation, real
-    time). With ``executor`` (a process pool), motion planning runs there. Call it on the event loop that
-    will use the devices."""
-    if world == "mujoco":
-        if speed not in (None, 1.0):
-            raise UsageError(
-                f"--speed {speed:g}: the MuJoCo cell runs in real time (its drivers keep wall time)"
-            )
-        return await open_mujoco_backend(config, dataset=dataset, seed=seed, executor=executor)
-    if world != "kinematic":
-        raise UsageError(f"--world {world}: choose kinematic or mujoco")
-    speed = config.sim.speed if speed is None else speed
-    return open_kinematic_backend(config, dataset=dataset, speed=speed, seed=seed, executor=executor)
-
-
-def open_kinematic_backend(
-    config: Config,
-    *,
-    dataset: int,
-    speed: float,
-    seed: int,
-    executor: concurrent.futures.Executor | None = None,
-) -> Backend:
-    """The kinematic placeholder cell (``sim.kinematic``), ``speed`` times faster than real time."""
-    arm_model = ArmModel.load()
-    counter = _KinematicCounter(config, arm_model, speed=speed)
-    tray = counter.set_counter(dataset=dataset, mugs=None)
-    cell = counter.cell
-    observer = TruthObserver(counter.visible_mugs, noise_m=config.sim.detection_noise_m, seed=seed)
-    correction = load_correction(config)
-
-    def motion_for(tray: Tray) -> MotionPlanner:
-        spec = CyclePlannerSpec(config.cell, tray, config.mug_types, correction)
-        return spec.build(arm_model) if executor is None else ProcessMotionPlanner(spec, executor)
-
-    return Backend(
-        name="sim-kinematic",
-        arm=cell.arm,
-        gripper=cell.gripper,
-        force=cell.force,
-        observer=observer,
-        motion=motion_for(tray),
-        tray=tray,
-        counter=counter,
-        motion_for=motion_for,
-    )
-
-
-class _KinematicCounter:
-    """Sets the kinematic cell's counter up for a job: a placement dataset or an explicit list of mugs."""
-
-    def __init__(self, config: Config, arm: ArmModel, *, speed: float) -> None:
-        self._config = config
-        self._arm = arm
-        self._geometry = {
-            m.name: MugGeometry(m.diameter_mm / 1000.0, m.height_mm / 1000.0) for m in config.mug_types
-        }
-        self.tray = Tray(config.cell.tray_origin_m, config.cell.tray_size_mm)
-        self.cell = open_kinematic_cell(
-            [],
-            self._geometry,
-            tray_origin_m=self.tray.origin_m,
-            tray_size_m=(self.tray.size_mm[0] / 1000.0, self.tray.size_mm[1] / 1000.0),
-            speed=speed,
-            joint_speed_rad_s=config.sim.joint_speed_rad_s,
-            holding_threshold_n=config.grasp.force_threshold_n / 2.0,
-            arm=arm,
-            q0=np.asarray(config.sim.start_q_rad, dtype=np.float64),
-        )
-        self.dataset: int | None = None
-
-    def set_counter(self, *, dataset: int | None, mugs: Sequence[CounterMug] | None) -> Tray:
-        if mugs is not None:
-            sim_mugs = [
-                SimMug(m.mug_id, m.type, m.x_m, m.y_m, handle_yaw_rad=handle_facing_away_rad(m.x_m, m.y_m))
-                for m in mugs
-            ]
-            tray = Tray(self._config.cell.tray_origin_m, self._config.cell.tray_size_mm)
-        else:
-            problem = self._dataset(dataset or 1)
-            sim_mugs = [
-                SimMug(m.id, m.type, x, y, handle_yaw_rad=handle_facing_away_rad(x, y))
-                for m in problem.mugs
-                for x, y in [(m.x_mm / 1000.0, m.y_mm / 1000.0)]
-            ]
-            origin = (problem.tray_origin_mm[0] / 1000.0, problem.tray_origin_mm[1] / 1000.0)
-            tray = Tray(origin, problem.tray_size_mm)
-        unknown = sorted({m.type for m in sim_mugs} - set(self._geometry))
-        if unknown:
-            raise ValueError(f"mug types {', '.join(unknown)} are not in the configured catalogue")
-        self.dataset = dataset if mugs is None else None
-        world = self.cell.world
-        world.set_mugs(sim_mugs)
-        world.tray_origin_m = tray.origin_m
-        world.tray_size_m = (tray.size_mm[0] / 1000.0, tray.size_mm[1] / 1000.0)
-        self.tray = tray
-        return tray
-
-    def _dataset(self, n: int) -> Problem:
-        ds = thesis.DATASETS[n]
-        robot_tray = ds.tray_mm == thesis.ROBOT_TRAY_MM
-        return dataset_problem(
-            n,
-            counter_region_m=self._config.cell.counter_region_m,
-            tray_origin_m=self._config.cell.tray_origin_m if robot_tray else None,
-        )
-
-    def visible_mugs(self) -> list[Detection]:
-        return [
-            Detection(m.type, m.x_m, m.y_m, m.upside_down, m.handle_yaw_rad, 1.0)
-            for m in self.cell.world.mugs.values()
-            if m.where == "counter"
-        ]
-
-    def scene(self) -> dict[str, object]:
-        return {**self.cell.world.scene(), "dataset": self.dataset}
-
-
-def catalogue_of(config: Config) -> dict[str, MugSpec]:
-    """The configured mug catalogue as the planners take it."""
-    return {
-        m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in config.mug_types
-    }
-
-
 def load_correction(config: Config) -> PositionCorrection | None:
     """The arm's position correction named by ``arm.calibration_file``; a bad file is a usage error."""
     path = config.arm.calibration_file
@@ -437,8 +288,8 @@ def load_correction(config: Config) -> PositionCorrection | None:
 
 def check_cell_reachable(config: Config, arm: ArmModel) -> None:
     """Refuse a configured cell the arm cannot serve: every counter, flip-area and tray corner must be
-    reachable with every mug type of the catalogue (``CellLayout.check_reachable``)."""
-    problems = CellLayout.from_config(config.cell).check_reachable(arm, catalogue_of(config))
+    reachable with every mug type of the catalogue (``planning.motion.check_reachable``)."""
+    problems = check_reachable(config.cell, arm, config.mug_catalogue())
     if problems:
         raise UsageError(f"the arm cannot serve the configured cell: {'; '.join(problems)}")
 
@@ -446,21 +297,19 @@ def check_cell_reachable(config: Config, arm: ArmModel) -> None:
 @dataclass(frozen=True, slots=True)
 class CyclePlannerSpec:
     """Everything needed to build the cycle planner, hashable and picklable, so that a planning process can
-    build it once and reuse it. ``correction`` is the arm's position correction (``arm.calibration_file``)."""
+    build it once and reuse it: the cell, the tray the job fills (the cell's, or the one a simulated counter
+    was set up with), the mug catalogue and the arm's position correction (``arm.calibration_file``)."""
 
-    cell: CellConfig
+    cell: CellLayout
     tray: Tray
-    mug_types: tuple[MugTypeConfig, ...]
+    mug_types: tuple[MugSpec, ...]
     correction: PositionCorrection | None = None
 
     def layout(self) -> CellLayout:
-        layout = CellLayout.from_config(self.cell)
-        return dataclasses.replace(layout, tray_origin_m=self.tray.origin_m, tray_size_mm=self.tray.size_mm)
+        return self.cell.with_tray(self.tray)
 
     def catalogue(self) -> dict[str, MugSpec]:
-        return {
-            m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in self.mug_types
-        }
+        return mug_catalogue(self.mug_types)
 
     def build(self, arm: ArmModel | None = None) -> CyclePlanner:
         return CyclePlanner(
@@ -566,73 +415,57 @@ class ProcessMotionPlanner:
         return self._executor.submit(_plan_move, self._spec, tuple(start_q), tuple(goal_q), label).result()
 
 
-async def open_mujoco_backend(
-    config: Config, *, dataset: int, seed: int, executor: concurrent.futures.Executor | None = None
-) -> Backend:
-    """The MuJoCo cell (``sim.mujoco``): real drivers over simulated servos and FSR, a rendered depth
-    camera and the depth detector; dataset ``dataset``'s mugs on the counter. It runs in real time (its
-    drivers keep wall-clock time). Call it on the event loop that will use the devices."""
-    from description.cell import SceneLayout
-    from sim.mujoco.cell import scene_mugs, start_sim_cell
-
-    plain = config.to_dict()
-    try:
-        layout = SceneLayout.from_config(plain["cell"], plain["camera"])
-    except ValueError as e:
-        raise UsageError(f"the MuJoCo cell cannot use this config: {e}") from e
-    catalogue = catalogue_of(config)
-    tray = Tray(config.cell.tray_origin_m, config.cell.tray_size_mm)
-
-    def entries(
-        dataset: int | None, mugs: Sequence[CounterMug] | None
-    ) -> list[tuple[str, str, float, float]]:
-        if mugs is not None:
-            return [(m.mug_id, m.type, m.x_m, m.y_m) for m in mugs]
-        problem = dataset_problem(
-            dataset or 1, counter_region_m=config.cell.counter_region_m, tray_origin_m=tray.origin_m
-        )
-        return [(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs]
-
-    cell, closer = await start_sim_cell(
-        layout,
-        scene_mugs(entries(dataset, None), catalogue),
-        seed=seed,
-        holding_threshold_n=config.grasp.force_threshold_n / 2.0,
-    )
-
-    class _Counter:
-        def __init__(self) -> None:
-            self.dataset: int | None = dataset
-
-        def set_counter(self, *, dataset: int | None, mugs: Sequence[CounterMug] | None) -> Tray:
-            cell.set_counter(scene_mugs(entries(dataset, mugs), catalogue))
-            self.dataset = dataset if mugs is None else None
-            return tray
-
-        def scene(self) -> dict[str, object]:
-            return {**cell.scene(), "dataset": self.dataset}
-
+def cycle_planner(
+    config: Config, tray: Tray, *, arm: ArmModel, executor: concurrent.futures.Executor | None
+) -> MotionPlanner:
+    """The cycle planner every backend runs on: the configured cell with ``tray``, the configured catalogue
+    and the arm's position correction; in ``executor`` (a process pool) when one is given."""
     spec = CyclePlannerSpec(config.cell, tray, config.mug_types, load_correction(config))
-    motion: MotionPlanner = spec.build() if executor is None else ProcessMotionPlanner(spec, executor)
+    return spec.build(arm) if executor is None else ProcessMotionPlanner(spec, executor)
 
-    def on_event(listener: EventListener) -> None:
-        cell.on_collision(
-            lambda c: listener({**c.to_event(), "kind": "tray_collision", "t_sim": c.t, "t": time.time()})
-        )
-        cell.on_device_event(lambda e: listener(device_event_payload(e)))
 
-    return Backend(
-        name="sim-mujoco",
-        arm=cell.arm,
-        gripper=cell.gripper,
-        force=cell.force,
-        observer=cell.observer,
-        motion=motion,
-        tray=tray,
-        counter=_Counter(),
-        closer=closer,
-        on_event=on_event,
-    )
+@dataclass(frozen=True, slots=True)
+class SimOptions:
+    """The simulated cell ``dishbot run --sim`` and the benches ask for. ``world`` is ``kinematic`` (the fast
+    placeholder, ``speed`` simulated seconds per wall second, default ``sim.speed``) or ``mujoco`` (physics
+    behind the real drivers, real time only); None takes ``sim.world``. ``dataset`` is set out on the
+    counter; ``seed`` (default ``sim.seed``) seeds the detection noise; ``fsr_debounce_s`` is how long the
+    MuJoCo cell's FSR reader waits before it believes a crossing (the reader's own default)."""
+
+    world: str | None = None
+    dataset: int = 1
+    speed: float | None = None
+    seed: int | None = None
+    fsr_debounce_s: float = 0.03
+
+
+async def open_backend(
+    config: Config,
+    *,
+    sim: SimOptions | None = None,
+    executor: concurrent.futures.Executor | None = None,
+) -> Backend:
+    """The cell a job runs on, for ``dishbot run`` and every bench alike: the robot on the ``[hardware]``
+    ports, or with ``sim`` the simulated cell (``daemon.sim_backend``, imported only then: the hardware
+    backend loads no simulator).
+
+    Every cell gets the same parts from the config: the cell is refused first when the arm cannot serve it
+    (``UsageError``, before any device moves or any simulator starts); the cycle planner plans in the
+    configured cell with the configured catalogue and the arm's position correction; the detector looks for
+    the configured mug types; a simulated arm starts at ``sim.start_q_rad``. With ``executor`` (a process
+    pool) motion planning runs there and the planner starts building in it at once. Call it on the event
+    loop that will use the devices."""
+    arm = ArmModel.load()
+    check_cell_reachable(config, arm)
+    if sim is None:
+        backend = await open_hardware_backend(config, arm=arm, executor=executor)
+    else:
+        from daemon.sim_backend import open_sim_backend
+
+        backend = await open_sim_backend(config, sim, arm=arm, executor=executor)
+    if isinstance(backend.motion, ProcessMotionPlanner):
+        backend.motion.warm_up()
+    return backend
 
 
 def hardware_stack_spec(config: Config, arm: ArmModel) -> StackSpec:
@@ -685,6 +518,7 @@ class _NoCamera:
 async def open_hardware_backend(
     config: Config,
     *,
+    arm: ArmModel | None = None,
     executor: concurrent.futures.Executor | None = None,
     camera: Camera | None = None,
 ) -> Backend:
@@ -707,9 +541,9 @@ async def open_hardware_backend(
             load_pyrealsense()
         except CameraUnavailable as e:
             raise UsageError(f"hardware.camera: {e}") from e
-    arm_model = ArmModel.load()
+    arm_model = arm or ArmModel.load()
     spec = hardware_stack_spec(config, arm_model)
-    correction = load_correction(config)
+    motion = cycle_planner(config, config.cell.tray, arm=arm_model, executor=executor)
     events = _DeviceEvents()
     stack = contextlib.AsyncExitStack()
     try:
@@ -720,8 +554,6 @@ async def open_hardware_backend(
         if isinstance(e, DriverError | BusLost):
             raise UsageError(f"cannot open the robot's devices: {e}") from e
         raise
-    tray = Tray(config.cell.tray_origin_m, config.cell.tray_size_mm)
-    planner_spec = CyclePlannerSpec(config.cell, tray, config.mug_types, correction)
 
     async def close() -> None:
         """Torque off and close the ports; a device that is already gone (unplugged, faulted) cannot be
@@ -731,9 +563,6 @@ async def open_hardware_backend(
         except (DriverError, BusLost) as e:
             log.warning("device_close_failed", error=str(e))
 
-    motion: MotionPlanner = (
-        planner_spec.build(arm_model) if executor is None else ProcessMotionPlanner(planner_spec, executor)
-    )
     return Backend(
         name="hardware",
         arm=devices.arm,
@@ -741,7 +570,7 @@ async def open_hardware_backend(
         force=devices.force,
         observer=observer,
         motion=motion,
-        tray=tray,
+        tray=config.cell.tray,
         closer=close,
         on_event=events.add,
         devices=devices,
@@ -752,17 +581,14 @@ async def _hardware_observer(
     config: Config, stack: contextlib.AsyncExitStack, camera: Camera | None
 ) -> MugObserver:
     """The mug observer on the configured camera: depth detection over the table, the tray left out."""
-    from description.cell import SceneLayout
     from drivers.camera import RealSenseCamera
     from perception.calibration import camera_model
     from perception.observer import cell_observer_factory
 
     if camera is None and config.hardware.camera == "none":
         return _NoCamera()
-    plain = config.to_dict()
-    c = config.camera
+    c = config.cell.camera
     try:
-        layout = SceneLayout.from_config(plain["cell"], plain["camera"])
         model = camera_model(
             width=c.width,
             height=c.height,
@@ -770,7 +596,7 @@ async def _hardware_observer(
             position_m=c.position_m,
             yaw_rad=c.yaw_rad,
             pitch_rad=c.pitch_rad,
-            calibration_file=c.calibration_file,
+            calibration_file=config.camera.calibration_file,
         )
     except ValueError as e:
         raise UsageError(f"camera: {e}") from e
@@ -783,4 +609,4 @@ async def _hardware_observer(
                 serial_number=config.hardware.camera_serial or None,
             )
         )
-    return cell_observer_factory(layout, catalogue_of(config))(camera)
+    return cell_observer_factory(config.cell, config.mug_catalogue())(camera)

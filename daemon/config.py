@@ -2,8 +2,10 @@
 
 Every value is checked when the file is read, so a bad field fails at start-up with its dotted name and the
 allowed range (``ConfigError``, exit 2) instead of deep inside a running job. The result is a tree of frozen
-dataclasses; ``Config.to_dict()`` gives the effective values back (for ``dishbot config show`` and the
-recording's session header).
+dataclasses, and the description types where the config describes the cell (``Config.cell`` is the one
+``description.cell.CellLayout``, ``Config.mug_types`` the catalogue's ``MugSpec`` entries), so they travel to
+the planners and worlds as they are. ``Config.to_dict()`` gives the effective values back in the file's
+layout (for ``dishbot config show`` and the recording's session header).
 """
 
 from __future__ import annotations
@@ -18,7 +20,10 @@ from pathlib import Path
 from typing import Any
 
 from daemon.errors import ConfigError
-from description.thesis import JOINT_SERVOS
+from description.camera import MAX_FOVY_DEG, MIN_FOVY_DEG, CameraSpec
+from description.cell import CellLayout, Tray
+from description.errors import InvalidCell
+from description.thesis import JOINT_SERVOS, MugSpec, mug_catalogue
 from drivers.dynamixel.tables import BAUD_CODES_1, BAUD_CODES_2, MODELS
 from planning.placement import METHODS
 
@@ -49,39 +54,12 @@ class RecordingConfig:
 
 
 @dataclass(frozen=True, slots=True)
-class CellConfig:
-    """The work cell in the world frame (see the comments in ``default_config.toml``)."""
-
-    counter_region_m: tuple[float, float, float, float]
-    flip_area_center_m: tuple[float, float]
-    flip_area_radius_m: float
-    tray_origin_m: tuple[float, float]
-    tray_size_mm: tuple[int, int]
-    table_height_above_floor_m: float
-
-
-@dataclass(frozen=True, slots=True)
 class CameraConfig:
-    """The depth camera: image size, vertical field of view and pose (or a calibration file overriding it)."""
+    """The depth camera's calibration file (``dishbot calibrate`` writes it), overriding the pose in
+    ``[camera]``. The camera itself (image size, field of view, pose) is part of the cell:
+    ``Config.cell.camera``."""
 
-    width: int
-    height: int
-    fovy_deg: float
-    position_m: tuple[float, float, float]
-    yaw_rad: float
-    pitch_rad: float
     calibration_file: Path | None
-
-
-@dataclass(frozen=True, slots=True)
-class MugTypeConfig:
-    """One entry of the mug catalogue: brim diameter l, width with handle w, height, mass."""
-
-    name: str
-    diameter_mm: int
-    width_mm: int
-    height_mm: int
-    mass_kg: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -199,9 +177,10 @@ class Config:
     backend: str
     zenoh: ZenohConfig
     recording: RecordingConfig
-    cell: CellConfig
+    # [cell] with [camera]'s image and pose (cell.camera); its tolerance is planner.tolerance_mm.
+    cell: CellLayout
     camera: CameraConfig
-    mug_types: tuple[MugTypeConfig, ...]
+    mug_types: tuple[MugSpec, ...]
     planner: PlannerConfig
     daemon: DaemonConfig
     grasp: GraspConfig
@@ -209,15 +188,21 @@ class Config:
     arm: ArmConfig
     hardware: HardwareConfig
 
-    def mug_type(self, name: str) -> MugTypeConfig:
+    def mug_type(self, name: str) -> MugSpec:
         for mug in self.mug_types:
             if mug.name == name:
                 return mug
         raise KeyError(name)
 
+    def mug_catalogue(self) -> dict[str, MugSpec]:
+        """The configured mug types by name: what the planners, the detector and the simulated worlds take."""
+        return mug_catalogue(self.mug_types)
+
     def to_dict(self) -> dict[str, Any]:
         """The effective values as plain TOML/JSON types, in the file's layout."""
         out: dict[str, Any] = _plain(self)
+        out["cell"] = _cell_table(self.cell)
+        out["camera"] = {**_plain(self.cell.camera), "calibration_file": _plain(self.camera.calibration_file)}
         out["mug_types"] = {m["name"]: {k: v for k, v in m.items() if k != "name"} for m in out["mug_types"]}
         hw = out["hardware"]
         hw["servos"] = {s["joint"]: {"id": s["id"], "model": s["model"]} for s in hw["servos"]}
@@ -255,15 +240,20 @@ def parse_config(data: Mapping[str, Any]) -> Config:
         raise ConfigError(
             f"robot_id: {robot_id!r} is not allowed; use 1-64 letters, digits, '_' or '-' (a Zenoh key chunk)"
         )
+    backend = root.choice("backend", _BACKENDS)
+    zenoh = _zenoh(root.section("zenoh"))
+    recording = _recording(root.section("recording"))
+    planner = _planner(root.section("planner"))
+    camera_spec, camera = _camera(root.section("camera"))
     config = Config(
         robot_id=robot_id,
-        backend=root.choice("backend", _BACKENDS),
-        zenoh=_zenoh(root.section("zenoh")),
-        recording=_recording(root.section("recording")),
-        cell=_cell(root.section("cell")),
-        camera=_camera(root.section("camera")),
+        backend=backend,
+        zenoh=zenoh,
+        recording=recording,
+        cell=_cell(root.section("cell"), camera_spec, tolerance_mm=planner.tolerance_mm),
+        camera=camera,
         mug_types=_mug_types(root.section("mug_types")),
-        planner=_planner(root.section("planner")),
+        planner=planner,
         daemon=_daemon(root.section("daemon")),
         grasp=_grasp(root.section("grasp")),
         sim=_sim(root.section("sim")),
@@ -296,50 +286,65 @@ def _recording(s: _Section) -> RecordingConfig:
     return cfg
 
 
-def _cell(s: _Section) -> CellConfig:
+def _cell(s: _Section, camera: CameraSpec, *, tolerance_mm: int) -> CellLayout:
+    """``[cell]`` with the camera of ``[camera]``: the one cell layout (its own checks name the field)."""
     region = s.floats("counter_region_m", 4, -2.0, 2.0)
-    if not (region[0] < region[2] and region[1] < region[3]):
-        raise ConfigError(
-            f"cell.counter_region_m: {list(region)} is not [x_min, y_min, x_max, y_max] with min < max"
-        )
     center = s.floats("flip_area_center_m", 2, -2.0, 2.0)
     origin = s.floats("tray_origin_m", 2, -2.0, 2.0)
     size = s.integers("tray_size_mm", 2, 50, 2000)
-    cfg = CellConfig(
-        counter_region_m=(region[0], region[1], region[2], region[3]),
-        flip_area_center_m=(center[0], center[1]),
-        flip_area_radius_m=s.number("flip_area_radius_m", 0.01, 1.0),
-        tray_origin_m=(origin[0], origin[1]),
-        tray_size_mm=(size[0], size[1]),
-        table_height_above_floor_m=s.number("table_height_above_floor_m", 0.3, 2.0),
-    )
+    try:
+        cell = CellLayout(
+            counter_region_m=(region[0], region[1], region[2], region[3]),
+            flip_area_center_m=(center[0], center[1]),
+            flip_area_radius_m=s.number("flip_area_radius_m", 0.01, 1.0),
+            tray=Tray(origin_m=(origin[0], origin[1]), size_mm=(size[0], size[1])),
+            camera=camera,
+            table_height_above_floor_m=s.number("table_height_above_floor_m", 0.3, 2.0),
+            tolerance_mm=tolerance_mm,
+        )
+    except InvalidCell as e:
+        raise ConfigError(str(e)) from e
     s.finish()
-    return cfg
+    return cell
 
 
-def _camera(s: _Section) -> CameraConfig:
+def _cell_table(cell: CellLayout) -> dict[str, Any]:
+    """The ``[cell]`` table of a cell layout, as the config file has it (the inverse of ``_cell``)."""
+    return {
+        "counter_region_m": list(cell.counter_region_m),
+        "flip_area_center_m": list(cell.flip_area_center_m),
+        "flip_area_radius_m": cell.flip_area_radius_m,
+        "tray_origin_m": list(cell.tray.origin_m),
+        "tray_size_mm": list(cell.tray.size_mm),
+        "table_height_above_floor_m": cell.table_height_above_floor_m,
+    }
+
+
+def _camera(s: _Section) -> tuple[CameraSpec, CameraConfig]:
     position = s.floats("position_m", 3, -5.0, 5.0)
     calibration = s.string("calibration_file")
-    cfg = CameraConfig(
-        width=s.integer("width", 16, 4096),
-        height=s.integer("height", 16, 4096),
-        fovy_deg=s.number("fovy_deg", 10.0, 150.0),
-        position_m=(position[0], position[1], position[2]),
-        yaw_rad=s.number("yaw_rad", -2 * math.pi, 2 * math.pi),
-        pitch_rad=s.number("pitch_rad", -math.pi / 2, math.pi / 2),
-        calibration_file=Path(calibration) if calibration else None,
-    )
+    try:
+        spec = CameraSpec(
+            width=s.integer("width", 16, 4096),
+            height=s.integer("height", 16, 4096),
+            fovy_deg=s.number("fovy_deg", MIN_FOVY_DEG, MAX_FOVY_DEG),
+            position_m=(position[0], position[1], position[2]),
+            yaw_rad=s.number("yaw_rad", -2 * math.pi, 2 * math.pi),
+            pitch_rad=s.number("pitch_rad", -math.pi / 2, math.pi / 2),
+        )
+    except InvalidCell as e:
+        raise ConfigError(str(e)) from e
     s.finish()
-    return cfg
+    return spec, CameraConfig(calibration_file=Path(calibration) if calibration else None)
 
 
-def _mug_types(s: _Section) -> tuple[MugTypeConfig, ...]:
+def _mug_types(s: _Section) -> tuple[MugSpec, ...]:
     mugs = []
     for name in s.names():
         if not re.match(r"^[a-z][a-z0-9_]{0,31}$", name):
             raise ConfigError(f"mug_types.{name}: mug type names are 1-32 lower-case letters, digits or '_'")
         m = s.section(name)
-        mug = MugTypeConfig(
+        mug = MugSpec(
             name=name,
             diameter_mm=m.integer("diameter_mm", 20, 300),
             width_mm=m.integer("width_mm", 20, 400),

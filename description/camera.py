@@ -4,10 +4,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Final
 
-import numpy as np
+from description.errors import InvalidCell
 
-from description.arrays import FloatArray
+if TYPE_CHECKING:
+    from description.arrays import FloatArray
+
+# The vertical field of view a camera of the cell may have (degrees).
+MIN_FOVY_DEG: Final = 10.0
+MAX_FOVY_DEG: Final = 120.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,11 +45,18 @@ class CameraSpec:
 
     def __post_init__(self) -> None:
         if self.width < 16 or self.height < 16:
-            raise ValueError(f"camera width/height {self.width}x{self.height}: use at least 16x16 pixels")
-        if not 10.0 <= self.fovy_deg <= 120.0:
-            raise ValueError(f"camera fovy_deg {self.fovy_deg}: use a value in [10, 120] degrees")
+            raise InvalidCell(
+                f"camera.width, camera.height: {self.width}x{self.height} pixels; use at least 16x16"
+            )
+        if not MIN_FOVY_DEG <= self.fovy_deg <= MAX_FOVY_DEG:
+            raise InvalidCell(
+                f"camera.fovy_deg: {self.fovy_deg:g} is out of range; "
+                f"allowed [{MIN_FOVY_DEG:g}, {MAX_FOVY_DEG:g}]"
+            )
         if not 0.0 < self.pitch_rad < math.pi / 2:
-            raise ValueError(f"camera pitch_rad {self.pitch_rad}: it must look down, in (0, pi/2)")
+            raise InvalidCell(
+                f"camera.pitch_rad: {self.pitch_rad:g} does not look down; allowed (0, {math.pi / 2:g})"
+            )
 
     def intrinsics(self) -> CameraIntrinsics:
         """The pinhole model of the rendered image (pixel indices: the first pixel's centre is (0, 0))."""
@@ -59,6 +72,8 @@ class CameraSpec:
 
     def world_from_camera(self) -> FloatArray:
         """4×4 pose of the pinhole camera frame (z along the optical axis, x right, y down) in the world."""
+        import numpy as np  # here, so that reading the config (dishbot config show) loads no numpy
+
         cy, sy = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
         cp, sp = math.cos(self.pitch_rad), math.sin(self.pitch_rad)
         forward = np.array([cp * cy, cp * sy, -sp])

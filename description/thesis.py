@@ -7,6 +7,7 @@ read them from here. Lengths are metres unless the name says ``_mm``; masses are
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Final
 
@@ -22,10 +23,15 @@ class MugSpec:
     mass_kg: float
 
 
+def mug_catalogue(mugs: Iterable[MugSpec]) -> dict[str, MugSpec]:
+    """A mug catalogue as the planners, the detector and the simulated worlds take it: each type by name."""
+    return {m.name: m for m in mugs}
+
+
 # §5.3: the two mug types used in every placement test.
 BIG_MUG: Final = MugSpec("big", diameter_mm=91, width_mm=120, height_mm=106, mass_kg=0.2)
 SMALL_MUG: Final = MugSpec("small", diameter_mm=74, width_mm=100, height_mm=80, mass_kg=0.1)
-MUG_TYPES: Final[dict[str, MugSpec]] = {m.name: m for m in (BIG_MUG, SMALL_MUG)}
+MUG_TYPES: Final[dict[str, MugSpec]] = mug_catalogue((BIG_MUG, SMALL_MUG))
 
 # §5.3.1, Table 5.19: the tolerance between footprints that gave no collisions.
 TOLERANCE_MM: Final = 10

@@ -12,7 +12,7 @@ import numpy as np
 import numpy.typing as npt
 import structlog
 
-from description.cell import TRAY_WALL_THICKNESS_M, SceneLayout
+from description.cell import CellLayout
 from description.thesis import MUG_TYPES, MugSpec
 from drivers.interfaces import Camera, RGBDFrame
 from perception.detector import DepthMugDetector
@@ -45,6 +45,11 @@ class CameraObserver:
         self._preview_width = preview_width
         self._executor = executor
 
+    @property
+    def detector(self) -> DepthMugDetector:
+        """The detector the observer runs on each frame (its catalogue, region and exclusions)."""
+        return self._detector
+
     async def observe(self) -> Observation:
         """One look at the counter; raises ``perception.errors.FrameError`` when the frame is unusable."""
         frame = await self._camera.capture()
@@ -62,14 +67,14 @@ class CameraObserver:
 
 
 def cell_observer_factory(
-    layout: SceneLayout, catalogue: Mapping[str, MugSpec], *, preview_width: int = 160
+    cell: CellLayout, catalogue: Mapping[str, MugSpec], *, preview_width: int = 160
 ) -> Callable[[Camera], CameraObserver]:
-    """Observers for the configured cell: search the table, and leave out the mugs standing in the tray
-    (they are placed; the daemon looks for the mugs still to load, on the counter and the flip area)."""
-    x0, y0, x1, y1 = layout.tray_region_m()
-    wall = TRAY_WALL_THICKNESS_M
-    tray = (x0 - wall, y0 - wall, x1 + wall, y1 + wall)
-    detector = DepthMugDetector(catalogue, region_m=layout.table_region_m(), exclude_m=(tray,))
+    """Observers for the configured cell and mug catalogue: search the table, and leave out the mugs standing
+    in the tray (they are placed; the daemon looks for the mugs still to load, on the counter and the flip
+    area). The hardware and the MuJoCo cell both observe through it."""
+    detector = DepthMugDetector(
+        catalogue, region_m=cell.table_region_m, exclude_m=(cell.tray.outer_region_m,)
+    )
 
     def factory(camera: Camera) -> CameraObserver:
         return CameraObserver(camera, detector, preview_width=preview_width)

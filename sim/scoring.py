@@ -9,14 +9,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from description.cell import SceneLayout, SceneMug
+from description.cell import CellLayout, SceneMug
 from description.thesis import MugSpec
 from perception.interfaces import Detection
-from planning.placement.datasets import dataset_problem
+from sim.counter import dataset_counter
 
 # A detection farther than this from every mug is a false positive.
 MATCH_GATE_M = 0.03
@@ -24,37 +24,34 @@ MATCH_GATE_M = 0.03
 
 def dataset_mugs(
     number: int,
-    layout: SceneLayout,
+    cell: CellLayout,
     catalogue: Mapping[str, MugSpec],
     *,
     seed: int = 0,
     yaw_jitter_rad: float = math.radians(20),
     upside_down_fraction: float = 0.15,
 ) -> list[SceneMug]:
-    """The mugs of dataset ``number`` where ``planning.placement.dataset_problem`` puts them on the counter.
+    """The mugs of dataset ``number`` where the simulated counter puts them (``sim.counter``), posed for
+    scoring the detector.
 
     Handles point along +x as the planner assumes, give or take ``yaw_jitter_rad``, and a few mugs stand
     upside down, so a frame exercises more than one pose. Deterministic for a given seed.
     """
-    problem = dataset_problem(number, counter_region_m=layout.counter_region_m)
     rng = np.random.default_rng(seed * 1000 + number)
     return [
-        SceneMug(
-            mug_id=m.id,
-            spec=catalogue[m.type],
-            x_m=m.x_mm / 1000.0,
-            y_m=m.y_mm / 1000.0,
+        replace(
+            m,
             yaw_rad=float(rng.uniform(-yaw_jitter_rad, yaw_jitter_rad)),
             upside_down=bool(rng.random() < upside_down_fraction),
         )
-        for m in problem.mugs
+        for m in dataset_counter(number, cell, catalogue).mugs
     ]
 
 
-def clutter_xml(layout: SceneLayout) -> str:
+def clutter_xml(cell: CellLayout) -> str:
     """Things on the table that are not mugs: a ball and a box as tall as mugs, beside the flip area."""
-    fx, fy = layout.flip_area_center_m
-    r = layout.flip_area_radius_m
+    fx, fy = cell.flip_area_center_m
+    r = cell.flip_area_radius_m
     return f"""    <body name="clutter/ball" pos="{fx - r - 0.07:.4f} {fy - 0.02:.4f} 0.042">
       <geom name="clutter/ball" type="sphere" size="0.042" rgba="0.9 0.8 0.1 1" mass="0.05"/>
     </body>

@@ -12,7 +12,6 @@ from typing import TYPE_CHECKING
 from daemon.commands.output import format_table
 from daemon.config import load_config
 from daemon.errors import ConfigError, UsageError
-from description.thesis import MugSpec
 
 if TYPE_CHECKING:
     from planning.arm import ArmModel
@@ -163,7 +162,7 @@ def run_ik(args: argparse.Namespace) -> int:
 
 
 def run_workspace(args: argparse.Namespace) -> int:
-    from planning.motion import CellLayout
+    from planning.motion import check_reachable
     from planning.motion.workspace import describe, draw_workspace, served_tray, workspace
 
     if args.png is not None and not args.png.parent.resolve().is_dir():
@@ -173,13 +172,11 @@ def run_workspace(args: argparse.Namespace) -> int:
         config = load_config(args.config)
     except ConfigError as e:
         raise UsageError(f"--config: {e}") from e
-    cell = CellLayout.from_config(config.cell)
-    catalogue = {
-        m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in config.mug_types
-    }
-    ws = workspace(arm, catalogue, tray_floor_m=cell.tray_floor_m)
+    cell = config.cell
+    catalogue = config.mug_catalogue()
+    ws = workspace(arm, catalogue, tray_floor_m=cell.tray.base_m)
     tray = served_tray(arm, ws, catalogue, tolerance_mm=cell.tolerance_mm)
-    problems = cell.check_reachable(arm, catalogue)
+    problems = check_reachable(cell, arm, catalogue)
     if args.png is not None:
         draw_workspace(arm, cell, ws, args.png)
     rows = describe(ws)

@@ -156,7 +156,7 @@ def _intrinsics(args: argparse.Namespace) -> CameraModel:
     try:
         if args.camera is not None:
             return load_camera_json(args.camera)
-        c = load_config(args.config).camera
+        c = load_config(args.config).cell.camera
         return camera_model(
             width=c.width,
             height=c.height,

@@ -12,7 +12,6 @@ from typing import TYPE_CHECKING
 
 from daemon.config import load_config
 from daemon.errors import UsageError
-from description.thesis import MugSpec
 
 if TYPE_CHECKING:
     import numpy as np
@@ -62,12 +61,9 @@ def run(args: argparse.Namespace) -> int:
     camera = _camera(args.camera)
     depth = read_depth_png(args.depth, camera)
     config = load_config(args.config)
-    catalogue = {
-        m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in config.mug_types
-    }
     frame = RGBDFrame(time.monotonic(), depth, camera.intrinsics, camera.world_from_camera)
     try:
-        mugs = DepthMugDetector(catalogue).detect(frame)
+        mugs = DepthMugDetector(config.mug_catalogue()).detect(frame)
     except PerceptionError as e:
         raise UsageError(f"{args.depth}: {e}") from e
     _print(mugs, as_json=args.json)

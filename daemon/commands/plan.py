@@ -10,7 +10,6 @@ import tempfile
 from pathlib import Path
 
 from daemon.config import load_config
-from daemon.datasets import cell_dataset_problem
 from daemon.errors import UsageError
 from description import thesis
 from planning.placement import (
@@ -21,6 +20,7 @@ from planning.placement import (
     Problem,
     plan,
 )
+from planning.placement.datasets import cell_dataset_problem
 from planning.placement.heuristics import Heuristic
 from planning.placement.sorts import Sort
 

@@ -148,32 +148,18 @@ async def _serve(
 async def _backend(
     args: argparse.Namespace, config: Config, speed: float | None, pool: concurrent.futures.Executor
 ) -> Backend:
-    from daemon.backend import (
-        ProcessMotionPlanner,
-        check_cell_reachable,
-        open_hardware_backend,
-        open_sim_backend,
-    )
-    from planning.arm import ArmModel
+    from daemon.backend import SimOptions, open_backend
 
-    # A cell the arm cannot serve is refused before any device moves (or any simulator starts).
-    check_cell_reachable(config, ArmModel.load())
+    sim: SimOptions | None = None
     if args.sim or config.backend == "sim":
-        world = args.world or config.sim.world
-        seed = config.sim.seed if args.seed is None else args.seed
-        backend = await open_sim_backend(
-            config, world=world, dataset=args.dataset or 1, speed=speed, seed=seed, executor=pool
-        )
+        sim = SimOptions(world=args.world, dataset=args.dataset or 1, speed=speed, seed=args.seed)
     else:
         for flag, value in (("--world", args.world), ("--dataset", args.dataset), ("--seed", args.seed)):
             if value is not None:
                 raise UsageError(f"{flag} sets up the simulated cell; add --sim (backend is hardware)")
         if speed is not None:
             raise UsageError("--speed sets up the simulated cell; add --sim (backend is hardware)")
-        backend = await open_hardware_backend(config, executor=pool)
-    if isinstance(backend.motion, ProcessMotionPlanner):
-        backend.motion.warm_up()
-    return backend
+    return await open_backend(config, sim=sim, executor=pool)
 
 
 def association() -> Associate:

@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import functools
 
-from daemon.backend import CyclePlannerSpec, Tray, plan_placement
+from daemon.backend import CyclePlannerSpec, plan_placement
 from daemon.config import Config
 from daemon.job.context import JobContext, Outcome
 from daemon.job.cycles import NEXT_CYCLE_READS, NEXT_CYCLE_WRITES, take_next_cycle
 from daemon.job.services import Services
 from daemon.job.unit import Unit
+from description.cell import Tray
 from planning.interfaces import PlacementPlanner, TraySlot
 from planning.placement import CounterMug, InvalidProblem, MugType, PlanResult, Problem, TrayMug, plan
 

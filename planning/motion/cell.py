@@ -1,150 +1,81 @@
-"""The work cell as motion planning sees it: counter region, flip area and tray, in the world frame.
+"""The work cell as motion planning sees it: whether the arm can serve a ``description.cell.CellLayout``.
 
-``CellLayout`` mirrors the ``[cell]`` section of the config. ``check_reachable`` is what the daemon runs at
-start: the corners of the area a mug's axis can take on the counter (mugs stand with their footprints in the
-counter region, so axes stay a brim radius inside it) and its point nearest the arm, the extreme points of
-the flip area, and the corners and nearest point of the axis area on the tray must be reachable with the side
-grasps that happen there (thesis §4.3: grasp and release 6 cm above the table, carry and flip above the
-tallest mug). The side-grasp workspace is a ring around the shoulder axis, so the nearest point matters as
-much as the far corners.
+``check_reachable`` is what the daemon runs at start: the corners of the area a mug's axis can take on the
+counter (mugs stand with their footprints in the counter region, so axes stay a brim radius inside it) and
+its point nearest the arm, the extreme points of the flip area, and the corners and nearest point of the
+axis area on the tray must be reachable with the side grasps that happen there (thesis §4.3: grasp and
+release 6 cm above the table, carry and flip above the tallest mug). The side-grasp workspace is a ring
+around the shoulder axis, so the nearest point matters as much as the far corners.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 
 from description import thesis
+from description.cell import CellLayout
 from description.thesis import MugSpec
 from planning.arm.grasp import side_grasp
 from planning.arm.model import ArmModel
 from planning.arm.targets import GraspKind
-from planning.motion.errors import InvalidCell
 
 _CARRY_MARGIN_M = 0.005
 
 
-@dataclass(frozen=True, slots=True)
-class CellLayout:
-    """Where things are on the counter (metres; z = 0 is the counter top, the tray stands on it)."""
+def check_reachable(
+    cell: CellLayout, arm: ArmModel, catalogue: Mapping[str, MugSpec] | None = None
+) -> list[str]:
+    """One line per corner of ``cell`` the arm cannot serve with every mug type of the catalogue (empty: all
+    fine)."""
+    mugs = list((catalogue or thesis.MUG_TYPES).values())
+    tallest = max(m.height_mm for m in mugs) / 1000.0
+    carry_z = carry_height_m(tallest + max(0.0, cell.tray.base_m))
+    checks: list[tuple[str, tuple[float, float], Sequence[tuple[GraspKind, float]], Sequence[MugSpec]]] = []
+    counter_moves = ((GraspKind.SIDE, thesis.GRASP_HEIGHT_M), (GraspKind.SIDE, carry_z))
+    inset = min(m.diameter_mm for m in mugs) / 2000.0
+    x0, y0, x1, y1 = cell.counter_region_m
+    counter_area = (x0 + inset, y0 + inset, x1 - inset, y1 - inset)
+    for corner in _corners_and_nearest(counter_area):
+        checks.append(("counter point", corner, counter_moves, mugs))
+    cx, cy = cell.flip_area_center_m
+    r = cell.flip_area_radius_m
+    # Set down upside down: the grasp point is as high above the counter as the mug is tall, less 6 cm.
+    set_down_z = min(m.height_mm for m in mugs) / 1000.0 - thesis.GRASP_HEIGHT_M
+    flip_moves = (
+        (GraspKind.SIDE, carry_z),
+        (GraspKind.SIDE_UPSIDE_DOWN, carry_z),
+        (GraspKind.SIDE_UPSIDE_DOWN, max(set_down_z, 0.0)),
+        (GraspKind.SIDE_UPSIDE_DOWN, thesis.GRASP_HEIGHT_M),
+    )
+    for point in ((cx - r, cy), (cx + r, cy), (cx, cy - r), (cx, cy + r)):
+        checks.append(("flip area point", point, flip_moves, mugs))
+    place_moves = (
+        (GraspKind.SIDE_UPSIDE_DOWN, thesis.PLACE_HEIGHT_M),
+        (GraspKind.SIDE_UPSIDE_DOWN, carry_z),
+    )
+    for mug in mugs:
+        for corner in _corners_and_nearest(tray_axis_area(cell, mug)):
+            checks.append(("tray point", corner, place_moves, [mug]))
+    problems = []
+    for what, (x, y), moves, specs in checks:
+        for spec in specs:
+            failure = _first_failure(arm, x, y, spec, moves)
+            if failure:
+                problems.append(f"{what} ({x:.3f}, {y:.3f}) m, {spec.name} mug: {failure}")
+                break
+    return problems
 
-    counter_region_m: tuple[float, float, float, float]  # x_min, y_min, x_max, y_max
-    flip_area_center_m: tuple[float, float]
-    flip_area_radius_m: float
-    tray_origin_m: tuple[float, float]  # corner nearest the arm base
-    tray_size_mm: tuple[int, int]  # along x, along y
-    # Not in the config: the simulated tray's base, walls (outside the inner rectangle) and thickness.
-    tray_floor_m: float = 0.006
-    tray_wall_height_m: float = 0.025
-    tray_wall_thickness_m: float = 0.008
-    tolerance_mm: int = thesis.TOLERANCE_MM
 
-    def __post_init__(self) -> None:
-        x0, y0, x1, y1 = self.counter_region_m
-        if not (x1 > x0 and y1 > y0):
-            raise InvalidCell(
-                f"cell.counter_region_m: {list(self.counter_region_m)} is not [x_min, y_min, x_max, y_max] "
-                "with min < max"
-            )
-        if not self.flip_area_radius_m > 0:
-            raise InvalidCell(f"cell.flip_area_radius_m: {self.flip_area_radius_m} must be > 0")
-        if min(self.tray_size_mm) <= 0:
-            raise InvalidCell(f"cell.tray_size_mm: {list(self.tray_size_mm)} must be two positive lengths")
-        values = (
-            *self.counter_region_m,
-            *self.flip_area_center_m,
-            *self.tray_origin_m,
-            self.flip_area_radius_m,
-        )
-        if not all(math.isfinite(v) for v in values):
-            raise InvalidCell("cell: every coordinate must be a finite number of metres")
-
-    @classmethod
-    def from_config(cls, cell: object) -> CellLayout:
-        """From the daemon's ``CellConfig`` (or any object with the ``[cell]`` attributes)."""
-        return cls(
-            counter_region_m=_floats(cell, "counter_region_m", 4),  # type: ignore[arg-type]
-            flip_area_center_m=_floats(cell, "flip_area_center_m", 2),  # type: ignore[arg-type]
-            flip_area_radius_m=float(getattr(cell, "flip_area_radius_m")),  # noqa: B009
-            tray_origin_m=_floats(cell, "tray_origin_m", 2),  # type: ignore[arg-type]
-            tray_size_mm=tuple(int(v) for v in getattr(cell, "tray_size_mm")),  # type: ignore[arg-type]  # noqa: B009
-        )
-
-    @classmethod
-    def from_mapping(cls, cell: Mapping[str, object]) -> CellLayout:
-        """From the ``[cell]`` table of a parsed TOML file."""
-
-        class _View:
-            def __getattr__(self, name: str) -> object:
-                try:
-                    return cell[name]
-                except KeyError as e:
-                    raise InvalidCell(f"cell.{name} is missing") from e
-
-        return cls.from_config(_View())
-
-    @property
-    def tray_bounds_m(self) -> tuple[float, float, float, float]:
-        """Inner tray rectangle: x_min, y_min, x_max, y_max."""
-        x0, y0 = self.tray_origin_m
-        return x0, y0, x0 + self.tray_size_mm[0] / 1000.0, y0 + self.tray_size_mm[1] / 1000.0
-
-    def tray_to_world(self, x_mm: float, y_mm: float) -> tuple[float, float]:
-        """A point in tray coordinates (mm from the corner nearest the arm) in the world frame (m)."""
-        return self.tray_origin_m[0] + x_mm / 1000.0, self.tray_origin_m[1] + y_mm / 1000.0
-
-    def check_reachable(self, arm: ArmModel, catalogue: Mapping[str, MugSpec] | None = None) -> list[str]:
-        """One line per corner the arm cannot serve with every mug type of the catalogue (empty: all fine)."""
-        mugs = list((catalogue or thesis.MUG_TYPES).values())
-        tallest = max(m.height_mm for m in mugs) / 1000.0
-        carry_z = carry_height_m(tallest + max(0.0, self.tray_floor_m))
-        checks: list[
-            tuple[str, tuple[float, float], Sequence[tuple[GraspKind, float]], Sequence[MugSpec]]
-        ] = []
-        counter_moves = ((GraspKind.SIDE, thesis.GRASP_HEIGHT_M), (GraspKind.SIDE, carry_z))
-        inset = min(m.diameter_mm for m in mugs) / 2000.0
-        x0, y0, x1, y1 = self.counter_region_m
-        counter_area = (x0 + inset, y0 + inset, x1 - inset, y1 - inset)
-        for corner in _corners_and_nearest(counter_area):
-            checks.append(("counter point", corner, counter_moves, mugs))
-        cx, cy = self.flip_area_center_m
-        r = self.flip_area_radius_m
-        # Set down upside down: the grasp point is as high above the counter as the mug is tall, less 6 cm.
-        set_down_z = min(m.height_mm for m in mugs) / 1000.0 - thesis.GRASP_HEIGHT_M
-        flip_moves = (
-            (GraspKind.SIDE, carry_z),
-            (GraspKind.SIDE_UPSIDE_DOWN, carry_z),
-            (GraspKind.SIDE_UPSIDE_DOWN, max(set_down_z, 0.0)),
-            (GraspKind.SIDE_UPSIDE_DOWN, thesis.GRASP_HEIGHT_M),
-        )
-        for point in ((cx - r, cy), (cx + r, cy), (cx, cy - r), (cx, cy + r)):
-            checks.append(("flip area point", point, flip_moves, mugs))
-        place_moves = (
-            (GraspKind.SIDE_UPSIDE_DOWN, thesis.PLACE_HEIGHT_M),
-            (GraspKind.SIDE_UPSIDE_DOWN, carry_z),
-        )
-        for mug in mugs:
-            for corner in _corners_and_nearest(self.tray_axis_area(mug)):
-                checks.append(("tray point", corner, place_moves, [mug]))
-        problems = []
-        for what, (x, y), moves, specs in checks:
-            for spec in specs:
-                failure = _first_failure(arm, x, y, spec, moves)
-                if failure:
-                    problems.append(f"{what} ({x:.3f}, {y:.3f}) m, {spec.name} mug: {failure}")
-                    break
-        return problems
-
-    def tray_axis_area(self, mug: MugSpec) -> tuple[float, float, float, float]:
-        """The area (x_min, y_min, x_max, y_max) an unrotated mug's axis can take inside the tray: its
-        footprint (handle along +x, plus tolerance) must fit."""
-        tx0, ty0, tx1, ty1 = self.tray_bounds_m
-        half_y = (mug.diameter_mm + self.tolerance_mm) / 2000.0
-        # The brim's axis is r + tol/2 from the footprint's near x edge, w - r + tol/2 from its far edge.
-        near_x = mug.diameter_mm / 2000.0 + self.tolerance_mm / 2000.0
-        far_x = (mug.width_mm + self.tolerance_mm) / 1000.0 - near_x
-        return tx0 + near_x, ty0 + half_y, tx1 - far_x, ty1 - half_y
+def tray_axis_area(cell: CellLayout, mug: MugSpec) -> tuple[float, float, float, float]:
+    """The area (x_min, y_min, x_max, y_max) an unrotated mug's axis can take inside the tray: its footprint
+    (handle along +x, plus the cell's tolerance) must fit."""
+    tx0, ty0, tx1, ty1 = cell.tray.region_m
+    tol = cell.tolerance_mm
+    half_y = (mug.diameter_mm + tol) / 2000.0
+    # The brim's axis is r + tol/2 from the footprint's near x edge, w - r + tol/2 from its far edge.
+    near_x = mug.diameter_mm / 2000.0 + tol / 2000.0
+    far_x = (mug.width_mm + tol) / 1000.0 - near_x
+    return tx0 + near_x, ty0 + half_y, tx1 - far_x, ty1 - half_y
 
 
 def _corners_and_nearest(area: tuple[float, float, float, float]) -> list[tuple[float, float]]:
@@ -177,14 +108,3 @@ def _first_failure(
         if not result.ok:
             return f"{kind} grasp at z={z:.3f} m: {result.reason}"
     return ""
-
-
-def _floats(cell: object, name: str, n: int) -> tuple[float, ...]:
-    raw = getattr(cell, name)
-    try:
-        values = tuple(float(v) for v in raw)
-    except (TypeError, ValueError) as e:
-        raise InvalidCell(f"cell.{name}: expected {n} numbers") from e
-    if len(values) != n:
-        raise InvalidCell(f"cell.{name}: expected {n} numbers, got {len(values)}")
-    return values

@@ -19,13 +19,13 @@ import numpy as np
 import structlog
 
 from description import thesis
+from description.cell import CellLayout
 from description.thesis import MugSpec
 from drivers.interfaces import FloatArray
 from planning.arm.grasp import handle_facing_away_rad, lateral_offset_m, side_grasp
 from planning.arm.model import ArmModel
 from planning.arm.targets import GraspKind, GraspTarget
 from planning.interfaces import MotionRefused, MugPose, TraySlot
-from planning.motion.cell import CellLayout
 from planning.motion.energy import DynamicsEnergyModel
 from planning.motion.planner import CyclePlanner
 from planning.motion.trajectory import JointPath
@@ -121,7 +121,7 @@ class DynamicsMoveCost:
         return _Overhead(max(0.0, cycle.duration_s - moves[0]), max(0.0, cycle.energy_j - moves[1]))
 
     def _tray_centre(self) -> tuple[float, float]:
-        x0, y0, x1, y1 = self.cell.tray_bounds_m
+        x0, y0, x1, y1 = self.cell.tray.region_m
         return (x0 + x1) / 2, (y0 + y1) / 2
 
     def _pose(

@@ -21,6 +21,7 @@ import structlog
 
 from description import thesis
 from description.arm import JOINT_LIMITS
+from description.cell import CellLayout
 from description.thesis import MugSpec
 from drivers.interfaces import FloatArray, JointTrajectory
 from planning.arm.calibration import PositionCorrection
@@ -28,7 +29,7 @@ from planning.arm.grasp import lateral_offset_m, reach_past_axis_m, side_grasp
 from planning.arm.model import ArmModel, JointValues
 from planning.arm.targets import GraspKind, GraspTarget
 from planning.interfaces import CyclePlan, MotionRefused, MugPose, Step, StepKind, TraySlot
-from planning.motion.cell import CellLayout, carry_height_m
+from planning.motion.cell import carry_height_m
 from planning.motion.collision import (
     BASE_COLUMN,
     Box,
@@ -98,7 +99,7 @@ class CyclePlanner:
         self._lock = threading.Lock()
         tallest = max(m.height_mm for m in self.catalogue.values()) / 1000.0
         # Mugs on the tray stand on its base, so the tallest obstacle is that much higher there.
-        self.carry_z_m = carry_height_m(tallest + max(0.0, cell.tray_floor_m))
+        self.carry_z_m = carry_height_m(tallest + max(0.0, cell.tray.base_m))
         self.open_aperture_m = arm.gripper.aperture_m(JOINT_LIMITS["gripper"].lower_rad)
 
     def __getstate__(self) -> dict[str, object]:
@@ -197,7 +198,7 @@ class CyclePlanner:
         ``HANDLE_CLEARANCE_M`` from every placed mug's body and handle."""
         mine = _handle_bar(slot.x_m, slot.y_m, spec, yaw)
         where = f"mug {mug.mug_id}'s handle would end at {math.degrees(yaw):.0f} deg"
-        x0, y0, x1, y1 = self.cell.tray_bounds_m
+        x0, y0, x1, y1 = self.cell.tray.region_m
         reach = HANDLE_HALF_THICKNESS_M
         (ax, ay), (bx, by) = mine
         if (
@@ -392,7 +393,7 @@ class CyclePlanner:
 
     def _place(self, plan: _Builder, c: _CycleContext, kind: GraspKind) -> None:
         """place: carry to above the slot, descend until the brim is just above the tray, let go, back off."""
-        tray_z = self.cell.tray_floor_m
+        tray_z = self.cell.tray.base_m
         place_z = tray_z + thesis.GRASP_HEIGHT_M + self.release_gap_m
         place = self._grasp(c.slot.x_m, c.slot.y_m, c.spec, kind, place_z, f"slot of {c.mug.mug_id}")
         held = c.held(kind)
@@ -578,7 +579,7 @@ class CyclePlanner:
         return arr
 
     def _check_slot_in_tray(self, slot: TraySlot, spec: MugSpec) -> None:
-        x0, y0, x1, y1 = self.cell.tray_bounds_m
+        x0, y0, x1, y1 = self.cell.tray.region_m
         r = spec.diameter_mm / 2000.0
         handle = spec.width_mm / 1000.0 - r
         if not (
@@ -612,7 +613,7 @@ class CyclePlanner:
         for s in placed:
             yaw = s.handle_yaw_rad if s.handle_yaw_rad is not None else (math.pi / 2 if s.rotated else 0.0)
             spec = self._spec(s.type, f"mug {s.mug_id}")
-            floor = self.cell.tray_floor_m
+            floor = self.cell.tray.base_m
             cylinders += mug_obstacles(
                 f"mug {s.mug_id}", s.x_m, s.y_m, spec, handle_yaw_rad=yaw, floor_z=floor
             )
@@ -626,9 +627,9 @@ class CyclePlanner:
                 floor_z=target_floor,
             )
         walls: list[Box] = tray_walls(
-            self.cell.tray_bounds_m,
-            height=self.cell.tray_wall_height_m,
-            thickness=self.cell.tray_wall_thickness_m,
+            self.cell.tray.region_m,
+            height=self.cell.tray.wall_height_m,
+            thickness=self.cell.tray.wall_thickness_m,
         )
         return CollisionWorld(self.arm, cylinders, walls)
 

@@ -19,12 +19,13 @@ import numpy as np
 
 from description import thesis
 from description.arm import JOINT_LIMITS
+from description.cell import CellLayout
 from description.thesis import MugSpec
 from drivers.interfaces import FloatArray
 from planning.arm.grasp import lateral_offset_m, side_grasp
 from planning.arm.model import ArmModel
 from planning.arm.targets import GraspKind
-from planning.motion.cell import CellLayout, carry_height_m
+from planning.motion.cell import carry_height_m
 from planning.motion.collision import BASE_COLUMN, CollisionWorld
 
 _STEP_M = 0.01
@@ -240,7 +241,7 @@ def draw_workspace(
     cv2.line(image, px(0, y1), px(0, y0), (200, 200, 200), 1)
     cx0, cy0, cx1, cy1 = cell.counter_region_m
     cv2.rectangle(image, px(cx1, cy1), px(cx0, cy0), (40, 120, 40), 2)
-    tx0, ty0, tx1, ty1 = cell.tray_bounds_m
+    tx0, ty0, tx1, ty1 = cell.tray.region_m
     cv2.rectangle(image, px(tx1, ty1), px(tx0, ty0), (160, 80, 20), 2)
     fx, fy = cell.flip_area_center_m
     cv2.circle(image, px(fx, fy), int(cell.flip_area_radius_m * px_per_m), (30, 30, 180), 2, cv2.LINE_AA)

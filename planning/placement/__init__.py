@@ -6,7 +6,7 @@ model that proves the largest number of mugs that fit, and ``auto``, which combi
 
 from planning.interfaces import PlacementPlanner
 from planning.placement.cost import MoveCost, ThesisMoveCost
-from planning.placement.datasets import dataset_problem
+from planning.placement.datasets import cell_dataset_problem, dataset_problem
 from planning.placement.errors import InvalidProblem
 from planning.placement.planner import METHODS, PlacedMug, PlanOptions, PlanResult, plan
 from planning.placement.problem import CounterMug, MugType, Problem, TrayMug
@@ -24,6 +24,7 @@ __all__ = [
     "Problem",
     "ThesisMoveCost",
     "TrayMug",
+    "cell_dataset_problem",
     "dataset_problem",
     "plan",
 ]

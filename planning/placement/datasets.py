@@ -5,7 +5,8 @@ counter region, at least ``GAP_MM`` apart, so none reaches into the tray next to
 many columns and rows as fit, spread evenly over the region. When the mugs cannot fit (the 30-mug datasets),
 the region grows away from the tray: its corner nearest the tray (x_max, y_min) stays, x_min moves back and
 y_max moves out by one grid pitch at a time, alternately (x first), until the grid holds every mug.
-Which mug is big or small is a fixed shuffle seeded by the dataset number.
+Which mug is big or small is a fixed shuffle seeded by the dataset number. ``cell_dataset_problem`` is the
+problem on a configured cell; the simulated counters (``sim.counter``) set the same mugs out.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import math
 import random
 
 from description import thesis
+from description.cell import CellLayout
 from planning.placement.errors import InvalidProblem
 from planning.placement.problem import CounterMug, Problem, default_mug_types
 
@@ -79,4 +81,15 @@ def dataset_problem(
         tray_origin_mm=(round(ox * 1000.0, 1), round(oy * 1000.0, 1)),
         mugs=tuple(mugs),
         mug_types=types,
+    )
+
+
+def cell_dataset_problem(cell: CellLayout, n: int) -> Problem:
+    """Dataset ``n`` with its mugs on the cell's counter region. The robot-tray datasets (1-3) use the cell's
+    tray pose; the full-size-tray ones keep the full-size tray's default pose (``FULL_TRAY_ORIGIN_M``)."""
+    robot_tray = thesis.DATASETS[n].tray_mm == thesis.ROBOT_TRAY_MM if n in thesis.DATASETS else True
+    return dataset_problem(
+        n,
+        counter_region_m=cell.counter_region_m,
+        tray_origin_m=cell.tray.origin_m if robot_tray else None,
     )

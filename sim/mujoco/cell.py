@@ -25,8 +25,8 @@ import mujoco
 import structlog
 
 from description.arm import BUNDLED_URDF
-from description.cell import SceneLayout, SceneMug
-from description.thesis import JOINT_SERVOS, MugSpec
+from description.cell import CellLayout, SceneMug
+from description.thesis import JOINT_SERVOS
 from drivers.dynamixel import (
     BusConfig,
     DeviceEvent,
@@ -40,7 +40,6 @@ from drivers.sim.servo_chain import ServoChainSimulator, default_chain
 from drivers.stack import ARM_JOINTS, FsrSettings, StackSpec, arm_joints, gripper_spec, open_device_stack
 from perception import CameraObserver
 from perception.interfaces import MugObserver
-from planning.arm.grasp import handle_facing_away_rad
 from sim.mujoco.arm import build_arm_mjcf, load_urdf
 from sim.mujoco.camera import DepthCamera, DepthNoise
 from sim.mujoco.collisions import TrayCollision, TrayCollisionCounter
@@ -129,7 +128,7 @@ class SimCell:
     and the collision events.
     """
 
-    layout: SceneLayout
+    layout: CellLayout
     arm: DynamixelArm
     gripper: DynamixelGripper
     force: FsrReader
@@ -198,27 +197,8 @@ class SimCell:
         }
 
 
-def scene_mugs(
-    entries: Sequence[tuple[str, str, float, float]], catalogue: Mapping[str, MugSpec]
-) -> list[SceneMug]:
-    """Counter mugs from (id, type, x, y) entries, upright, each with its handle pointing away from the arm's
-    shoulder axis (``planning.arm.grasp.handle_facing_away_rad``): the side grasp comes from behind the mug,
-    and a mug taken that way ends on the tray with its handle within the slot's bearing (under 20 degrees) of
-    +x, inside the footprint the placement plans with. The arm has no wrist yaw: side grasp, flip and regrasp
-    mirror the handle's angle to the approach, so it lands at slot bearing + pick bearing - counter yaw."""
-    unknown = sorted({t for _, t, _, _ in entries} - set(catalogue))
-    if unknown:
-        raise ValueError(
-            f"mug types {', '.join(unknown)} are not in the catalogue ({', '.join(sorted(catalogue))})"
-        )
-    return [
-        SceneMug(mug_id, catalogue[kind], x, y, yaw_rad=handle_facing_away_rad(x, y))
-        for mug_id, kind, x, y in entries
-    ]
-
-
 async def start_sim_cell(
-    layout: SceneLayout,
+    layout: CellLayout,
     mugs: Sequence[SceneMug],
     *,
     speed: float = 1.0,
@@ -263,7 +243,7 @@ async def start_sim_cell(
             physics=physics,
             initial_pose_rad=pose,
         )
-        counter = TrayCollisionCounter(world, layout.tray_region_m(), on_collision=dispatch)
+        counter = TrayCollisionCounter(world, layout.tray.region_m, on_collision=dispatch)
         world.start()
         return world, _camera(world, layout, noise, seed), counter
 
@@ -321,7 +301,7 @@ async def start_sim_cell(
 
 @contextlib.asynccontextmanager
 async def open_sim_cell(
-    layout: SceneLayout,
+    layout: CellLayout,
     mugs: Sequence[SceneMug],
     *,
     speed: float = 1.0,
@@ -366,7 +346,7 @@ def _pose(start_pose_rad: Sequence[float] | None) -> dict[str, float] | None:
     return pose
 
 
-def _camera(world: SimWorld, layout: SceneLayout, noise: DepthNoise | None, seed: int) -> SnapshotCamera:
+def _camera(world: SimWorld, layout: CellLayout, noise: DepthNoise | None, seed: int) -> SnapshotCamera:
     return SnapshotCamera(
         world, width=layout.camera.width, height=layout.camera.height, noise=noise, seed=seed
     )
@@ -378,6 +358,5 @@ __all__ = [
     "SnapshotCamera",
     "gripper_spec",
     "open_sim_cell",
-    "scene_mugs",
     "start_sim_cell",
 ]

@@ -23,13 +23,7 @@ import numpy.typing as npt
 
 from description.arrays import FloatArray
 from description.camera import CameraSpec
-from description.cell import (
-    TRAY_BASE_M,
-    TRAY_WALL_HEIGHT_M,
-    TRAY_WALL_THICKNESS_M,
-    SceneLayout,
-    SceneMug,
-)
+from description.cell import CellLayout, SceneMug, Tray
 from description.thesis import MugSpec
 
 CAMERA_NAME: Final = "depth_camera"
@@ -49,7 +43,7 @@ HANDLE_ARM_FRACTIONS: Final = (0.28, 0.72)
 
 
 def build_mjcf(
-    layout: SceneLayout,
+    layout: CellLayout,
     mugs: Sequence[SceneMug],
     *,
     arm_body_xml: str = "",
@@ -69,7 +63,7 @@ def build_mjcf(
     specs = {m.spec.name: m.spec for m in mugs}
     assets = "\n".join(_mug_mesh_asset(s) for s in specs.values())
     cam = layout.camera
-    x0, y0, x1, y1 = layout.table_region_m()
+    x0, y0, x1, y1 = layout.table_region_m
     table_h = layout.table_height_above_floor_m
     centre = ((x0 + x1) / 2, (y0 + y1) / 2, 0.0)
     bodies = "\n".join(_mug_body(m, layout.mug_base_z_m(m.x_m, m.y_m)) for m in mugs)
@@ -103,7 +97,7 @@ def build_mjcf(
           friction="0.8 0.01 0.001"/>
     <geom name="{FLIP_AREA_GEOM}" type="cylinder" pos="{_v((fx, fy, 0.0005))}"
           size="{layout.flip_area_radius_m:.6g} 0.0005" material="flip" contype="0" conaffinity="0"/>
-{_tray_xml(layout)}
+{_tray_xml(layout.tray)}
     {camera_mjcf(cam)}
 {bodies}
 {extra_body_xml}
@@ -230,9 +224,9 @@ def _mug_body(mug: SceneMug, base_z: float) -> str:
     </body>"""
 
 
-def _tray_xml(layout: SceneLayout) -> str:
-    x0, y0, x1, y1 = layout.tray_region_m()
-    t, hw = TRAY_WALL_THICKNESS_M, TRAY_WALL_HEIGHT_M
+def _tray_xml(tray: Tray) -> str:
+    x0, y0, x1, y1 = tray.region_m
+    t, hw, base = tray.wall_thickness_m, tray.wall_height_m, tray.base_m
     cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
     lx, ly = (x1 - x0) / 2, (y1 - y0) / 2
     walls = {
@@ -243,8 +237,8 @@ def _tray_xml(layout: SceneLayout) -> str:
     }
     lines = [
         '    <body name="tray">',
-        f'      <geom name="{TRAY_PREFIX}base" type="box" pos="{_v((cx, cy, TRAY_BASE_M / 2))}" '
-        f'size="{_v((lx, ly, TRAY_BASE_M / 2))}" material="tray"/>',
+        f'      <geom name="{TRAY_PREFIX}base" type="box" pos="{_v((cx, cy, base / 2))}" '
+        f'size="{_v((lx, ly, base / 2))}" material="tray"/>',
     ]
     for name, ((px, py), (sx, sy)) in walls.items():
         lines.append(

@@ -1,8 +1,8 @@
 """The planner's stand-alone dataset defaults must describe the same cell as the embedded config."""
 
 from daemon.config import load_config
-from daemon.datasets import cell_dataset_problem
 from planning.placement import dataset_problem
+from planning.placement.datasets import cell_dataset_problem
 
 
 def test_dataset_defaults_match_the_embedded_cell() -> None:

@@ -11,6 +11,9 @@ import pytest
 from daemon.cli import main
 from daemon.config import load_config, parse_config, to_toml
 from daemon.errors import ConfigError
+from description import thesis
+from description.camera import CameraSpec
+from description.cell import CellLayout, Tray
 
 
 def test_the_embedded_defaults_load() -> None:
@@ -82,6 +85,8 @@ BAD: list[tuple[dict[str, Any], str]] = [
     ),
     ({"camera": {"position_m": [1.0, 0.0]}}, "camera.position_m: expected 3 values, got 2"),
     ({"camera": {"calibration_file": 3}}, "camera.calibration_file: expected a string, got 3"),
+    ({"camera": {"fovy_deg": 130.0}}, "camera.fovy_deg: 130.0 is out of range; allowed [10, 120]"),
+    ({"camera": {"pitch_rad": 0.0}}, "camera.pitch_rad: 0 does not look down; allowed (0, 1.5708)"),
     ({"recording": "here"}, "recording: expected a table, got 'here'"),
 ]
 
@@ -144,3 +149,25 @@ def test_config_show_prints_the_effective_toml(tmp_path: Path, capsys: pytest.Ca
     shown = tomllib.loads(capsys.readouterr().out)
     assert shown["robot_id"] == "r2"
     assert shown["mug_types"]["small"]["width_mm"] == 100
+
+
+def test_the_cell_and_catalogue_are_the_description_types_the_planners_and_worlds_take() -> None:
+    config = load_config(
+        overrides={"planner": {"tolerance_mm": 14}, "cell": {"tray_origin_m": [0.35, -0.18]}}
+    )
+    assert isinstance(config.cell, CellLayout)
+    assert config.cell.tray == Tray(origin_m=(0.35, -0.18), size_mm=(332, 374))
+    assert config.cell.camera == CameraSpec(640, 480, 72.0, (0.115, 1.325, 0.80), -1.570796, 0.959931)
+    assert config.cell.tolerance_mm == 14  # the footprint tolerance the planner packs with
+    assert config.mug_catalogue() == thesis.MUG_TYPES
+    shown = config.to_dict()
+    assert shown["cell"]["tray_origin_m"] == [0.35, -0.18]
+    assert list(shown["camera"]) == [
+        "width",
+        "height",
+        "fovy_deg",
+        "position_m",
+        "yaw_rad",
+        "pitch_rad",
+        "calibration_file",
+    ]

@@ -12,7 +12,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from daemon.backend import check_cell_reachable, load_correction, open_hardware_backend
+from daemon.backend import (
+    SimOptions,
+    check_cell_reachable,
+    load_correction,
+    open_backend,
+    open_hardware_backend,
+)
 from daemon.cli import main
 from daemon.config import load_config
 from daemon.errors import ConfigError, UsageError
@@ -55,10 +61,7 @@ def test_the_default_servos_are_the_thesis_chain_ids_1_to_6() -> None:
 def test_the_hardware_backend_runs_the_shared_device_stack_on_the_configured_ports() -> None:
     async def go() -> None:
         with rig(hardware={"camera": "realsense"}) as r:
-            c = r.config.camera
-            camera = TableCamera(
-                CameraSpec(c.width, c.height, c.fovy_deg, c.position_m, c.yaw_rad, c.pitch_rad)
-            )
+            camera = TableCamera(r.config.cell.camera)
             backend = await open_hardware_backend(r.config, camera=camera)
             try:
                 assert backend.name == "hardware"
@@ -173,14 +176,12 @@ def test_a_cell_the_arm_cannot_serve_is_refused_naming_the_corners(
 
 
 def test_the_arm_calibration_file_reaches_the_cycle_planner(tmp_path: Path) -> None:
-    from daemon.backend import open_kinematic_backend
-
     correction = PositionCorrection(((0.001,) + (0.0,) * 6, (0.0,) * 7, (-0.002,) + (0.0,) * 6))
     path = tmp_path / "arm.json"
     path.write_text(__import__("json").dumps(correction.to_mapping()))
     config = load_config(overrides={"arm": {"calibration_file": str(path)}})
     assert load_correction(config) == correction
-    backend = open_kinematic_backend(config, dataset=1, speed=50.0, seed=0)
+    backend = asyncio.run(open_backend(config, sim=SimOptions(world="kinematic", speed=50.0)))
     assert getattr(backend.motion, "correction") == correction  # noqa: B009
     bad = load_config(overrides={"arm": {"calibration_file": str(tmp_path / "missing.json")}})
     with pytest.raises(UsageError) as info:

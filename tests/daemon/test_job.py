@@ -8,9 +8,11 @@ from typing import Any
 
 import pytest
 
+from daemon.backend import Backend, SimOptions, open_backend
 from daemon.config import load_config
 from daemon.job import CommandRefused, Job, StartRequest
 from perception import associate
+from planning.interfaces import MotionPlanner
 from tests.fakes.job import FakeMotion, FakeWorld, make_backend, make_world
 
 Published = list[tuple[str, dict[str, Any]]]
@@ -323,22 +325,21 @@ def test_an_empty_counter_ends_the_job_done_with_nothing_to_do() -> None:
 
 
 def test_starting_on_a_new_dataset_sets_the_simulated_counter_up_and_records_the_scene() -> None:
-    from daemon.backend import open_kinematic_backend
-
     config = load_config(overrides={"planner": {"method": "bh"}})
-    backend = open_kinematic_backend(config, dataset=1, speed=50.0, seed=0)
-    first_planner = backend.motion
     published: Published = []
 
-    async def go() -> None:
+    async def go() -> tuple[Backend, MotionPlanner]:
+        backend = await open_backend(config, sim=SimOptions(world="kinematic", speed=50.0))
+        first_planner = backend.motion
         job = Job(backend, config, lambda t, p: published.append((t, dict(p))), associate)
         control = asyncio.create_task(job.run())
         await job.command("start", StartRequest(dataset=4))
         await job.command("stop")
         await job.shutdown()
         control.cancel()
+        return backend, first_planner
 
-    asyncio.run(go())
+    backend, first_planner = asyncio.run(go())
     scene = next(p["scene"] for t, p in published if t == "events" and p["kind"] == "scene_set")
     assert scene["dataset"] == 4
     assert len(scene["mugs"]) == 30  # dataset 4: 20 big and 10 small

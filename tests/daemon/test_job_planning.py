@@ -11,14 +11,14 @@ from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import Any
 
-from daemon.backend import CyclePlannerSpec, Tray, plan_placement
+from daemon.backend import CyclePlannerSpec, plan_placement
 from daemon.config import load_config
 from daemon.job import Job, JobContext, Services, StartRequest
 from daemon.job.cycles import take_next_cycle
 from perception import associate
 from perception.interfaces import Detection
 from planning.interfaces import CyclePlan, MotionRefused, MugPose, TraySlot
-from planning.placement import PlanOptions, TrayMug, dataset_problem
+from planning.placement import PlanOptions, TrayMug, cell_dataset_problem
 from tests.fakes.job import FakeMotion, FakeWorld, make_backend, make_world
 
 
@@ -95,13 +95,9 @@ def test_a_blocked_mug_is_swapped_for_a_reachable_one_of_its_type_and_both_are_p
 
 def test_the_dynamics_energy_model_costs_placement_moves_from_the_arm() -> None:
     config = load_config()
-    problem = dataset_problem(
-        1, counter_region_m=config.cell.counter_region_m, tray_origin_m=config.cell.tray_origin_m
-    )
+    problem = cell_dataset_problem(config.cell, 1)
     options = PlanOptions(method="bh", cost="ec", time_limit_s=0.5)
-    spec = CyclePlannerSpec(
-        config.cell, Tray(config.cell.tray_origin_m, config.cell.tray_size_mm), config.mug_types
-    )
+    spec = CyclePlannerSpec(config.cell, config.cell.tray, config.mug_types)
     thesis = plan_placement(problem, options, None)
     dynamics = plan_placement(problem, options, spec)
     # The thesis proxy's energy is M·g·Δm per mug (a few joules); the dynamics model's includes the servos'

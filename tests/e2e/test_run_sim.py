@@ -23,7 +23,7 @@ import zenoh
 from daemon.config import load_config
 from daemon.recording import read_messages
 from daemon.zenoh_session import session_config
-from planning.placement import dataset_problem
+from planning.placement import cell_dataset_problem
 from tests.daemon.conftest import free_port
 
 ROBOT = "e2e"
@@ -36,8 +36,7 @@ def _dedupe(states: list[str]) -> list[str]:
 
 def _four_mugs() -> list[dict[str, object]]:
     """Four mugs of dataset 1 where the dataset puts them (a short job keeps the test fast)."""
-    cell = load_config().cell
-    problem = dataset_problem(1, counter_region_m=cell.counter_region_m, tray_origin_m=cell.tray_origin_m)
+    problem = cell_dataset_problem(load_config().cell, 1)
     return [
         {"id": m.id, "type": m.type, "x_m": m.x_mm / 1000.0, "y_m": m.y_mm / 1000.0} for m in problem.mugs[:4]
     ]

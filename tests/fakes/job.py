@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from daemon.backend import Backend, Tray
+from daemon.backend import Backend
+from description.cell import Tray
 from drivers.errors import BusLost
 from drivers.interfaces import ForceReading, GraspResult, GripperState, JointState, JointTrajectory
 from perception.interfaces import Detection, Observation

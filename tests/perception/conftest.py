@@ -2,25 +2,22 @@
 
 from __future__ import annotations
 
-import tomllib
 from collections.abc import Iterator
-from importlib import resources
 
 import pytest
 import structlog
 
-from description.cell import SceneLayout
+from daemon.config import load_config
+from description.cell import CellLayout
 
 
-def default_layout() -> SceneLayout:
+def default_layout() -> CellLayout:
     """The cell of the embedded default config."""
-    text = resources.files("daemon").joinpath("default_config.toml").read_text(encoding="utf-8")
-    data = tomllib.loads(text)
-    return SceneLayout.from_config(data["cell"], data["camera"])
+    return load_config().cell
 
 
 @pytest.fixture(scope="session")
-def layout() -> SceneLayout:
+def layout() -> CellLayout:
     return default_layout()
 
 

@@ -6,14 +6,14 @@ from collections.abc import Sequence
 
 import mujoco
 
-from description.cell import SceneLayout, SceneMug
+from description.cell import CellLayout, SceneMug
 from drivers.interfaces import RGBDFrame
 from sim.mujoco.camera import DepthCamera, DepthNoise
 from sim.mujoco.scene import build_mjcf
 
 
 def render(
-    layout: SceneLayout,
+    layout: CellLayout,
     mugs: Sequence[SceneMug],
     *,
     extra_body_xml: str = "",

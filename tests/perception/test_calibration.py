@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from daemon.cli import main
-from description.cell import SceneLayout
+from description.cell import CellLayout
 from perception.calibration import (
     CharucoBoard,
     board_on_table,
@@ -36,7 +36,7 @@ def _rotation_error_deg(a: np.ndarray, b: np.ndarray) -> float:
 
 @pytest.fixture(scope="module")
 def board_shot(
-    layout: SceneLayout, tmp_path_factory: pytest.TempPathFactory
+    layout: CellLayout, tmp_path_factory: pytest.TempPathFactory
 ) -> tuple[np.ndarray, np.ndarray, Path]:
     """A colour image of the board lying on the counter, the true camera pose, and the image as a PNG."""
     ok, png = cv2.imencode(".png", BOARD.image(px_per_square=120))
@@ -55,7 +55,7 @@ def board_shot(
 
 
 def test_board_pose_gives_the_camera_pose(
-    board_shot: tuple[np.ndarray, np.ndarray, Path], layout: SceneLayout
+    board_shot: tuple[np.ndarray, np.ndarray, Path], layout: CellLayout
 ) -> None:
     image, truth, _ = board_shot
     result = calibrate_extrinsics(image, layout.camera.intrinsics(), BOARD, board_on_table(*ORIGIN, YAW))
@@ -79,7 +79,7 @@ def test_calibrate_cli_writes_a_camera_file_detect_can_read(
     assert np.linalg.norm(model.world_from_camera[:3, 3] - truth[:3, 3]) < 0.01
 
 
-def test_an_image_without_the_board_is_refused(layout: SceneLayout) -> None:
+def test_an_image_without_the_board_is_refused(layout: CellLayout) -> None:
     blank = np.full((480, 640), 180, np.uint8)
     with pytest.raises(
         BoardNotFound, match=r"^found 0 board corners, need at least 6: is the whole board in view"
@@ -130,7 +130,7 @@ def test_markers_as_large_as_squares_are_refused() -> None:
         CharucoBoard(square_m=0.07, marker_m=0.07)
 
 
-def test_configured_camera_model_matches_the_rendered_camera(layout: SceneLayout) -> None:
+def test_configured_camera_model_matches_the_rendered_camera(layout: CellLayout) -> None:
     c = layout.camera
     model = camera_model(
         width=c.width,
@@ -144,7 +144,7 @@ def test_configured_camera_model_matches_the_rendered_camera(layout: SceneLayout
     np.testing.assert_allclose(model.world_from_camera, c.world_from_camera())
 
 
-def test_calibration_file_of_another_resolution_is_refused(tmp_path: Path, layout: SceneLayout) -> None:
+def test_calibration_file_of_another_resolution_is_refused(tmp_path: Path, layout: CellLayout) -> None:
     c = layout.camera
     path = tmp_path / "cam.json"
     doc = {

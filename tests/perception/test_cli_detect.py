@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from daemon.cli import main
-from description.cell import SceneLayout, SceneMug
+from description.cell import CellLayout, SceneMug
 from description.thesis import BIG_MUG, SMALL_MUG
 from perception.calibration import CameraModel
 from sim.mujoco.camera import DepthNoise
@@ -19,7 +19,7 @@ from tests.perception.scenes import render
 
 
 @pytest.fixture(scope="module")
-def scene(layout: SceneLayout, tmp_path_factory: pytest.TempPathFactory) -> tuple[list[SceneMug], Path, Path]:
+def scene(layout: CellLayout, tmp_path_factory: pytest.TempPathFactory) -> tuple[list[SceneMug], Path, Path]:
     x0, y0, x1, y1 = layout.counter_region_m
     yc = (y0 + y1) / 2
     mugs = [

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from description.cell import SceneLayout, SceneMug
+from description.cell import CellLayout, SceneMug
 from description.thesis import BIG_MUG, MUG_TYPES, SMALL_MUG
 from drivers.interfaces import RGBDFrame
 from perception.detector import DepthMugDetector
@@ -19,21 +19,21 @@ from tests.perception.scenes import render
 
 
 @pytest.fixture(scope="module")
-def detector(layout: SceneLayout) -> DepthMugDetector:
-    return DepthMugDetector(MUG_TYPES, region_m=layout.table_region_m())
+def detector(layout: CellLayout) -> DepthMugDetector:
+    return DepthMugDetector(MUG_TYPES, region_m=layout.table_region_m)
 
 
 @pytest.fixture(scope="module")
-def dataset_1(layout: SceneLayout) -> tuple[list[SceneMug], RGBDFrame]:
+def dataset_1(layout: CellLayout) -> tuple[list[SceneMug], RGBDFrame]:
     mugs = dataset_mugs(1, layout, MUG_TYPES, seed=3)
     return mugs, render(layout, mugs, extra_body_xml=clutter_xml(layout), noise=DepthNoise(), seed=3)
 
 
 @pytest.fixture(scope="module")
-def odd_places(layout: SceneLayout) -> tuple[list[SceneMug], RGBDFrame]:
+def odd_places(layout: CellLayout) -> tuple[list[SceneMug], RGBDFrame]:
     """An upside-down mug on the flip area, one in the tray, one on the counter, its handle to the side."""
     fx, fy = layout.flip_area_center_m
-    tx0, ty0, tx1, ty1 = layout.tray_region_m()
+    tx0, ty0, tx1, ty1 = layout.tray.region_m
     cx0, cy0, cx1, cy1 = layout.counter_region_m
     mugs = [
         SceneMug("flip", BIG_MUG, fx, fy, yaw_rad=0.3, upside_down=True),
@@ -63,7 +63,7 @@ def test_mug_centres_are_millimetre_accurate(
 
 
 def test_balls_and_boxes_on_an_empty_counter_are_not_mugs(
-    detector: DepthMugDetector, layout: SceneLayout
+    detector: DepthMugDetector, layout: CellLayout
 ) -> None:
     frame = render(layout, [], extra_body_xml=clutter_xml(layout), noise=DepthNoise(), seed=1)
     assert detector.detect(frame) == []
@@ -152,7 +152,7 @@ def test_an_empty_catalogue_is_refused() -> None:
 
 
 def test_a_hidden_handle_is_reported_pointing_away_from_the_camera(
-    detector: DepthMugDetector, layout: SceneLayout
+    detector: DepthMugDetector, layout: CellLayout
 ) -> None:
     x0, y0, x1, y1 = layout.counter_region_m
     yc = (y0 + y1) / 2
@@ -171,7 +171,7 @@ def test_a_hidden_handle_is_reported_pointing_away_from_the_camera(
 
 @pytest.mark.parametrize("gap_m", [0.010, 0.002])
 def test_mugs_a_few_millimetres_apart_are_told_apart(
-    detector: DepthMugDetector, layout: SceneLayout, gap_m: float
+    detector: DepthMugDetector, layout: CellLayout, gap_m: float
 ) -> None:
     x0, y0, _, _ = layout.counter_region_m
     row = [
@@ -198,7 +198,7 @@ def test_nan_and_infinite_depths_count_as_no_reading(
     assert (score.true_positives, score.false_positives) == (12, 0)
 
 
-def test_centres_are_unbiased_on_a_noise_free_frame(detector: DepthMugDetector, layout: SceneLayout) -> None:
+def test_centres_are_unbiased_on_a_noise_free_frame(detector: DepthMugDetector, layout: CellLayout) -> None:
     # The slanted view's brim bias and a tray tilting the table fit would each move centres by a millimetre.
     mugs = dataset_mugs(2, layout, MUG_TYPES, seed=3)
     found = detector.detect(render(layout, mugs))

@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from description.cell import SceneLayout, SceneMug
+from description.cell import CellLayout, SceneMug
 from description.thesis import BIG_MUG, MUG_TYPES, SMALL_MUG
 from drivers.interfaces import RGBDFrame
 from perception import CameraObserver, DepthMugDetector
@@ -29,7 +29,7 @@ class StillCamera:
         return self.frame
 
 
-def test_observer_on_the_simulated_camera_reports_the_mugs(layout: SceneLayout) -> None:
+def test_observer_on_the_simulated_camera_reports_the_mugs(layout: CellLayout) -> None:
     x0, y0, x1, y1 = layout.counter_region_m
     mugs = [
         SceneMug("a", BIG_MUG, x0 + 0.1, (y0 + y1) / 2),
@@ -39,7 +39,7 @@ def test_observer_on_the_simulated_camera_reports_the_mugs(layout: SceneLayout) 
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     with DepthCamera(model, data, noise=DepthNoise(), seed=2) as camera:
-        observer = CameraObserver(camera, DepthMugDetector(MUG_TYPES, region_m=layout.table_region_m()))
+        observer = CameraObserver(camera, DepthMugDetector(MUG_TYPES, region_m=layout.table_region_m))
         assert isinstance(observer, MugObserver)
         obs = asyncio.run(observer.observe())
     assert sorted(d.type for d in obs.detections) == ["big", "small"]
@@ -50,7 +50,7 @@ def test_observer_on_the_simulated_camera_reports_the_mugs(layout: SceneLayout) 
     assert "detect_ms" in obs.meta
 
 
-def test_detection_runs_off_the_event_loop_thread(layout: SceneLayout) -> None:
+def test_detection_runs_off_the_event_loop_thread(layout: CellLayout) -> None:
     threads: list[str] = []
 
     class RecordingDetector(DepthMugDetector):
@@ -65,7 +65,7 @@ def test_detection_runs_off_the_event_loop_thread(layout: SceneLayout) -> None:
     assert threads[0] != threading.main_thread().name
 
 
-def test_an_unusable_frame_raises_instead_of_reporting_an_empty_counter(layout: SceneLayout) -> None:
+def test_an_unusable_frame_raises_instead_of_reporting_an_empty_counter(layout: CellLayout) -> None:
     K = layout.camera.intrinsics()
     blank = RGBDFrame(0.0, np.zeros((K.height, K.width), np.float32), K, layout.camera.world_from_camera())
     observer = CameraObserver(StillCamera(blank))
@@ -81,11 +81,11 @@ def test_a_tiny_preview_is_refused() -> None:
         CameraObserver(StillCamera(frame), preview_width=4)
 
 
-def test_cell_observer_leaves_out_the_mugs_already_in_the_tray(layout: SceneLayout) -> None:
+def test_cell_observer_leaves_out_the_mugs_already_in_the_tray(layout: CellLayout) -> None:
     from perception.observer import cell_observer_factory
     from tests.perception.scenes import render
 
-    x0, y0, x1, y1 = layout.tray_region_m()
+    x0, y0, x1, y1 = layout.tray.region_m
     cx0, cy0, cx1, cy1 = layout.counter_region_m
     placed = SceneMug("placed", SMALL_MUG, (x0 + x1) / 2, (y0 + y1) / 2)
     waiting = SceneMug("waiting", BIG_MUG, (cx0 + cx1) / 2, (cy0 + cy1) / 2)

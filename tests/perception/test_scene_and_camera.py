@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from description.cell import THESIS_CAMERA_POSE, SceneLayout, SceneMug, thesis_camera_pose
+from description.cell import THESIS_CAMERA_POSE, CellLayout, SceneMug, thesis_camera_pose
 from description.thesis import BIG_MUG, SMALL_MUG
 from sim.mujoco.camera import DepthCamera, DepthNoise
 from sim.mujoco.scene import CAMERA_NAME, build_mjcf, mug_mesh
@@ -23,7 +23,7 @@ MUGS = (
 
 
 @pytest.fixture(scope="module")
-def world(layout: SceneLayout) -> tuple[object, object]:
+def world(layout: CellLayout) -> tuple[object, object]:
     model = mujoco.MjModel.from_xml_string(build_mjcf(layout, MUGS))
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
@@ -57,7 +57,7 @@ def test_scene_names_carry_their_owner_prefix(world: tuple[object, object]) -> N
     assert mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, CAMERA_NAME) == 0
 
 
-def test_duplicate_mug_ids_are_refused(layout: SceneLayout) -> None:
+def test_duplicate_mug_ids_are_refused(layout: CellLayout) -> None:
     with pytest.raises(ValueError, match=r"mug ids must be unique, got \['a', 'a'\]"):
         build_mjcf(layout, [MUGS[0], MUGS[0]])
 
@@ -74,15 +74,15 @@ def test_mug_mesh_is_closed_and_faces_outwards() -> None:
     assert signed_volume == pytest.approx(cup, rel=0.01)
 
 
-def test_default_camera_stands_where_the_thesis_put_it(layout: SceneLayout) -> None:
+def test_default_camera_stands_where_the_thesis_put_it(layout: CellLayout) -> None:
     assert thesis_camera_pose(layout) == pytest.approx(THESIS_CAMERA_POSE, abs=1e-3)
 
 
-def test_camera_sees_counter_flip_area_and_tray_with_mugs_on_them(layout: SceneLayout) -> None:
+def test_camera_sees_counter_flip_area_and_tray_with_mugs_on_them(layout: CellLayout) -> None:
     K = layout.camera.intrinsics()
     camera_from_world = np.linalg.inv(layout.camera.world_from_camera())
     x0, y0, x1, y1 = layout.counter_region_m
-    tx0, ty0, tx1, ty1 = layout.tray_region_m()
+    tx0, ty0, tx1, ty1 = layout.tray.region_m
     fx, fy = layout.flip_area_center_m
     fr = layout.flip_area_radius_m
     corners = [(x0, y0), (x0, y1), (x1, y0), (x1, y1), (tx0, ty0), (tx0, ty1), (tx1, ty0), (tx1, ty1)]
@@ -96,7 +96,7 @@ def test_camera_sees_counter_flip_area_and_tray_with_mugs_on_them(layout: SceneL
 
 
 def test_rendered_table_pixels_back_project_onto_the_table_plane(
-    ideal_frame: object, layout: SceneLayout
+    ideal_frame: object, layout: CellLayout
 ) -> None:
     frame = ideal_frame
     K = frame.intrinsics  # type: ignore[attr-defined]
@@ -106,9 +106,9 @@ def test_rendered_table_pixels_back_project_onto_the_table_plane(
     z = depth.astype(np.float64)
     pc = np.stack([(u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z], axis=-1)[z > 0]
     pw = pc @ T[:3, :3].T + T[:3, 3]
-    x0, y0, x1, y1 = layout.table_region_m()
+    x0, y0, x1, y1 = layout.table_region_m
     inside = (pw[:, 0] > x0 + 0.01) & (pw[:, 0] < x1 - 0.01) & (pw[:, 1] > y0 + 0.01) & (pw[:, 1] < y1 - 0.01)
-    tx0, ty0, tx1, ty1 = layout.tray_region_m()
+    tx0, ty0, tx1, ty1 = layout.tray.region_m
     on_tray = (
         (pw[:, 0] > tx0 - 0.02) & (pw[:, 0] < tx1 + 0.02) & (pw[:, 1] > ty0 - 0.02) & (pw[:, 1] < ty1 + 0.02)
     )
@@ -123,7 +123,7 @@ def test_rendered_table_pixels_back_project_onto_the_table_plane(
     assert np.abs(table[:, 2]).max() < 5e-4
 
 
-def test_camera_pose_follows_the_pinhole_convention(ideal_frame: object, layout: SceneLayout) -> None:
+def test_camera_pose_follows_the_pinhole_convention(ideal_frame: object, layout: CellLayout) -> None:
     T = ideal_frame.world_from_camera  # type: ignore[attr-defined]
     np.testing.assert_allclose(T, layout.camera.world_from_camera(), atol=1e-6)
     assert T[2, 2] == pytest.approx(-math.sin(math.radians(55.0)), abs=1e-6)  # looks down along +z

@@ -4,17 +4,16 @@ placement planner's dynamics move cost."""
 from __future__ import annotations
 
 import math
-import tomllib
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from daemon.config import load_config
 from description import thesis
+from description.cell import CellLayout
 from planning.arm import ArmModel, GraspKind
 from planning.interfaces import MugPose, TraySlot
 from planning.motion import (
-    CellLayout,
     CyclePlanner,
     DynamicsEnergyModel,
     DynamicsMoveCost,
@@ -23,7 +22,6 @@ from planning.motion import (
 )
 from planning.placement.cost import MoveCost
 
-DEFAULT_CONFIG = Path(__file__).parents[3] / "daemon" / "default_config.toml"
 STRETCHED = np.array([0.0, 0.0, 0.0, -math.pi / 2, -math.pi / 2])  # arm level, gripper forward
 
 
@@ -34,8 +32,7 @@ def arm() -> ArmModel:
 
 @pytest.fixture(scope="module")
 def cell() -> CellLayout:
-    with DEFAULT_CONFIG.open("rb") as f:
-        return CellLayout.from_mapping(tomllib.load(f)["cell"])
+    return load_config().cell
 
 
 def test_held_mug_adds_its_weight_times_lever_to_the_shoulder_torque(arm: ArmModel) -> None:

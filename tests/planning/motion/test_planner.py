@@ -3,21 +3,20 @@
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from daemon.config import load_config
 from description import thesis
+from description.cell import CellLayout
 from description.thesis import MUG_TYPES
 from planning.arm import ArmModel, GraspKind, GraspTarget
 from planning.arm.grasp import lateral_offset_m, reach_past_axis_m
 from planning.interfaces import CyclePlan, MotionPlanner, MotionRefused, MugPose, StepKind, TraySlot
-from planning.motion import CellLayout, CyclePlanner
+from planning.motion import CyclePlanner
 
-DEFAULT_CONFIG = Path(__file__).parents[3] / "daemon" / "default_config.toml"
 START_Q = (0.0, -1.2, 1.7, -2.0, -math.pi / 2)
 TRAY_FLOOR = 0.006
 # The held mug's bottom 3 cm (+5 mm margin) above the tallest mug (106 mm) standing on the tray's base.
@@ -58,8 +57,7 @@ def arm() -> ArmModel:
 
 @pytest.fixture(scope="module")
 def cell() -> CellLayout:
-    with DEFAULT_CONFIG.open("rb") as f:
-        return CellLayout.from_mapping(tomllib.load(f)["cell"])
+    return load_config().cell
 
 
 @pytest.fixture(scope="module")

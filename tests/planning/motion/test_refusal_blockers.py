@@ -5,18 +5,16 @@ from __future__ import annotations
 
 import math
 import pickle
-import tomllib
-from pathlib import Path
 
 import pytest
 
+from daemon.config import load_config
 from description.thesis import MUG_TYPES
 from planning.arm import ArmModel
 from planning.interfaces import MotionRefused, MugPose, TraySlot
-from planning.motion import CellLayout, CyclePlanner
+from planning.motion import CyclePlanner
 from planning.motion.collision import Collision
 
-DEFAULT_CONFIG = Path(__file__).parents[3] / "daemon" / "default_config.toml"
 START_Q = (0.0, -1.2, 1.7, -2.0, -math.pi / 2)
 SLOT = TraySlot("m1", "big", 0.45, 0.05)
 BEHIND = MugPose("m1", "big", 0.064, 0.529)
@@ -25,9 +23,7 @@ IN_FRONT = MugPose("m2", "small", 0.064, 0.415)
 
 @pytest.fixture(scope="module")
 def planner() -> CyclePlanner:
-    with DEFAULT_CONFIG.open("rb") as f:
-        cell = CellLayout.from_mapping(tomllib.load(f)["cell"])
-    return CyclePlanner(ArmModel.load(), cell, MUG_TYPES)
+    return CyclePlanner(ArmModel.load(), load_config().cell, MUG_TYPES)
 
 
 def test_an_approach_through_another_mug_is_blocked_by_that_mug(planner: CyclePlanner) -> None:

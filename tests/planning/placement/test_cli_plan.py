@@ -9,8 +9,8 @@ import pytest
 
 from daemon.cli import main
 from daemon.config import load_config
-from daemon.datasets import cell_dataset_problem
 from planning.placement import PlanOptions, plan
+from planning.placement.datasets import cell_dataset_problem
 from planning.placement.heuristics import Heuristic
 from planning.placement.sorts import Sort
 from tests.planning.placement.test_problem import EXAMPLE

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from description.camera import CameraSpec
-from description.cell import SceneLayout, SceneMug
+from description.cell import CellLayout, SceneMug, Tray
 from description.thesis import MugSpec
 from planning.arm.grasp import side_grasp
 from planning.arm.model import ArmModel
@@ -29,14 +29,13 @@ def small_camera() -> CameraSpec:
     return CameraSpec(64, 48, 60.0, (1.24, 0.07, 0.80), math.pi, math.radians(55.0))
 
 
-def cell_layout() -> SceneLayout:
+def cell_layout() -> CellLayout:
     """The default cell (tray in the arm's reach), with a tiny camera since these tests do not render."""
-    return SceneLayout(
+    return CellLayout(
         counter_region_m=(-0.30, 0.20, 0.25, 0.52),
         flip_area_center_m=(0.30, -0.40),
         flip_area_radius_m=0.08,
-        tray_origin_m=(0.34, -0.187),
-        tray_size_mm=(332, 374),
+        tray=Tray(origin_m=(0.34, -0.187), size_mm=(332, 374)),
         camera=small_camera(),
     )
 

@@ -14,20 +14,21 @@ import pytest
 
 from description.arm import GripperGeometry
 from description.camera import CameraSpec
-from description.cell import SceneLayout
+from description.cell import CellLayout
 from description.thesis import MUG_TYPES, SMALL_MUG
 from drivers.interfaces import ArmDriver, ForceSensor, GripperDriver, JointTrajectory
 from perception.interfaces import MugObserver
 from planning.arm.grasp import side_grasp
 from planning.arm.model import ArmModel
 from planning.arm.targets import GraspKind, GraspTarget
-from sim.mujoco.cell import SimCell, gripper_spec, open_sim_cell, scene_mugs
+from sim.counter import counter_mugs
+from sim.mujoco.cell import SimCell, gripper_spec, open_sim_cell
 from tests.sim.mujoco.conftest import cell_layout
 
 MUG_XY = (0.24, 0.40)
 
 
-def full_camera_layout() -> SceneLayout:
+def full_camera_layout() -> CellLayout:
     """The test cell with the configured 640x480 camera at the thesis pose."""
     cam = CameraSpec(640, 480, 64.0, (1.24, 0.07, 0.80), math.pi, math.radians(55.0))
     return replace(cell_layout(), camera=cam)
@@ -58,7 +59,7 @@ def run(coro: object) -> None:
 
 def test_cell_devices_speak_the_driver_protocols() -> None:
     async def body() -> None:
-        mugs = scene_mugs([("a", "small", *MUG_XY)], MUG_TYPES)
+        mugs = counter_mugs([("a", "small", *MUG_XY)], MUG_TYPES)
         async with open_sim_cell(cell_layout(), mugs) as cell:
             assert isinstance(cell.arm, ArmDriver)
             assert isinstance(cell.gripper, GripperDriver)
@@ -113,7 +114,7 @@ def test_arm_driver_moves_the_physics_arm_and_a_grasp_lifts_then_drops_the_mug()
         assert cell.world.mug_truths()["a"].position_m[2] < 0.02
 
     async def main() -> None:
-        mugs = scene_mugs([("a", "small", *MUG_XY)], MUG_TYPES)
+        mugs = counter_mugs([("a", "small", *MUG_XY)], MUG_TYPES)
         async with open_sim_cell(cell_layout(), mugs) as cell:
             await body(cell, ArmModel.load())
 
@@ -122,7 +123,7 @@ def test_arm_driver_moves_the_physics_arm_and_a_grasp_lifts_then_drops_the_mug()
 
 def test_the_camera_pipeline_sees_the_counter_mugs_where_they_are() -> None:
     async def main() -> None:
-        mugs = scene_mugs([("a", "small", 0.0, 0.45), ("b", "big", 0.25, 0.45)], MUG_TYPES)
+        mugs = counter_mugs([("a", "small", 0.0, 0.45), ("b", "big", 0.25, 0.45)], MUG_TYPES)
         async with open_sim_cell(full_camera_layout(), mugs) as cell:
             obs = await cell.observer.observe()
             seen = sorted((d.type, round(d.x_m, 2), round(d.y_m, 2)) for d in obs.detections)
@@ -140,7 +141,7 @@ def test_a_new_counter_brings_a_new_world_with_the_arm_where_it_was() -> None:
         layout = cell_layout()
         async with open_sim_cell(layout, []) as cell:
             before = (await cell.arm.read_joints()).position_rad
-            cell.set_counter(scene_mugs([("z", "big", 0.1, 0.45)], MUG_TYPES))
+            cell.set_counter(counter_mugs([("z", "big", 0.1, 0.45)], MUG_TYPES))
             await asyncio.sleep(0.2)
             assert set(cell.world.mug_truths()) == {"z"}
             after = (await cell.arm.read_joints()).position_rad
@@ -164,8 +165,3 @@ def test_driver_aperture_map_follows_the_planner_gripper() -> None:
     spec = gripper_spec(geometry)
     for angle in (-0.3, 0.0, 0.4, 1.2):
         assert spec.aperture_for(angle) == pytest.approx(geometry.aperture_m(angle), abs=2e-3)
-
-
-def test_unknown_mug_type_is_refused_with_the_catalogue_named() -> None:
-    with pytest.raises(ValueError, match=r"^mug types tall are not in the catalogue \(big, small\)$"):
-        scene_mugs([("a", "tall", 0.0, 0.4)], MUG_TYPES)

@@ -13,7 +13,7 @@ from sim.mujoco.collisions import TrayCollision, TrayCollisionCounter
 from sim.mujoco.world import ContactSample, SimWorld
 from tests.sim.mujoco.conftest import HandFor, WorldFactory, cell_layout, mug_facing_arm
 
-TRAY = cell_layout().tray_region_m()
+TRAY = cell_layout().tray.region_m
 
 
 def _geom(world: SimWorld, name: str) -> int:

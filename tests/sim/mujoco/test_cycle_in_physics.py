@@ -4,23 +4,21 @@ placed neighbour, without touching it, with its handle where the planner predict
 from __future__ import annotations
 
 import math
-import tomllib
-from pathlib import Path
 
 import pytest
 
+from daemon.config import load_config
 from description.arm import JOINT_LIMITS
 from description.cell import SceneMug
 from description.thesis import BIG_MUG, MUG_TYPES, SMALL_MUG, MugSpec
 from drivers.interfaces import JointTrajectory
 from planning.arm.model import ArmModel
 from planning.interfaces import MugPose, StepKind, TraySlot
-from planning.motion import CellLayout, CyclePlanner
+from planning.motion import CyclePlanner
 from sim.mujoco.collisions import TrayCollisionCounter
 from sim.mujoco.world import SimWorld
 from tests.sim.mujoco.conftest import ARM_IDS, GRIPPER_ID, Hand, WorldFactory, cell_layout, mug_facing_arm
 
-DEFAULT_CONFIG = Path(__file__).parents[3] / "daemon" / "default_config.toml"
 GRIPPER_SPEED_RAD_S = 1.5  # the gripper driver's moving speed
 
 
@@ -52,8 +50,7 @@ def _open(world: SimWorld, arm: ArmModel, aperture_m: float | None) -> None:
 def test_a_planned_cycle_places_the_mug_on_its_slot_beside_a_neighbour_without_touching_it(
     make_world: WorldFactory, arm_model: ArmModel, mug_spec: MugSpec
 ) -> None:
-    with DEFAULT_CONFIG.open("rb") as f:
-        cell = CellLayout.from_mapping(tomllib.load(f)["cell"])
+    cell = load_config().cell
     slot = TraySlot("a", mug_spec.name, 0.52, 0.05)
     # A small mug already on the tray 1 cm (the packing tolerance) to the slot's right, handle along +x.
     gap = mug_spec.diameter_mm / 2000.0 + SMALL_MUG.diameter_mm / 2000.0 + 0.010
@@ -62,7 +59,7 @@ def test_a_planned_cycle_places_the_mug_on_its_slot_beside_a_neighbour_without_t
     world = make_world(
         [counter, SceneMug("n", SMALL_MUG, neighbour.x_m, neighbour.y_m, yaw_rad=0.0, upside_down=True)]
     )
-    collisions = TrayCollisionCounter(world, cell_layout().tray_region_m())
+    collisions = TrayCollisionCounter(world, cell_layout().tray.region_m)
     planner = CyclePlanner(arm_model, cell, MUG_TYPES)
     start = [world.present(i)[0] for i in ARM_IDS]
     pose = MugPose("a", mug_spec.name, counter.x_m, counter.y_m, handle_yaw_rad=counter.yaw_rad)
