@@ -1,9 +1,10 @@
 """``dishbot bench daemon``: command latency, publish latency, event-loop jitter and recording throughput.
 
-The daemon runs in this process on the simulated kinematic cell, listening on a free loopback port, with a
-loading job going (so every topic is published and recorded); a second Zenoh session, as a remote client
-would, sends ``status`` queries one after another and subscribes to ``state`` and ``joints``. A probe task on
-the daemon's own event loop wakes at 50 Hz and measures how late each wake-up is. Separately, a recorder
+The daemon runs in this process on the simulated kinematic cell on the wall clock, as on the robot, listening
+on a free loopback port, with a loading job going (so every topic is published and recorded); a second Zenoh
+session, as a remote client would, sends ``status`` queries one after another and subscribes to ``state``
+and ``joints``. A probe task on the daemon's own event loop wakes at 50 Hz and measures how late each
+wake-up is. Separately, a recorder
 writes joint samples as fast as it accepts them.
 """
 
@@ -28,6 +29,7 @@ import zenoh
 
 from daemon.app import RunOptions, serve
 from daemon.backend import ProcessMotionPlanner, open_sim_backend
+from daemon.clock import RealClock
 from daemon.commands.output import add_json_flag, emit
 from daemon.commands.run import association, planning_pool
 from daemon.config import load_config
@@ -137,12 +139,11 @@ def _bench(args: argparse.Namespace) -> int:
 
 async def _live(tmp: Path, commands: int, seconds: float, log_level: str) -> _Live:
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    config = load_config(
-        overrides={"robot_id": ROBOT, "planner": {"method": "bh"}, "sim": {"speed": 5.0}},
-    )
+    config = load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}})
     with planning_pool(log_level) as pool:
+        # The wall clock: what is measured is the loop's real-time behaviour, the robot's.
         backend = await open_sim_backend(
-            config, world="kinematic", dataset=1, speed=config.sim.speed, seed=0, executor=pool
+            config, world="kinematic", dataset=1, clock=RealClock(), seed=0, executor=pool
         )
         if isinstance(backend.motion, ProcessMotionPlanner):
             await asyncio.wrap_future(backend.motion.warm_up())

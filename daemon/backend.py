@@ -13,7 +13,6 @@ import concurrent.futures
 import contextlib
 import dataclasses
 import functools
-import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -23,6 +22,7 @@ import numpy as np
 import numpy.typing as npt
 import structlog
 
+from daemon.clock import RealClock, SessionClock
 from daemon.config import CellConfig, Config, MugTypeConfig
 from daemon.errors import UsageError
 from description import thesis
@@ -97,27 +97,29 @@ class CounterSetup(Protocol):
 EventListener = Callable[[Mapping[str, object]], None]
 
 
-def device_event_payload(event: DeviceEvent) -> dict[str, object]:
+def device_event_payload(event: DeviceEvent, *, t: float) -> dict[str, object]:
     """A driver's fault or recovery as published on ``events``: ``kind`` (``servo_fault``, ``bus_lost``,
-    ``fsr_stale``, ...), ``device`` and its detail; ``t`` the wall clock, ``t_device`` the driver's clock."""
+    ``fsr_stale``, ...), ``device`` and its detail; ``t`` the clock's ``now()``, ``t_device`` the driver's
+    clock."""
     detail = {
         k: v if isinstance(v, str | int | float | bool) or v is None else str(v)
         for k, v in event.detail.items()
     }
-    return {**detail, "kind": event.kind, "device": event.device, "t": time.time(), "t_device": event.t}
+    return {**detail, "kind": event.kind, "device": event.device, "t": t, "t_device": event.t}
 
 
 class _DeviceEvents:
     """Fans driver events out to the listeners registered through ``Backend.on_event``."""
 
-    def __init__(self) -> None:
+    def __init__(self, clock: SessionClock) -> None:
+        self._clock = clock
         self._listeners: list[EventListener] = []
 
     def add(self, listener: EventListener) -> None:
         self._listeners.append(listener)
 
     def __call__(self, event: DeviceEvent) -> None:
-        payload = device_event_payload(event)
+        payload = device_event_payload(event, t=self._clock.now())
         for listener in self._listeners:
             listener(payload)
 
@@ -146,6 +148,9 @@ class Backend:
     on_event: Callable[[EventListener], None] | None = None
     # The Dynamixel/FSR device stack when the backend runs one (hardware): bus counters, diagnostics.
     devices: DeviceStack | None = None
+    # The one clock everything of this backend and the job on it reads and waits on: the wall clock on the
+    # robot, the simulated cell's clock in simulation.
+    clock: SessionClock = field(default_factory=RealClock)
 
     def scene(self) -> dict[str, object]:
         """The initial scene for the recording's session header."""
@@ -166,19 +171,20 @@ Sink = Callable[[str, Mapping[str, object]], None]
 
 def recorded(backend: Backend, sink: Sink) -> Backend:
     """The same backend, with driver-boundary inputs also passed to ``sink(kind, payload)``."""
+    clock = backend.clock
     return replace(
         backend,
-        arm=_RecordedArm(backend.arm, sink),
+        arm=_RecordedArm(backend.arm, sink, clock),
         gripper=_RecordedGripper(backend.gripper, sink),
         force=_RecordedForce(backend.force, sink),
-        observer=_RecordedObserver(backend.observer, sink),
+        observer=_RecordedObserver(backend.observer, sink, clock),
     )
 
 
-def joints_payload(js: JointState) -> dict[str, object]:
-    """``t`` is the wall clock when published, ``t_device`` the driver's own (monotonic or simulated) time."""
+def joints_payload(js: JointState, *, t: float) -> dict[str, object]:
+    """``t`` is the clock's ``now()`` when published, ``t_device`` the driver's (monotonic) time."""
     return {
-        "t": time.time(),
+        "t": t,
         "t_device": js.t,
         "names": list(js.names),
         "position_rad": [round(v, 6) for v in js.position_rad],
@@ -187,8 +193,9 @@ def joints_payload(js: JointState) -> dict[str, object]:
     }
 
 
-def observation_payload(obs: Observation) -> dict[str, object]:
-    return {"t": obs.t, "mugs": [d.to_json() for d in obs.detections], "meta": dict(obs.meta)}
+def observation_payload(obs: Observation, *, t: float) -> dict[str, object]:
+    """``t`` is the clock's ``now()`` when published, ``t_device`` the observation's (monotonic) time."""
+    return {"t": t, "t_device": obs.t, "mugs": [d.to_json() for d in obs.detections], "meta": dict(obs.meta)}
 
 
 def depth_preview_payload(depth_m: npt.NDArray[np.float32]) -> dict[str, object]:
@@ -205,9 +212,10 @@ def depth_preview_payload(depth_m: npt.NDArray[np.float32]) -> dict[str, object]
 
 
 class _RecordedArm:
-    def __init__(self, inner: ArmDriver, sink: Sink) -> None:
+    def __init__(self, inner: ArmDriver, sink: Sink, clock: SessionClock) -> None:
         self._inner = inner
         self._sink = sink
+        self._clock = clock
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -215,7 +223,7 @@ class _RecordedArm:
 
     async def read_joints(self) -> JointState:
         js = await self._inner.read_joints()
-        self._sink("input/joints", joints_payload(js))
+        self._sink("input/joints", joints_payload(js, t=self._clock.now()))
         return js
 
     async def follow(self, trajectory: JointTrajectory) -> None:
@@ -279,13 +287,14 @@ class _RecordedForce:
 
 
 class _RecordedObserver:
-    def __init__(self, inner: MugObserver, sink: Sink) -> None:
+    def __init__(self, inner: MugObserver, sink: Sink, clock: SessionClock) -> None:
         self._inner = inner
         self._sink = sink
+        self._clock = clock
 
     async def observe(self) -> Observation:
         obs = await self._inner.observe()
-        self._sink("input/observation", observation_payload(obs))
+        self._sink("input/observation", observation_payload(obs, t=self._clock.now()))
         return obs
 
 
@@ -294,40 +303,40 @@ async def open_sim_backend(
     *,
     world: str,
     dataset: int,
-    speed: float | None,
+    clock: SessionClock,
     seed: int,
+    transport: str = "inprocess",
     executor: concurrent.futures.Executor | None = None,
 ) -> Backend:
-    """The simulated cell with dataset ``dataset``'s mugs on its counter: ``kinematic`` (the placeholder
-    cell, ``speed`` (default ``sim.speed``) times real time) or ``mujoco`` (the physics simulation, real
-    time). With ``executor`` (a process pool), motion planning runs there. Call it on the event loop that
-    will use the devices."""
+    """The simulated cell with dataset ``dataset``'s mugs on its counter, on ``clock``: ``kinematic`` (the
+    placeholder cell) or ``mujoco`` (the physics simulation; ``transport`` ``"inprocess"`` on a simulated
+    clock, ``"pty"`` on the wall clock). With ``executor`` (a process pool), motion planning runs there.
+    Call it on the event loop that will use the devices (the clock's)."""
     if world == "mujoco":
-        if speed not in (None, 1.0):
-            raise UsageError(
-                f"--speed {speed:g}: the MuJoCo cell runs in real time (its drivers keep wall time)"
-            )
-        return await open_mujoco_backend(config, dataset=dataset, seed=seed, executor=executor)
+        return await open_mujoco_backend(
+            config, dataset=dataset, seed=seed, clock=clock, transport=transport, executor=executor
+        )
     if world != "kinematic":
         raise UsageError(f"--world {world}: choose kinematic or mujoco")
-    speed = config.sim.speed if speed is None else speed
-    return open_kinematic_backend(config, dataset=dataset, speed=speed, seed=seed, executor=executor)
+    return open_kinematic_backend(config, dataset=dataset, clock=clock, seed=seed, executor=executor)
 
 
 def open_kinematic_backend(
     config: Config,
     *,
     dataset: int,
-    speed: float,
+    clock: SessionClock,
     seed: int,
     executor: concurrent.futures.Executor | None = None,
 ) -> Backend:
-    """The kinematic placeholder cell (``sim.kinematic``), ``speed`` times faster than real time."""
+    """The kinematic placeholder cell (``sim.kinematic``), moving on ``clock``."""
     arm_model = ArmModel.load()
-    counter = _KinematicCounter(config, arm_model, speed=speed)
+    counter = _KinematicCounter(config, arm_model, clock=clock)
     tray = counter.set_counter(dataset=dataset, mugs=None)
     cell = counter.cell
-    observer = TruthObserver(counter.visible_mugs, noise_m=config.sim.detection_noise_m, seed=seed)
+    observer = TruthObserver(
+        counter.visible_mugs, clock=clock, noise_m=config.sim.detection_noise_m, seed=seed
+    )
     correction = load_correction(config)
 
     def motion_for(tray: Tray) -> MotionPlanner:
@@ -344,13 +353,14 @@ def open_kinematic_backend(
         tray=tray,
         counter=counter,
         motion_for=motion_for,
+        clock=clock,
     )
 
 
 class _KinematicCounter:
     """Sets the kinematic cell's counter up for a job: a placement dataset or an explicit list of mugs."""
 
-    def __init__(self, config: Config, arm: ArmModel, *, speed: float) -> None:
+    def __init__(self, config: Config, arm: ArmModel, *, clock: SessionClock) -> None:
         self._config = config
         self._arm = arm
         self._geometry = {
@@ -362,7 +372,7 @@ class _KinematicCounter:
             self._geometry,
             tray_origin_m=self.tray.origin_m,
             tray_size_m=(self.tray.size_mm[0] / 1000.0, self.tray.size_mm[1] / 1000.0),
-            speed=speed,
+            clock=clock,
             joint_speed_rad_s=config.sim.joint_speed_rad_s,
             holding_threshold_n=config.grasp.force_threshold_n / 2.0,
             arm=arm,
@@ -581,11 +591,18 @@ class ProcessMotionPlanner:
 
 
 async def open_mujoco_backend(
-    config: Config, *, dataset: int, seed: int, executor: concurrent.futures.Executor | None = None
+    config: Config,
+    *,
+    dataset: int,
+    seed: int,
+    clock: SessionClock,
+    transport: str = "inprocess",
+    executor: concurrent.futures.Executor | None = None,
 ) -> Backend:
     """The MuJoCo cell (``sim.mujoco``): real drivers over simulated servos and FSR, a rendered depth
-    camera and the depth detector; dataset ``dataset``'s mugs on the counter. It runs in real time (its
-    drivers keep wall-clock time). Call it on the event loop that will use the devices."""
+    camera and the depth detector; dataset ``dataset``'s mugs on the counter. In-process on a simulated
+    ``clock`` it runs as fast as the machine allows (or at the clock's speed); on pseudo-terminals it runs
+    on the wall clock. Call it on the event loop that will use the devices (the clock's)."""
     from description.cell import SceneLayout
     from sim.mujoco.cell import scene_mugs, start_sim_cell
 
@@ -607,12 +624,17 @@ async def open_mujoco_backend(
         )
         return [(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs]
 
-    cell, closer = await start_sim_cell(
-        layout,
-        scene_mugs(entries(dataset, None), catalogue),
-        seed=seed,
-        holding_threshold_n=config.grasp.force_threshold_n / 2.0,
-    )
+    try:
+        cell, closer = await start_sim_cell(
+            layout,
+            scene_mugs(entries(dataset, None), catalogue),
+            clock=clock,
+            transport=transport,
+            seed=seed,
+            holding_threshold_n=config.grasp.force_threshold_n / 2.0,
+        )
+    except ValueError as e:  # a transport the clock cannot drive
+        raise UsageError(str(e)) from e
 
     class _Counter:
         def __init__(self) -> None:
@@ -631,9 +653,9 @@ async def open_mujoco_backend(
 
     def on_event(listener: EventListener) -> None:
         cell.on_collision(
-            lambda c: listener({**c.to_event(), "kind": "tray_collision", "t_sim": c.t, "t": time.time()})
+            lambda c: listener({**c.to_event(), "kind": "tray_collision", "t_sim": c.t, "t": clock.now()})
         )
-        cell.on_device_event(lambda e: listener(device_event_payload(e)))
+        cell.on_device_event(lambda e: listener(device_event_payload(e, t=clock.now())))
 
     return Backend(
         name="sim-mujoco",
@@ -646,6 +668,7 @@ async def open_mujoco_backend(
         counter=_Counter(),
         closer=closer,
         on_event=on_event,
+        clock=clock,
     )
 
 
@@ -692,8 +715,11 @@ class _NoCamera:
     """``hardware.camera = "none"``: the devices run (telemetry, faults, commands) but the counter looks
     empty, so a started job ends done at once."""
 
+    def __init__(self, clock: SessionClock) -> None:
+        self._clock = clock
+
     async def observe(self) -> Observation:
-        return Observation(t=time.monotonic(), detections=(), meta={"source": "none"})
+        return Observation(t=self._clock.monotonic(), detections=(), meta={"source": "none"})
 
 
 async def open_hardware_backend(
@@ -701,12 +727,14 @@ async def open_hardware_backend(
     *,
     executor: concurrent.futures.Executor | None = None,
     camera: Camera | None = None,
+    clock: SessionClock | None = None,
 ) -> Backend:
     """The robot: the device stack of ``[hardware]`` on its serial ports (the same stack the MuJoCo cell
-    builds over pseudo-terminals) and the RealSense camera with the depth detector. ``camera`` replaces the
-    configured camera (a stand-in for tests). A missing port, a missing pyrealsense2 or a servo chain that
-    does not match the config is a one-line ``UsageError``. Call it on the event loop that will use the
-    devices."""
+    builds over its simulators) and the RealSense camera with the depth detector, on the wall clock
+    (``clock``, default a ``RealClock``). ``camera`` replaces the configured camera (a stand-in for tests).
+    A missing port, a missing pyrealsense2 or a servo chain that does not match the config is a one-line
+    ``UsageError``. Call it on the event loop that will use the devices."""
+    clock = clock or RealClock()
     hw = config.hardware
     for key, port in (("hardware.servo_port", hw.servo_port), ("hardware.fsr.port", hw.fsr.port)):
         if not Path(port).exists():  # noqa: ASYNC240 (one stat at start-up, before any device runs)
@@ -724,11 +752,11 @@ async def open_hardware_backend(
     arm_model = ArmModel.load()
     spec = hardware_stack_spec(config, arm_model)
     correction = load_correction(config)
-    events = _DeviceEvents()
+    events = _DeviceEvents(clock)
     stack = contextlib.AsyncExitStack()
     try:
-        devices = await open_device_stack(spec, stack, on_event=events)
-        observer = await _hardware_observer(config, stack, camera)
+        devices = await open_device_stack(spec, stack, clock=clock, on_event=events)
+        observer = await _hardware_observer(config, stack, camera, clock)
     except BaseException as e:
         await stack.aclose()
         if isinstance(e, DriverError | BusLost):
@@ -759,11 +787,12 @@ async def open_hardware_backend(
         closer=close,
         on_event=events.add,
         devices=devices,
+        clock=clock,
     )
 
 
 async def _hardware_observer(
-    config: Config, stack: contextlib.AsyncExitStack, camera: Camera | None
+    config: Config, stack: contextlib.AsyncExitStack, camera: Camera | None, clock: SessionClock
 ) -> MugObserver:
     """The mug observer on the configured camera: depth detection over the table, the tray left out."""
     from description.cell import SceneLayout
@@ -772,7 +801,7 @@ async def _hardware_observer(
     from perception.observer import cell_observer_factory
 
     if camera is None and config.hardware.camera == "none":
-        return _NoCamera()
+        return _NoCamera(clock)
     plain = config.to_dict()
     c = config.camera
     try:
@@ -795,6 +824,7 @@ async def _hardware_observer(
                 width=c.width,
                 height=c.height,
                 serial_number=config.hardware.camera_serial or None,
+                clock=clock,
             )
         )
     return cell_observer_factory(layout, catalogue_of(config))(camera)

@@ -18,7 +18,6 @@ import asyncio
 import concurrent.futures
 import contextlib
 import functools
-import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol, TypeVar
@@ -37,7 +36,7 @@ from daemon.backend import (
 )
 from daemon.config import Config
 from drivers.errors import BusLost, DriverError, LimitViolation
-from drivers.interfaces import JointTrajectory
+from drivers.interfaces import Clock, JointTrajectory
 from perception.interfaces import Detection
 from planning.interfaces import CyclePlan, MotionRefused, MugPose, Step, StepKind, TraySlot
 from planning.placement import CounterMug as PlanMug
@@ -123,12 +122,17 @@ class JobSummary:
     started_at: float | None = None
     ended_at: float | None = None
     end_state: str = ""
+    clock: Clock | None = field(default=None, repr=False, compare=False)  # what started_at is on
 
     @property
     def duration_s(self) -> float:
+        """How long the job took (so far) on the backend's clock: simulated seconds in simulation."""
         if self.started_at is None:
             return 0.0
-        return (self.ended_at or time.monotonic()) - self.started_at
+        end = self.ended_at
+        if end is None:
+            end = self.clock.monotonic() if self.clock is not None else self.started_at
+        return end - self.started_at
 
     def to_json(self) -> dict[str, object]:
         return {
@@ -190,6 +194,7 @@ class Job:
         """``executor`` (a process pool) runs placement planning off this process, so its CPU time does not
         hold the GIL against the event loop; without it, planning runs in a thread."""
         self.backend = backend
+        self._clock = backend.clock
         self._executor = executor
         self.config = config
         self.chart = chart or StateChart()
@@ -221,7 +226,7 @@ class Job:
             "mugs_failed": ctx.summary.failed,
             "current_mug": ctx.current.mug_id if ctx.current else None,
             "transitions": self._transitions,
-            "t": time.time(),
+            "t": self._clock.now(),
         }
 
     async def command(self, verb: str, request: StartRequest | None = None) -> dict[str, object]:
@@ -255,7 +260,7 @@ class Job:
     async def _fault_unless_force_back(self, reason: str, *, grace_s: float = _FORCE_GRACE_S) -> None:
         """Fault the job when the force sensor is still lost or silent after ``grace_s``: a short stall of
         the event loop must not end a job, a sensor that stays away must (no drop could be seen)."""
-        await asyncio.sleep(grace_s)
+        await self._clock.sleep(grace_s)
         if self._force_down and top_level(self.chart.state) in _WORKING:
             await self.fault(reason)
 
@@ -351,7 +356,7 @@ class Job:
             tray_mugs=list(previous.tray_mugs),
             next_id=previous.next_id,
         )
-        self._ctx.summary.started_at = time.monotonic()
+        self._ctx.summary.started_at, self._ctx.summary.clock = self._clock.monotonic(), self._clock
         self.finished.clear()
 
     def _planner_options(self, req: PlannerRequest) -> PlanOptions:
@@ -386,7 +391,7 @@ class Job:
         self._event("transition", trigger=change.trigger, source=change.source, dest=change.dest, **detail)
         self._publish("state", self.status())
         if change.dest in ("done", "fault", "estop") or (change.dest == "idle" and change.trigger == "stop"):
-            self._ctx.summary.ended_at = time.monotonic()
+            self._ctx.summary.ended_at = self._clock.monotonic()
             self._ctx.summary.end_state = change.dest
             self.finished.set()
 
@@ -495,7 +500,7 @@ class Job:
             }
             for s, _ in ctx.queue
         ]
-        payload["t"] = time.time()
+        payload["t"] = self._clock.now()
         self._publish("plan", payload)
         return Outcome("planned", {"has_next_mug": await self._prepare_next()})
 
@@ -540,11 +545,11 @@ class Job:
 
     async def _force_confirms(self, *, timeout_s: float = _GRASP_CONFIRM_S) -> bool:
         """Whether the FSR reader's debounced ``holding()`` turns (or is) true within ``timeout_s``."""
-        deadline = time.monotonic() + timeout_s
+        deadline = self._clock.monotonic() + timeout_s
         while not self.backend.force.holding():
-            if time.monotonic() >= deadline:
+            if self._clock.monotonic() >= deadline:
                 return False
-            await asyncio.sleep(_GRASP_POLL_S)
+            await self._clock.sleep(_GRASP_POLL_S)
         return True
 
     async def _steps(self, leaf: str) -> Outcome:
@@ -596,7 +601,7 @@ class Job:
         follow = asyncio.create_task(arm.follow(traj), name=f"follow:{step.phase}")
         try:
             while not follow.done():
-                await asyncio.wait({follow}, timeout=period)
+                await self._clock.wait(follow, period)
                 if watch and not follow.done() and not self.backend.force.holding():
                     return False
             follow.result()
@@ -657,7 +662,7 @@ class Job:
                 d = replace(d, mug_id=f"m{ctx.next_id}")
                 ctx.next_id += 1
             out.append(d)
-        payload = observation_payload(replace(obs, detections=tuple(out)))
+        payload = observation_payload(replace(obs, detections=tuple(out)), t=self._clock.now())
         if obs.depth_preview is not None:
             payload["depth_preview"] = depth_preview_payload(obs.depth_preview)
         self._publish("detections", payload)
@@ -817,4 +822,4 @@ class Job:
         )
 
     def _event(self, kind: str, **detail: Any) -> None:
-        self._publish("events", {"kind": kind, "state": self.chart.state, "t": time.time(), **detail})
+        self._publish("events", {"kind": kind, "state": self.chart.state, "t": self._clock.now(), **detail})

@@ -6,7 +6,6 @@ import argparse
 import json
 import math
 import sys
-import time
 from pathlib import Path
 
 import cv2
@@ -62,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     catalogue = {
         m.name: MugSpec(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in config.mug_types
     }
-    frame = RGBDFrame(time.monotonic(), depth, camera.intrinsics, camera.world_from_camera)
+    frame = RGBDFrame(0.0, depth, camera.intrinsics, camera.world_from_camera)  # a file has no capture time
     try:
         mugs = DepthMugDetector(catalogue).detect(frame)
     except PerceptionError as e:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from daemon.clock import RealClock
 from daemon.errors import UsageError
 from drivers.dynamixel import BusConfig, DynamixelBus
 from drivers.dynamixel.protocol import MAX_ID
@@ -67,7 +68,7 @@ def _check_id(name: str, value: int) -> None:
 
 
 def _open(config: BusConfig) -> DynamixelBus:
-    bus = DynamixelBus(config, read_timeout_s=0.01, retries=0)
+    bus = DynamixelBus(config, clock=RealClock(), read_timeout_s=0.01, retries=0)
     try:
         bus.open()
     except BusLost as e:

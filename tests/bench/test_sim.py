@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import asyncio
-
 import pytest
 
 from bench.sim import MujocoCounter, catalogue_of, layout_of
 from daemon.cli import main
+from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from sim.mujoco.cell import open_sim_cell
 
@@ -30,9 +29,10 @@ def test_bad_flags_exit_2_with_one_line(
 
 def test_counter_puts_a_dataset_on_the_cell_and_refuses_the_full_size_tray() -> None:
     config = load_config()
+    clock = SimulatedClock()
 
     async def body() -> None:
-        async with open_sim_cell(layout_of(config), []) as cell:
+        async with open_sim_cell(layout_of(config), [], clock=clock) as cell:
             counter = MujocoCounter(cell, config)
             tray = counter.set_counter(dataset=2, mugs=None)
             assert tray.origin_m == config.cell.tray_origin_m
@@ -43,4 +43,4 @@ def test_counter_puts_a_dataset_on_the_cell_and_refuses_the_full_size_tray() -> 
             with pytest.raises(ValueError, match=r"^dataset 4 needs the full-size tray"):
                 counter.set_counter(dataset=4, mugs=None)
 
-    asyncio.run(body())
+    clock.run(body())

@@ -14,6 +14,7 @@ import pytest
 
 from daemon.backend import check_cell_reachable, load_correction, open_hardware_backend
 from daemon.cli import main
+from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.errors import ConfigError, UsageError
 from description.camera import CameraSpec
@@ -180,7 +181,7 @@ def test_the_arm_calibration_file_reaches_the_cycle_planner(tmp_path: Path) -> N
     path.write_text(__import__("json").dumps(correction.to_mapping()))
     config = load_config(overrides={"arm": {"calibration_file": str(path)}})
     assert load_correction(config) == correction
-    backend = open_kinematic_backend(config, dataset=1, speed=50.0, seed=0)
+    backend = open_kinematic_backend(config, dataset=1, clock=SimulatedClock(), seed=0)
     assert getattr(backend.motion, "correction") == correction  # noqa: B009
     bad = load_config(overrides={"arm": {"calibration_file": str(tmp_path / "missing.json")}})
     with pytest.raises(UsageError) as info:

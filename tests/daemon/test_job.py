@@ -1,4 +1,5 @@
-"""The job runner on stand-ins for the world: whole jobs, lost mugs, pause/resume, stop, estop, faults."""
+"""The job runner on stand-ins for the world: whole jobs, lost mugs, pause/resume, stop, estop, faults; on a
+simulated clock, so the stand-ins' moves take simulated time, not the test's."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from typing import Any
 
 import pytest
 
+from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import CommandRefused, Job, StartRequest
 from perception import associate
@@ -25,7 +27,7 @@ def _job(
         published.append((topic, dict(payload)))
 
     config = load_config(overrides={"planner": {"method": "bh", "time_limit_s": 0.2}})
-    backend = make_backend(world, refuse=refuse)
+    backend = make_backend(world, refuse=refuse, clock=SimulatedClock())
     assert isinstance(backend.motion, FakeMotion)
     backend.motion.blocked_by = dict(blocked_by or {})
     return Job(backend, config, publish, associate), published
@@ -37,12 +39,13 @@ def _run(world: FakeWorld, scenario: Callable[[Job], Awaitable[None]], **kw: Any
     async def go() -> None:
         control = asyncio.create_task(job.run())
         try:
-            await asyncio.wait_for(scenario(job), timeout=20)
+            async with job.backend.clock.timeout(20):
+                await scenario(job)
         finally:
             await job.shutdown()
             control.cancel()
 
-    asyncio.run(go())
+    job.backend.clock.run(go())
     return job, published
 
 
@@ -326,7 +329,8 @@ def test_starting_on_a_new_dataset_sets_the_simulated_counter_up_and_records_the
     from daemon.backend import open_kinematic_backend
 
     config = load_config(overrides={"planner": {"method": "bh"}})
-    backend = open_kinematic_backend(config, dataset=1, speed=50.0, seed=0)
+    clock = SimulatedClock()
+    backend = open_kinematic_backend(config, dataset=1, clock=clock, seed=0)
     first_planner = backend.motion
     published: Published = []
 
@@ -338,7 +342,7 @@ def test_starting_on_a_new_dataset_sets_the_simulated_counter_up_and_records_the
         await job.shutdown()
         control.cancel()
 
-    asyncio.run(go())
+    clock.run(go())
     scene = next(p["scene"] for t, p in published if t == "events" and p["kind"] == "scene_set")
     assert scene["dataset"] == 4
     assert len(scene["mugs"]) == 30  # dataset 4: 20 big and 10 small

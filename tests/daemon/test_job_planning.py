@@ -10,6 +10,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from daemon.backend import CyclePlannerSpec, Tray, plan_placement
+from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import Job, StartRequest
 from perception import associate
@@ -62,7 +63,7 @@ def test_a_blocked_mug_is_swapped_for_a_reachable_one_of_its_type_and_both_are_p
     def publish(topic: str, payload: Mapping[str, object]) -> None:
         published.append((topic, dict(payload)))
 
-    backend = make_backend(world)
+    backend = make_backend(world, clock=SimulatedClock())
     backend.motion = SwappingMotion(world)
     config = load_config(overrides={"planner": {"method": "bh", "time_limit_s": 0.2}})
     job = Job(backend, config, publish, associate)
@@ -71,12 +72,13 @@ def test_a_blocked_mug_is_swapped_for_a_reachable_one_of_its_type_and_both_are_p
         control = asyncio.create_task(job.run())
         try:
             await job.command("start", StartRequest())
-            await asyncio.wait_for(job.finished.wait(), 20)
+            async with backend.clock.timeout(20):
+                await job.finished.wait()
         finally:
             await job.shutdown()
             control.cancel()
 
-    asyncio.run(go())
+    backend.clock.run(go())
     events = [p for t, p in published if t == "events"]
     swaps = [e for e in events if e["kind"] == "mug_swapped"]
     assert len(swaps) == 1
