@@ -145,6 +145,7 @@ def test_run_without_sim_on_a_missing_port_exits_2_with_one_line(
         (["--world", "mujoco"], "--world sets up the simulated cell; add --sim (backend is hardware)"),
         (["--dataset", "2"], "--dataset sets up the simulated cell; add --sim (backend is hardware)"),
         (["--speed", "2"], "--speed sets up the simulated cell; add --sim (backend is hardware)"),
+        (["--transport", "pty"], "--transport sets up the simulated cell; add --sim (backend is hardware)"),
     ],
 )
 def test_simulation_flags_on_the_hardware_backend_are_refused(
