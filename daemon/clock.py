@@ -46,7 +46,7 @@ Ts = TypeVarTuple("Ts")
 # still for a computation): start pacing afresh from here instead of racing to catch up.
 _BEHIND_S: Final = 0.25
 # How often a loop waiting for executor work looks for input from outside (a signal, a command).
-_EXTERNAL_POLL_S: Final = 0.5
+_EXTERNAL_POLL_S: Final = 0.02
 SPEED_RANGE: Final = (0.1, 1000.0)
 
 
@@ -256,15 +256,17 @@ class SimulatedClock:
         self, select: Callable[[float | None], list[tuple[selectors.SelectorKey, int]]], timeout: float | None
     ) -> list[tuple[selectors.SelectorKey, int]]:
         """The loop's wait for I/O, where simulated time is made: ``timeout`` is 0 when callbacks are ready,
-        the time to the next timer, or None when no timer is set."""
-        if timeout != 0 and self._work:
-            ready = self._finish_work(select)
-            if ready is not None:
-                return ready  # input from outside arrived first; the work is still in flight
-            return select(0)
+        the time to the next timer, or None when no timer is set.
+
+        I/O that is ready is handled first, at the current time (the in-process devices write from this
+        thread, so what they sent is always there by the next look). Then executor work in flight is waited
+        for and handed back; only when there is neither does time move on."""
         ready = select(0)
         if ready or timeout == 0:
             return ready
+        if self._work:
+            outside = self._finish_work(select)
+            return outside if outside is not None else select(0)
         if timeout is None:
             return select(None)  # no timer at all: only the outside world can wake the loop
         target = self._now + timeout
@@ -281,7 +283,8 @@ class SimulatedClock:
         self, select: Callable[[float | None], list[tuple[selectors.SelectorKey, int]]]
     ) -> list[tuple[selectors.SelectorKey, int]] | None:
         """Wait for every piece of executor work in flight, then resolve their futures in submission order;
-        None when done, or what came in from outside meanwhile (checked every ``_EXTERNAL_POLL_S``)."""
+        None when done, or what came in from outside meanwhile (a command, a signal; looked for every
+        ``_EXTERNAL_POLL_S``), which is handled first while the work stays in flight."""
         work, self._work = self._work, []
         pending = {w.done for w in work}
         while pending:
