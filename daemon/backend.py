@@ -176,7 +176,7 @@ def recorded(backend: Backend, sink: Sink) -> Backend:
         backend,
         arm=_RecordedArm(backend.arm, sink, clock),
         gripper=_RecordedGripper(backend.gripper, sink),
-        force=_RecordedForce(backend.force, sink),
+        force=_RecordedForce(backend.force, sink, clock),
         observer=_RecordedObserver(backend.observer, sink, clock),
     )
 
@@ -267,16 +267,23 @@ class _RecordedGripper:
 
 
 class _RecordedForce:
-    def __init__(self, inner: ForceSensor, sink: Sink) -> None:
+    def __init__(self, inner: ForceSensor, sink: Sink, clock: SessionClock) -> None:
         self._inner = inner
         self._sink = sink
+        self._clock = clock
 
     def latest(self) -> ForceReading | None:
         reading = self._inner.latest()
         if reading is not None:
             self._sink(
                 "input/force",
-                {"t": reading.t, "force_n": reading.force_n, "raw": reading.raw, "seq": reading.seq},
+                {
+                    "t": self._clock.now(),
+                    "t_device": reading.t,
+                    "force_n": reading.force_n,
+                    "raw": reading.raw,
+                    "seq": reading.seq,
+                },
             )
         return reading
 
