@@ -471,7 +471,7 @@ class SimWorld:
     def check_alive(self) -> None:
         """Raise ``SimWorldStopped`` when the physics died (diverged) or is not being stepped."""
         if self._failure is not None:
-            raise SimWorldStopped(f"the physics thread died: {self._failure}") from self._failure
+            raise SimWorldStopped(f"the physics died: {self._failure}") from self._failure
         if self._detach is not None:
             return
         if self._thread is None or not self._thread.is_alive():
@@ -502,7 +502,7 @@ class SimWorld:
         try:
             with self.lock:
                 self._run_steps(steps)
-        except SimModelError as e:
+        except Exception as e:  # as in the thread: the world stops, the clock (and the daemon) go on
             self._failure = e
             log.error("simworld_died", error=str(e), t=round(self.time(), 3))
         self.wall_stepping_s += time.perf_counter() - started

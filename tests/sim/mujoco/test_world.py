@@ -17,7 +17,7 @@ from planning.arm.grasp import side_grasp
 from planning.arm.model import ArmModel
 from planning.arm.targets import GraspKind
 from sim.mujoco.arm import ArmMjcf, build_arm_mjcf, load_urdf, parse_urdf
-from sim.mujoco.errors import SimModelError
+from sim.mujoco.errors import SimModelError, SimWorldStopped
 from sim.mujoco.world import PhysicsConfig, SimWorld
 from tests.sim.mujoco.conftest import ARM_IDS, GRIPPER_ID, HandFor, WorldFactory, mug_facing_arm
 
@@ -231,6 +231,27 @@ def test_a_world_attached_to_a_simulated_clock_is_at_the_clocks_time_whenever_an
         assert world_t == pytest.approx(clock_t, abs=1e-9)
     assert world.time() == pytest.approx(0.334)  # stopped with the clock at 0.334 + 0.25: no steps after
     assert world.mug_truths()["a"].orientation == "upright"
+
+
+def test_a_world_that_dies_on_the_clock_stops_and_says_so_while_the_clock_goes_on(
+    make_world: WorldFactory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    world = make_world([])
+    clock = SimulatedClock()
+
+    def diverge(steps: int) -> None:
+        raise SimModelError("the simulation diverged at t=0.000 s (non-finite positions)")
+
+    async def main() -> None:
+        world.attach(clock)
+        monkeypatch.setattr(world, "_run_steps", diverge)
+        await clock.sleep(0.1)
+        await clock.sleep(0.1)  # the clock goes on; the dead world is no longer stepped
+
+    clock.run(main())
+    assert clock.monotonic() == pytest.approx(0.2)
+    with pytest.raises(SimWorldStopped, match=r"^the physics died: the simulation diverged at t=0\.000 s"):
+        world.check_alive()
 
 
 def test_a_fast_carry_reads_a_steady_squeeze_not_a_drop(make_world: WorldFactory, hand_for: HandFor) -> None:
