@@ -4,8 +4,8 @@ The simulated chain runs in its own process (``dishbot sim bus``), answering at 
 1 Mbps bus, so the numbers are those of the driver, not of a simulator sharing its interpreter.
 Measured: packet encode/decode time, the full bus cycle (sync write of every goal + read of every joint)
 on Protocol 1.0 and 2.0, and the event loop's wake-up lateness (p99, target <= 5 ms) while the arm
-streams a trajectory at 50 Hz — idle, with the simulator in another process, and with it in this one (as
-``dishbot run --sim`` has it).
+streams a trajectory at 50 Hz — idle, with the simulator in another process, and with it on a pty in this
+one (as ``dishbot run --sim --transport pty`` has it). The driver runs on the wall clock, as on the robot.
 """
 
 from __future__ import annotations
@@ -83,10 +83,11 @@ def _cycle(
     path: str, protocol: int, servos: Sequence[tuple[int, str]], seconds: float
 ) -> tuple[list[float], int]:
     """Durations of back-to-back bus cycles, and how many answers had to be asked for again."""
+    from daemon.clock import RealClock
     from drivers.dynamixel import DynamixelBus
 
     ids = [i for i, _ in servos]
-    with DynamixelBus(BusConfig(path, protocol=protocol)) as bus:  # type: ignore[arg-type]
+    with DynamixelBus(BusConfig(path, protocol=protocol), clock=RealClock()) as bus:  # type: ignore[arg-type]
         bus.verify(servos)
         goals = dict.fromkeys(ids, (0.1, 1.0))
         times = []
@@ -104,6 +105,7 @@ async def _jitter(path: str, seconds: float, *, with_bus: bool) -> tuple[list[fl
     """Wake-up lateness of a 1 ms sleeper, while (or without) the arm following a trajectory at 50 Hz."""
     import numpy as np
 
+    from daemon.clock import RealClock
     from drivers.dynamixel import DynamixelArm, ServoChain
     from drivers.interfaces import JointTrajectory
     from drivers.sim import default_chain
@@ -122,7 +124,7 @@ async def _jitter(path: str, seconds: float, *, with_bus: bool) -> tuple[list[fl
     rate = 0.0
     if with_bus:
         async with (
-            ServoChain(BusConfig(path), default_chain()[:5]) as chain,
+            ServoChain(BusConfig(path), default_chain()[:5], clock=RealClock()) as chain,
             DynamixelArm(chain, thesis_joints()) as arm,
         ):
             times = np.linspace(0.0, seconds, int(seconds * 50) + 1)
@@ -172,7 +174,7 @@ def _run(args: argparse.Namespace) -> int:
     idle, _ = asyncio.run(_jitter("", args.seconds, with_bus=False))
     with simulated_bus(default_chain(), 1) as path:
         busy, rate = asyncio.run(_jitter(path, args.seconds, with_bus=True))
-    with ServoChainSimulator(default_chain()) as sim:  # as `dishbot run --sim` runs it: same interpreter
+    with ServoChainSimulator(default_chain()) as sim:  # on a pty in this interpreter (--transport pty)
         shared, _ = asyncio.run(_jitter(sim.device_path, args.seconds, with_bus=True))
     rows.append(["control loop rate (arm.follow)", round(rate, 1), "Hz", "50"])
     rows.append(["event-loop jitter p99, idle", round(_pct(idle, 99) * 1e3, 3), "ms", ""])
@@ -187,7 +189,7 @@ def _run(args: argparse.Namespace) -> int:
     rows.append(["event-loop jitter max, bus at 50 Hz", round(max(busy) * 1e3, 3), "ms", ""])
     rows.append(
         [
-            "event-loop jitter p99, bus at 50 Hz, simulator in-process",
+            "event-loop jitter p99, bus at 50 Hz, pty simulator in this process",
             round(_pct(shared, 99) * 1e3, 3),
             "ms",
             "",

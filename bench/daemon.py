@@ -1,9 +1,10 @@
 """``dishbot bench daemon``: command latency, publish latency, event-loop jitter and recording throughput.
 
-The daemon runs in this process on the simulated kinematic cell, listening on a free loopback port, with a
-loading job going (so every topic is published and recorded); a second Zenoh session, as a remote client
-would, sends ``status`` queries one after another and subscribes to ``state`` and ``joints``. A probe task on
-the daemon's own event loop wakes at 50 Hz and measures how late each wake-up is. Separately, a recorder
+The daemon runs in this process on the simulated kinematic cell on the wall clock, as on the robot, listening
+on a free loopback port, with a loading job going (so every topic is published and recorded); a second Zenoh
+session, as a remote client would, sends ``status`` queries one after another and subscribes to ``state``
+and ``joints``. A probe task on the daemon's own event loop wakes at 50 Hz and measures how late each
+wake-up is. Separately, a recorder
 writes joint samples as fast as it accepts them.
 """
 
@@ -136,15 +137,15 @@ def _bench(args: argparse.Namespace) -> int:
 async def _live(tmp: Path, commands: int, seconds: float, log_level: str) -> _Live:
     from daemon.app import RunOptions, serve
     from daemon.backend import ProcessMotionPlanner, SimOptions, open_backend
+    from daemon.clock import RealClock
     from daemon.sdnotify import SdNotifier
 
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    config = load_config(
-        overrides={"robot_id": ROBOT, "planner": {"method": "bh"}, "sim": {"speed": 5.0}},
-    )
+    config = load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}})
     with planning_pool(log_level) as pool:
-        sim = SimOptions(world="kinematic", dataset=1, speed=config.sim.speed, seed=0)
-        backend = await open_backend(config, sim=sim, executor=pool)
+        # The wall clock: what is measured is the loop's real-time behaviour, the robot's.
+        sim = SimOptions(world="kinematic", dataset=1, seed=0)
+        backend = await open_backend(config, sim=sim, clock=RealClock(), executor=pool)
         if isinstance(backend.motion, ProcessMotionPlanner):
             await asyncio.wrap_future(backend.motion.warm_up())
         options = RunOptions(listen=(endpoint,), connect=(), record_dir=tmp, once=None)

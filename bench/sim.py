@@ -4,11 +4,12 @@ Each dataset gets a fresh simulated cell from the daemon's own builder (``daemon
 the cell ``dishbot run --sim --world mujoco --dataset N`` runs: the same start pose, arm calibration, mug
 catalogue and detector) with its mugs on the counter where ``sim.counter`` puts them. The daemon's ``Job``
 runs one loading job on it exactly as ``dishbot run --once`` does — perception on rendered depth frames, the
-placement planner, the cycle planner, the real Dynamixel and FSR drivers over pseudo-terminals — and the
-bench reads the outcome from the job's summary and the world's ground truth: mugs detected, planned, placed
-(standing on the tray, upright or inverted as planned), tray collisions (the thesis's tolerance test asks for
-none, Table 5.19), simulated time per placed mug (the thesis's Gazebo runs took about 55 s, Table 5.26) and
-wall time.
+placement planner, the cycle planner, the real Dynamixel and FSR drivers on the in-process transport — and
+the bench reads the outcome from the job's summary and the world's ground truth: mugs detected, planned,
+placed (standing on the tray, upright or inverted as planned), tray collisions (the thesis's tolerance test
+asks for none, Table 5.19), simulated time per placed mug (the thesis's Gazebo runs took about 55 s, Table
+5.26), simulated and wall time and their ratio. The cell runs on a simulated clock at full speed, as
+``dishbot run --sim --once`` does.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from daemon.errors import UsageError
 from description import thesis
 
 if TYPE_CHECKING:
+    from daemon.clock import SimulatedClock
     from perception.interfaces import Associate
     from sim.mujoco.cell import SimCell
     from sim.mujoco.collisions import TrayCollision
@@ -58,6 +60,11 @@ class SimRun:
     def sim_s_per_mug(self) -> float:
         return self.sim_time_s / self.on_tray if self.on_tray else float("nan")
 
+    @property
+    def real_time_ratio(self) -> float:
+        """Simulated seconds per wall second (the MuJoCo cell's target is at least 5)."""
+        return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else float("nan")
+
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = sub.add_parser(
@@ -66,8 +73,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         description=(
             "Run one loading job per dataset in the MuJoCo cell (real drivers on simulated devices, "
             "perception on rendered depth frames) and print mugs detected, planned and placed, tray "
-            "collisions (target 0), simulated seconds per placed mug and wall time. The devices keep "
-            "wall-clock time, so a dataset takes about as long as the arm needs to load it."
+            "collisions (target 0), simulated seconds per placed mug, simulated and wall time and their "
+            "ratio (target >= 5). The cell runs on simulated time, as fast as the machine allows."
         ),
     )
     parser.add_argument(
@@ -79,7 +86,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--seed", type=int, default=None, help="seed of the depth noise (default: the config's sim.seed)"
     )
     parser.add_argument(
-        "--timeout", type=float, default=1800.0, metavar="SEC", help="give a job up after SEC (default 1800)"
+        "--timeout",
+        type=float,
+        default=1800.0,
+        metavar="SEC",
+        help="give a job up after SEC simulated seconds (default 1800)",
     )
     parser.add_argument(
         "--fsr-debounce",
@@ -127,24 +138,26 @@ def run(args: argparse.Namespace) -> int:
     if not 0.0 <= args.fsr_debounce <= 1.0:
         raise UsageError(f"--fsr-debounce: {args.fsr_debounce} must be in [0, 1] seconds")
 
+    from daemon.clock import SimulatedClock
+
     config = load_config(args.config)
     datasets = _datasets(args.datasets, config)
     with planning_pool(args.log_level) as pool:
-        runs = [
-            asyncio.run(
-                run_dataset(
-                    n,
-                    config,
-                    associate=association(),
-                    seed=args.seed,
-                    timeout_s=args.timeout,
-                    fsr_debounce_s=args.fsr_debounce,
-                    executor=pool,
-                    on_event=_log_job_event,
-                )
+        runs = []
+        for n in datasets:
+            clock = SimulatedClock()
+            run = run_dataset(
+                n,
+                config,
+                clock=clock,
+                associate=association(),
+                seed=args.seed,
+                timeout_s=args.timeout,
+                fsr_debounce_s=args.fsr_debounce,
+                executor=pool,
+                on_event=_log_job_event,
             )
-            for n in datasets
-        ]
+            runs.append(clock.run(run))
     rows = [
         [
             r.dataset,
@@ -158,7 +171,9 @@ def run(args: argparse.Namespace) -> int:
             r.drops,
             r.end_state,
             round(r.sim_s_per_mug, 1),
+            round(r.sim_time_s, 1),
             round(r.wall_time_s, 1),
+            round(r.real_time_ratio, 1),
         ]
         for r in runs
     ]
@@ -174,11 +189,14 @@ def run(args: argparse.Namespace) -> int:
         "drops",
         "end_state",
         "sim_s_per_mug",
+        "sim_s",
         "wall_s",
+        "x_real_time",
     ]
     extra = {
         "fsr debounce s": args.fsr_debounce,
         "target tray_collisions": 0,
+        "target x_real_time": ">= 5",
         "thesis (Gazebo, Table 5.26) s per mug": thesis.THESIS_GAZEBO_SECONDS_PER_MUG,
         "thesis best placed (ds1, ds2, ds3)": [thesis.DATASETS[n].thesis_best_placed for n in datasets],
     }
@@ -190,6 +208,7 @@ async def run_dataset(
     dataset: int,
     config: Config,
     *,
+    clock: SimulatedClock,
     associate: Associate,
     seed: int | None = None,
     timeout_s: float = 1800.0,
@@ -197,14 +216,15 @@ async def run_dataset(
     executor: concurrent.futures.Executor | None = None,
     on_event: Callable[[str, Mapping[str, object]], None] | None = None,
 ) -> SimRun:
-    """One loading job of ``dataset`` in a fresh MuJoCo cell, measured: the cell ``dishbot run --sim --world
-    mujoco --dataset N --once`` runs (``daemon.backend.open_backend``), and the same job."""
+    """One loading job of ``dataset`` in a fresh MuJoCo cell on ``clock`` (run it with ``clock.run``),
+    measured: the cell ``dishbot run --sim --world mujoco --dataset N --once`` runs
+    (``daemon.backend.open_backend``), and the same job."""
     from daemon.backend import SimOptions, open_backend
     from daemon.job import Job, StartRequest
     from daemon.sim_backend import mujoco_cell
 
     options = SimOptions(world="mujoco", dataset=dataset, seed=seed, fsr_debounce_s=fsr_debounce_s)
-    backend = await open_backend(config, sim=options, executor=executor)
+    backend = await open_backend(config, sim=options, clock=clock, executor=executor)
     cell = mujoco_cell(backend)
     collisions: list[TrayCollision] = []
     cell.on_collision(collisions.append)
@@ -217,13 +237,14 @@ async def run_dataset(
     control = asyncio.create_task(job.run())
     started = time.monotonic()
     try:
-        sim_start = cell.world.time()
+        sim_start = clock.monotonic()
         await job.command("start", StartRequest())
         try:
-            await asyncio.wait_for(job.finished.wait(), timeout_s)
+            async with clock.timeout(timeout_s):
+                await job.finished.wait()
         except TimeoutError:
             await job.command("stop")
-        sim_time = cell.world.time() - sim_start
+        sim_time = clock.monotonic() - sim_start
         wall = time.monotonic() - started
         summary = job.summary
         on_tray = _standing_on_tray(cell)

@@ -4,6 +4,9 @@
 recording, starts the job's control task and the telemetry loops (state, joints, gripper), answers commands,
 pings the systemd watchdog from the loop, and on SIGTERM/SIGINT (or, with ``once``, when the job ends) stops
 motion, finishes the recording and closes the session.
+
+Everything runs on the backend's clock: telemetry periods, the watchdog's, the ``t`` of every message and
+the recording's log times (simulated time in simulation, the wall clock on the robot).
 """
 
 from __future__ import annotations
@@ -14,7 +17,6 @@ import contextlib
 import gc
 import os
 import signal
-import time
 from collections.abc import Awaitable, Callable, Iterator, Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -25,6 +27,7 @@ import zenoh
 
 from daemon import commands_handler
 from daemon.backend import Backend, joints_payload, recorded
+from daemon.clock import SessionClock, wall_seconds
 from daemon.config import Config
 from daemon.errors import RecordingError, UsageError
 from daemon.job import Job, JobSummary, StartRequest
@@ -57,10 +60,13 @@ class RunResult:
     summary: JobSummary
     recording: Path
     end_state: str
+    wall_s: float = 0.0  # how long the ``once`` job took on this machine (its duration is on the clock)
+    simulated: bool = False
 
 
-def recording_path(record_dir: Path, robot_id: str) -> Path:
-    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+def recording_path(record_dir: Path, robot_id: str, wall_start: float) -> Path:
+    """``<robot>-<UTC start>-<pid>.mcap``, named after the session's wall-clock start."""
+    stamp = datetime.fromtimestamp(wall_start, UTC).strftime("%Y%m%dT%H%M%SZ")
     return record_dir / f"{robot_id}-{stamp}-{os.getpid()}.mcap"
 
 
@@ -81,7 +87,7 @@ async def serve(
         options.record_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise UsageError(f"cannot create the recording directory {options.record_dir}: {e.strerror}") from e
-    path = recording_path(options.record_dir, config.robot_id)
+    path = recording_path(options.record_dir, config.robot_id, backend.clock.wall_start)
     try:
         recorder = Recorder(path, chunk_size=config.recording.chunk_size_bytes)
     except RecordingError as e:
@@ -96,8 +102,9 @@ async def serve(
     except zenoh.ZError as e:
         recorder.close()
         raise UsageError(f"cannot open the Zenoh session (listen {list(options.listen)}): {e}") from e
-    session.attach_recorder(recorder)
-    with _logs_published(session):
+    clock = backend.clock
+    session.attach_recorder(recorder, lambda: round(clock.now() * 1e9))
+    with _logs_published(session, clock):
         return await _run(
             config,
             backend,
@@ -127,16 +134,19 @@ async def _run(
     executor: concurrent.futures.Executor | None,
 ) -> RunResult:
     loop = asyncio.get_running_loop()
+    clock = backend.clock
     # Every read at the driver boundary (the telemetry's too) is recorded as an input for replay.
     backend = recorded(backend, session.record)
     job = Job(backend, config, session.publish, associate, executor=executor)
-    recorder.write_header(config.to_dict(), backend.scene())
+    recorder.write_header(
+        config.to_dict(), backend.scene(), log_time_ns=round(clock.now() * 1e9), clock=clock.describe()
+    )
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
     tasks = [
         asyncio.create_task(job.run(), name="job"),
         asyncio.create_task(
-            _every(1.0 / config.daemon.state_rate_hz, lambda: _state(session, job)), name="state"
+            _every(clock, 1.0 / config.daemon.state_rate_hz, lambda: _state(session, job)), name="state"
         ),
         asyncio.create_task(_joints_loop(session, backend, job, config.daemon.joints_rate_hz), name="joints"),
         asyncio.create_task(
@@ -144,8 +154,10 @@ async def _run(
         ),
     ]
     if notifier.watchdog_interval_s is not None:
+        # On a simulated clock the pings follow simulated time, which stands still while a plan is being
+        # computed; the robot, the one systemd supervises for real, runs on the wall clock.
         interval = notifier.watchdog_interval_s / 2.0
-        tasks.append(asyncio.create_task(_every(interval, _ping(notifier)), name="watchdog"))
+        tasks.append(asyncio.create_task(_every(clock, interval, _ping(notifier)), name="watchdog"))
     if backend.on_event is not None:
         # Device events (driver faults, tray collisions) may come from other threads: the job handles them
         # on the loop, publishes them on `events` and faults when the device can no longer be trusted.
@@ -163,14 +175,17 @@ async def _run(
     log.info("daemon_ready", robot_id=config.robot_id, listen=list(options.listen), recording=str(path))
     if on_ready is not None:
         on_ready(session, path)
+    wall_s = 0.0
     try:
         if options.once is not None:
+            started = wall_seconds()
             await job.command("start", options.once)
             finished = asyncio.create_task(job.finished.wait())
             stopped = asyncio.create_task(stop.wait())
             await asyncio.wait({finished, stopped}, return_when=asyncio.FIRST_COMPLETED)
             finished.cancel()
             stopped.cancel()
+            wall_s = wall_seconds() - started
         else:
             await stop.wait()
     finally:
@@ -189,7 +204,7 @@ async def _run(
         session.close()
         await asyncio.to_thread(recorder.close)
         await backend.close()
-    return RunResult(job.summary, path, job.chart.state)
+    return RunResult(job.summary, path, job.chart.state, wall_s=wall_s, simulated=clock.simulated)
 
 
 def _state(session: ZenohSession, job: Job) -> None:
@@ -203,16 +218,17 @@ def _ping(notifier: SdNotifier) -> Callable[[], None]:
     return ping
 
 
-async def _every(period_s: float, action: Callable[[], None]) -> None:
-    """Run ``action`` every ``period_s`` on the loop's clock, without drifting."""
-    next_t = time.monotonic()
+async def _every(clock: SessionClock, period_s: float, action: Callable[[], None]) -> None:
+    """Run ``action`` every ``period_s`` on ``clock``, without drifting."""
+    next_t = clock.monotonic()
     while True:
         action()
         next_t += period_s
-        await asyncio.sleep(max(0.0, next_t - time.monotonic()))
+        await clock.sleep_until(next_t)
 
 
 async def _polled(
+    clock: SessionClock,
     period_s: float,
     read: Callable[[], Awaitable[None]],
     job: Job,
@@ -226,7 +242,7 @@ async def _polled(
     A lost bus or a servo that no longer answers faults at once. A servo reporting a fault (overload, say)
     faults only when it still does after ``servo_fault_grace_s``: the gripper driver clears an overload
     itself and retries the grasp, and the telemetry must not cut that recovery short."""
-    next_t = time.monotonic()
+    next_t = clock.monotonic()
     failing = False
     servo_fault_since: float | None = None
     while True:
@@ -237,7 +253,7 @@ async def _polled(
                 log.info("telemetry_recovered", source=what)
                 failing = False
         except (DriverError, BusLost) as e:
-            now = time.monotonic()
+            now = clock.monotonic()
             recoverable = isinstance(e, ServoFault) and not isinstance(e, BusTimeout)
             if recoverable and servo_fault_since is None:
                 servo_fault_since = now
@@ -249,24 +265,29 @@ async def _polled(
                 log.error("telemetry_failed", source=what, error=str(e))
                 asyncio.get_running_loop().create_task(job.fault(f"{type(e).__name__}: {e}"))
         next_t += period_s
-        await asyncio.sleep(max(0.0, next_t - time.monotonic()))
+        await clock.sleep_until(next_t)
 
 
 async def _joints_loop(session: ZenohSession, backend: Backend, job: Job, rate_hz: float) -> None:
-    async def read() -> None:
-        session.publish("joints", joints_payload(await backend.arm.read_joints()))
+    clock = backend.clock
 
-    await _polled(1.0 / rate_hz, read, job, "joints")
+    async def read() -> None:
+        js = await backend.arm.read_joints()
+        session.publish("joints", joints_payload(js, t=clock.now()))
+
+    await _polled(clock, 1.0 / rate_hz, read, job, "joints")
 
 
 async def _gripper_loop(session: ZenohSession, backend: Backend, job: Job, rate_hz: float) -> None:
+    clock = backend.clock
+
     async def read() -> None:
         gs = await backend.gripper.read()
         reading = backend.force.latest()
         session.publish(
             "gripper",
             {
-                "t": time.time(),
+                "t": clock.now(),
                 "t_device": gs.t,
                 "aperture_m": round(gs.aperture_m, 5),
                 "load": round(gs.load, 4),
@@ -277,30 +298,33 @@ async def _gripper_loop(session: ZenohSession, backend: Backend, job: Job, rate_
             },
         )
 
-    await _polled(1.0 / rate_hz, read, job, "gripper")
+    await _polled(clock, 1.0 / rate_hz, read, job, "gripper")
 
 
 class _LogForwarder:
-    """A structlog processor publishing every record on ``log`` (and so recording it)."""
+    """A structlog processor publishing every record on ``log`` (and so recording it), with ``t`` on the
+    session's clock (structlog's own ``timestamp``, when configured, stays the process's wall clock)."""
 
-    def __init__(self, session: ZenohSession) -> None:
+    def __init__(self, session: ZenohSession, clock: SessionClock) -> None:
         self.session = session
+        self.clock = clock
 
     def __call__(self, logger: object, method: str, event: Mapping[str, object]) -> Mapping[str, object]:
         record = {
             k: v if isinstance(v, str | int | float | bool | None) else str(v) for k, v in event.items()
         }
         record.setdefault("level", method)
+        record.setdefault("t", self.clock.now())
         with contextlib.suppress(Exception):  # logging must never take the daemon down
             self.session.publish("log", record)
         return event
 
 
 @contextlib.contextmanager
-def _logs_published(session: ZenohSession) -> Iterator[None]:
+def _logs_published(session: ZenohSession, clock: SessionClock) -> Iterator[None]:
     """While active, structlog records are also published on ``log`` (before the final renderer)."""
     before = list(structlog.get_config()["processors"])
-    structlog.configure(processors=[*before[:-1], _LogForwarder(session), *before[-1:]])
+    structlog.configure(processors=[*before[:-1], _LogForwarder(session, clock), *before[-1:]])
     try:
         yield
     finally:

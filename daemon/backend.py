@@ -15,7 +15,6 @@ import concurrent.futures
 import contextlib
 import dataclasses
 import functools
-import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -25,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 import structlog
 
+from daemon.clock import RealClock, SessionClock
 from daemon.config import Config
 from daemon.errors import UsageError
 from description.cell import CellLayout, Tray
@@ -83,27 +83,29 @@ class CounterSetup(Protocol):
 EventListener = Callable[[Mapping[str, object]], None]
 
 
-def device_event_payload(event: DeviceEvent) -> dict[str, object]:
+def device_event_payload(event: DeviceEvent, *, t: float) -> dict[str, object]:
     """A driver's fault or recovery as published on ``events``: ``kind`` (``servo_fault``, ``bus_lost``,
-    ``fsr_stale``, ...), ``device`` and its detail; ``t`` the wall clock, ``t_device`` the driver's clock."""
+    ``fsr_stale``, ...), ``device`` and its detail; ``t`` the clock's ``now()``, ``t_device`` the driver's
+    clock."""
     detail = {
         k: v if isinstance(v, str | int | float | bool) or v is None else str(v)
         for k, v in event.detail.items()
     }
-    return {**detail, "kind": event.kind, "device": event.device, "t": time.time(), "t_device": event.t}
+    return {**detail, "kind": event.kind, "device": event.device, "t": t, "t_device": event.t}
 
 
 class _DeviceEvents:
     """Fans driver events out to the listeners registered through ``Backend.on_event``."""
 
-    def __init__(self) -> None:
+    def __init__(self, clock: SessionClock) -> None:
+        self._clock = clock
         self._listeners: list[EventListener] = []
 
     def add(self, listener: EventListener) -> None:
         self._listeners.append(listener)
 
     def __call__(self, event: DeviceEvent) -> None:
-        payload = device_event_payload(event)
+        payload = device_event_payload(event, t=self._clock.now())
         for listener in self._listeners:
             listener(payload)
 
@@ -132,6 +134,9 @@ class Backend:
     on_event: Callable[[EventListener], None] | None = None
     # The Dynamixel/FSR device stack when the backend runs one (hardware): bus counters, diagnostics.
     devices: DeviceStack | None = None
+    # The one clock everything of this backend and the job on it reads and waits on: the wall clock on the
+    # robot, the simulated cell's clock in simulation.
+    clock: SessionClock = field(default_factory=RealClock)
 
     def scene(self) -> dict[str, object]:
         """The initial scene for the recording's session header."""
@@ -152,19 +157,20 @@ Sink = Callable[[str, Mapping[str, object]], None]
 
 def recorded(backend: Backend, sink: Sink) -> Backend:
     """The same backend, with driver-boundary inputs also passed to ``sink(kind, payload)``."""
+    clock = backend.clock
     return replace(
         backend,
-        arm=_RecordedArm(backend.arm, sink),
+        arm=_RecordedArm(backend.arm, sink, clock),
         gripper=_RecordedGripper(backend.gripper, sink),
-        force=_RecordedForce(backend.force, sink),
-        observer=_RecordedObserver(backend.observer, sink),
+        force=_RecordedForce(backend.force, sink, clock),
+        observer=_RecordedObserver(backend.observer, sink, clock),
     )
 
 
-def joints_payload(js: JointState) -> dict[str, object]:
-    """``t`` is the wall clock when published, ``t_device`` the driver's own (monotonic or simulated) time."""
+def joints_payload(js: JointState, *, t: float) -> dict[str, object]:
+    """``t`` is the clock's ``now()`` when published, ``t_device`` the driver's (monotonic) time."""
     return {
-        "t": time.time(),
+        "t": t,
         "t_device": js.t,
         "names": list(js.names),
         "position_rad": [round(v, 6) for v in js.position_rad],
@@ -173,8 +179,9 @@ def joints_payload(js: JointState) -> dict[str, object]:
     }
 
 
-def observation_payload(obs: Observation) -> dict[str, object]:
-    return {"t": obs.t, "mugs": [d.to_json() for d in obs.detections], "meta": dict(obs.meta)}
+def observation_payload(obs: Observation, *, t: float) -> dict[str, object]:
+    """``t`` is the clock's ``now()`` when published, ``t_device`` the observation's (monotonic) time."""
+    return {"t": t, "t_device": obs.t, "mugs": [d.to_json() for d in obs.detections], "meta": dict(obs.meta)}
 
 
 def depth_preview_payload(depth_m: npt.NDArray[np.float32]) -> dict[str, object]:
@@ -191,9 +198,10 @@ def depth_preview_payload(depth_m: npt.NDArray[np.float32]) -> dict[str, object]
 
 
 class _RecordedArm:
-    def __init__(self, inner: ArmDriver, sink: Sink) -> None:
+    def __init__(self, inner: ArmDriver, sink: Sink, clock: SessionClock) -> None:
         self._inner = inner
         self._sink = sink
+        self._clock = clock
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -201,7 +209,7 @@ class _RecordedArm:
 
     async def read_joints(self) -> JointState:
         js = await self._inner.read_joints()
-        self._sink("input/joints", joints_payload(js))
+        self._sink("input/joints", joints_payload(js, t=self._clock.now()))
         return js
 
     async def follow(self, trajectory: JointTrajectory) -> None:
@@ -245,16 +253,23 @@ class _RecordedGripper:
 
 
 class _RecordedForce:
-    def __init__(self, inner: ForceSensor, sink: Sink) -> None:
+    def __init__(self, inner: ForceSensor, sink: Sink, clock: SessionClock) -> None:
         self._inner = inner
         self._sink = sink
+        self._clock = clock
 
     def latest(self) -> ForceReading | None:
         reading = self._inner.latest()
         if reading is not None:
             self._sink(
                 "input/force",
-                {"t": reading.t, "force_n": reading.force_n, "raw": reading.raw, "seq": reading.seq},
+                {
+                    "t": self._clock.now(),
+                    "t_device": reading.t,
+                    "force_n": reading.force_n,
+                    "raw": reading.raw,
+                    "seq": reading.seq,
+                },
             )
         return reading
 
@@ -265,13 +280,14 @@ class _RecordedForce:
 
 
 class _RecordedObserver:
-    def __init__(self, inner: MugObserver, sink: Sink) -> None:
+    def __init__(self, inner: MugObserver, sink: Sink, clock: SessionClock) -> None:
         self._inner = inner
         self._sink = sink
+        self._clock = clock
 
     async def observe(self) -> Observation:
         obs = await self._inner.observe()
-        self._sink("input/observation", observation_payload(obs))
+        self._sink("input/observation", observation_payload(obs, t=self._clock.now()))
         return obs
 
 
@@ -427,14 +443,16 @@ def cycle_planner(
 @dataclass(frozen=True, slots=True)
 class SimOptions:
     """The simulated cell ``dishbot run --sim`` and the benches ask for. ``world`` is ``kinematic`` (the fast
-    placeholder, ``speed`` simulated seconds per wall second, default ``sim.speed``) or ``mujoco`` (physics
-    behind the real drivers, real time only); None takes ``sim.world``. ``dataset`` is set out on the
-    counter; ``seed`` (default ``sim.seed``) seeds the detection noise; ``fsr_debounce_s`` is how long the
-    MuJoCo cell's FSR reader waits before it believes a crossing (the reader's own default)."""
+    placeholder) or ``mujoco`` (physics behind the real drivers); None takes ``sim.world``. ``transport``
+    (MuJoCo cell; default ``sim.transport``) is ``inprocess`` (the drivers' bytes reach the simulators in
+    this process, on simulated time) or ``pty`` (over pseudo-terminals, on the wall clock). How fast
+    simulated time runs is the clock's business, not the cell's. ``dataset`` is set out on the counter;
+    ``seed`` (default ``sim.seed``) seeds the detection noise; ``fsr_debounce_s`` is how long the MuJoCo
+    cell's FSR reader waits before it believes a crossing (the reader's own default)."""
 
     world: str | None = None
     dataset: int = 1
-    speed: float | None = None
+    transport: str | None = None
     seed: int | None = None
     fsr_debounce_s: float = 0.03
 
@@ -443,11 +461,12 @@ async def open_backend(
     config: Config,
     *,
     sim: SimOptions | None = None,
+    clock: SessionClock | None = None,
     executor: concurrent.futures.Executor | None = None,
 ) -> Backend:
     """The cell a job runs on, for ``dishbot run`` and every bench alike: the robot on the ``[hardware]``
     ports, or with ``sim`` the simulated cell (``daemon.sim_backend``, imported only then: the hardware
-    backend loads no simulator).
+    backend loads no simulator), moving on ``clock`` (default the wall clock, ``RealClock``).
 
     Every cell gets the same parts from the config: the cell is refused first when the arm cannot serve it
     (``UsageError``, before any device moves or any simulator starts); the cycle planner plans in the
@@ -457,12 +476,13 @@ async def open_backend(
     loop that will use the devices."""
     arm = ArmModel.load()
     check_cell_reachable(config, arm)
+    clock = clock or RealClock()
     if sim is None:
-        backend = await open_hardware_backend(config, arm=arm, executor=executor)
+        backend = await open_hardware_backend(config, arm=arm, executor=executor, clock=clock)
     else:
         from daemon.sim_backend import open_sim_backend
 
-        backend = await open_sim_backend(config, sim, arm=arm, executor=executor)
+        backend = await open_sim_backend(config, sim, arm=arm, clock=clock, executor=executor)
     if isinstance(backend.motion, ProcessMotionPlanner):
         backend.motion.warm_up()
     return backend
@@ -511,8 +531,11 @@ class _NoCamera:
     """``hardware.camera = "none"``: the devices run (telemetry, faults, commands) but the counter looks
     empty, so a started job ends done at once."""
 
+    def __init__(self, clock: SessionClock) -> None:
+        self._clock = clock
+
     async def observe(self) -> Observation:
-        return Observation(t=time.monotonic(), detections=(), meta={"source": "none"})
+        return Observation(t=self._clock.monotonic(), detections=(), meta={"source": "none"})
 
 
 async def open_hardware_backend(
@@ -521,12 +544,14 @@ async def open_hardware_backend(
     arm: ArmModel | None = None,
     executor: concurrent.futures.Executor | None = None,
     camera: Camera | None = None,
+    clock: SessionClock | None = None,
 ) -> Backend:
     """The robot: the device stack of ``[hardware]`` on its serial ports (the same stack the MuJoCo cell
-    builds over pseudo-terminals) and the RealSense camera with the depth detector. ``camera`` replaces the
-    configured camera (a stand-in for tests). A missing port, a missing pyrealsense2 or a servo chain that
-    does not match the config is a one-line ``UsageError``. Call it on the event loop that will use the
-    devices."""
+    builds over its simulators) and the RealSense camera with the depth detector, on the wall clock
+    (``clock``, default a ``RealClock``). ``camera`` replaces the configured camera (a stand-in for tests).
+    A missing port, a missing pyrealsense2 or a servo chain that does not match the config is a one-line
+    ``UsageError``. Call it on the event loop that will use the devices."""
+    clock = clock or RealClock()
     hw = config.hardware
     for key, port in (("hardware.servo_port", hw.servo_port), ("hardware.fsr.port", hw.fsr.port)):
         if not Path(port).exists():  # noqa: ASYNC240 (one stat at start-up, before any device runs)
@@ -544,11 +569,11 @@ async def open_hardware_backend(
     arm_model = arm or ArmModel.load()
     spec = hardware_stack_spec(config, arm_model)
     motion = cycle_planner(config, config.cell.tray, arm=arm_model, executor=executor)
-    events = _DeviceEvents()
+    events = _DeviceEvents(clock)
     stack = contextlib.AsyncExitStack()
     try:
-        devices = await open_device_stack(spec, stack, on_event=events)
-        observer = await _hardware_observer(config, stack, camera)
+        devices = await open_device_stack(spec, stack, clock=clock, on_event=events)
+        observer = await _hardware_observer(config, stack, camera, clock)
     except BaseException as e:
         await stack.aclose()
         if isinstance(e, DriverError | BusLost):
@@ -574,11 +599,12 @@ async def open_hardware_backend(
         closer=close,
         on_event=events.add,
         devices=devices,
+        clock=clock,
     )
 
 
 async def _hardware_observer(
-    config: Config, stack: contextlib.AsyncExitStack, camera: Camera | None
+    config: Config, stack: contextlib.AsyncExitStack, camera: Camera | None, clock: SessionClock
 ) -> MugObserver:
     """The mug observer on the configured camera: depth detection over the table, the tray left out."""
     from drivers.camera import RealSenseCamera
@@ -586,7 +612,7 @@ async def _hardware_observer(
     from perception.observer import cell_observer_factory
 
     if camera is None and config.hardware.camera == "none":
-        return _NoCamera()
+        return _NoCamera(clock)
     c = config.cell.camera
     try:
         model = camera_model(
@@ -607,6 +633,7 @@ async def _hardware_observer(
                 width=c.width,
                 height=c.height,
                 serial_number=config.hardware.camera_serial or None,
+                clock=clock,
             )
         )
     return cell_observer_factory(config.cell, config.mug_catalogue())(camera)

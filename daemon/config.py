@@ -31,6 +31,7 @@ _ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 _BACKENDS = ("sim", "hardware")
 _WORLDS = ("kinematic", "mujoco")
+_TRANSPORTS = ("inprocess", "pty")
 PLANNER_FITNESS = ("rf", "ws")
 PLANNER_COSTS = ("bpc", "upc", "ec")
 _ENERGY_MODELS = ("thesis", "dynamics")
@@ -98,10 +99,12 @@ class GraspConfig:
 
 @dataclass(frozen=True, slots=True)
 class SimConfig:
-    """The simulated cell: which world, how fast against the wall clock, the detector's noise."""
+    """The simulated cell: which world, how it reaches the simulated devices, how fast against the wall
+    clock (None: as fast as the machine allows), the detector's noise."""
 
     world: str
-    speed: float
+    transport: str
+    speed: float | None
     seed: int
     detection_noise_m: float
     joint_speed_rad_s: float
@@ -206,6 +209,7 @@ class Config:
         out["mug_types"] = {m["name"]: {k: v for k, v in m.items() if k != "name"} for m in out["mug_types"]}
         hw = out["hardware"]
         hw["servos"] = {s["joint"]: {"id": s["id"], "model": s["model"]} for s in hw["servos"]}
+        out["sim"]["speed"] = "max" if self.sim.speed is None else self.sim.speed
         return out
 
 
@@ -403,7 +407,8 @@ def _grasp(s: _Section) -> GraspConfig:
 def _sim(s: _Section) -> SimConfig:
     cfg = SimConfig(
         world=s.choice("world", _WORLDS),
-        speed=s.number("speed", 0.1, 1000.0),
+        transport=s.choice("transport", _TRANSPORTS),
+        speed=s.speed("speed", 0.1, 1000.0),
         seed=s.integer("seed", 0, 2**31 - 1),
         detection_noise_m=s.number("detection_noise_m", 0.0, 0.05),
         joint_speed_rad_s=s.number("joint_speed_rad_s", 0.05, 10.0),
@@ -562,6 +567,17 @@ class _Section:
 
     def number(self, key: str, lo: float, hi: float) -> float:
         return _check_number(self._get(key), self._name(key), lo, hi)
+
+    def speed(self, key: str, lo: float, hi: float) -> float | None:
+        """``"max"`` (None) or a number in [lo, hi]."""
+        value = self._get(key)
+        if value == "max":
+            return None
+        if isinstance(value, str):
+            raise ConfigError(
+                f'{self._name(key)}: expected "max" or a number in [{lo:g}, {hi:g}], got {value!r}'
+            )
+        return _check_number(value, self._name(key), lo, hi)
 
     def integer(self, key: str, lo: int, hi: int) -> int:
         return _check_integer(self._get(key), self._name(key), lo, hi)

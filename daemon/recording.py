@@ -8,8 +8,12 @@ payload and appends it, so the daemon's event loop never waits for the disk; the
 ``drain_interval_s`` and writes the batch (one wake-up per batch keeps GIL hand-offs with the loop rare).
 When the queue is full the message is dropped and counted (``Recorder.stats().dropped``) rather than
 stalling the robot. Chunks are
-small and the file is flushed after every chunk and at least every ``flush_interval_s``, so a crash or a
-``kill -9`` loses only the last fraction of a second.
+small and the file is flushed after every chunk and at least every ``flush_interval_s`` of wall-clock time
+(the disk's time, whatever clock the session runs on), so a crash or a ``kill -9`` loses only the last
+fraction of a second.
+
+Log times are the caller's: the session's clock (``Clock.now``, simulated time in simulation). The session
+header says which clock that was and when, on the wall clock, it started.
 
 Reading is tolerant: ``read_messages`` walks the file record by record and stops cleanly where a file whose
 writer never finished ends (or turns corrupt), reporting the byte and the time of the cut. Finished files
@@ -154,19 +158,25 @@ class Recorder:
         return self._enqueue(topic, payload, log_time_ns=log_time_ns, flush_now=False)
 
     def write_header(
-        self, config: Mapping[str, object], scene: Mapping[str, object], *, log_time_ns: int | None = None
+        self,
+        config: Mapping[str, object],
+        scene: Mapping[str, object],
+        *,
+        log_time_ns: int,
+        clock: Mapping[str, object] | None = None,
     ) -> bool:
-        """Record the session header: the effective config and the initial scene, flushed at once.
+        """Record the session header: the effective config, the initial scene and the session's clock
+        (``SessionClock.describe()``: its source and its wall-clock start), flushed at once.
 
-        ``log_time_ns`` defaults to the wall clock; pass the clock the other messages use when it differs.
-        """
+        ``log_time_ns`` is on the clock the other messages use (the session's start)."""
         with self._lock:
             if self._header_written:
                 raise RecordingError(f"recording {self.path} already has a session header")
             self._header_written = True
-        payload = {"config": dict(config), "scene": dict(scene)}
-        stamp = time.time_ns() if log_time_ns is None else log_time_ns
-        return self._enqueue(HEADER_TOPIC, payload, log_time_ns=stamp, flush_now=True)
+        payload: dict[str, object] = {"config": dict(config), "scene": dict(scene)}
+        if clock is not None:
+            payload["clock"] = dict(clock)
+        return self._enqueue(HEADER_TOPIC, payload, log_time_ns=log_time_ns, flush_now=True)
 
     def stats(self) -> RecorderStats:
         with self._lock:

@@ -13,7 +13,6 @@ depth detector, and its tray is built into the scene, so a dataset planned on an
 from __future__ import annotations
 
 import concurrent.futures
-import time
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -26,6 +25,7 @@ from daemon.backend import (
     cycle_planner,
     device_event_payload,
 )
+from daemon.clock import SessionClock
 from daemon.config import Config
 from daemon.errors import UsageError
 from description.cell import CellLayout, Tray
@@ -47,20 +47,17 @@ async def open_sim_backend(
     options: SimOptions,
     *,
     arm: ArmModel,
+    clock: SessionClock,
     executor: concurrent.futures.Executor | None = None,
 ) -> Backend:
-    """The simulated cell ``options`` asks for, with its dataset on the counter; ``UsageError`` for a world,
-    speed or dataset it cannot run."""
+    """The simulated cell ``options`` asks for, with its dataset on the counter, moving on ``clock``;
+    ``UsageError`` for a world, transport or dataset it cannot run."""
     world = options.world or config.sim.world
     if world == "mujoco":
-        if options.speed not in (None, 1.0):
-            raise UsageError(
-                f"--speed {options.speed:g}: the MuJoCo cell runs in real time (its drivers keep wall time)"
-            )
-        return await open_mujoco_backend(config, options, arm=arm, executor=executor)
+        return await open_mujoco_backend(config, options, arm=arm, clock=clock, executor=executor)
     if world != "kinematic":
         raise UsageError(f"--world {world}: choose {' or '.join(WORLDS)}")
-    return open_kinematic_backend(config, options, arm=arm, executor=executor)
+    return open_kinematic_backend(config, options, arm=arm, clock=clock, executor=executor)
 
 
 def counter_for(
@@ -82,18 +79,19 @@ def open_kinematic_backend(
     options: SimOptions,
     *,
     arm: ArmModel,
+    clock: SessionClock,
     executor: concurrent.futures.Executor | None = None,
 ) -> Backend:
-    """The kinematic placeholder cell (``sim.kinematic``), ``options.speed`` (default ``sim.speed``) times
-    faster than real time."""
-    speed = config.sim.speed if options.speed is None else options.speed
+    """The kinematic placeholder cell (``sim.kinematic``), moving on ``clock``."""
     seed = config.sim.seed if options.seed is None else options.seed
-    counter = KinematicCounter(config, arm, speed=speed)
+    counter = KinematicCounter(config, arm, clock=clock)
     try:
         tray = counter.set_counter(dataset=options.dataset, mugs=None)
     except ValueError as e:
         raise UsageError(str(e)) from e
-    observer = TruthObserver(counter.visible_mugs, noise_m=config.sim.detection_noise_m, seed=seed)
+    observer = TruthObserver(
+        counter.visible_mugs, clock=clock, noise_m=config.sim.detection_noise_m, seed=seed
+    )
 
     def motion_for(tray: Tray) -> MotionPlanner:
         return cycle_planner(config, tray, arm=arm, executor=executor)
@@ -108,6 +106,7 @@ def open_kinematic_backend(
         tray=tray,
         counter=counter,
         motion_for=motion_for,
+        clock=clock,
     )
 
 
@@ -115,7 +114,7 @@ class KinematicCounter:
     """Sets the kinematic cell's counter up for a job (``daemon.backend.CounterSetup``): any dataset, on the
     tray it is planned on."""
 
-    def __init__(self, config: Config, arm: ArmModel, *, speed: float) -> None:
+    def __init__(self, config: Config, arm: ArmModel, *, clock: SessionClock) -> None:
         self._layout = config.cell
         self._catalogue = config.mug_catalogue()
         tray = config.cell.tray
@@ -127,7 +126,7 @@ class KinematicCounter:
             },
             tray_origin_m=tray.origin_m,
             tray_size_m=(tray.size_mm[0] / 1000.0, tray.size_mm[1] / 1000.0),
-            speed=speed,
+            clock=clock,
             joint_speed_rad_s=config.sim.joint_speed_rad_s,
             holding_threshold_n=config.grasp.force_threshold_n / 2.0,
             arm=arm,
@@ -162,34 +161,41 @@ async def open_mujoco_backend(
     options: SimOptions,
     *,
     arm: ArmModel,
+    clock: SessionClock,
     executor: concurrent.futures.Executor | None = None,
 ) -> Backend:
     """The MuJoCo cell (``sim.mujoco``): real drivers over simulated servos and FSR, the rendered depth
-    camera and the depth detector on the configured catalogue, as on the robot. It runs in real time (its
-    drivers keep wall-clock time)."""
+    camera and the depth detector on the configured catalogue, as on the robot. In-process on a simulated
+    ``clock`` it runs as fast as the machine allows (or at the clock's speed); on pseudo-terminals
+    (``options.transport`` ``"pty"``) it runs on the wall clock."""
     layout = config.cell
     catalogue = config.mug_catalogue()
     try:
         first = mujoco_counter(config, options.dataset)
     except ValueError as e:
         raise UsageError(str(e)) from e
-    cell, closer = await start_sim_cell(
-        layout,
-        first.mugs,
-        seed=config.sim.seed if options.seed is None else options.seed,
-        start_pose_rad=config.sim.start_q_rad,
-        # As the kinematic cell: "holding" at half the grasp threshold.
-        holding_threshold_n=config.grasp.force_threshold_n / 2.0,
-        fsr_debounce_s=options.fsr_debounce_s,
-        observer_factory=cell_observer_factory(layout, catalogue),
-    )
+    try:
+        cell, closer = await start_sim_cell(
+            layout,
+            first.mugs,
+            clock=clock,
+            transport=options.transport or config.sim.transport,
+            seed=config.sim.seed if options.seed is None else options.seed,
+            start_pose_rad=config.sim.start_q_rad,
+            # As the kinematic cell: "holding" at half the grasp threshold.
+            holding_threshold_n=config.grasp.force_threshold_n / 2.0,
+            fsr_debounce_s=options.fsr_debounce_s,
+            observer_factory=cell_observer_factory(layout, catalogue),
+        )
+    except ValueError as e:  # a transport the clock cannot drive
+        raise UsageError(str(e)) from e
     counter = MujocoCounter(cell, layout, catalogue, dataset=first.dataset)
 
     def on_event(listener: EventListener) -> None:
         cell.on_collision(
-            lambda c: listener({**c.to_event(), "kind": "tray_collision", "t_sim": c.t, "t": time.time()})
+            lambda c: listener({**c.to_event(), "kind": "tray_collision", "t_sim": c.t, "t": clock.now()})
         )
-        cell.on_device_event(lambda e: listener(device_event_payload(e)))
+        cell.on_device_event(lambda e: listener(device_event_payload(e, t=clock.now())))
 
     return Backend(
         name="sim-mujoco",
@@ -202,6 +208,7 @@ async def open_mujoco_backend(
         counter=counter,
         closer=closer,
         on_event=on_event,
+        clock=clock,
     )
 
 

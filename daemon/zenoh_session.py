@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from typing import Any, Protocol
 
@@ -62,6 +61,7 @@ class ZenohSession:
         self._max_command_bytes = max_command_bytes
         self._publishers = {t: session.declare_publisher(key(robot_id, t)) for t in TOPICS}
         self._recorder: RecordSink | None = None
+        self._now_ns: Callable[[], int] | None = None
         self._queryable: Any = None
         self._token: Any = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -79,9 +79,12 @@ class ZenohSession:
     def key(self, topic: str) -> str:
         return key(self.robot_id, topic)
 
-    def attach_recorder(self, recorder: RecordSink | None) -> None:
-        """Also write everything published (and ``record``-ed) to ``recorder``; None detaches."""
-        self._recorder = recorder
+    def attach_recorder(self, recorder: RecordSink | None, now_ns: Callable[[], int] | None = None) -> None:
+        """Also write everything published (and ``record``-ed) to ``recorder``, stamped with ``now_ns()``
+        (the session clock's ``now`` in nanoseconds); None detaches."""
+        if recorder is not None and now_ns is None:
+            raise ValueError("attach_recorder needs now_ns: the session clock the messages are stamped on")
+        self._recorder, self._now_ns = recorder, now_ns
 
     def publish(self, topic: str, payload: Mapping[str, object]) -> None:
         """Publish on ``dishbot/<id>/<topic>`` and record it; safe from any thread."""
@@ -98,9 +101,9 @@ class ZenohSession:
         self._record(self.key(topic), payload)
 
     def _record(self, topic: str, payload: Mapping[str, object]) -> None:
-        recorder = self._recorder
-        if recorder is not None:
-            recorder.write(topic, payload, log_time_ns=time.time_ns())
+        recorder, now_ns = self._recorder, self._now_ns
+        if recorder is not None and now_ns is not None:
+            recorder.write(topic, payload, log_time_ns=now_ns())
 
     def serve(self, loop: asyncio.AbstractEventLoop, handler: CommandHandler) -> None:
         """Answer ``cmd/<verb>`` queries with ``handler(verb, payload)`` on ``loop``; announce liveliness."""

@@ -2,14 +2,22 @@
 
 The statechart and the daemon depend only on these protocols. Real hardware (Dynamixel bus, Arduino FSR,
 depth camera) and the simulated cell implement them; nothing above ``drivers/`` imports a vendor SDK.
-Angles are radians, lengths metres, forces newtons, times seconds (monotonic clock unless stated).
+Angles are radians, lengths metres, forces newtons, times seconds (the ``Clock``'s monotonic time unless
+stated).
+
+Time is a seam too: every driver, the job, the telemetry, the device simulators and the recorder read and
+wait on the ``Clock`` they were constructed with, never on the wall clock. The daemon chooses the clock
+(``daemon.clock``): the wall clock on the robot, a simulated clock in the simulated cell, which may run
+faster than real time and is advanced by the simulated world.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import asyncio
+from collections.abc import Callable, Sequence
+from contextlib import AbstractAsyncContextManager
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
@@ -18,6 +26,59 @@ from description.arrays import FloatArray
 from description.camera import CameraIntrinsics
 
 __all__ = ["CameraIntrinsics", "FloatArray"]  # re-exported: the camera protocol speaks them
+
+
+@runtime_checkable
+class Clock(Protocol):
+    """Where time comes from: what deadlines, periods and ages are measured on, and what published and
+    recorded messages are stamped with.
+
+    The event loop the coroutines run on keeps the same time (``loop.time() == monotonic()``), so asyncio's
+    own timeouts agree with it; still, code waits through the clock, never on the wall clock behind it."""
+
+    @property
+    def simulated(self) -> bool:
+        """True when time is the simulation's (it may run faster than real time, or stand still)."""
+        ...
+
+    def monotonic(self) -> float:
+        """Seconds on a clock that never jumps back: deadlines, periods, ages, ``t_device``."""
+        ...
+
+    def now(self) -> float:
+        """Unix seconds, the ``t`` of what is published and recorded. In simulation: the wall-clock start of
+        the session plus the simulated time since, so a recording does not depend on the machine's load."""
+        ...
+
+    async def sleep(self, seconds: float) -> None:
+        """Wait ``seconds`` of this clock's time (0 or less: just yield)."""
+        ...
+
+    async def sleep_until(self, t: float) -> None:
+        """Wait until ``monotonic()`` reaches ``t``; periodic loops use it so that they never drift."""
+        ...
+
+    def timeout(self, seconds: float | None) -> AbstractAsyncContextManager[object]:
+        """``async with clock.timeout(s):`` raises ``TimeoutError`` when the block takes longer than ``s``
+        (None: no limit)."""
+        ...
+
+    async def wait(self, future: asyncio.Future[Any], seconds: float | None) -> bool:
+        """Wait until ``future`` is done or ``seconds`` passed (None: no limit), without cancelling it;
+        whether it is done."""
+        ...
+
+
+@runtime_checkable
+class SteppedClock(Clock, Protocol):
+    """A simulated clock that advances the simulated world itself: each stepper is called with the new
+    ``monotonic()`` time whenever time moves forward, on the event loop's thread, before any task sees the
+    new time, while no driver is talking to a device. A world stepped this way is in lockstep with every
+    reader of the clock, however loaded the machine is."""
+
+    def add_stepper(self, step: Callable[[float], None]) -> Callable[[], None]:
+        """Call ``step(t)`` on every advance of time; returns the function that removes it again."""
+        ...
 
 
 @dataclass(frozen=True, slots=True)

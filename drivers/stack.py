@@ -2,9 +2,9 @@
 
 ``open_device_stack`` opens the FSR reader, the servo chain (every id and model verified before any torque),
 the arm's five joints and the gripper, on whatever serial ports it is given: ``/dev/dishbot-servos`` and
-``/dev/dishbot-fsr`` on the robot, the pseudo-terminals of ``drivers.sim`` in the simulated cell. The daemon's
-hardware backend and ``sim.mujoco.cell.start_sim_cell`` both call it, so the simulation exercises the
-exact stack the robot runs.
+``/dev/dishbot-fsr`` on the robot, the simulators of ``drivers.sim`` (in-process, or on pseudo-terminals) in
+the simulated cell. The daemon's hardware backend and ``sim.mujoco.cell.start_sim_cell`` both call it, so
+the simulation exercises the exact stack the robot runs, on the clock it is given.
 """
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ from drivers.dynamixel import (
     tables,
 )
 from drivers.fsr.reader import FsrReader
+from drivers.interfaces import Clock
+from drivers.serial_port import OpenSerial, open_pyserial
 
 ARM_JOINTS = ("shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn")
 
@@ -54,6 +56,10 @@ class StackSpec:
     fsr: FsrSettings
     retries: int = 2
     read_timeout_s: float = 0.02
+    # How the ports are opened: None is pyserial on the device files (the robot, pseudo-terminals); an
+    # in-process simulator's opener carries the same bytes without a tty.
+    open_bus: OpenSerial | None = None
+    open_fsr: OpenSerial | None = None
 
     @property
     def chain(self) -> tuple[tuple[int, str], ...]:
@@ -111,16 +117,19 @@ async def open_device_stack(
     spec: StackSpec,
     stack: contextlib.AsyncExitStack,
     *,
+    clock: Clock,
     on_event: Callable[[DeviceEvent], None] | None = None,
 ) -> DeviceStack:
-    """Open the FSR reader, the verified chain, the arm and the gripper, each entered on ``stack`` (closing
-    it turns the torque off and closes the ports, in reverse order).
+    """Open the FSR reader, the verified chain, the arm and the gripper on ``clock``, each entered on
+    ``stack`` (closing it turns the torque off and closes the ports, in reverse order).
     ``on_event`` receives every device fault and recovery on the event loop. Call it on the loop that will
     use the devices."""
     fsr = spec.fsr
     force = await stack.enter_async_context(
         FsrReader(
             fsr.port,
+            clock=clock,
+            open_serial=spec.open_fsr or open_pyserial,
             threshold_n=fsr.threshold_n,
             release_n=fsr.release_n,
             gain=fsr.gain,
@@ -133,9 +142,11 @@ async def open_device_stack(
         ServoChain(
             spec.bus,
             spec.chain,
+            clock=clock,
             retries=spec.retries,
             read_timeout_s=spec.read_timeout_s,
             on_event=on_event,
+            open_serial=spec.open_bus,
         )
     )
     arm = await stack.enter_async_context(DynamixelArm(chain, spec.joints))

@@ -7,22 +7,24 @@ would report: no ids (association gives those), noisy positions and handle direc
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
 
+from drivers.interfaces import Clock
 from perception.interfaces import Detection, Observation
 
 
 class TruthObserver:
-    """A ``MugObserver`` over ``truth()``, which returns the exact detections of the mugs in view."""
+    """A ``MugObserver`` over ``truth()``, which returns the exact detections of the mugs in view; an
+    observation's ``t`` is ``clock``'s."""
 
     def __init__(
         self,
         truth: Callable[[], Sequence[Detection]],
         *,
+        clock: Clock,
         noise_m: float,
         yaw_noise_rad: float = math.radians(2.0),
         seed: int = 0,
@@ -32,6 +34,7 @@ class TruthObserver:
                 f"noise must be non-negative, got noise_m={noise_m}, yaw_noise_rad={yaw_noise_rad}"
             )
         self._truth = truth
+        self._clock = clock
         self._noise_m = noise_m
         self._yaw_noise_rad = yaw_noise_rad
         self._rng = np.random.default_rng(seed)
@@ -52,4 +55,4 @@ class TruthObserver:
                     mug_id="",
                 )
             )
-        return Observation(t=time.time(), detections=tuple(seen), meta={"source": "truth"})
+        return Observation(t=self._clock.monotonic(), detections=tuple(seen), meta={"source": "truth"})

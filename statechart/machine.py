@@ -12,7 +12,6 @@ notify (they never await work); the long-running work of a state belongs to the 
 from __future__ import annotations
 
 import asyncio
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -33,12 +32,12 @@ from statechart.errors import EventRefused
 
 @dataclass(frozen=True, slots=True)
 class Transition:
-    """One change of state, as the chart reports it to its listeners."""
+    """One change of state, as the chart reports it to its listeners (who stamp it on their own clock: the
+    chart keeps no time)."""
 
     trigger: str
     source: str
     dest: str
-    t: float  # time.time() when it happened
     detail: dict[str, Any]
 
 
@@ -117,7 +116,7 @@ class StateChart:
                 self.paused_from = source
             elif trigger in ("resume", "stop", "reset"):
                 self.paused_from = None
-            change = Transition(trigger, source, self.state, time.time(), dict(guards))
+            change = Transition(trigger, source, self.state, dict(guards))
             for listener in self._listeners:
                 listener(change)
             return change

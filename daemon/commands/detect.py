@@ -6,7 +6,6 @@ import argparse
 import json
 import math
 import sys
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -61,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     camera = _camera(args.camera)
     depth = read_depth_png(args.depth, camera)
     config = load_config(args.config)
-    frame = RGBDFrame(time.monotonic(), depth, camera.intrinsics, camera.world_from_camera)
+    frame = RGBDFrame(0.0, depth, camera.intrinsics, camera.world_from_camera)  # a file has no capture time
     try:
         mugs = DepthMugDetector(config.mug_catalogue()).detect(frame)
     except PerceptionError as e:

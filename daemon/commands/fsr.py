@@ -19,6 +19,7 @@ from drivers.errors import SensorFault
 
 if TYPE_CHECKING:
     from drivers.fsr import FsrReader
+    from drivers.interfaces import Clock
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -44,8 +45,11 @@ def _calibrate(args: argparse.Namespace) -> int:
         raise UsageError(f"--mass-kg {args.mass_kg} must be in (0, 5] kg")
     if not 0.2 <= args.seconds <= 60:
         raise UsageError(f"--seconds {args.seconds} must be in [0.2, 60]")
+    from daemon.clock import RealClock
+
     try:
-        result = asyncio.run(calibrate(args.port, args.mass_kg, args.seconds, prompt=input))
+        clock = RealClock()
+        result = clock.run(calibrate(args.port, args.mass_kg, args.seconds, prompt=input, clock=clock))
     except SensorFault as e:
         raise UsageError(str(e)) from e
     if args.json:
@@ -58,12 +62,12 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 
 async def calibrate(
-    port: str, mass_kg: float, seconds: float, *, prompt: Callable[[str], str]
+    port: str, mass_kg: float, seconds: float, *, prompt: Callable[[str], str], clock: Clock
 ) -> dict[str, float]:
     """Sample at rest and loaded; the gain maps the loaded reading to m·g, thresholds sit between."""
     from drivers.fsr import FsrReader
 
-    async with FsrReader(port, threshold_n=1e9, release_n=0.0) as reader:
+    async with FsrReader(port, clock=clock, threshold_n=1e9, release_n=0.0) as reader:
         await asyncio.to_thread(prompt, "Take everything off the gripper pad, then press Enter: ")
         rest = await _sample(reader, seconds)
         await asyncio.to_thread(prompt, f"Put the {mass_kg} kg weight on the pad, then press Enter: ")
@@ -93,14 +97,14 @@ async def _sample(reader: FsrReader, seconds: float) -> list[float]:
     """Every new reading's unscaled force for ``seconds``; SensorFault when the stream is dead."""
     values: list[float] = []
     last_seq = -1
-    loop = asyncio.get_running_loop()
-    end = loop.time() + seconds
-    while loop.time() < end:
+    clock = reader.clock
+    end = clock.monotonic() + seconds
+    while clock.monotonic() < end:
         reading = reader.latest()
         if reading is not None and reading.seq != last_seq:
             last_seq = reading.seq
             values.append(reading.force_n)
-        await asyncio.sleep(0.005)
+        await clock.sleep(0.005)
     if len(values) < 5:
         raise SensorFault(f"the FSR on {reader.port} sent only {len(values)} samples in {seconds} s")
     return values

@@ -1,4 +1,7 @@
-"""``dishbot run``: the daemon. It waits in idle for ``start``; with ``--once`` it runs one job and exits."""
+"""``dishbot run``: the daemon. It waits in idle for ``start``; with ``--once`` it runs one job and exits.
+
+The clock is chosen here: the wall clock for the robot (and for the simulated cell on pseudo-terminals), a
+simulated clock for the simulated cell, at ``--speed`` (``max`` for ``--once``)."""
 
 from __future__ import annotations
 
@@ -19,6 +22,7 @@ from description import thesis
 if TYPE_CHECKING:
     from daemon.app import RunOptions, RunResult
     from daemon.backend import Backend
+    from daemon.clock import SessionClock
     from daemon.config import Config
     from daemon.sdnotify import SdNotifier
     from perception.interfaces import Associate
@@ -61,9 +65,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     parser.add_argument(
         "--speed",
-        type=float,
         metavar="X",
-        help="simulation: X simulated seconds per second (default: config)",
+        help="simulation: X simulated seconds per wall second (0.1-1000), or max: as fast as the machine "
+        "allows (default: max with --once, else the config's sim.speed, 1)",
+    )
+    parser.add_argument(
+        "--transport",
+        choices=("inprocess", "pty"),
+        help="simulation, MuJoCo cell: reach the simulated servos and FSR in-process on simulated time, or "
+        "on pseudo-terminals in real time (default: config sim.transport, inprocess)",
     )
     parser.add_argument("--seed", type=int, default=None, metavar="S", help="simulation: detector noise seed")
     parser.add_argument("--record-dir", type=Path, metavar="DIR", help="where the session's MCAP file goes")
@@ -93,9 +103,7 @@ def _run(args: argparse.Namespace) -> int:
     connect = tuple(_endpoints(args.connect, "--connect")) if args.connect else config.zenoh.connect
     if args.dataset is not None and not 1 <= args.dataset <= len(thesis.DATASETS):
         raise UsageError(f"--dataset {args.dataset}: choose a dataset 1-{len(thesis.DATASETS)}")
-    speed: float | None = args.speed
-    if speed is not None and not 0.1 <= speed <= 1000.0:
-        raise UsageError(f"--speed {speed:g}: choose 0.1-1000 simulated seconds per second")
+    clock = session_clock(args, config)
     options = RunOptions(
         listen=listen,
         connect=connect,
@@ -104,11 +112,50 @@ def _run(args: argparse.Namespace) -> int:
     )
     associate = association()
     with planning_pool(args.log_level) as pool, SdNotifier.from_env() as notifier:
-        result = asyncio.run(_serve(args, config, speed, options, associate, pool, notifier))
+        result = clock.run(_serve(args, config, clock, options, associate, pool, notifier))
     if args.once:
         _print_summary(result)
         return 0 if result.end_state == "done" else 1
     return 0
+
+
+def session_clock(args: argparse.Namespace, config: Config) -> SessionClock:
+    """The wall clock on the robot and for the cell on pseudo-terminals; otherwise simulated time at
+    ``--speed`` (default ``max`` with ``--once``, else ``sim.speed``). Bad flags are usage errors."""
+    from daemon.clock import RealClock, SimulatedClock, parse_speed
+
+    speed: float | None = None
+    if args.speed is not None:
+        try:
+            speed = parse_speed(args.speed)
+        except ValueError as e:
+            raise UsageError(f"--speed {e}") from e
+    sim = args.sim or config.backend == "sim"
+    if not sim:
+        for flag, value in (
+            ("--world", args.world),
+            ("--dataset", args.dataset),
+            ("--seed", args.seed),
+            ("--speed", args.speed),
+            ("--transport", args.transport),
+        ):
+            if value is not None:
+                raise UsageError(f"{flag} sets up the simulated cell; add --sim (backend is hardware)")
+        return RealClock()
+    world = args.world or config.sim.world
+    transport = args.transport or config.sim.transport
+    if world == "kinematic" and args.transport is not None:
+        raise UsageError(f"--transport {args.transport}: the kinematic cell has no serial devices")
+    if world == "mujoco" and transport == "pty":
+        if args.speed is not None and speed != 1.0:
+            raise UsageError(
+                f"--speed {args.speed}: the MuJoCo cell on pseudo-terminals runs in real time (its device "
+                "simulators keep wall-clock time); use --transport inprocess to run faster"
+            )
+        return RealClock()
+    if args.speed is None:
+        speed = None if args.once else config.sim.speed
+    return SimulatedClock(speed=speed)
 
 
 def planning_pool(log_level: str = "info") -> concurrent.futures.ProcessPoolExecutor:
@@ -132,34 +179,42 @@ def _planning_worker(log_level: str) -> None:
 async def _serve(
     args: argparse.Namespace,
     config: Config,
-    speed: float | None,
+    clock: SessionClock,
     options: RunOptions,
     associate: Associate,
     pool: concurrent.futures.Executor,
     notifier: SdNotifier,
 ) -> RunResult:
-    """Open the backend on the event loop that will drive its devices, then serve."""
+    """Open the backend on the event loop that will drive its devices (the clock's), then serve."""
     from daemon.app import serve
 
-    backend = await _backend(args, config, speed, pool)
+    backend = await _backend(args, config, clock, pool)
     return await serve(config, backend, associate, options, notifier=notifier, executor=pool)
 
 
 async def _backend(
-    args: argparse.Namespace, config: Config, speed: float | None, pool: concurrent.futures.Executor
+    args: argparse.Namespace, config: Config, clock: SessionClock, pool: concurrent.futures.Executor
 ) -> Backend:
-    from daemon.backend import SimOptions, open_backend
+    import structlog
+
+    from daemon.backend import ProcessMotionPlanner, SimOptions, open_backend
+    from daemon.clock import SimulatedClock, describe_speed
 
     sim: SimOptions | None = None
     if args.sim or config.backend == "sim":
-        sim = SimOptions(world=args.world, dataset=args.dataset or 1, speed=speed, seed=args.seed)
-    else:
-        for flag, value in (("--world", args.world), ("--dataset", args.dataset), ("--seed", args.seed)):
-            if value is not None:
-                raise UsageError(f"{flag} sets up the simulated cell; add --sim (backend is hardware)")
-        if speed is not None:
-            raise UsageError("--speed sets up the simulated cell; add --sim (backend is hardware)")
-    return await open_backend(config, sim=sim, executor=pool)
+        sim = SimOptions(
+            world=args.world, dataset=args.dataset or 1, transport=args.transport, seed=args.seed
+        )
+    backend = await open_backend(config, sim=sim, clock=clock, executor=pool)
+    if sim is not None and isinstance(clock, SimulatedClock):
+        structlog.get_logger("daemon.run").info(
+            "simulated_time", speed=describe_speed(clock.speed), world=args.world or config.sim.world
+        )
+    if args.once and isinstance(backend.motion, ProcessMotionPlanner):
+        # One job to run (and to time): the planner is built before it starts, not during its first plan;
+        # waited for in a thread, as executor work, so that simulated time stands still meanwhile.
+        await asyncio.to_thread(backend.motion.warm_up().result)
+    return backend
 
 
 def association() -> Associate:
@@ -182,4 +237,12 @@ def _print_summary(result: RunResult) -> None:
     out.write(f"job ended in state {result.end_state}\n")
     out.write(f"detected {s.detected}, planned {s.planned}, placed {s.placed}, failed {s.failed}\n")
     out.write(f"grasp failures {s.grasp_failures}, drops {s.drops}, duration {s.duration_s:.1f} s\n")
+    if result.simulated:
+        out.write(f"{time_ratio_line(s.duration_s, result.wall_s)}\n")
     out.write(f"recording {result.recording}\n")
+
+
+def time_ratio_line(simulated_s: float, wall_s: float) -> str:
+    """``simulated 240.9 s in 31.2 s wall (7.7x real time)``."""
+    ratio = f"{simulated_s / wall_s:.1f}x" if wall_s > 0 else "-"
+    return f"simulated {simulated_s:.1f} s in {wall_s:.1f} s wall ({ratio} real time)"

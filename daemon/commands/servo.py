@@ -71,9 +71,10 @@ def _check_id(name: str, value: int) -> None:
 
 
 def _open(config: BusConfig) -> DynamixelBus:
+    from daemon.clock import RealClock
     from drivers.dynamixel import DynamixelBus  # dynamixel-sdk
 
-    bus = DynamixelBus(config, read_timeout_s=0.01, retries=0)
+    bus = DynamixelBus(config, clock=RealClock(), read_timeout_s=0.01, retries=0)
     try:
         bus.open()
     except BusLost as e:

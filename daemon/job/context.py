@@ -10,7 +10,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any, Final
 
-from daemon.job.services import Services
+from drivers.interfaces import Clock
 from planning.interfaces import CyclePlan, MugPose, TraySlot
 from planning.placement import PlanOptions, TrayMug
 
@@ -36,12 +36,15 @@ class JobSummary:
     started_at: float | None = None
     ended_at: float | None = None
     end_state: str = ""
+    clock: Clock | None = field(default=None, repr=False, compare=False)  # what started_at was read on
 
     @property
     def duration_s(self) -> float:
         if self.started_at is None:
             return 0.0
-        return (self.ended_at or Services.monotonic()) - self.started_at
+        if self.ended_at is not None:
+            return self.ended_at - self.started_at
+        return 0.0 if self.clock is None else self.clock.monotonic() - self.started_at
 
     def to_json(self) -> dict[str, object]:
         return {

@@ -37,7 +37,7 @@ async def look(services: Services, ctx: JobContext, *, target_id: str = "") -> d
             d = replace(d, mug_id=f"m{ctx.next_id}")
             ctx.next_id += 1
         seen.append(d)
-    payload = observation_payload(replace(obs, detections=tuple(seen)))
+    payload = observation_payload(replace(obs, detections=tuple(seen)), t=services.wall_time())
     if obs.depth_preview is not None:
         payload["depth_preview"] = depth_preview_payload(obs.depth_preview)
     services.publish("detections", payload)

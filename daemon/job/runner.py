@@ -203,6 +203,7 @@ class Job:
         else:
             self._ctx = self._ctx.next_job(options)
         self._ctx.summary.started_at = self._services.monotonic()
+        self._ctx.summary.clock = self._services.clock
         self.finished.clear()
 
     def _set_counter(self, request: StartRequest) -> None:

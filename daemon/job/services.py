@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
-import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from daemon.backend import Backend
 from daemon.config import Config
+from drivers.interfaces import Clock
 from perception.interfaces import Associate
 from planning.interfaces import PlacementPlanner
 from planning.placement import PlanOptions, PlanResult, Problem
@@ -50,22 +50,22 @@ class Services:
             return await asyncio.to_thread(planner, problem, options)
         return await asyncio.get_running_loop().run_in_executor(self.executor, planner, problem, options)
 
-    # The job's reads of time, all of them: the wall clock for payloads, the monotonic clock for durations
-    # and deadlines, and the waits.
+    # The job's reads of time, all of them, on the backend's clock (the wall clock on the robot, simulated
+    # time in simulation): ``now`` for payloads, the monotonic clock for durations and deadlines, the waits.
 
-    @staticmethod
-    def wall_time() -> float:
-        return time.time()
+    @property
+    def clock(self) -> Clock:
+        return self.backend.clock
 
-    @staticmethod
-    def monotonic() -> float:
-        return time.monotonic()
+    def wall_time(self) -> float:
+        return self.backend.clock.now()
 
-    @staticmethod
-    async def sleep(seconds: float) -> None:
-        await asyncio.sleep(seconds)
+    def monotonic(self) -> float:
+        return self.backend.clock.monotonic()
 
-    @staticmethod
-    async def wait_done(task: asyncio.Task[T], timeout_s: float | None) -> None:
+    async def sleep(self, seconds: float) -> None:
+        await self.backend.clock.sleep(seconds)
+
+    async def wait_done(self, task: asyncio.Task[T], timeout_s: float | None) -> None:
         """Wait until ``task`` is done or ``timeout_s`` has passed (None: no limit)."""
-        await asyncio.wait({task}, timeout=timeout_s)
+        await self.backend.clock.wait(task, timeout_s)

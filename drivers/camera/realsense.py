@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import importlib
-import time
 from types import ModuleType, TracebackType
 from typing import Any
 
@@ -18,7 +17,7 @@ import numpy.typing as npt
 import structlog
 
 from drivers.errors import DriverError
-from drivers.interfaces import CameraIntrinsics, FloatArray, RGBDFrame
+from drivers.interfaces import CameraIntrinsics, Clock, FloatArray, RGBDFrame
 
 log = structlog.get_logger("drivers.camera")
 
@@ -56,6 +55,7 @@ class RealSenseCamera:
         serial_number: str | None = None,
         with_color: bool = True,
         timeout_s: float = 1.0,
+        clock: Clock,
     ) -> None:
         if np.asarray(world_from_camera).shape != (4, 4):
             raise ValueError("camera.world_from_camera must be a 4x4 homogeneous transform")
@@ -64,6 +64,7 @@ class RealSenseCamera:
         self.serial_number = serial_number
         self.with_color = with_color
         self.timeout_s = timeout_s
+        self._clock = clock
         self._rs: Any = None
         self._pipeline: Any = None
         self._align: Any = None
@@ -135,7 +136,7 @@ class RealSenseCamera:
             color = np.ascontiguousarray(np.asanyarray(frames.get_color_frame().get_data()), dtype=np.uint8)
         assert self._intrinsics is not None
         return RGBDFrame(
-            t=time.monotonic(),
+            t=self._clock.monotonic(),
             depth_m=depth,
             intrinsics=self._intrinsics,
             world_from_camera=self.world_from_camera.copy(),

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import functools
-import time
 from collections.abc import Sequence
 from types import TracebackType
 
@@ -25,7 +24,8 @@ class DynamixelArm:
 
     ``follow`` streams goals at ``rate_hz`` by sync write and reads every joint back in the same bus turn;
     every goal is checked against the joints' software limits before it is sent. ``shutdown`` (and leaving
-    the ``async with`` block) parks the arm at ``park_rad`` when given and turns the torque off.
+    the ``async with`` block) parks the arm at ``park_rad`` when given and turns the torque off. Periods,
+    the settle deadline and the joint states' ``t`` are on the chain's clock.
     """
 
     def __init__(
@@ -45,6 +45,7 @@ class DynamixelArm:
         if park_rad is not None and len(park_rad) != len(joints):
             raise ValueError(f"park_rad has {len(park_rad)} values for {len(joints)} joints")
         self._chain = chain
+        self._clock = chain.clock
         self.joints = tuple(joints)
         self._ids = tuple(j.servo_id for j in self.joints)
         self.period_s = 1.0 / rate_hz
@@ -180,8 +181,7 @@ class DynamixelArm:
         return {j.servo_id: (float(q[k]), float(speed[k])) for k, j in enumerate(self.joints)}
 
     async def _stream(self, times: np.ndarray, positions: np.ndarray) -> None:
-        loop = asyncio.get_running_loop()
-        t0 = loop.time()
+        t0 = self._clock.monotonic()
         duration = float(times[-1])
         tick = 0
         while True:
@@ -196,24 +196,24 @@ class DynamixelArm:
             if t >= duration:
                 return
             tick += 1
-            await asyncio.sleep(max(0.0, t0 + tick * self.period_s - loop.time()))
+            await self._clock.sleep_until(t0 + tick * self.period_s)
 
     async def _settle(self, final: np.ndarray) -> None:
-        deadline = time.monotonic() + self.settle_timeout_s
+        deadline = self._clock.monotonic() + self.settle_timeout_s
         while True:
             state = await self.read_joints()
             error = float(np.max(np.abs(np.asarray(state.position_rad) - final)))
             if error <= self.settle_tolerance_rad:
                 return
-            if time.monotonic() >= deadline:
+            if self._clock.monotonic() >= deadline:
                 log.warning("arm_settle_timeout", error_rad=error)
                 return
-            await asyncio.sleep(self.period_s)
+            await self._clock.sleep(self.period_s)
 
     def _state(self, readings: dict[int, ServoReading]) -> JointState:
         ordered = [readings[i] for i in self._ids]
         self.last_state = JointState(
-            t=time.monotonic(),
+            t=self._clock.monotonic(),
             names=self.joint_names,
             position_rad=tuple(r.position_rad for r in ordered),
             velocity_rad_s=tuple(r.velocity_rad_s for r in ordered),

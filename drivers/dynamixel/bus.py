@@ -7,6 +7,10 @@ for those answers sleeps in ``select`` rather than spinning, so the bus thread l
 loop. Timeouts and corrupt packets are retried a bounded number of times with per-servo counters; a
 servo's fault bits become a :class:`ServoFault`; a vanished adapter is closed, reopened and, when that fails,
 reported as :class:`BusLost`.
+
+The bus's own waits (for a status packet, a rebooting servo, a re-enumerating adapter) are waits on the
+device, in wall-clock time like dynamixel-sdk's packet timeouts; on a simulated clock they take no simulated
+time (the in-process simulator has answered before the wait starts). Event times come from the ``Clock``.
 """
 
 from __future__ import annotations
@@ -28,6 +32,8 @@ from drivers.dynamixel import protocol as p
 from drivers.dynamixel.config import BusConfig
 from drivers.dynamixel.tables import MODELS_BY_NUMBER, ModelSpec, model, volts_from_ticks
 from drivers.errors import BusLost, ServoFault
+from drivers.interfaces import Clock
+from drivers.serial_port import OpenSerial
 
 log = structlog.get_logger("drivers.dynamixel")
 
@@ -56,12 +62,13 @@ class BusTimeout(ServoFault):
 
 @dataclass(frozen=True, slots=True)
 class DeviceEvent:
-    """A fault appearing or clearing, as the daemon publishes it: ``kind`` is e.g. ``servo_fault``."""
+    """A fault appearing or clearing, as the daemon publishes it: ``kind`` is e.g. ``servo_fault``; ``t`` is
+    the driver's clock (``Clock.monotonic``) when it happened."""
 
     kind: str
     device: str
+    t: float
     detail: dict[str, object] = field(default_factory=dict)
-    t: float = field(default_factory=time.monotonic)
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,18 +98,25 @@ EventSink = Callable[[DeviceEvent], None]
 
 
 class DynamixelBus:
-    """A serial Dynamixel bus on dynamixel-sdk. Not thread-safe: one thread owns it."""
+    """A serial Dynamixel bus on dynamixel-sdk. Not thread-safe: one thread owns it.
+
+    ``open_serial`` opens the port (default: dynamixel-sdk's own pyserial port on the device file); the
+    simulated cell passes an in-process simulator's (``drivers.sim.inprocess``)."""
 
     def __init__(
         self,
         config: BusConfig,
         *,
+        clock: Clock,
         retries: int = 2,
         read_timeout_s: float = 0.02,
         reopen_attempts: int = 2,
         on_event: EventSink | None = None,
+        open_serial: OpenSerial | None = None,
     ) -> None:
         self.config = config
+        self.clock = clock
+        self._open_serial = open_serial
         self.retries = retries
         self.read_timeout_s = read_timeout_s
         self.reopen_attempts = reopen_attempts
@@ -123,7 +137,11 @@ class DynamixelBus:
 
     def open(self) -> None:
         """Open the port at the configured baud rate; BusLost names the port when it cannot."""
-        port = PortHandler(self.config.port)
+        port = (
+            PortHandler(self.config.port)
+            if self._open_serial is None
+            else _OpenedPortHandler(self.config.port, self._open_serial)
+        )
         try:
             opened = port.openPort() and port.setBaudRate(self.config.baudrate)
         except (serial.SerialException, OSError) as e:
@@ -483,7 +501,7 @@ class DynamixelBus:
     def emit(self, kind: str, device: str, **detail: object) -> None:
         """Report an event to the listener (recovery policies above the bus use it too)."""
         if self._on_event is not None:
-            self._on_event(DeviceEvent(kind, device, dict(detail)))
+            self._on_event(DeviceEvent(kind, device, self.clock.monotonic(), dict(detail)))
 
     def _io(self, call: Callable[[], T]) -> T:
         """Run port I/O; an unplugged adapter is closed, reopened once per attempt, and else BusLost."""
@@ -533,3 +551,21 @@ class DynamixelBus:
             f"servo bus {self.config.port} is gone ({last}); plug the USB adapter back in to reconnect",
             port=self.config.port,
         ) from cause
+
+
+class _OpenedPortHandler(PortHandler):  # type: ignore[misc]  # dynamixel-sdk is untyped
+    """dynamixel-sdk's port handler on a port that ``open_serial`` opens (the SDK's own ``setupPort``
+    hard-codes pyserial on a device file); everything else is the SDK's."""
+
+    def __init__(self, port_name: str, open_serial: OpenSerial) -> None:
+        super().__init__(port_name)
+        self._open_serial = open_serial
+
+    def setupPort(self, cflag_baud: int) -> bool:  # noqa: N802 (the SDK's name, overridden)
+        if self.is_open:  # type: ignore[has-type]  # set by the SDK's untyped __init__
+            self.closePort()
+        self.ser = self._open_serial(self.port_name, self.baudrate)
+        self.is_open = True
+        self.ser.reset_input_buffer()
+        self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
+        return True

@@ -1,8 +1,10 @@
 """The servo chain as an asyncio resource: the blocking bus lives on its own thread.
 
 Every bus transaction runs on one dedicated thread, in submission order, so the event loop never waits on
-the serial port and the SDK's state is touched by one thread only. Fault events raised on that thread are
-handed to the event loop with ``call_soon_threadsafe``.
+the serial port and the SDK's state is touched by one thread only. Fault events raised during a
+transaction reach the listener on the event loop when the transaction returns, before its result: in the
+order they happened and at the same point of the job however the threads were scheduled (which keeps a
+simulated run deterministic).
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from types import TracebackType
@@ -17,8 +20,40 @@ from typing import TypeVar
 
 from drivers.dynamixel.bus import DeviceEvent, DynamixelBus, ServoCounters
 from drivers.dynamixel.config import BusConfig
+from drivers.interfaces import Clock
+from drivers.serial_port import OpenSerial
 
 T = TypeVar("T")
+EventListener = Callable[[DeviceEvent], None]
+
+
+class _Events:
+    """The events of one transaction: kept until the loop takes them when the transaction returns; a
+    transaction nobody waits for any more (cancelled) hands later ones to the loop itself."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, listener: EventListener | None) -> None:
+        self._loop = loop
+        self._listener = listener
+        self._lock = threading.Lock()
+        self._kept: list[DeviceEvent] = []
+        self._taken = False
+
+    def add(self, event: DeviceEvent) -> None:
+        with self._lock:
+            if not self._taken:
+                self._kept.append(event)
+                return
+        if self._listener is not None:
+            with contextlib.suppress(RuntimeError):  # the loop is closing: nobody is left to tell
+                self._loop.call_soon_threadsafe(self._listener, event)
+
+    def deliver(self) -> None:
+        with self._lock:
+            self._taken = True
+            kept, self._kept = self._kept, []
+        if self._listener is not None:
+            for event in kept:
+                self._listener(event)
 
 
 class ServoChain:
@@ -26,7 +61,8 @@ class ServoChain:
 
     ``expected`` lists every (servo id, model) on the chain; entering checks them all and raises one
     ``ChainMismatch`` naming every problem, before any torque is enabled. ``on_event`` receives fault and
-    recovery events on the event loop.
+    recovery events on the event loop. ``open_serial`` opens the port (default: pyserial on the device
+    file; an in-process simulator's in the simulated cell).
     """
 
     def __init__(
@@ -34,29 +70,51 @@ class ServoChain:
         config: BusConfig,
         expected: Sequence[tuple[int, str]],
         *,
+        clock: Clock,
         retries: int = 2,
         read_timeout_s: float = 0.02,
-        on_event: Callable[[DeviceEvent], None] | None = None,
+        on_event: EventListener | None = None,
+        open_serial: OpenSerial | None = None,
     ) -> None:
         self.config = config
         self.expected = tuple(expected)
+        self.clock = clock
         self._on_event = on_event
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._events: _Events | None = None  # the running transaction's (only the bus thread sets it)
         self.bus = DynamixelBus(
-            config, retries=retries, read_timeout_s=read_timeout_s, on_event=self._forward
+            config,
+            clock=clock,
+            retries=retries,
+            read_timeout_s=read_timeout_s,
+            on_event=self._forward,
+            open_serial=open_serial,
         )
         self._executor: ThreadPoolExecutor | None = None
 
     def _forward(self, event: DeviceEvent) -> None:
-        if self._on_event is not None and self._loop is not None:
-            with contextlib.suppress(RuntimeError):  # the loop is closing: nobody is left to tell
-                self._loop.call_soon_threadsafe(self._on_event, event)
+        events = self._events
+        if events is not None:
+            events.add(event)
 
     async def call(self, fn: Callable[[DynamixelBus], T]) -> T:
-        """Run ``fn(bus)`` on the bus thread and return its result (exceptions propagate)."""
+        """Run ``fn(bus)`` on the bus thread and return its result (exceptions propagate); the events it
+        raised reach the listener first."""
         if self._executor is None or self._loop is None:
             raise RuntimeError("the servo chain is not open; use `async with ServoChain(...)`")
-        return await self._loop.run_in_executor(self._executor, fn, self.bus)
+        events = _Events(self._loop, self._on_event)
+
+        def transaction(bus: DynamixelBus) -> T:
+            self._events = events
+            try:
+                return fn(bus)
+            finally:
+                self._events = None
+
+        try:
+            return await self._loop.run_in_executor(self._executor, transaction, self.bus)
+        finally:
+            events.deliver()
 
     def counters(self) -> dict[int, ServoCounters]:
         """A snapshot of the per-servo timeout/corrupt/retry/fault counters (for status publishing)."""

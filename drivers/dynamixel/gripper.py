@@ -12,9 +12,7 @@ re-enabled at its present position, and the close is retried under a lower limit
 
 from __future__ import annotations
 
-import asyncio
 import functools
-import time
 from types import TracebackType
 
 import structlog
@@ -41,6 +39,7 @@ class DynamixelGripper:
         force_max_age_s: float = 0.25,
     ) -> None:
         self._chain = chain
+        self._clock = chain.clock
         self.spec = spec
         self._force_sensor = force_sensor
         self.timeout_s = timeout_s
@@ -81,7 +80,9 @@ class DynamixelGripper:
 
     async def read(self) -> GripperState:
         reading = await self._read()
-        return GripperState(time.monotonic(), self.spec.aperture_for(reading.position_rad), reading.load)
+        return GripperState(
+            self._clock.monotonic(), self.spec.aperture_for(reading.position_rad), reading.load
+        )
 
     async def open(self, aperture_m: float | None = None) -> None:
         """Open to ``aperture_m`` (at most ``open_aperture_m``; never closing) or fully, at the full grip
@@ -99,11 +100,11 @@ class DynamixelGripper:
             bus.write_goals({self._id: (angle, self.spec.speed_rad_s)})
 
         await self._chain.call(command)
-        deadline = time.monotonic() + self.timeout_s
-        while time.monotonic() < deadline:
+        deadline = self._clock.monotonic() + self.timeout_s
+        while self._clock.monotonic() < deadline:
             if abs((await self._read()).position_rad - angle) < 0.05:
                 return
-            await asyncio.sleep(self.spec.step_period_s)
+            await self._clock.sleep(self.spec.step_period_s)
         self._log.warning("gripper_open_timeout", aperture_m=round(target, 4))
 
     async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
@@ -164,7 +165,7 @@ class DynamixelGripper:
     def _force(self) -> float:
         """The pad force, or 0 when the sensor has nothing fresh: a frozen reading never counts as held."""
         reading = self._force_sensor.latest()
-        if reading is None or time.monotonic() - reading.t > self.force_max_age_s:
+        if reading is None or self._clock.monotonic() - reading.t > self.force_max_age_s:
             return 0.0
         return reading.force_n
 
@@ -172,7 +173,7 @@ class DynamixelGripper:
         spec = self.spec
         aperture = spec.aperture_for((await self._read()).position_rad)
         command = aperture
-        deadline = time.monotonic() + self.timeout_s
+        deadline = self._clock.monotonic() + self.timeout_s
         while True:
             force = self._force()
             if force >= threshold_n:
@@ -187,7 +188,7 @@ class DynamixelGripper:
                 )
                 self._log.info("grasp_missed", reason=reason)
                 return GraspResult(False, force, aperture, reason)
-            if time.monotonic() > deadline:
+            if self._clock.monotonic() > deadline:
                 await self.stop()
                 reason = f"closing took longer than {self.timeout_s:.1f} s; the pads are at {aperture:.3f} m"
                 return GraspResult(False, force, aperture, reason)
@@ -197,7 +198,7 @@ class DynamixelGripper:
             goal = {self._id: (spec.angle_for(command), spec.speed_rad_s)}
             reading = (await self._chain.call(functools.partial(_write_then_read, goal=goal)))[self._id]
             aperture = spec.aperture_for(reading.position_rad)
-            await asyncio.sleep(spec.step_period_s)
+            await self._clock.sleep(spec.step_period_s)
 
     async def _hold_squeeze(self, aperture_m: float) -> float:
         """Keep squeezing the mug: leave the goal ``2 * step_m`` past where the pads stopped.

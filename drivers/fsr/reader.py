@@ -5,7 +5,8 @@ Each valid line becomes a sample; a median of three rejects single-sample spikes
 threshold with hysteresis and a debounce time (§4.3.1); while the daemon says a mug is being carried, a
 debounced release is reported as a drop (§3.2.2.2). Garbage, torn lines and bad checksums are counted and
 skipped. When the adapter disappears the port is closed and reopened every ``reconnect_period_s`` until the
-Arduino is back; :meth:`check` raises :class:`SensorFault` while no fresh sample arrives.
+Arduino is back; :meth:`check` raises :class:`SensorFault` while no fresh sample arrives. Samples are stamped,
+debounced and aged on the ``Clock`` the reader is given.
 """
 
 from __future__ import annotations
@@ -13,7 +14,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import statistics
-import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -25,7 +25,8 @@ import structlog
 from drivers.dynamixel.bus import DeviceEvent
 from drivers.errors import SensorFault
 from drivers.fsr import protocol
-from drivers.interfaces import ForceReading
+from drivers.interfaces import Clock, ForceReading
+from drivers.serial_port import OpenSerial, SerialPort, open_pyserial
 
 log = structlog.get_logger("drivers.fsr")
 
@@ -42,12 +43,14 @@ class FsrCounters:
 
 
 class FsrReader:
-    """The gripper pad's force, read from the FSR Arduino on ``port``."""
+    """The gripper pad's force, read from the FSR Arduino on ``port`` (opened with ``open_serial``: pyserial
+    by default, an in-process simulator's in the simulated cell)."""
 
     def __init__(
         self,
         port: str,
         *,
+        clock: Clock,
         threshold_n: float = 2.0,
         release_n: float | None = None,
         debounce_s: float = 0.03,
@@ -58,6 +61,7 @@ class FsrReader:
         version_timeout_s: float = 1.0,
         baudrate: int = 115_200,
         on_event: Callable[[DeviceEvent], None] | None = None,
+        open_serial: OpenSerial = open_pyserial,
     ) -> None:
         release = threshold_n * 0.6 if release_n is None else release_n
         if not 0 <= release < threshold_n:
@@ -65,6 +69,8 @@ class FsrReader:
         if debounce_s < 0 or spike_n <= 0 or gain <= 0 or stale_after_s <= 0:
             raise ValueError("fsr.debounce_s must be >= 0 and spike_n, gain, stale_after_s > 0")
         self.port = port
+        self.clock = clock
+        self._open_serial = open_serial
         self.threshold_n = threshold_n
         self.release_n = release
         self.debounce_s = debounce_s
@@ -77,7 +83,7 @@ class FsrReader:
         self._on_event = on_event
         self.counters = FsrCounters()
         self.firmware_version: str | None = None
-        self._serial: serial.Serial | None = None
+        self._serial: SerialPort | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._buf = bytearray()
         self._window: deque[float] = deque(maxlen=3)
@@ -104,7 +110,8 @@ class FsrReader:
         except (serial.SerialException, OSError) as e:
             raise SensorFault(f"cannot open the FSR Arduino on {self.port}: {e}; check the USB cable") from e
         try:
-            await asyncio.wait_for(self._version_seen.wait(), self.version_timeout_s)
+            async with self.clock.timeout(self.version_timeout_s):
+                await self._version_seen.wait()
         except TimeoutError:
             await self.stop()
             raise SensorFault(
@@ -156,7 +163,7 @@ class FsrReader:
         """Raise SensorFault when the sensor is unplugged or has sent no valid sample lately."""
         if self._lost:
             raise SensorFault(f"the FSR Arduino on {self.port} is unplugged; reconnecting")
-        age = time.monotonic() - self._latest.t if self._latest is not None else None
+        age = self.clock.monotonic() - self._latest.t if self._latest is not None else None
         if age is None or age > self.stale_after_s:
             seen = "no sample yet" if age is None else f"the last one is {age:.2f} s old"
             raise SensorFault(f"no valid FSR sample from {self.port} ({seen}); check the Arduino")
@@ -164,7 +171,7 @@ class FsrReader:
     # ------------------------------------------------------------------------------------------ internals
 
     def _open(self) -> None:
-        ser = serial.Serial(self.port, self.baudrate, timeout=0)
+        ser = self._open_serial(self.port, self.baudrate)
         ser.reset_input_buffer()
         ser.write(protocol.VERSION_QUERY)
         self._serial = ser
@@ -225,7 +232,7 @@ class FsrReader:
         self._sample(parsed)
 
     def _sample(self, sample: protocol.Sample) -> None:
-        now = time.monotonic()
+        now = self.clock.monotonic()
         if self._last_seq is not None:
             gap = (sample.seq - self._last_seq - 1) % protocol.SEQ_MODULO
             self.counters.lost_samples += gap
@@ -272,7 +279,7 @@ class FsrReader:
 
     async def _reconnect_loop(self) -> None:
         while self._serial is None:
-            await asyncio.sleep(self.reconnect_period_s)
+            await self.clock.sleep(self.reconnect_period_s)
             try:
                 self._open()
             except (serial.SerialException, OSError) as e:
@@ -283,9 +290,9 @@ class FsrReader:
     async def _watch(self) -> None:
         """Report once when the stream goes quiet while the port is still open."""
         while True:
-            await asyncio.sleep(self.stale_after_s / 2)
+            await self.clock.sleep(self.stale_after_s / 2)
             latest = self._latest
-            quiet = latest is None or time.monotonic() - latest.t > self.stale_after_s
+            quiet = latest is None or self.clock.monotonic() - latest.t > self.stale_after_s
             if quiet and not self._stale and not self._lost:
                 self._stale = True
                 self._log.warning("fsr_stale", stale_after_s=self.stale_after_s)
@@ -293,4 +300,4 @@ class FsrReader:
 
     def _emit(self, kind: str, **detail: object) -> None:
         if self._on_event is not None:
-            self._on_event(DeviceEvent(kind, "fsr", {"port": self.port, **detail}))
+            self._on_event(DeviceEvent(kind, "fsr", self.clock.monotonic(), {"port": self.port, **detail}))

@@ -1,8 +1,10 @@
-"""A simulated FSR Arduino on a pseudo-terminal: the sketch's exact lines at 100 Hz, driven by the world.
+"""A simulated FSR Arduino: the sketch's exact lines at 100 Hz, driven by the world.
 
-``force_n`` is called for every sample (from the simulator's thread) and converted to the ADC count the
-10 kOhm divider would give. Fault hooks silence the stream, inject garbage or torn lines, corrupt
-checksums, force a drop to zero or a one-sample spike, and unplug the adapter.
+``force_n`` is called for every sample and converted to the ADC count the 10 kOhm divider would give. On a
+pseudo-terminal (``start()``) a thread streams in wall-clock time; in-process (``start_in_process(clock)``)
+an asyncio task streams on the clock, so on a simulated clock every sample carries the world's force at
+exactly its 10 ms tick. Fault hooks silence the stream, inject garbage or torn lines, corrupt checksums,
+force a drop to zero or a one-sample spike, and unplug the adapter.
 """
 
 from __future__ import annotations
@@ -12,11 +14,15 @@ import time
 from collections.abc import Callable
 
 from drivers.fsr import protocol
-from drivers.sim.pty_link import PtyDevice
+from drivers.interfaces import Clock
+from drivers.sim.device import SimulatedDevice
+from drivers.sim.pty_link import PtyLink
 
 
-class FsrSimulator(PtyDevice):
-    """Streams ``$FSR,seq,raw*HH`` lines on a pty and answers ``?V``; open :attr:`device_path`."""
+class FsrSimulator(SimulatedDevice):
+    """Streams ``$FSR,seq,raw*HH`` lines and answers ``?V``; open :attr:`device_path`."""
+
+    streams = True
 
     def __init__(
         self,
@@ -38,6 +44,7 @@ class FsrSimulator(PtyDevice):
         self._garbage = b""
         self._bad_checksums = 0
         self._torn = 0
+        self._query = bytearray()
         self.lines_sent = 0
 
     # ------------------------------------------------------------------------------------------ fault hooks
@@ -73,24 +80,37 @@ class FsrSimulator(PtyDevice):
     # ------------------------------------------------------------------------------------------ serving
 
     def _serve(self) -> None:
-        assert self._link is not None
+        assert isinstance(self._link, PtyLink)
         link = self._link
-        query = bytearray()
         next_t = time.monotonic()
         while not self._stop.is_set():
-            incoming = link.read(max(0.0, next_t - time.monotonic()))
-            query += incoming
-            if b"\n" in query:
-                lines = bytes(query).split(b"\n")
-                query = bytearray(lines[-1])
-                if any(line.strip() == b"?V" for line in lines[:-1]):
-                    link.write(protocol.version_line(self.version))
+            self._received(link.read(max(0.0, next_t - time.monotonic())))
             if time.monotonic() < next_t:
                 continue
             next_t += self.period_s
             if next_t < time.monotonic():  # fell behind (a paused thread): do not burst
                 next_t = time.monotonic() + self.period_s
             link.write(self._next_line())
+
+    def _received(self, data: bytes) -> None:
+        """Answer the version query (``?V``) as the sketch does."""
+        link = self._link
+        with self._lock:
+            self._query += data
+            if b"\n" not in self._query:
+                return
+            lines = bytes(self._query).split(b"\n")
+            self._query = bytearray(lines[-1])
+        if link is not None and any(line.strip() == b"?V" for line in lines[:-1]):
+            link.write(protocol.version_line(self.version))
+
+    async def _run_on(self, clock: Clock) -> None:
+        next_t = clock.monotonic()
+        while True:
+            await clock.sleep_until(next_t)
+            if self._link is not None:
+                self._link.write(self._next_line())
+            next_t += self.period_s
 
     def _next_line(self) -> bytes:
         with self._lock:

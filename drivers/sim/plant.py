@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import threading
-import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -42,15 +41,16 @@ class FirstOrderPlant:
     """Each servo approaches its goal with time constant ``tau_s``, never faster than the commanded speed.
 
     Torque off freezes the joint where it is (no gravity). ``load`` rises with the remaining error, like a
-    position-controlled servo pushing towards its goal, saturating at 1.
+    position-controlled servo pushing towards its goal, saturating at 1. ``clock`` gives the time it moves
+    in (a ``Clock``'s ``monotonic``).
     """
 
     def __init__(
         self,
         initial_rad: Mapping[int, float] | None = None,
         *,
+        clock: Callable[[], float],
         tau_s: float = 0.05,
-        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self._joints = {sid: _Joint(position=q, goal=q) for sid, q in (initial_rad or {}).items()}
         self._tau = tau_s

@@ -14,8 +14,7 @@ import tempfile
 import termios
 import threading
 import tty
-from types import TracebackType
-from typing import Final, Self
+from typing import Final
 
 # termios speed constants -> baud, for reading the rate the host configured on its end.
 _SPEEDS: Final[dict[int, int]] = {
@@ -122,64 +121,3 @@ class PtyLink:
     def close(self) -> None:
         self.unplug()
         self._dir.cleanup()
-
-
-class PtyDevice:
-    """A simulated serial device served by its own thread on a :class:`PtyLink`, as a context manager.
-
-    Subclasses implement :meth:`_serve`, which runs until ``self._stop`` is set, and may override
-    :meth:`_prepare` for work that must happen once the link exists but before serving starts.
-    """
-
-    def __init__(self, name: str, *, thread_name: str) -> None:
-        self._name = name
-        self._thread_name = thread_name
-        self._link: PtyLink | None = None
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-
-    @property
-    def device_path(self) -> str:
-        if self._link is None:
-            raise RuntimeError(f"the simulated {self._name} is not running; start() it or use it in a with")
-        return self._link.device_path
-
-    def start(self) -> Self:
-        self._link = PtyLink(self._name)
-        self._prepare()
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._serve, name=self._thread_name, daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2)
-        if self._link is not None:
-            self._link.close()
-            self._link = None
-
-    def __enter__(self) -> Self:
-        return self.start()
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.stop()
-
-    def unplug(self) -> None:
-        """Pull the USB adapter: the host's port fails and the device path disappears."""
-        if self._link is not None:
-            self._link.unplug()
-
-    def replug(self) -> None:
-        """Plug the adapter back in: the device path reappears on a fresh pty."""
-        if self._link is not None:
-            self._link.plug()
-
-    def _prepare(self) -> None:
-        """Hook run after the link is opened and before the serving thread starts."""
-
-    def _serve(self) -> None:
-        raise NotImplementedError

@@ -6,6 +6,10 @@ stuffing, the return delay, error bits, a torque limit that drops to 0 on a 1.0 
 Status and reboot on 2.0, the moving flag and the present load. A :class:`~drivers.sim.plant.ServoPlant`
 supplies where the servos are. Fault hooks make a servo overload, fall silent or send corrupt bytes, and
 unplug the whole adapter.
+
+On a pseudo-terminal (``start()``) the chain answers from its own thread; in-process
+(``start_in_process(clock)``) it answers on the host's thread as the host writes, with no wire time (on a
+simulated clock a bus transaction then takes no simulated time).
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Self
 
 import structlog
 
@@ -21,8 +26,10 @@ from description.thesis import JOINT_SERVOS
 from drivers.dynamixel import faults
 from drivers.dynamixel import protocol as p
 from drivers.dynamixel.tables import ModelSpec, baud_code, baud_from_code, model
+from drivers.interfaces import Clock
+from drivers.sim.device import SimulatedDevice
 from drivers.sim.plant import FirstOrderPlant, ServoPlant
-from drivers.sim.pty_link import PtyDevice, PtyLink
+from drivers.sim.pty_link import PtyLink
 
 log = structlog.get_logger("drivers.sim.servo_chain")
 
@@ -55,11 +62,12 @@ class SimServo:
         self.table[reg.address : reg.address + reg.size] = p.le(value, reg.size)
 
 
-class ServoChainSimulator(PtyDevice):
-    """A chain of simulated servos on a pty; use as a context manager and open :attr:`device_path`.
+class ServoChainSimulator(SimulatedDevice):
+    """A chain of simulated servos on a pty (a context manager) or in-process; open :attr:`device_path`.
 
-    ``wire_timing`` makes answers take as long as their bytes would at ``baudrate`` (plus the return delay),
-    so cycle rates measured over the simulator are those of a real 1 Mbps bus rather than of a pty.
+    ``wire_timing`` makes answers on a pty take as long as their bytes would at ``baudrate`` (plus the return
+    delay), so cycle rates measured over the simulator are those of a real 1 Mbps bus rather than of a pty.
+    ``plant`` is what moves behind the servos (default: a ``FirstOrderPlant`` on the wall clock).
     """
 
     def __init__(
@@ -75,7 +83,8 @@ class ServoChainSimulator(PtyDevice):
     ) -> None:
         self.protocol: p.Protocol = protocol
         self.baudrate = baudrate
-        self.plant: ServoPlant = plant if plant is not None else FirstOrderPlant()
+        self.plant: ServoPlant = plant if plant is not None else FirstOrderPlant(clock=_wall)
+        self._own_plant = plant is None
         self.wire_timing = wire_timing
         self._servos: list[SimServo] = []
         for servo_id, model_name in servos:
@@ -87,6 +96,7 @@ class ServoChainSimulator(PtyDevice):
         self._lock = threading.Lock()
         self._silent_all = False
         self._garbage = b""
+        self._framer = p.Framer(protocol)
         self.packets_seen = 0
 
     @staticmethod
@@ -122,9 +132,20 @@ class ServoChainSimulator(PtyDevice):
 
     # ------------------------------------------------------------------------------------------ lifecycle
 
+    def start_in_process(self, clock: Clock) -> Self:
+        """In-process on ``clock``; the default plant then moves in that clock's time too."""
+        if self._own_plant:
+            self.plant = FirstOrderPlant(clock=clock.monotonic)
+        return super().start_in_process(clock)
+
     def _prepare(self) -> None:
+        self._framer = p.Framer(self.protocol)
         for servo in self._servos:
             self._sync_from_plant(servo)
+
+    def _unplugged(self) -> None:
+        with self._lock:
+            self._framer = p.Framer(self.protocol)
 
     # ------------------------------------------------------------------------------------------ fault hooks
 
@@ -169,27 +190,30 @@ class ServoChainSimulator(PtyDevice):
     # ------------------------------------------------------------------------------------------ serving
 
     def _serve(self) -> None:
-        framer = p.Framer(self.protocol)
-        assert self._link is not None
+        assert isinstance(self._link, PtyLink)
         link = self._link
         was_plugged = True
         while not self._stop.is_set():
             data = link.read(0.02)
             if link.plugged != was_plugged:
                 was_plugged = link.plugged
-                framer = p.Framer(self.protocol)
-            if not data:
-                continue
-            for frame in framer.feed(data):
-                self.packets_seen += 1
-                try:
-                    self._handle(link, frame)
-                except Exception:  # the simulator must keep serving whatever the host sends
-                    log.exception("sim_packet_failed", servo_id=frame.servo_id, code=frame.code)
+                self._unplugged()
+            if data:
+                self._received(data)
 
-    def _listening(self, link: PtyLink) -> list[SimServo]:
+    def _received(self, data: bytes) -> None:
+        with self._lock:
+            frames = list(self._framer.feed(data))
+        for frame in frames:
+            self.packets_seen += 1
+            try:
+                self._handle(frame)
+            except Exception:  # the simulator must keep serving whatever the host sends
+                log.exception("sim_packet_failed", servo_id=frame.servo_id, code=frame.code)
+
+    def _listening(self) -> list[SimServo]:
         """Servos whose baud rate matches the host's; the others hear only noise."""
-        host = link.host_baudrate()
+        host = self._link.host_baudrate() if self._link is not None else None
         if self._silent_all:
             return []
         return [
@@ -198,9 +222,12 @@ class ServoChainSimulator(PtyDevice):
             if host is None or baud_from_code(self.protocol, s.get("baud_rate")) == host
         ]
 
-    def _handle(self, link: PtyLink, frame: p.Frame) -> None:
+    def _handle(self, frame: p.Frame) -> None:
+        link = self._link
+        if link is None:
+            return
         with self._lock:
-            servos = self._listening(link)
+            servos = self._listening()
             replies = self._dispatch(frame, servos)
             garbage, self._garbage = self._garbage, b""
         if garbage:
@@ -220,8 +247,9 @@ class ServoChainSimulator(PtyDevice):
             link.write(packet)
 
     def _wire_delay(self, servo: SimServo, nbytes: int) -> None:
-        """Sleep (never spin: the driver may share this interpreter) for the return delay and the bytes."""
-        if self.wire_timing:
+        """On a pty, sleep (never spin: the driver may share this interpreter) for the return delay and the
+        bytes. In-process the answer is there at once: it takes no simulated time."""
+        if self.wire_timing and not self.in_process:
             time.sleep(servo.get("return_delay") * 2e-6 + nbytes * 10 / self.baudrate)
 
     def _dispatch(self, frame: p.Frame, servos: list[SimServo]) -> list[tuple[SimServo, bytes]]:
@@ -440,6 +468,11 @@ class ServoChainSimulator(PtyDevice):
 
 def _id(servo: SimServo) -> int:
     return servo.servo_id
+
+
+def _wall() -> float:
+    """The default plant's clock: a chain on a pty answers in wall-clock time (``dishbot sim bus``)."""
+    return time.monotonic()
 
 
 def default_chain() -> tuple[tuple[int, str], ...]:

@@ -6,14 +6,13 @@ sets them from a placement dataset or a ``start`` command).
 
 from sim.kinematic.cell import KinematicCell, open_kinematic_cell
 from sim.kinematic.devices import SimArm, SimForceSensor, SimGripper
-from sim.kinematic.world import KinematicWorld, MugGeometry, SimClock, SimMug
+from sim.kinematic.world import KinematicWorld, MugGeometry, SimMug
 
 __all__ = [
     "KinematicCell",
     "KinematicWorld",
     "MugGeometry",
     "SimArm",
-    "SimClock",
     "SimForceSensor",
     "SimGripper",
     "SimMug",

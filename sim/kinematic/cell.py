@@ -5,10 +5,10 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from drivers.interfaces import FloatArray
+from drivers.interfaces import Clock, FloatArray
 from planning.arm import ArmModel
 from sim.kinematic.devices import SimArm, SimForceSensor, SimGripper
-from sim.kinematic.world import KinematicWorld, MugGeometry, SimClock, SimMug
+from sim.kinematic.world import KinematicWorld, MugGeometry, SimMug
 
 
 @dataclass(frozen=True, slots=True)
@@ -27,20 +27,20 @@ def open_kinematic_cell(
     *,
     tray_origin_m: tuple[float, float],
     tray_size_m: tuple[float, float],
-    speed: float = 1.0,
+    clock: Clock,
     joint_speed_rad_s: float = 1.0,
     holding_threshold_n: float = 1.0,
     arm: ArmModel | None = None,
     q0: FloatArray | None = None,
 ) -> KinematicCell:
-    """A kinematic cell with ``mugs`` on the counter, running ``speed`` times faster than the wall clock."""
+    """A kinematic cell with ``mugs`` on the counter, its devices moving on ``clock``."""
     world = KinematicWorld(
         arm or ArmModel.load(),
         list(mugs),
         dict(mug_geometry),
         tray_origin_m=tray_origin_m,
         tray_size_m=tray_size_m,
-        clock=SimClock(speed),
+        clock=clock,
         q0=q0,
     )
     return KinematicCell(

@@ -15,7 +15,7 @@ from drivers.interfaces import (
 )
 from sim.kinematic.world import JAW_SPEED_M_S, OPEN_APERTURE_M, KinematicWorld
 
-TICK_S = 0.01  # wall-clock period at which a moving device updates the world
+TICK_S = 0.01  # period (on the world's clock) at which a moving device updates the world
 FSR_COUNTS_PER_N = 40.0  # ADC counts per newton of the simulated FSR (saturates at 1023)
 
 
@@ -70,7 +70,7 @@ class SimArm:
                 self._world.set_q(positions[-1])
                 return
             self._world.set_q(_interpolate(times, positions, t))
-            await clock.sleep(TICK_S * clock.speed)
+            await clock.sleep(TICK_S)
             self._world.check_bus()
 
     async def stop(self) -> None:
@@ -119,11 +119,15 @@ class SimGripper:
 
     async def _move_to(self, aperture_m: float) -> None:
         clock = self._world.clock
-        while abs(self._world.aperture_m - aperture_m) > 1e-9:
-            step = JAW_SPEED_M_S * TICK_S * clock.speed
+        while self._world.aperture_m != aperture_m:
+            step = JAW_SPEED_M_S * TICK_S
             delta = aperture_m - self._world.aperture_m
-            self._world.aperture_m += max(-step, min(step, delta))
-            await clock.sleep(TICK_S * clock.speed)
+            self._world.aperture_m = (
+                aperture_m
+                if abs(delta) <= step
+                else self._world.aperture_m + step * (1.0 if delta > 0 else -1.0)
+            )
+            await clock.sleep(TICK_S)
             self._world.check_bus()
 
 

@@ -1,4 +1,4 @@
-"""The kinematic cell's world: the mugs, the arm's joint angles, the gripper jaw and a clock that runs fast.
+"""The kinematic cell's world: the mugs, the arm's joint angles, the gripper jaw, on the clock it is given.
 
 A placeholder for the physics simulation: no dynamics, no collisions. A mug is taken when the gripper closes
 with the mug's axis where the grasp geometry puts a held mug (within ``GRASP_CAPTURE_M``); while held it
@@ -12,9 +12,7 @@ Faults for tests and replays: ``slip_next_grasp`` pushes the mug away as the jaw
 
 from __future__ import annotations
 
-import asyncio
 import math
-import time
 from dataclasses import dataclass, replace
 from typing import Literal
 
@@ -22,7 +20,7 @@ import numpy as np
 import structlog
 
 from drivers.errors import BusLost
-from drivers.interfaces import FloatArray
+from drivers.interfaces import Clock, FloatArray
 from planning.arm import ArmModel
 
 log = structlog.get_logger("sim.kinematic")
@@ -58,24 +56,9 @@ class SimMug:
     where: Where = "counter"
 
 
-class SimClock:
-    """Simulated seconds: the wall clock since start times ``speed``."""
-
-    def __init__(self, speed: float) -> None:
-        if not speed > 0:
-            raise ValueError(f"simulation speed must be positive, got {speed}")
-        self.speed = speed
-        self._t0 = time.monotonic()
-
-    def now(self) -> float:
-        return (time.monotonic() - self._t0) * self.speed
-
-    async def sleep(self, sim_seconds: float) -> None:
-        await asyncio.sleep(max(0.0, sim_seconds) / self.speed)
-
-
 class KinematicWorld:
-    """The state of the kinematic cell; the simulated devices read and change it."""
+    """The state of the kinematic cell; the simulated devices read and change it, moving on ``clock`` (a
+    simulated clock runs them as fast as the machine allows, the wall clock in real time)."""
 
     def __init__(
         self,
@@ -85,7 +68,7 @@ class KinematicWorld:
         *,
         tray_origin_m: tuple[float, float],
         tray_size_m: tuple[float, float],
-        clock: SimClock,
+        clock: Clock,
         q0: FloatArray | None = None,
     ) -> None:
         unknown = sorted({m.type for m in mugs} - set(mug_geometry))

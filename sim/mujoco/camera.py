@@ -10,7 +10,6 @@ reading.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, Self
@@ -88,7 +87,8 @@ class DepthCamera:
 
     Use as a context manager (or call ``close``) to release the offscreen GL context. ``render`` is
     synchronous and must run on the thread that created the camera; ``capture`` is the async protocol method.
-    The camera reads poses from ``data`` as they are: forward or step the model before rendering.
+    The camera reads poses from ``data`` as they are: forward or step the model before rendering. A frame's
+    ``t`` is the simulated time of the state it shows (``data.time``).
     """
 
     def __init__(
@@ -145,7 +145,7 @@ class DepthCamera:
         if self._color:
             rgb = r.render().copy()
         return RGBDFrame(
-            t=time.monotonic(),
+            t=float(self._data.time),
             depth_m=depth,
             intrinsics=self.intrinsics,
             world_from_camera=self.world_from_camera(),

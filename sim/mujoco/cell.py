@@ -1,21 +1,26 @@
-"""The simulated cell: the MuJoCo world behind the real drivers, over pseudo-terminals.
+"""The simulated cell: the MuJoCo world behind the real drivers, on a simulated clock or in real time.
 
 ``open_sim_cell`` starts the physics (``SimWorld``), the simulated Dynamixel chain with the world as its plant
 (``drivers.sim.ServoChainSimulator``), the FSR Arduino simulator fed by the world's pad force
-(``drivers.sim.FsrSimulator``), then opens the *real* drivers on those pseudo-terminals —
-``DynamixelArm``/``DynamixelGripper`` through dynamixel-sdk and ``FsrReader`` through pyserial — and the depth
-camera rendering the world, with the perception pipeline on top. Everything above this module sees only the
-``drivers.interfaces`` and ``perception.interfaces`` protocols; nothing reads the simulator's ground truth
-except tests and benchmarks (``cell.world.mug_truths()``).
+(``drivers.sim.FsrSimulator``), then opens the *real* drivers on them — ``DynamixelArm``/``DynamixelGripper``
+through dynamixel-sdk and ``FsrReader`` — and the depth camera rendering the world, with the perception
+pipeline on top. Everything above this module sees only the ``drivers.interfaces`` and
+``perception.interfaces`` protocols; nothing reads the simulator's ground truth except tests and benchmarks
+(``cell.world.mug_truths()``).
 
-The devices keep wall-clock time (the bus streams goals at its control rate, the FSR reader debounces in real
-time), so the cell runs the world at real time by default; ``speed`` above 1 is for tests that drive the world
-without those drivers.
+Two transports carry the bytes between the drivers and the simulators:
+
+- ``"inprocess"`` (the default): ``drivers.sim.inprocess`` cables, on a simulated clock
+  (``SteppedClock``) that also steps the world. The cell then runs as fast as the machine allows (or at the
+  clock's speed), and the same run gives the same result however loaded the machine is.
+- ``"pty"``: pseudo-terminals opened through pyserial like USB adapters, the devices served by their own
+  threads in wall-clock time, the world in its own thread at real time × ``speed``; on the wall clock.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 from collections.abc import AsyncIterator, Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -34,7 +39,7 @@ from drivers.dynamixel import (
     DynamixelGripper,
 )
 from drivers.fsr.reader import FsrReader
-from drivers.interfaces import Camera, RGBDFrame
+from drivers.interfaces import Camera, Clock, RGBDFrame, SteppedClock
 from drivers.sim.fsr import FsrSimulator
 from drivers.sim.servo_chain import ServoChainSimulator, default_chain
 from drivers.stack import ARM_JOINTS, FsrSettings, StackSpec, arm_joints, gripper_spec, open_device_stack
@@ -49,19 +54,29 @@ from sim.mujoco.world import PhysicsConfig, SimWorld
 log = structlog.get_logger("sim.mujoco.cell")
 
 ObserverFactory = Callable[[Camera], MugObserver]
+TRANSPORTS = ("inprocess", "pty")
 
 
 class SnapshotCamera:
     """The world's depth camera: copies the physics state under the world's lock, renders outside it.
 
-    Rendering takes tens of milliseconds; holding the lock that long would stall the physics thread, and
-    rendering without it could catch a half-written state. The copy takes microseconds.
+    Rendering takes tens of milliseconds; holding the lock that long would stall a physics thread, and
+    rendering without it could catch a half-written state. The copy takes microseconds. Frames are stamped
+    on the cell's clock.
     """
 
     def __init__(
-        self, world: SimWorld, *, width: int, height: int, noise: DepthNoise | None, seed: int
+        self,
+        world: SimWorld,
+        *,
+        width: int,
+        height: int,
+        noise: DepthNoise | None,
+        seed: int,
+        clock: Clock,
     ) -> None:
         self._world = world
+        self._clock = clock
         self._data = mujoco.MjData(world.model)
         with world.lock:
             mujoco.mj_copyData(self._data, world.model, world.data)
@@ -79,7 +94,7 @@ class SnapshotCamera:
     def render(self) -> RGBDFrame:
         with self._world.lock:
             mujoco.mj_copyData(self._data, self._world.model, self._world.data)
-        return self.camera.render()
+        return dataclasses.replace(self.camera.render(), t=self._clock.monotonic())
 
     async def capture(self) -> RGBDFrame:
         return self.render()
@@ -201,6 +216,8 @@ async def start_sim_cell(
     layout: CellLayout,
     mugs: Sequence[SceneMug],
     *,
+    clock: Clock,
+    transport: str = "inprocess",
     speed: float = 1.0,
     seed: int = 0,
     urdf: Path = BUNDLED_URDF,
@@ -215,11 +232,21 @@ async def start_sim_cell(
 
     This is the daemon's entry point (``dishbot run --sim --world mujoco``): the cell's ``arm``, ``gripper``,
     ``force`` and ``observer`` make the backend, the returned closer is its ``closer``. Call it on the event
-    loop that will use the devices. ``start_pose_rad`` places the five arm joints (default: the world's
-    ready pose); ``holding_threshold_n`` is the FSR reader's "a mug is in the gripper" level (below the
-    grasp threshold, which the squeeze relaxes from once the gripper stops closing); ``observer_factory``
-    turns the camera into the mug observer (default: perception's ``CameraObserver``).
+    loop that will use the devices. ``transport`` is ``"inprocess"`` (on a simulated clock, which steps the
+    world) or ``"pty"`` (on the wall clock; the world's own thread runs at real time × ``speed``).
+    ``start_pose_rad`` places the five arm joints (default: the world's ready pose); ``holding_threshold_n``
+    is the FSR reader's "a mug is in the gripper" level (below the grasp threshold, which the squeeze relaxes
+    from once the gripper stops closing); ``observer_factory`` turns the camera into the mug observer
+    (default: perception's ``CameraObserver``).
     """
+    if transport not in TRANSPORTS:
+        raise ValueError(f"transport {transport!r}: choose one of {', '.join(TRANSPORTS)}")
+    if transport == "pty" and clock.simulated:
+        raise ValueError(
+            "the pseudo-terminal transport keeps wall-clock time (its devices are served by threads): run it "
+            "on the wall clock, or use the in-process transport on a simulated clock"
+        )
+    stepped = clock if isinstance(clock, SteppedClock) and clock.simulated else None
     arm_mjcf = build_arm_mjcf(load_urdf(urdf))
     make_observer = observer_factory or CameraObserver
     noise = depth_noise if depth_noise is not None else DepthNoise()
@@ -244,8 +271,11 @@ async def start_sim_cell(
             initial_pose_rad=pose,
         )
         counter = TrayCollisionCounter(world, layout.tray.region_m, on_collision=dispatch)
-        world.start()
-        return world, _camera(world, layout, noise, seed), counter
+        if stepped is not None:
+            world.attach(stepped)
+        else:
+            world.start()
+        return world, _camera(world, layout, noise, seed, clock), counter
 
     switch = _WorldSwitch(*build(mugs, _pose(start_pose_rad)))
     stack = contextlib.AsyncExitStack()
@@ -258,20 +288,28 @@ async def start_sim_cell(
             listener(event)
 
     try:
-        servo_sim = stack.enter_context(ServoChainSimulator(default_chain(), plant=switch))
-        fsr_sim = stack.enter_context(FsrSimulator(switch.force_n))
+        servo_sim = ServoChainSimulator(default_chain(), plant=switch)
+        fsr_sim = FsrSimulator(switch.force_n)
+        for device in (servo_sim, fsr_sim):
+            if transport == "pty":
+                device.start()
+            else:
+                device.start_in_process(clock)
+            stack.callback(device.stop)
         arm_servos = dict(JOINT_SERVOS)
         spec = StackSpec(
             bus=BusConfig(servo_sim.device_path),
             joints=arm_joints([(j, i + 1, arm_servos[j]) for i, j in enumerate(ARM_JOINTS)]),
             gripper=gripper_spec(arm_mjcf.gripper),
             fsr=FsrSettings(fsr_sim.device_path, threshold_n=holding_threshold_n, debounce_s=fsr_debounce_s),
-            # The simulated servos answer from a Python thread sharing the GIL with the physics and the
-            # event loop, not from firmware: give a status packet 50 ms (a real chain needs under 20 ms).
+            # The simulated servos on a pty answer from a Python thread sharing the GIL with the physics and
+            # the event loop, not from firmware: give a status packet 50 ms (a real chain needs under 20 ms).
             retries=3,
             read_timeout_s=0.05,
+            open_bus=servo_sim.open_serial,
+            open_fsr=fsr_sim.open_serial,
         )
-        devices = await open_device_stack(spec, stack, on_event=device_event)
+        devices = await open_device_stack(spec, stack, clock=clock, on_event=device_event)
         arm, gripper, force = devices.arm, devices.gripper, devices.force
     except BaseException:
         await stack.aclose()
@@ -295,7 +333,13 @@ async def start_sim_cell(
         _collision_listeners=listeners,
         _device_listeners=device_listeners,
     )
-    log.info("sim_cell_open", mugs=len(mugs), servo_port=servo_sim.device_path, fsr_port=fsr_sim.device_path)
+    log.info(
+        "sim_cell_open",
+        mugs=len(mugs),
+        transport=transport,
+        servo_port=servo_sim.device_path,
+        fsr_port=fsr_sim.device_path,
+    )
     return cell, stack.aclose
 
 
@@ -304,6 +348,8 @@ async def open_sim_cell(
     layout: CellLayout,
     mugs: Sequence[SceneMug],
     *,
+    clock: Clock,
+    transport: str = "inprocess",
     speed: float = 1.0,
     seed: int = 0,
     urdf: Path = BUNDLED_URDF,
@@ -318,6 +364,8 @@ async def open_sim_cell(
     cell, close = await start_sim_cell(
         layout,
         mugs,
+        clock=clock,
+        transport=transport,
         speed=speed,
         seed=seed,
         urdf=urdf,
@@ -346,13 +394,16 @@ def _pose(start_pose_rad: Sequence[float] | None) -> dict[str, float] | None:
     return pose
 
 
-def _camera(world: SimWorld, layout: CellLayout, noise: DepthNoise | None, seed: int) -> SnapshotCamera:
+def _camera(
+    world: SimWorld, layout: CellLayout, noise: DepthNoise | None, seed: int, clock: Clock
+) -> SnapshotCamera:
     return SnapshotCamera(
-        world, width=layout.camera.width, height=layout.camera.height, noise=noise, seed=seed
+        world, width=layout.camera.width, height=layout.camera.height, noise=noise, seed=seed, clock=clock
     )
 
 
 __all__ = [
+    "TRANSPORTS",
     "ObserverFactory",
     "SimCell",
     "SnapshotCamera",

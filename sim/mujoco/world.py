@@ -1,4 +1,4 @@
-"""The simulated cell's physics: MuJoCo stepping the arm, the gripper and the mugs in real time × speed.
+"""The simulated cell's physics: MuJoCo stepping the arm, the gripper and the mugs, in lockstep with a clock.
 
 ``SimWorld`` is the physical world behind the simulated devices. The pseudo-terminal servo chain
 (``drivers.sim``) talks to it through the ``ServoPlant`` methods (``set_goal``, ``present``, ``set_torque``),
@@ -11,6 +11,12 @@ MuJoCo position actuator — follows the set-point. Mugs are held by friction be
 confirmed (pad force above ``weld_force_n`` with the mug touching both pads) a weld equality is switched on so
 a long carry does not creep, and it is switched off as soon as the jaw opens or the force falls, so a mug can
 still slip, fall, tip and collide.
+
+The world moves one of two ways. ``attach(clock)`` steps it by a simulated clock (``SteppedClock``): every
+time the clock advances, the physics is stepped to the new time on the clock's thread, while no device is
+being read, so every reader sees the world exactly at the clock's time and a run does not depend on the
+machine's load. ``start()`` steps it in its own thread at real time × ``speed`` instead, for devices that keep
+wall-clock time (the pseudo-terminal transport).
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ import mujoco
 import numpy as np
 import structlog
 
+from drivers.interfaces import SteppedClock
 from sim.mujoco.arm import (
     ARM_PREFIX,
     FINGER_PAD_GEOM,
@@ -145,10 +152,12 @@ ContactListener = Callable[["SimWorld", float, Sequence[ContactSample]], None]
 
 
 class SimWorld:
-    """A MuJoCo model of the cell stepping in its own thread; also the servo chain's ``ServoPlant``.
+    """A MuJoCo model of the cell, stepped by a simulated clock or its own thread; also the servo chain's
+    ``ServoPlant``.
 
     Build it with ``SimWorld(mjcf_xml, arm, mug_ids=...)`` (or ``sim.mujoco.cell`` which does it from
-    the configured layout), then ``start()``/``stop()`` or use it as a context manager. Without the thread,
+    the configured layout), then ``attach(clock)`` (lockstep with a simulated clock), or ``start()``/
+    ``stop()`` (its own thread at real time × ``speed``; also as a context manager). Without either,
     ``step_for(seconds)`` advances it synchronously (tests).
     """
 
@@ -208,6 +217,9 @@ class SimWorld:
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._failure: BaseException | None = None
+        self._steps = 0  # physics steps since the initial settling (data.time == _steps * timestep)
+        self._detach: Callable[[], None] | None = None
+        self._epoch = 0.0  # the clock's time when the world was attached to it
         self.wall_stepping_s = 0.0
         self._settle_at_start(READY_POSE_RAD if initial_pose_rad is None else initial_pose_rad)
 
@@ -303,6 +315,7 @@ class SimWorld:
         self._advance(0.3)
         self._publish_present()
         self.data.time = 0.0
+        self._steps = 0
         self._next_monitor = 0.0
 
     # --------------------------------------------------------------------------------- the servo plant
@@ -412,8 +425,18 @@ class SimWorld:
 
     # ------------------------------------------------------------------------------------------ stepping
 
+    def attach(self, clock: SteppedClock) -> None:
+        """Step in lockstep with ``clock`` from now on: world time 0 is the clock's time now."""
+        if self._thread is not None or self._detach is not None:
+            raise RuntimeError("the world is already running; attach() it once, instead of start()")
+        self._epoch = clock.monotonic() - self.time()
+        self._detach = clock.add_stepper(self._step_to_clock)
+        log.info("simworld_attached", timestep_s=self.physics.timestep_s, mugs=len(self.mug_ids))
+
     def start(self) -> None:
         """Step in a background thread at real time × ``speed``."""
+        if self._detach is not None:
+            raise RuntimeError("the world is stepped by a clock; it cannot also start() its own thread")
         if self._thread is not None:
             return
         self._stop.clear()
@@ -424,6 +447,13 @@ class SimWorld:
         )
 
     def stop(self) -> None:
+        """Stop stepping (the thread, or the clock's stepping)."""
+        detach, self._detach = self._detach, None
+        if detach is not None:
+            detach()
+            log.info(
+                "simworld_stopped", t=round(self.time(), 3), wall_stepping_s=round(self.wall_stepping_s, 3)
+            )
         thread, self._thread = self._thread, None
         if thread is None:
             return
@@ -439,16 +469,18 @@ class SimWorld:
         self.stop()
 
     def check_alive(self) -> None:
-        """Raise ``SimWorldStopped`` when the physics thread died (diverged) or is not running."""
+        """Raise ``SimWorldStopped`` when the physics died (diverged) or is not being stepped."""
         if self._failure is not None:
-            raise SimWorldStopped(f"the physics thread died: {self._failure}") from self._failure
+            raise SimWorldStopped(f"the physics died: {self._failure}") from self._failure
+        if self._detach is not None:
+            return
         if self._thread is None or not self._thread.is_alive():
             raise SimWorldStopped("the physics thread is not running; call SimWorld.start()")
 
     def step_for(self, seconds: float) -> None:
-        """Advance the simulation synchronously (only while the thread is not running)."""
-        if self._thread is not None:
-            raise RuntimeError("step_for() while the physics thread runs; stop() the world first")
+        """Advance the simulation synchronously (only while neither a thread nor a clock steps it)."""
+        if self._thread is not None or self._detach is not None:
+            raise RuntimeError("step_for() while the world is being stepped; stop() it first")
         with self.lock:
             self._advance(seconds)
 
@@ -457,6 +489,23 @@ class SimWorld:
         """Hold the physics still (e.g. to render or inspect a consistent state)."""
         with self.lock:
             yield
+
+    def _step_to_clock(self, t: float) -> None:
+        """The clock's stepper: whole physics steps up to world time ``t - epoch``. A divergence stops the
+        world as it stops the thread (``check_alive`` raises); the clock goes on."""
+        if self._failure is not None:
+            return
+        steps = math.floor((t - self._epoch) / self.physics.timestep_s + 1e-6) - self._steps
+        if steps <= 0:
+            return
+        started = time.perf_counter()
+        try:
+            with self.lock:
+                self._run_steps(steps)
+        except Exception as e:  # as in the thread: the world stops, the clock (and the daemon) go on
+            self._failure = e
+            log.error("simworld_died", error=str(e), t=round(self.time(), 3))
+        self.wall_stepping_s += time.perf_counter() - started
 
     def _run(self) -> None:
         wall0 = time.monotonic()
@@ -485,11 +534,14 @@ class SimWorld:
             log.error("simworld_died", error=str(e), t=round(self.time(), 3))
 
     def _advance(self, seconds: float) -> None:
+        self._run_steps(max(1, round(seconds / self.physics.timestep_s)))
+
+    def _run_steps(self, steps: int) -> None:
         dt = self.physics.timestep_s
-        steps = max(1, round(seconds / dt))
         for _ in range(steps):
             self._drive_servos(dt)
             mujoco.mj_step(self.model, self.data)
+            self._steps += 1
             self._publish_present()
             if self.data.time >= self._next_monitor:
                 self._next_monitor = self.data.time + self.physics.monitor_period_s

@@ -17,6 +17,7 @@ import pytest
 import daemon.backend
 from daemon.backend import Backend, SimOptions, open_backend
 from daemon.cli import main
+from daemon.clock import SimulatedClock
 from daemon.config import Config, load_config
 from daemon.errors import UsageError
 from daemon.job import CommandRefused, Job, StartRequest
@@ -54,7 +55,9 @@ def test_run_and_bench_sim_ask_the_one_builder_for_the_same_cell(
 ) -> None:
     asked: list[tuple[Config, SimOptions | None]] = []
 
-    async def spy(config: Config, *, sim: SimOptions | None = None, executor: Any = None) -> Backend:
+    async def spy(
+        config: Config, *, sim: SimOptions | None = None, clock: Any = None, executor: Any = None
+    ) -> Backend:
         asked.append((config, sim))
         raise UsageError("stop here")
 
@@ -131,15 +134,16 @@ def test_a_full_size_tray_dataset_gets_the_one_refusal_from_run_and_bench(
 
 def test_the_kinematic_cell_sets_a_full_size_tray_dataset_out_on_its_own_tray() -> None:
     config = load_config()
+    clock = SimulatedClock()
 
     async def body() -> None:
-        backend = await open_backend(config, sim=SimOptions(world="kinematic", dataset=4, speed=50.0))
+        backend = await open_backend(config, sim=SimOptions(world="kinematic", dataset=4), clock=clock)
         assert backend.tray.size_mm == (475, 520)
         assert backend.counter is not None
         assert len(backend.counter.scene()["mugs"]) == 30  # type: ignore[arg-type]
         await backend.close()
 
-    asyncio.run(body())
+    clock.run(body())
 
 
 _HARDWARE_ONLY = """

@@ -36,6 +36,13 @@ def test_the_printed_config_reads_back_to_the_same_values() -> None:
     assert parse_config(tomllib.loads(to_toml(config.to_dict()))) == config
 
 
+def test_the_simulated_speed_may_be_max() -> None:
+    config = load_config(overrides={"sim": {"speed": "max"}})
+    assert config.sim.speed is None
+    assert config.to_dict()["sim"]["speed"] == "max"
+    assert parse_config(tomllib.loads(to_toml(config.to_dict()))) == config
+
+
 BAD: list[tuple[dict[str, Any], str]] = [
     ({"planner": {"time_limit_s": -1}}, "planner.time_limit_s: -1 is out of range; allowed [0.01, 600]"),
     (
@@ -69,6 +76,8 @@ BAD: list[tuple[dict[str, Any], str]] = [
     ),
     ({"daemon": {"joints_rate_hz": 5}}, "daemon.joints_rate_hz: 5 is out of range; allowed [20, 500]"),
     ({"sim": {"speed": float("inf")}}, "sim.speed: inf is out of range; allowed [0.1, 1000]"),
+    ({"sim": {"speed": "fast"}}, "sim.speed: expected \"max\" or a number in [0.1, 1000], got 'fast'"),
+    ({"sim": {"transport": "usb"}}, "sim.transport: 'usb' is not one of inprocess, pty"),
     ({"sim": {"world": "gazebo"}}, "sim.world: 'gazebo' is not one of kinematic, mujoco"),
     (
         {"mug_types": {"tiny": {"diameter_mm": 80, "width_mm": 70, "height_mm": 50, "mass_kg": 0.1}}},

@@ -20,6 +20,7 @@ from daemon.backend import (
     open_hardware_backend,
 )
 from daemon.cli import main
+from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.errors import ConfigError, UsageError
 from description.camera import CameraSpec
@@ -147,6 +148,7 @@ def test_run_without_sim_on_a_missing_port_exits_2_with_one_line(
         (["--world", "mujoco"], "--world sets up the simulated cell; add --sim (backend is hardware)"),
         (["--dataset", "2"], "--dataset sets up the simulated cell; add --sim (backend is hardware)"),
         (["--speed", "2"], "--speed sets up the simulated cell; add --sim (backend is hardware)"),
+        (["--transport", "pty"], "--transport sets up the simulated cell; add --sim (backend is hardware)"),
     ],
 )
 def test_simulation_flags_on_the_hardware_backend_are_refused(
@@ -181,7 +183,8 @@ def test_the_arm_calibration_file_reaches_the_cycle_planner(tmp_path: Path) -> N
     path.write_text(__import__("json").dumps(correction.to_mapping()))
     config = load_config(overrides={"arm": {"calibration_file": str(path)}})
     assert load_correction(config) == correction
-    backend = asyncio.run(open_backend(config, sim=SimOptions(world="kinematic", speed=50.0)))
+    clock = SimulatedClock()
+    backend = clock.run(open_backend(config, sim=SimOptions(world="kinematic"), clock=clock))
     assert getattr(backend.motion, "correction") == correction  # noqa: B009
     bad = load_config(overrides={"arm": {"calibration_file": str(tmp_path / "missing.json")}})
     with pytest.raises(UsageError) as info:

@@ -1,4 +1,5 @@
-"""The job runner on stand-ins for the world: whole jobs, lost mugs, pause/resume, stop, estop, faults."""
+"""The job runner on stand-ins for the world: whole jobs, lost mugs, pause/resume, stop, estop, faults; on a
+simulated clock, so the stand-ins' moves take simulated time, not the test's."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from typing import Any
 import pytest
 
 from daemon.backend import Backend, SimOptions, open_backend
+from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import CommandRefused, Job, StartRequest
 from perception import associate
@@ -27,7 +29,7 @@ def _job(
         published.append((topic, dict(payload)))
 
     config = load_config(overrides={"planner": {"method": "bh", "time_limit_s": 0.2}})
-    backend = make_backend(world, refuse=refuse)
+    backend = make_backend(world, refuse=refuse, clock=SimulatedClock())
     assert isinstance(backend.motion, FakeMotion)
     backend.motion.blocked_by = dict(blocked_by or {})
     return Job(backend, config, publish, associate), published
@@ -39,12 +41,13 @@ def _run(world: FakeWorld, scenario: Callable[[Job], Awaitable[None]], **kw: Any
     async def go() -> None:
         control = asyncio.create_task(job.run())
         try:
-            await asyncio.wait_for(scenario(job), timeout=20)
+            async with job.backend.clock.timeout(20):
+                await scenario(job)
         finally:
             await job.shutdown()
             control.cancel()
 
-    asyncio.run(go())
+    job.backend.clock.run(go())
     return job, published
 
 
@@ -326,10 +329,11 @@ def test_an_empty_counter_ends_the_job_done_with_nothing_to_do() -> None:
 
 def test_starting_on_a_new_dataset_sets_the_simulated_counter_up_and_records_the_scene() -> None:
     config = load_config(overrides={"planner": {"method": "bh"}})
+    clock = SimulatedClock()
     published: Published = []
 
     async def go() -> tuple[Backend, MotionPlanner]:
-        backend = await open_backend(config, sim=SimOptions(world="kinematic", speed=50.0))
+        backend = await open_backend(config, sim=SimOptions(world="kinematic"), clock=clock)
         first_planner = backend.motion
         job = Job(backend, config, lambda t, p: published.append((t, dict(p))), associate)
         control = asyncio.create_task(job.run())
@@ -339,7 +343,7 @@ def test_starting_on_a_new_dataset_sets_the_simulated_counter_up_and_records_the
         control.cancel()
         return backend, first_planner
 
-    backend, first_planner = asyncio.run(go())
+    backend, first_planner = clock.run(go())
     scene = next(p["scene"] for t, p in published if t == "events" and p["kind"] == "scene_set")
     assert scene["dataset"] == 4
     assert len(scene["mugs"]) == 30  # dataset 4: 20 big and 10 small

@@ -12,6 +12,7 @@ from dataclasses import replace
 from typing import Any
 
 from daemon.backend import CyclePlannerSpec, plan_placement
+from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import Job, JobContext, Services, StartRequest
 from daemon.job.cycles import take_next_cycle
@@ -66,7 +67,7 @@ def test_a_blocked_mug_is_swapped_for_a_reachable_one_of_its_type_and_both_are_p
     def publish(topic: str, payload: Mapping[str, object]) -> None:
         published.append((topic, dict(payload)))
 
-    backend = make_backend(world)
+    backend = make_backend(world, clock=SimulatedClock())
     backend.motion = SwappingMotion(world)
     config = load_config(overrides={"planner": {"method": "bh", "time_limit_s": 0.2}})
     job = Job(backend, config, publish, associate)
@@ -75,12 +76,13 @@ def test_a_blocked_mug_is_swapped_for_a_reachable_one_of_its_type_and_both_are_p
         control = asyncio.create_task(job.run())
         try:
             await job.command("start", StartRequest())
-            await asyncio.wait_for(job.finished.wait(), 20)
+            async with backend.clock.timeout(20):
+                await job.finished.wait()
         finally:
             await job.shutdown()
             control.cancel()
 
-    asyncio.run(go())
+    backend.clock.run(go())
     events = [p for t, p in published if t == "events"]
     swaps = [e for e in events if e["kind"] == "mug_swapped"]
     assert len(swaps) == 1

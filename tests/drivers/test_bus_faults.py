@@ -1,12 +1,14 @@
-"""One test per bus fault: the typed exception, the recovery, the counters and the events."""
+"""One test per bus fault: the typed exception, the recovery, the counters and the events. The bus-level
+faults are injected on both transports (a pty through the OS's serial layer, the in-process cable); the
+gripper's recoveries run in-process on a simulated clock."""
 
 from __future__ import annotations
 
-import asyncio
 from collections.abc import Iterator
 
 import pytest
 
+from daemon.clock import RealClock
 from drivers.dynamixel import (
     BusConfig,
     BusTimeout,
@@ -19,15 +21,33 @@ from drivers.dynamixel import (
 from drivers.dynamixel.faults import error_names, hardware_error_names
 from drivers.dynamixel.protocol import encode_status
 from drivers.errors import BusLost, DriverError, ServoFault
+from drivers.interfaces import Clock
 from drivers.sim.servo_chain import ServoChainSimulator, default_chain
-from tests.fakes.devices import PATIENT_S, MugBetweenPads, PlantForceSensor, async_test
+from tests.fakes.devices import (
+    PATIENT_S,
+    TRANSPORTS,
+    MugBetweenPads,
+    PlantForceSensor,
+    opener,
+    run_on,
+    serving,
+)
 
 
-@pytest.fixture
-def chain_1() -> Iterator[tuple[ServoChainSimulator, DynamixelBus, list[DeviceEvent]]]:
+@pytest.fixture(params=TRANSPORTS)
+def chain_1(
+    request: pytest.FixtureRequest,
+) -> Iterator[tuple[ServoChainSimulator, DynamixelBus, list[DeviceEvent]]]:
     events: list[DeviceEvent] = []
-    with ServoChainSimulator(default_chain()) as sim:
-        bus = DynamixelBus(BusConfig(sim.device_path), on_event=events.append, read_timeout_s=PATIENT_S)
+    clock = RealClock()  # the bus alone: its waits are on the device, its event times on any clock
+    with serving(ServoChainSimulator(default_chain()), request.param, clock) as sim:
+        bus = DynamixelBus(
+            BusConfig(sim.device_path),
+            clock=clock,
+            on_event=events.append,
+            read_timeout_s=PATIENT_S if request.param == "pty" else 0.01,
+            open_serial=sim.open_serial,
+        )
         with bus:
             bus.verify(default_chain())
             yield sim, bus, events
@@ -81,7 +101,9 @@ def test_sync_read_on_protocol_2_never_loses_the_error_byte() -> None:
     chain = ((1, "XL430-W250"), (2, "XM430-W350"), (3, "XL330-M288"))
     with (
         ServoChainSimulator(chain, protocol=2) as sim,
-        DynamixelBus(BusConfig(sim.device_path, protocol=2), read_timeout_s=PATIENT_S) as bus,
+        DynamixelBus(
+            BusConfig(sim.device_path, protocol=2), clock=RealClock(), read_timeout_s=PATIENT_S
+        ) as bus,
     ):
         bus.verify(chain)
         assert set(bus.read_states([1, 2, 3])) == {1, 2, 3}
@@ -159,58 +181,69 @@ def test_a_usb_glitch_is_absorbed_by_closing_and_reopening_the_port(
     assert [e.kind for e in events] == ["bus_lost", "bus_restored"]
 
 
-def gripper_world(contact_aperture_m: float) -> tuple[GripperSpec, MugBetweenPads]:
+def gripper_world(clock: Clock, contact_aperture_m: float) -> tuple[GripperSpec, MugBetweenPads]:
     spec = GripperSpec(overload_retries=2)
-    plant = MugBetweenPads(spec.servo_id, spec.angle_for(contact_aperture_m), stiffness_n_per_rad=200.0)
+    plant = MugBetweenPads(
+        spec.servo_id, spec.angle_for(contact_aperture_m), clock=clock.monotonic, stiffness_n_per_rad=200.0
+    )
     return spec, plant
 
 
+def gripper_chain(sim: ServoChainSimulator, clock: Clock, model: str, **kw: object) -> ServoChain:
+    config = BusConfig(sim.device_path, protocol=sim.protocol)
+    return ServoChain(config, [(6, model)], clock=clock, open_serial=opener(sim), read_timeout_s=0.01, **kw)  # type: ignore[arg-type]
+
+
 @pytest.mark.parametrize(("protocol", "model"), [(1, "AX-12A"), (2, "XL330-M288")])
-@async_test
-async def test_gripper_overload_is_recovered_and_the_grasp_retried_at_a_lower_limit(
+def test_gripper_overload_is_recovered_and_the_grasp_retried_at_a_lower_limit(
     protocol: int, model: str
 ) -> None:
-    spec, plant = gripper_world(0.074)
-    spec = GripperSpec(model=model, overload_retries=2, aperture_map=spec.aperture_map)
     events: list[DeviceEvent] = []
-    with ServoChainSimulator([(6, model)], protocol=protocol, plant=plant) as sim:  # type: ignore[arg-type]
-        config = BusConfig(sim.device_path, protocol=protocol)  # type: ignore[arg-type]
-        async with (
-            ServoChain(config, [(6, model)], on_event=events.append, read_timeout_s=PATIENT_S) as chain,
-            DynamixelGripper(chain, spec, PlantForceSensor(plant)) as gripper,
-        ):
-            await gripper.open()
-            sim.overload(6, now=False, repeats=2)  # trips on the next two goals, as a jammed gripper
-            result = await gripper.close_on_mug(force_threshold_n=1.0, min_aperture_m=0.03)
-            await asyncio.sleep(0.01)
-            assert result.held
-            assert gripper.overload_recoveries == 2
-            limit_register = "torque_limit" if protocol == 1 else "goal_pwm"
-            full = spec.spec.default_torque_limit
-            assert sim.servo(6).get(limit_register) == round(full * 0.6 * 0.75 * 0.75)
+
+    async def body(clock: Clock) -> None:
+        spec, plant = gripper_world(clock, 0.074)
+        spec = GripperSpec(model=model, overload_retries=2, aperture_map=spec.aperture_map)
+        sim = ServoChainSimulator([(6, model)], protocol=protocol, plant=plant)  # type: ignore[arg-type]
+        with serving(sim, "inprocess", clock):
+            async with (
+                gripper_chain(sim, clock, model, on_event=events.append) as chain,
+                DynamixelGripper(chain, spec, PlantForceSensor(plant, clock)) as gripper,
+            ):
+                await gripper.open()
+                sim.overload(6, now=False, repeats=2)  # trips on the next two goals, as a jammed gripper
+                result = await gripper.close_on_mug(force_threshold_n=1.0, min_aperture_m=0.03)
+                assert result.held
+                assert gripper.overload_recoveries == 2
+                limit_register = "torque_limit" if protocol == 1 else "goal_pwm"
+                full = spec.spec.default_torque_limit
+                assert sim.servo(6).get(limit_register) == round(full * 0.6 * 0.75 * 0.75)
+
+    run_on("inprocess", body)
     kinds = [e.kind for e in events]
     assert kinds.count("gripper_overload_recovered") == 2
     assert kinds[0] == "servo_fault"
 
 
-@async_test
-async def test_gripper_faults_after_the_allowed_overload_recoveries() -> None:
-    spec, plant = gripper_world(0.074)
-    with ServoChainSimulator([(6, "AX-12A")], plant=plant) as sim:
-        async with (
-            ServoChain(BusConfig(sim.device_path), [(6, "AX-12A")], read_timeout_s=PATIENT_S) as chain,
-            DynamixelGripper(chain, spec, PlantForceSensor(plant)) as gripper,
-        ):
-            await gripper.open()
-            sim.overload(6, now=False, repeats=10)
-            with pytest.raises(ServoFault) as raised:
-                await gripper.close_on_mug(force_threshold_n=1.0, min_aperture_m=0.03)
-            assert isinstance(raised.value, DriverError)
-            assert str(raised.value) == (
-                "gripper servo 6 overloaded 3 times while closing, the last time at 34% of full torque; "
-                "check the gripper for a jam and power-cycle the servo"
-            )
-            assert gripper.overload_recoveries == 2
+def test_gripper_faults_after_the_allowed_overload_recoveries() -> None:
+    async def body(clock: Clock) -> None:
+        spec, plant = gripper_world(clock, 0.074)
+        with serving(ServoChainSimulator([(6, "AX-12A")], plant=plant), "inprocess", clock) as sim:
+            async with (
+                gripper_chain(sim, clock, "AX-12A") as chain,
+                DynamixelGripper(chain, spec, PlantForceSensor(plant, clock)) as gripper,
+            ):
+                await gripper.open()
+                sim.overload(6, now=False, repeats=10)
+                with pytest.raises(ServoFault) as raised:
+                    await gripper.close_on_mug(force_threshold_n=1.0, min_aperture_m=0.03)
+                assert isinstance(raised.value, DriverError)
+                assert str(raised.value) == (
+                    "gripper servo 6 overloaded 3 times while closing, the last time at 34% of full torque; "
+                    "check the gripper for a jam and power-cycle the servo"
+                )
+                assert gripper.overload_recoveries == 2
+
+    run_on("inprocess", body)
 
 
 def test_an_overload_in_an_answer_without_data_still_raises(

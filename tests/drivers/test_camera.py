@@ -7,13 +7,14 @@ import sys
 import numpy as np
 import pytest
 
+from daemon.clock import RealClock
 from drivers.camera import CameraUnavailable, RealSenseCamera, depth_in_metres, load_pyrealsense
 from drivers.interfaces import Camera
 from tests.fakes.devices import async_test
 
 
 def test_realsense_camera_implements_the_camera_protocol() -> None:
-    assert isinstance(RealSenseCamera(world_from_camera=np.eye(4)), Camera)
+    assert isinstance(RealSenseCamera(world_from_camera=np.eye(4), clock=RealClock()), Camera)
 
 
 def test_missing_pyrealsense_gives_an_install_hint(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -34,7 +35,7 @@ def test_z16_depth_becomes_metres_and_zero_stays_no_reading() -> None:
 
 def test_a_bad_camera_pose_is_rejected() -> None:
     with pytest.raises(ValueError, match=r"^camera\.world_from_camera must be a 4x4 homogeneous transform$"):
-        RealSenseCamera(world_from_camera=np.eye(3))
+        RealSenseCamera(world_from_camera=np.eye(3), clock=RealClock())
 
 
 @async_test
@@ -42,6 +43,6 @@ async def test_a_connected_realsense_streams_a_frame() -> None:
     rs = pytest.importorskip("pyrealsense2")
     if not rs.context().query_devices():
         pytest.skip("no RealSense camera connected")
-    async with RealSenseCamera(world_from_camera=np.eye(4)) as camera:
+    async with RealSenseCamera(world_from_camera=np.eye(4), clock=RealClock()) as camera:
         frame = await camera.capture()
     assert frame.depth_m.shape == (frame.intrinsics.height, frame.intrinsics.width)

@@ -1,21 +1,23 @@
-"""The FSR line protocol, and the asyncio reader against the simulated Arduino on a pty."""
+"""The FSR line protocol, and the asyncio reader against the simulated Arduino: in-process on a simulated
+clock, and on a pty on the wall clock where the transport itself is what is tested."""
 
 from __future__ import annotations
 
-import asyncio
 import threading
+from typing import Any
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from daemon.clock import RealClock, SimulatedClock
 from drivers.dynamixel import DeviceEvent
 from drivers.errors import SensorFault
 from drivers.fsr import FsrReader
 from drivers.fsr import protocol as fp
-from drivers.interfaces import ForceSensor
+from drivers.interfaces import Clock, ForceSensor
 from drivers.sim.fsr import FsrSimulator
-from tests.fakes.devices import async_test
+from tests.fakes.devices import TRANSPORTS, opener, run_on, serving
 
 
 class Pad:
@@ -34,12 +36,17 @@ class Pad:
             self.force_n = force_n
 
 
-async def until(predicate: object, timeout_s: float = 2.0) -> None:
-    deadline = asyncio.get_running_loop().time() + timeout_s
+async def until(clock: Clock, predicate: object, timeout_s: float = 2.0) -> None:
+    """Poll ``predicate`` every 10 ms of ``clock``'s time, for at most ``timeout_s`` of it."""
+    deadline = clock.monotonic() + timeout_s
     while not predicate():  # type: ignore[operator]
-        if asyncio.get_running_loop().time() > deadline:
+        if clock.monotonic() > deadline:
             raise AssertionError("condition not reached in time")
-        await asyncio.sleep(0.01)
+        await clock.sleep(0.01)
+
+
+def reader_on(sim: FsrSimulator, clock: Clock, **kw: Any) -> FsrReader:
+    return FsrReader(sim.device_path, clock=clock, open_serial=opener(sim), **kw)
 
 
 def test_sample_line_has_the_sketch_format_and_xor_checksum() -> None:
@@ -96,127 +103,166 @@ def test_a_corrupted_sample_line_is_never_accepted(seq: int, raw: int, index: in
 
 def test_reader_rejects_a_release_level_above_the_threshold() -> None:
     with pytest.raises(ValueError, match=r"^fsr\.release_n 3\.0 must be in \[0, threshold_n=2\.0\)$"):
-        FsrReader("/dev/null", threshold_n=2.0, release_n=3.0)
+        FsrReader("/dev/null", clock=RealClock(), threshold_n=2.0, release_n=3.0)
 
 
-@async_test
-async def test_reader_detects_a_grasp_after_the_debounce_and_releases_with_hysteresis() -> None:
-    pad = Pad()
-    with FsrSimulator(pad) as sim:
-        async with FsrReader(sim.device_path, threshold_n=2.0, release_n=1.0, debounce_s=0.05) as reader:
-            assert isinstance(reader, ForceSensor)
-            assert reader.firmware_version == "1"
-            await until(lambda: reader.latest() is not None)
-            assert not reader.holding()
-            pad.set(3.0)
-            await until(reader.holding)
-            pad.set(1.5)  # between release and threshold: still holding
-            await asyncio.sleep(0.15)
-            assert reader.holding()
-            pad.set(0.2)
-            await until(lambda: not reader.holding())
-            assert reader.counters.bad_lines == 0
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_reader_detects_a_grasp_after_the_debounce_and_releases_with_hysteresis(transport: str) -> None:
+    async def body(clock: Clock) -> None:
+        pad = Pad()
+        with serving(FsrSimulator(pad), transport, clock) as sim:
+            async with reader_on(sim, clock, threshold_n=2.0, release_n=1.0, debounce_s=0.05) as reader:
+                assert isinstance(reader, ForceSensor)
+                assert reader.firmware_version == "1"
+                await until(clock, lambda: reader.latest() is not None)
+                assert not reader.holding()
+                pad.set(3.0)
+                await until(clock, reader.holding)
+                pad.set(1.5)  # between release and threshold: still holding
+                await clock.sleep(0.15)
+                assert reader.holding()
+                pad.set(0.2)
+                await until(clock, lambda: not reader.holding())
+                assert reader.counters.bad_lines == 0
+
+    run_on(transport, body)
 
 
-@async_test
-async def test_a_drop_while_carrying_is_reported_once() -> None:
-    pad = Pad(5.0)
-    events: list[DeviceEvent] = []
-    with FsrSimulator(pad) as sim:
-        async with FsrReader(sim.device_path, on_event=events.append) as reader:
-            await until(reader.holding)
-            reader.set_carrying(True)
-            sim.drop_force()
-            await until(lambda: reader.dropped)
-            await asyncio.sleep(0.05)
-    assert [e.kind for e in events] == ["mug_dropped"]
+def test_on_a_simulated_clock_a_grasp_is_believed_after_the_same_simulated_time_every_run() -> None:
+    def press_to_holding() -> float:
+        clock = SimulatedClock()
+
+        async def body() -> float:
+            pad = Pad()
+            with serving(FsrSimulator(pad), "inprocess", clock) as sim:
+                async with reader_on(sim, clock, threshold_n=2.0, debounce_s=0.05) as reader:
+                    await until(clock, lambda: reader.latest() is not None)
+                    pad.set(3.0)
+                    pressed = clock.monotonic()
+                    await until(clock, reader.holding)
+                    return clock.monotonic() - pressed
+
+        return clock.run(body())
+
+    first, second = press_to_holding(), press_to_holding()
+    assert first == second
+    # Two 10 ms samples until the median of three turns, the 50 ms debounce, then the 10 ms poll.
+    assert 0.06 <= first <= 0.09
 
 
-@async_test
-async def test_a_single_sample_spike_neither_grasps_nor_drops() -> None:
-    pad = Pad(0.0)
-    with FsrSimulator(pad) as sim:
-        async with FsrReader(sim.device_path, debounce_s=0.0) as reader:
-            await until(lambda: reader.latest() is not None)
-            sim.spike(25.0)
-            await until(lambda: reader.counters.spikes >= 1)
-            assert not reader.holding()
-            pad.set(5.0)
-            await until(reader.holding)
-            reader.set_carrying(True)
-            sim.spike(0.0)
-            spikes = reader.counters.spikes
-            await until(lambda: reader.counters.spikes > spikes)
-            assert reader.holding()
-            assert not reader.dropped
+def test_a_drop_while_carrying_is_reported_once() -> None:
+    async def body(clock: Clock) -> list[DeviceEvent]:
+        pad = Pad(5.0)
+        events: list[DeviceEvent] = []
+        with serving(FsrSimulator(pad), "inprocess", clock) as sim:
+            async with reader_on(sim, clock, on_event=events.append) as reader:
+                await until(clock, reader.holding)
+                reader.set_carrying(True)
+                sim.drop_force()
+                await until(clock, lambda: reader.dropped)
+                await clock.sleep(0.05)
+        return events
+
+    assert [e.kind for e in run_on("inprocess", body)] == ["mug_dropped"]
 
 
-@async_test
-async def test_garbage_torn_lines_and_bad_checksums_are_skipped() -> None:
-    pad = Pad(3.0)
-    with FsrSimulator(pad) as sim:
-        async with FsrReader(sim.device_path) as reader:
-            await until(reader.holding)
-            sim.inject_garbage(b"\x00\xff$FSR,1,2*\r\nnoise\n")
-            sim.bad_checksums(3)
-            sim.tear_lines(2)
-            await until(lambda: reader.counters.bad_lines >= 5)
-            await asyncio.sleep(0.05)
-            assert reader.holding()
-            latest = reader.latest()
-            assert latest is not None
-            assert latest.force_n == pytest.approx(3.0, rel=0.05)
-            assert reader.counters.lost_samples >= 3  # the bad and torn lines are gaps in the sequence
+def test_a_single_sample_spike_neither_grasps_nor_drops() -> None:
+    async def body(clock: Clock) -> None:
+        pad = Pad(0.0)
+        with serving(FsrSimulator(pad), "inprocess", clock) as sim:
+            async with reader_on(sim, clock, debounce_s=0.0) as reader:
+                await until(clock, lambda: reader.latest() is not None)
+                sim.spike(25.0)
+                await until(clock, lambda: reader.counters.spikes >= 1)
+                assert not reader.holding()
+                pad.set(5.0)
+                await until(clock, reader.holding)
+                reader.set_carrying(True)
+                sim.spike(0.0)
+                spikes = reader.counters.spikes
+                await until(clock, lambda: reader.counters.spikes > spikes)
+                assert reader.holding()
+                assert not reader.dropped
+
+    run_on("inprocess", body)
 
 
-@async_test
-async def test_unplug_is_reported_and_the_reader_reconnects_on_replug() -> None:
-    pad = Pad(3.0)
-    events: list[DeviceEvent] = []
-    with FsrSimulator(pad) as sim:
-        async with FsrReader(sim.device_path, on_event=events.append, reconnect_period_s=0.05) as reader:
-            await until(reader.holding)
-            sim.unplug()
-            await until(lambda: [e.kind for e in events] == ["fsr_lost"])
-            with pytest.raises(
-                SensorFault, match=rf"^the FSR Arduino on {sim.device_path} is unplugged; reconnecting$"
-            ):
+def test_garbage_torn_lines_and_bad_checksums_are_skipped() -> None:
+    async def body(clock: Clock) -> None:
+        pad = Pad(3.0)
+        with serving(FsrSimulator(pad), "inprocess", clock) as sim:
+            async with reader_on(sim, clock) as reader:
+                await until(clock, reader.holding)
+                sim.inject_garbage(b"\x00\xff$FSR,1,2*\r\nnoise\n")
+                sim.bad_checksums(3)
+                sim.tear_lines(2)
+                await until(clock, lambda: reader.counters.bad_lines >= 5)
+                await clock.sleep(0.05)
+                assert reader.holding()
+                latest = reader.latest()
+                assert latest is not None
+                assert latest.force_n == pytest.approx(3.0, rel=0.05)
+                assert reader.counters.lost_samples >= 3  # the bad and torn lines are gaps in the sequence
+
+    run_on("inprocess", body)
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_unplug_is_reported_and_the_reader_reconnects_on_replug(transport: str) -> None:
+    async def body(clock: Clock) -> None:
+        pad = Pad(3.0)
+        events: list[DeviceEvent] = []
+        with serving(FsrSimulator(pad), transport, clock) as sim:
+            async with reader_on(sim, clock, on_event=events.append, reconnect_period_s=0.05) as reader:
+                await until(clock, reader.holding)
+                sim.unplug()
+                await until(clock, lambda: [e.kind for e in events] == ["fsr_lost"])
+                with pytest.raises(
+                    SensorFault, match=rf"^the FSR Arduino on {sim.device_path} is unplugged; reconnecting$"
+                ):
+                    reader.check()
+                sim.replug()
+                await until(clock, lambda: "fsr_restored" in [e.kind for e in events])
                 reader.check()
-            sim.replug()
-            await until(lambda: "fsr_restored" in [e.kind for e in events])
-            reader.check()
-            assert reader.counters.reconnects == 1
+                assert reader.counters.reconnects == 1
+
+    run_on(transport, body)
 
 
-@async_test
-async def test_a_silent_stream_is_reported_stale_and_check_raises() -> None:
-    pad = Pad(0.0)
-    events: list[DeviceEvent] = []
-    with FsrSimulator(pad) as sim:
-        async with FsrReader(sim.device_path, on_event=events.append, stale_after_s=0.1) as reader:
-            await until(lambda: reader.latest() is not None)
+def test_a_silent_stream_is_reported_stale_and_check_raises() -> None:
+    async def body(clock: Clock) -> None:
+        pad = Pad(0.0)
+        events: list[DeviceEvent] = []
+        with serving(FsrSimulator(pad), "inprocess", clock) as sim:
+            async with reader_on(sim, clock, on_event=events.append, stale_after_s=0.1) as reader:
+                await until(clock, lambda: reader.latest() is not None)
+                sim.silence()
+                await until(clock, lambda: [e.kind for e in events] == ["fsr_stale"])
+                with pytest.raises(
+                    SensorFault, match=r"^no valid FSR sample from .* \(the last one is .* s old\); check"
+                ):
+                    reader.check()
+                sim.silence(on=False)
+                await until(clock, lambda: [e.kind for e in events] == ["fsr_stale", "fsr_restored"])
+
+    run_on("inprocess", body)
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_a_port_without_the_sketch_fails_to_start_with_a_clear_error(transport: str) -> None:
+    async def body(clock: Clock) -> None:
+        pad = Pad(0.0)
+        with serving(FsrSimulator(pad, version=""), transport, clock) as sim:  # no version: not our sketch
             sim.silence()
-            await until(lambda: [e.kind for e in events] == ["fsr_stale"])
-            with pytest.raises(
-                SensorFault, match=r"^no valid FSR sample from .* \(the last one is .* s old\); check"
-            ):
-                reader.check()
-            sim.silence(on=False)
-            await until(lambda: [e.kind for e in events] == ["fsr_stale", "fsr_restored"])
+            with pytest.raises(SensorFault) as raised:
+                async with reader_on(sim, clock, version_timeout_s=0.2):
+                    pass
+            assert str(raised.value) == (
+                f"no dishbot_fsr sketch answered on {sim.device_path} within 0.2 s; "
+                "flash drivers/fsr/arduino/dishbot_fsr.ino and check the baud rate"
+            )
 
-
-@async_test
-async def test_a_port_without_the_sketch_fails_to_start_with_a_clear_error() -> None:
-    pad = Pad(0.0)
-    with FsrSimulator(pad, version="") as sim:  # answers no version: not our sketch
-        sim.silence()
-        with pytest.raises(SensorFault) as raised:
-            async with FsrReader(sim.device_path, version_timeout_s=0.2):
-                pass
-        assert str(raised.value) == (
-            f"no dishbot_fsr sketch answered on {sim.device_path} within 0.2 s; "
-            "flash drivers/fsr/arduino/dishbot_fsr.ino and check the baud rate"
-        )
+    run_on(transport, body)
 
 
 @settings(max_examples=200, deadline=None)
@@ -224,7 +270,7 @@ async def test_a_port_without_the_sketch_fails_to_start_with_a_clear_error() -> 
 def test_the_reader_only_ever_accepts_samples_that_were_sent(
     chunks: list[tuple[bytes, int]], cut: int
 ) -> None:
-    reader = FsrReader("/dev/null")
+    reader = FsrReader("/dev/null", clock=RealClock())
     sent: dict[int, int] = {}
     stream = b""
     for seq, (noise, raw) in enumerate(chunks):

@@ -1,18 +1,57 @@
-"""Stand-ins for the physical world in driver tests (the devices themselves speak the real wire protocol)."""
+"""Stand-ins for the physical world in driver tests (the devices themselves speak the real wire protocol),
+and the two ways tests reach the simulated devices: in-process on a simulated clock (fast, deterministic:
+most tests), or on pseudo-terminals on the wall clock (the transport the robot's OS path has)."""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 import threading
-import time
-from collections.abc import Callable, Coroutine
-from typing import Any, ParamSpec
+from collections.abc import Callable, Coroutine, Iterator
+from typing import Any, Final, ParamSpec, TypeVar
 
-from drivers.interfaces import ForceReading
+from daemon.clock import RealClock, SessionClock, SimulatedClock
+from drivers.interfaces import Clock, ForceReading
+from drivers.serial_port import OpenSerial, open_pyserial
+from drivers.sim.device import SimulatedDevice
 from drivers.sim.plant import FirstOrderPlant
 
 P = ParamSpec("P")
+T = TypeVar("T")
+D = TypeVar("D", bound=SimulatedDevice)
+
+TRANSPORTS: Final = ("inprocess", "pty")
+
+
+def clock_for(transport: str) -> SessionClock:
+    """Simulated time for the in-process transport, the wall clock for pseudo-terminals."""
+    return SimulatedClock() if transport == "inprocess" else RealClock()
+
+
+def run_on(transport: str, body: Callable[[SessionClock], Coroutine[Any, Any, T]]) -> T:
+    """Run ``body(clock)`` on the clock of ``transport``'s event loop."""
+    clock = clock_for(transport)
+    return clock.run(body(clock))
+
+
+@contextlib.contextmanager
+def serving(device: D, transport: str, clock: Clock) -> Iterator[D]:
+    """``device`` on ``transport`` (in-process: on ``clock``, from a coroutine) until the block ends."""
+    if transport == "pty":
+        device.start()
+    else:
+        device.start_in_process(clock)
+    try:
+        yield device
+    finally:
+        device.stop()
+
+
+def opener(device: SimulatedDevice) -> OpenSerial:
+    """How a driver opens ``device.device_path``: the in-process cable's opener, or pyserial on the pty."""
+    return device.open_serial or open_pyserial
+
 
 # Status timeout for tests: long enough that a loaded 2-core CI machine never turns a slow answer into a
 # retry, so retry counters stay exact; it only costs time when a test drops packets on purpose.
@@ -37,9 +76,14 @@ class MugBetweenPads(FirstOrderPlant):
     """
 
     def __init__(
-        self, gripper_id: int, contact_rad: float | None, *, stiffness_n_per_rad: float = 60.0
+        self,
+        gripper_id: int,
+        contact_rad: float | None,
+        *,
+        clock: Callable[[], float],
+        stiffness_n_per_rad: float = 60.0,
     ) -> None:
-        super().__init__(tau_s=0.02)
+        super().__init__(clock=clock, tau_s=0.02)
         self.gripper_id = gripper_id
         self.contact_rad = contact_rad
         self.stiffness = stiffness_n_per_rad
@@ -64,14 +108,15 @@ class MugBetweenPads(FirstOrderPlant):
 class PlantForceSensor:
     """A ForceSensor reading the stand-in world directly (the FSR wire path has its own tests)."""
 
-    def __init__(self, plant: MugBetweenPads, threshold_n: float = 1.0) -> None:
+    def __init__(self, plant: MugBetweenPads, clock: Clock, threshold_n: float = 1.0) -> None:
         self.plant = plant
+        self.clock = clock
         self.threshold_n = threshold_n
         self.seq = 0
 
     def latest(self) -> ForceReading | None:
         self.seq += 1
-        return ForceReading(time.monotonic(), self.plant.force_n(), 0, self.seq)
+        return ForceReading(self.clock.monotonic(), self.plant.force_n(), 0, self.seq)
 
     def holding(self) -> bool:
         return self.plant.force_n() >= self.threshold_n

@@ -20,6 +20,7 @@ import zenoh
 
 from daemon.app import RunOptions, RunResult, serve
 from daemon.backend import Backend, open_hardware_backend
+from daemon.clock import RealClock
 from daemon.config import Config, load_config
 from daemon.sdnotify import SdNotifier
 from daemon.zenoh_session import ZenohSession, session_config
@@ -59,7 +60,7 @@ class Rig:
 @contextlib.contextmanager
 def rig(**overrides: Any) -> Any:
     """Simulated servo chain and FSR on pseudo-terminals, and a hardware config pointing at them."""
-    plant = FirstOrderPlant()
+    plant = FirstOrderPlant(clock=RealClock().monotonic)  # the robot's rig: the wall clock
     holder: list[Rig] = []
     with (
         ServoChainSimulator(default_chain(), plant=plant) as servos,

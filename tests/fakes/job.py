@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from daemon.backend import Backend
+from daemon.clock import RealClock, SessionClock
 from description.cell import Tray
 from drivers.errors import BusLost
 from drivers.interfaces import ForceReading, GraspResult, GripperState, JointState, JointTrajectory
@@ -254,7 +255,10 @@ def make_world(n: int = 3) -> FakeWorld:
     return FakeWorld(counter=counter)
 
 
-def make_backend(world: FakeWorld, *, refuse: Sequence[str] = ()) -> Backend:
+def make_backend(
+    world: FakeWorld, *, refuse: Sequence[str] = (), clock: SessionClock | None = None
+) -> Backend:
+    """The stand-ins as a backend, on ``clock`` (default the wall clock)."""
     return Backend(
         name="fake",
         arm=FakeArm(world),
@@ -265,4 +269,5 @@ def make_backend(world: FakeWorld, *, refuse: Sequence[str] = ()) -> Backend:
         tray=Tray(
             origin_m=(0.25, -0.187), size_mm=(332, 374)
         ),  # the observer also sees the placed mugs there
+        clock=clock or RealClock(),
     )

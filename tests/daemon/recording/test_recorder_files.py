@@ -262,9 +262,9 @@ def test_write_rejects_bad_messages_and_records_nothing(
 def test_writes_after_close_and_a_second_header_are_refused(tmp_path: Path) -> None:
     path = tmp_path / "closed.mcap"
     rec = Recorder(path)
-    rec.write_header({"robot_id": "r1"}, {})
+    rec.write_header({"robot_id": "r1"}, {}, log_time_ns=0)
     with pytest.raises(RecordingError, match=r"already has a session header$"):
-        rec.write_header({"robot_id": "r1"}, {})
+        rec.write_header({"robot_id": "r1"}, {}, log_time_ns=0)
     rec.close()
     rec.close()
     with pytest.raises(RecordingError, match=r"is closed; open a new Recorder$"):

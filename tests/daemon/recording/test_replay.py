@@ -298,17 +298,17 @@ def test_replay_decodes_what_the_backend_records() -> None:
     joints = JointState(
         t=0.5, names=("a", "b"), position_rad=(0.1, 0.2), velocity_rad_s=(0.0, 1.0), load=(0.5, -0.5)
     )
-    assert decode_joints(joints_payload(joints), t=0.5) == joints
+    assert decode_joints(joints_payload(joints, t=1795311327.41), t=0.5) == joints
     obs = Observation(
         t=3.0,
         detections=(Detection("small", 0.12345, -0.2, True, 3.1, 0.75, "m4"),),
         meta={"source": "truth"},
     )
-    assert decode_observation(observation_payload(obs), t=3.0) == obs
+    assert decode_observation(observation_payload(obs, t=1795311327.41), t=3.0) == obs
     reading = ForceReading(t=1.25, force_n=2.5, raw=512, seq=9)
     assert decode_force({"t": 7.0, "force_n": 2.5, "raw": 512, "seq": 9}, t=1.25) == reading
     with pytest.raises(ValueError, match=r"^position_rad is \[0.1\], not a list of 2 numbers$"):
-        decode_joints({**joints_payload(joints), "position_rad": [0.1]}, t=0.5)
+        decode_joints({**joints_payload(joints, t=0.0), "position_rad": [0.1]}, t=0.5)
     with pytest.raises(ValueError, match=r"^mugs.0.confidence is None, not a finite number$"):
         decode_observation({"mugs": [{**obs.detections[0].to_json(), "confidence": None}]}, t=0.0)
 

@@ -1,9 +1,10 @@
-"""The simulated cell end to end: real drivers on pseudo-terminals moving the MuJoCo arm, grasping a mug,
-the FSR reader seeing the force rise and fall, and the camera pipeline seeing the mug."""
+"""The simulated cell end to end: real drivers moving the MuJoCo arm, grasping a mug, the FSR reader seeing
+the force rise and fall, and the camera pipeline seeing the mug. In-process on a simulated clock; the cell
+also on pseudo-terminals on the wall clock, the transport that goes through the OS's serial layer (the
+hardware backend's tests drive whole jobs over it)."""
 
 from __future__ import annotations
 
-import asyncio
 import itertools
 import math
 from collections.abc import Sequence
@@ -12,17 +13,19 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from daemon.clock import SessionClock
 from description.arm import GripperGeometry
 from description.camera import CameraSpec
 from description.cell import CellLayout
 from description.thesis import MUG_TYPES, SMALL_MUG
-from drivers.interfaces import ArmDriver, ForceSensor, GripperDriver, JointTrajectory
+from drivers.interfaces import ArmDriver, Clock, ForceSensor, GripperDriver, JointTrajectory
 from perception.interfaces import MugObserver
 from planning.arm.grasp import side_grasp
 from planning.arm.model import ArmModel
 from planning.arm.targets import GraspKind, GraspTarget
 from sim.counter import counter_mugs
 from sim.mujoco.cell import SimCell, gripper_spec, open_sim_cell
+from tests.fakes.devices import TRANSPORTS, run_on
 from tests.sim.mujoco.conftest import cell_layout
 
 MUG_XY = (0.24, 0.40)
@@ -53,14 +56,11 @@ def _path(
     return JointTrajectory(tuple(model.joint_names), times, np.vstack(qs))
 
 
-def run(coro: object) -> None:
-    asyncio.run(coro)  # type: ignore[arg-type]
-
-
-def test_cell_devices_speak_the_driver_protocols() -> None:
-    async def body() -> None:
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_cell_devices_speak_the_driver_protocols(transport: str) -> None:
+    async def body(clock: SessionClock) -> None:
         mugs = counter_mugs([("a", "small", *MUG_XY)], MUG_TYPES)
-        async with open_sim_cell(cell_layout(), mugs) as cell:
+        async with open_sim_cell(cell_layout(), mugs, clock=clock, transport=transport) as cell:
             assert isinstance(cell.arm, ArmDriver)
             assert isinstance(cell.gripper, GripperDriver)
             assert isinstance(cell.force, ForceSensor)
@@ -69,11 +69,11 @@ def test_cell_devices_speak_the_driver_protocols() -> None:
             truth = [cell.world.present(i)[0] for i in range(1, 6)]
             np.testing.assert_allclose(js.position_rad, truth, atol=0.01)
 
-    run(body())
+    run_on(transport, body)
 
 
 def test_arm_driver_moves_the_physics_arm_and_a_grasp_lifts_then_drops_the_mug() -> None:
-    async def body(cell: SimCell, model: ArmModel) -> None:
+    async def body(cell: SimCell, model: ArmModel, clock: Clock) -> None:
         spec = SMALL_MUG
         g = side_grasp(*MUG_XY, spec, model.gripper, z_m=0.06)
         a = g.alpha_rad
@@ -98,7 +98,7 @@ def test_arm_driver_moves_the_physics_arm_and_a_grasp_lifts_then_drops_the_mug()
         assert result.aperture_m == pytest.approx(spec.diameter_mm / 1000.0, abs=0.02)
         here = (await cell.arm.read_joints()).position_rad
         await cell.arm.follow(_path(model, here, [target + np.array([0, 0, 0.12])], GraspKind.SIDE))
-        await asyncio.sleep(0.3)
+        await clock.sleep(0.3)
         assert cell.world.held_mug == "a"
         assert cell.world.mug_truths()["a"].position_m[2] > 0.1
         reading = cell.force.latest()
@@ -108,23 +108,23 @@ def test_arm_driver_moves_the_physics_arm_and_a_grasp_lifts_then_drops_the_mug()
         assert reading.force_n > cell.force.release_n > idle_force
         assert cell.force.holding()
         await cell.gripper.open()
-        await asyncio.sleep(0.5)
+        await clock.sleep(0.5)
         assert not cell.force.holding()
         assert cell.force.latest().force_n < 0.5  # type: ignore[union-attr]
         assert cell.world.mug_truths()["a"].position_m[2] < 0.02
 
-    async def main() -> None:
+    async def main(clock: SessionClock) -> None:
         mugs = counter_mugs([("a", "small", *MUG_XY)], MUG_TYPES)
-        async with open_sim_cell(cell_layout(), mugs) as cell:
-            await body(cell, ArmModel.load())
+        async with open_sim_cell(cell_layout(), mugs, clock=clock) as cell:
+            await body(cell, ArmModel.load(), clock)
 
-    run(main())
+    run_on("inprocess", main)
 
 
 def test_the_camera_pipeline_sees_the_counter_mugs_where_they_are() -> None:
-    async def main() -> None:
+    async def main(clock: SessionClock) -> None:
         mugs = counter_mugs([("a", "small", 0.0, 0.45), ("b", "big", 0.25, 0.45)], MUG_TYPES)
-        async with open_sim_cell(full_camera_layout(), mugs) as cell:
+        async with open_sim_cell(full_camera_layout(), mugs, clock=clock) as cell:
             obs = await cell.observer.observe()
             seen = sorted((d.type, round(d.x_m, 2), round(d.y_m, 2)) for d in obs.detections)
             assert [s[0] for s in seen] == ["big", "small"]
@@ -133,16 +133,16 @@ def test_the_camera_pipeline_sees_the_counter_mugs_where_they_are() -> None:
                 mug = truth["a" if d.type == "small" else "b"]
                 assert math.dist((d.x_m, d.y_m), mug.position_m[:2]) < 0.01
 
-    run(main())
+    run_on("inprocess", main)
 
 
 def test_a_new_counter_brings_a_new_world_with_the_arm_where_it_was() -> None:
-    async def main() -> None:
+    async def main(clock: SessionClock) -> None:
         layout = cell_layout()
-        async with open_sim_cell(layout, []) as cell:
+        async with open_sim_cell(layout, [], clock=clock) as cell:
             before = (await cell.arm.read_joints()).position_rad
             cell.set_counter(counter_mugs([("z", "big", 0.1, 0.45)], MUG_TYPES))
-            await asyncio.sleep(0.2)
+            await clock.sleep(0.2)
             assert set(cell.world.mug_truths()) == {"z"}
             after = (await cell.arm.read_joints()).position_rad
             np.testing.assert_allclose(after, before, atol=0.02)
@@ -157,7 +157,16 @@ def test_a_new_counter_brings_a_new_world_with_the_arm_where_it_was() -> None:
                 }
             ]
 
-    run(main())
+    run_on("inprocess", main)
+
+
+def test_the_pty_transport_is_refused_on_a_simulated_clock() -> None:
+    async def main(clock: SessionClock) -> None:
+        with pytest.raises(ValueError, match=r"^the pseudo-terminal transport keeps wall-clock time"):
+            async with open_sim_cell(cell_layout(), [], clock=clock, transport="pty"):
+                pass
+
+    run_on("inprocess", main)
 
 
 def test_driver_aperture_map_follows_the_planner_gripper() -> None:

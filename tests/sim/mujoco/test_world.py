@@ -10,13 +10,14 @@ import mujoco
 import numpy as np
 import pytest
 
+from daemon.clock import SimulatedClock
 from description.arm import BUNDLED_URDF
 from description.thesis import BIG_MUG, SMALL_MUG, MugSpec
 from planning.arm.grasp import side_grasp
 from planning.arm.model import ArmModel
 from planning.arm.targets import GraspKind
 from sim.mujoco.arm import ArmMjcf, build_arm_mjcf, load_urdf, parse_urdf
-from sim.mujoco.errors import SimModelError
+from sim.mujoco.errors import SimModelError, SimWorldStopped
 from sim.mujoco.world import PhysicsConfig, SimWorld
 from tests.sim.mujoco.conftest import ARM_IDS, GRIPPER_ID, HandFor, WorldFactory, mug_facing_arm
 
@@ -202,6 +203,55 @@ def test_world_steps_in_real_time_in_its_thread(make_world: WorldFactory) -> Non
     assert 0.35 < elapsed < 0.7
     assert world.mug_truths()["a"].orientation == "upright"
     assert math.isfinite(world.wall_stepping_s)
+
+
+def test_a_world_attached_to_a_simulated_clock_is_at_the_clocks_time_whenever_anyone_looks(
+    make_world: WorldFactory,
+) -> None:
+    world = make_world([mug_facing_arm("a", BIG_MUG, 0.0, 0.35)])
+    clock = SimulatedClock()
+    seen: list[tuple[float, float]] = []
+
+    async def main() -> None:
+        await clock.sleep(0.25)  # time passes before the world joins: its time 0 is the clock's 0.25
+        world.attach(clock)
+        for period in (0.004, 0.01, 0.02, 0.1, 0.2):  # whole steps of 2 ms, however the clock moves
+            await clock.sleep(period)
+            seen.append((clock.monotonic() - 0.25, world.time()))
+        with pytest.raises(RuntimeError, match=r"^the world is already running; attach\(\) it once"):
+            world.attach(clock)
+        with pytest.raises(RuntimeError, match=r"^step_for\(\) while the world is being stepped"):
+            world.step_for(0.1)
+        world.check_alive()
+        world.stop()
+        await clock.sleep(0.1)
+
+    clock.run(main())
+    for clock_t, world_t in seen:
+        assert world_t == pytest.approx(clock_t, abs=1e-9)
+    assert world.time() == pytest.approx(0.334)  # stopped with the clock at 0.334 + 0.25: no steps after
+    assert world.mug_truths()["a"].orientation == "upright"
+
+
+def test_a_world_that_dies_on_the_clock_stops_and_says_so_while_the_clock_goes_on(
+    make_world: WorldFactory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    world = make_world([])
+    clock = SimulatedClock()
+
+    def diverge(steps: int) -> None:
+        raise SimModelError("the simulation diverged at t=0.000 s (non-finite positions)")
+
+    async def main() -> None:
+        world.attach(clock)
+        monkeypatch.setattr(world, "_run_steps", diverge)
+        await clock.sleep(0.1)
+        await clock.sleep(0.1)  # the clock goes on; the dead world is no longer stepped
+
+    clock.run(main())
+    assert clock.monotonic() == pytest.approx(0.2)
+    with pytest.raises(SimWorldStopped, match=r"^the physics died: the simulation diverged at t=0\.000 s"):
+        world.check_alive()
 
 
 def test_a_fast_carry_reads_a_steady_squeeze_not_a_drop(make_world: WorldFactory, hand_for: HandFor) -> None:

@@ -1,0 +1,368 @@
+"""The daemon's clocks: the wall clock on the robot, simulated time in the simulated cell.
+
+Everything that reads or waits on time is constructed with one ``drivers.interfaces.Clock`` and goes
+through it. ``RealClock`` is the wall clock and asyncio's ordinary event loop. ``SimulatedClock`` runs an
+event loop whose ``time()`` is the simulation's: time stands still while anything is happening and jumps to
+the next timer as soon as every task is waiting on the clock, so a simulated job runs as fast as the machine
+allows (``speed=None``) or at a chosen factor of real time (``speed=1.0`` for a person watching).
+
+Determinism (the same run twice gives the same states and events) rests on three rules the simulated loop
+enforces:
+
+- Time advances only when the loop has nothing ready to run and no executor work is in flight: a bus
+  transaction on its thread, a detection in the thread pool or a plan in the planning process all take no
+  simulated time, however long they take on this machine.
+- Executor results are handed back only when the loop is idle and all work in flight has finished, in the
+  order it was submitted, so the interleaving of tasks does not depend on which thread finished first.
+- The simulated world is stepped by the clock (``add_stepper``) as time advances, on the loop's thread, so
+  every reader sees the world exactly at the clock's time.
+
+Only external input (a command from another process, a signal) arrives at a moment that depends on the wall
+clock. docs/architecture.md ("One clock") says why this design rather than a clock object with its own
+scheduler.
+
+This module and the benchmarks are the only places that read the wall clock (``tests/test_one_clock.py``
+checks it); ``wall_seconds`` is for measuring how long work took on this machine, never for behaviour.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import math
+import selectors
+import time
+from collections.abc import Callable, Coroutine
+from concurrent.futures import Executor, ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any, Final, Protocol, TypeVar, TypeVarTuple
+
+from drivers.interfaces import Clock
+
+T = TypeVar("T")
+Ts = TypeVarTuple("Ts")
+
+# Behind the wall clock by more than this at a speed factor (the machine could not keep up, or time stood
+# still for a computation): start pacing afresh from here instead of racing to catch up.
+_BEHIND_S: Final = 0.25
+# How often a loop waiting for executor work looks for input from outside (a signal, a command).
+_EXTERNAL_POLL_S: Final = 0.02
+SPEED_RANGE: Final = (0.1, 1000.0)
+
+
+def wall_seconds() -> float:
+    """A reading of this machine's performance counter: for measuring how long work took (the ``--once``
+    summary, the benchmarks), never for the robot's behaviour."""
+    return time.perf_counter()
+
+
+def parse_speed(text: str) -> float | None:
+    """``--speed``: ``max`` (None: as fast as the machine allows) or simulated seconds per wall second in
+    ``SPEED_RANGE``; ``ValueError`` saying what is allowed otherwise."""
+    if text.strip().lower() == "max":
+        return None
+    lo, hi = SPEED_RANGE
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and lo <= value <= hi):
+        raise ValueError(f"{text}: choose max or {lo:g}-{hi:g} simulated seconds per second")
+    return value
+
+
+def describe_speed(speed: float | None) -> str:
+    return "max" if speed is None else f"{speed:g}"
+
+
+class SessionClock(Clock, Protocol):
+    """The clock a daemon session runs on: a ``Clock`` that also runs the session's event loop and says
+    what it is for the recording's header."""
+
+    @property
+    def wall_start(self) -> float:
+        """Unix time when the session's clock started."""
+        ...
+
+    def run(self, main: Coroutine[Any, Any, T]) -> T:
+        """Run ``main`` on a fresh event loop keeping this clock's time."""
+        ...
+
+    def describe(self) -> dict[str, object]:
+        """The clock as the session header records it (``source``, ``wall_start``, ...)."""
+        ...
+
+
+class RealClock:
+    """The wall clock: ``time.monotonic`` for periods and deadlines, ``time.time`` for timestamps, asyncio's
+    ordinary event loop (whose ``time()`` is ``time.monotonic()``). The robot always runs on it."""
+
+    simulated: Final = False
+
+    def __init__(self) -> None:
+        self.wall_start = time.time()
+
+    def monotonic(self) -> float:
+        return time.monotonic()
+
+    def now(self) -> float:
+        return time.time()
+
+    async def sleep(self, seconds: float) -> None:
+        await asyncio.sleep(max(0.0, seconds))
+
+    async def sleep_until(self, t: float) -> None:
+        await asyncio.sleep(max(0.0, t - time.monotonic()))
+
+    def timeout(self, seconds: float | None) -> asyncio.Timeout:
+        return asyncio.timeout(seconds)
+
+    async def wait(self, future: asyncio.Future[Any], seconds: float | None) -> bool:
+        await asyncio.wait({future}, timeout=seconds)
+        return future.done()
+
+    def run(self, main: Coroutine[Any, Any, T]) -> T:
+        """Run ``main`` on a fresh event loop of this clock (``asyncio.run``)."""
+        return asyncio.run(main)
+
+    def describe(self) -> dict[str, object]:
+        """For the recording's session header."""
+        return {"source": "wall", "wall_start": round(self.wall_start, 6)}
+
+
+@dataclass(slots=True)
+class _Work:
+    """Executor work in flight: the thread or process's future and the loop's future it resolves."""
+
+    done: concurrent.futures.Future[Any]
+    result: asyncio.Future[Any]
+
+
+class SimulatedClock:
+    """Simulated time, advanced by the event loop it runs (``run``) when every task waits on the clock.
+
+    ``speed`` is simulated seconds per wall second (None: as fast as the machine allows). ``wall_start`` is
+    the Unix time that ``now()`` starts from (default: the wall clock when the clock is made), so published
+    and recorded timestamps look like a real session's while advancing in simulated time."""
+
+    simulated: Final = True
+
+    def __init__(self, *, speed: float | None = None, wall_start: float | None = None) -> None:
+        lo, hi = SPEED_RANGE
+        if speed is not None and not (math.isfinite(speed) and lo <= speed <= hi):
+            raise ValueError(
+                f"speed {speed}: choose None (max) or {lo:g}-{hi:g} simulated seconds per second"
+            )
+        self.speed = speed
+        self.wall_start = time.time() if wall_start is None else wall_start
+        self._now = 0.0
+        self._steppers: list[Callable[[float], None]] = []
+        self._work: list[_Work] = []
+        self._loop: _SimulatedLoop | None = None
+        self._pace_wall = 0.0  # wall clock and simulated time of the last pacing anchor
+        self._pace_sim = 0.0
+        self.advances = 0  # how many times time moved (for benchmarks)
+
+    # --- Clock -------------------------------------------------------------------------------------------
+
+    def monotonic(self) -> float:
+        return self._now
+
+    def now(self) -> float:
+        return self.wall_start + self._now
+
+    async def sleep(self, seconds: float) -> None:
+        self._check_loop()
+        await asyncio.sleep(max(0.0, seconds))
+
+    async def sleep_until(self, t: float) -> None:
+        loop = self._check_loop()
+        if t <= self._now:
+            await asyncio.sleep(0)
+            return
+        # At exactly ``t``: periodic loops on a simulated clock wake at their own grid, not one rounded to it.
+        woken = loop.create_future()
+        handle = loop.call_at(t, _wake, woken)
+        try:
+            await woken
+        finally:
+            handle.cancel()
+
+    def timeout(self, seconds: float | None) -> asyncio.Timeout:
+        self._check_loop()
+        return asyncio.timeout(seconds)
+
+    async def wait(self, future: asyncio.Future[Any], seconds: float | None) -> bool:
+        self._check_loop()
+        await asyncio.wait({future}, timeout=seconds)
+        return future.done()
+
+    def add_stepper(self, step: Callable[[float], None]) -> Callable[[], None]:
+        self._steppers.append(step)
+
+        def remove() -> None:
+            if step in self._steppers:
+                self._steppers.remove(step)
+
+        return remove
+
+    # --- running ------------------------------------------------------------------------------------------
+
+    def run(self, main: Coroutine[Any, Any, T]) -> T:
+        """Run ``main`` on this clock's event loop until it returns (like ``asyncio.run``)."""
+        with asyncio.Runner(loop_factory=self._new_loop) as runner:
+            return runner.run(main)
+
+    def describe(self) -> dict[str, object]:
+        """For the recording's session header: simulated time, its speed and the wall-clock start."""
+        return {
+            "source": "simulated",
+            "speed": describe_speed(self.speed),
+            "wall_start": round(self.wall_start, 6),
+        }
+
+    def _new_loop(self) -> asyncio.AbstractEventLoop:
+        if self._loop is not None and not self._loop.is_closed():
+            raise RuntimeError("a SimulatedClock drives one event loop at a time; this one is running")
+        self._loop = _SimulatedLoop(self)
+        self._pace_wall, self._pace_sim = time.monotonic(), self._now
+        return self._loop
+
+    def _check_loop(self) -> asyncio.AbstractEventLoop:
+        loop = asyncio.get_running_loop()
+        if loop is not self._loop:
+            raise RuntimeError(
+                "this coroutine waits on a SimulatedClock but runs on another event loop; run it with "
+                "SimulatedClock.run(...)"
+            )
+        return loop
+
+    # --- called by the loop ---------------------------------------------------------------------------
+
+    def _submit(self, executor: Executor, fn: Callable[..., T], *args: Any) -> asyncio.Future[T]:
+        assert self._loop is not None
+        done = executor.submit(fn, *args)
+        result: asyncio.Future[T] = self._loop.create_future()
+
+        def cancelled(f: asyncio.Future[T]) -> None:
+            if f.cancelled():
+                done.cancel()  # not started yet: it never will; started: it finishes, unseen
+
+        result.add_done_callback(cancelled)
+        self._work.append(_Work(done, result))
+        return result
+
+    def _select(
+        self, select: Callable[[float | None], list[tuple[selectors.SelectorKey, int]]], timeout: float | None
+    ) -> list[tuple[selectors.SelectorKey, int]]:
+        """The loop's wait for I/O, where simulated time is made: ``timeout`` is 0 when callbacks are ready,
+        the time to the next timer, or None when no timer is set.
+
+        I/O that is ready is handled first, at the current time (the in-process devices write from this
+        thread, so what they sent is always there by the next look). Then executor work in flight is waited
+        for and handed back; only when there is neither does time move on."""
+        ready = select(0)
+        if ready or timeout == 0:
+            return ready
+        if self._work:
+            outside = self._finish_work(select)
+            return outside if outside is not None else select(0)
+        if timeout is None:
+            return select(None)  # no timer at all: only the outside world can wake the loop
+        target = self._now + timeout
+        if self.speed is not None:
+            wait = self._paced_wait(target)
+            if wait > 0:
+                ready = select(wait)
+                if ready or self._paced_wait(target) > 0:
+                    return ready  # input from outside (or woken early): time stays where it is
+        self._advance(target)
+        return select(0)
+
+    def _finish_work(
+        self, select: Callable[[float | None], list[tuple[selectors.SelectorKey, int]]]
+    ) -> list[tuple[selectors.SelectorKey, int]] | None:
+        """Wait for every piece of executor work in flight, then resolve their futures in submission order;
+        None when done, or what came in from outside meanwhile (a command, a signal; looked for every
+        ``_EXTERNAL_POLL_S``), which is handled first while the work stays in flight."""
+        work, self._work = self._work, []
+        pending = {w.done for w in work}
+        while pending:
+            _, pending = concurrent.futures.wait(pending, timeout=_EXTERNAL_POLL_S)
+            if pending:
+                ready = select(0)
+                if ready:
+                    self._work = work
+                    return ready
+        for w in work:
+            if w.result.done() or w.done.cancelled():
+                continue
+            error = w.done.exception()
+            if error is not None:
+                w.result.set_exception(error)
+            else:
+                w.result.set_result(w.done.result())
+        return None
+
+    def _paced_wait(self, target: float) -> float:
+        """Wall seconds still to wait before simulated time may reach ``target`` at ``speed``."""
+        assert self.speed is not None
+        wall = time.monotonic()
+        due = self._pace_wall + (target - self._pace_sim) / self.speed
+        if wall - due > _BEHIND_S:
+            self._pace_wall, self._pace_sim = wall, self._now
+            due = wall + (target - self._now) / self.speed
+        return due - wall
+
+    def _advance(self, target: float) -> None:
+        self._now = target
+        self.advances += 1
+        for step in list(self._steppers):
+            step(target)
+
+
+def _wake(future: asyncio.Future[None]) -> None:
+    if not future.done():
+        future.set_result(None)
+
+
+class _Selector(selectors.DefaultSelector):
+    """The platform's selector, whose ``select`` lets the simulated clock decide how time passes."""
+
+    def __init__(self, clock: SimulatedClock) -> None:
+        super().__init__()
+        self._clock = clock
+
+    def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
+        return self._clock._select(super().select, timeout)
+
+
+class _SimulatedLoop(asyncio.SelectorEventLoop):
+    """asyncio's selector loop with the simulated clock's time and its executor bookkeeping."""
+
+    def __init__(self, clock: SimulatedClock) -> None:
+        super().__init__(selector=_Selector(clock))
+        self._clock = clock
+        self._pool = ThreadPoolExecutor(thread_name_prefix="simulated-executor")
+        self.set_default_executor(self._pool)
+
+    def time(self) -> float:
+        return self._clock.monotonic()
+
+    def run_in_executor(
+        self, executor: Executor | None, func: Callable[[*Ts], T], *args: *Ts
+    ) -> asyncio.Future[T]:
+        if self.is_closed():
+            raise RuntimeError("Event loop is closed")
+        return self._clock._submit(self._pool if executor is None else executor, func, *args)
+
+
+__all__ = [
+    "SPEED_RANGE",
+    "RealClock",
+    "SessionClock",
+    "SimulatedClock",
+    "describe_speed",
+    "parse_speed",
+    "wall_seconds",
+]

@@ -1,0 +1,176 @@
+"""An in-process serial cable: the same bytes between the real drivers and the device simulators, no tty.
+
+``InProcessCable`` connects a host (dynamixel-sdk's port handler under ``DynamixelBus``, or ``FsrReader``)
+to a simulator living in this process. What the host writes reaches the simulator at once, on the host's
+thread (a bus transaction's answer is ready before the driver starts waiting for it); what the simulator
+sends goes through a pipe, so the host waits for it with ``select`` or ``loop.add_reader`` exactly as it does
+on a serial adapter. A pseudo-terminal carries the same bytes with the kernel's latency on every hop, which
+caps how fast a simulated cell can run; this cable has none, and on a simulated clock the answers take no
+simulated time.
+
+Unplugging hangs the host's port up (it reads end-of-file, then every read and write fails, as with a
+pulled USB adapter) and refuses to open it until it is plugged back in.
+"""
+
+from __future__ import annotations
+
+import array
+import contextlib
+import fcntl
+import os
+import termios
+import threading
+from collections.abc import Callable
+
+import serial
+
+from drivers.serial_port import SerialPort
+
+INPROCESS_PREFIX = "inprocess:"
+
+
+class InProcessPort:
+    """The host's end of the cable: a non-blocking pyserial-like port (``drivers.serial_port.SerialPort``)."""
+
+    def __init__(self, cable: InProcessCable, baudrate: int) -> None:
+        self._cable = cable
+        self.baudrate = baudrate
+        self._read_fd, self._write_fd = os.pipe()
+        os.set_blocking(self._read_fd, False)
+        os.set_blocking(self._write_fd, False)
+        self._closed = False
+        self._hung_up = False
+        self._lock = threading.Lock()
+
+    @property
+    def in_waiting(self) -> int:
+        self._check_open()
+        buf = array.array("i", [0])
+        fcntl.ioctl(self._read_fd, termios.FIONREAD, buf)
+        return int(buf[0])
+
+    def read(self, size: int = 1) -> bytes:
+        self._check_open()
+        try:
+            return os.read(self._read_fd, max(1, size))
+        except BlockingIOError:
+            return b""
+
+    def write(self, data: bytes) -> int:
+        self._check_open()
+        if self._hung_up:
+            raise serial.SerialException(f"write failed on {self._cable.device_path}: the cable is unplugged")
+        payload = bytes(data)
+        self._cable.received(payload)
+        return len(payload)
+
+    def fileno(self) -> int:
+        self._check_open()
+        return self._read_fd
+
+    def reset_input_buffer(self) -> None:
+        with contextlib.suppress(BlockingIOError):
+            while os.read(self._read_fd, 65536):
+                pass
+
+    def close(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            os.close(self._read_fd)
+            if not self._hung_up:
+                os.close(self._write_fd)
+        self._cable.host_closed(self)
+
+    # --- the device's side ---------------------------------------------------------------------------------
+
+    def deliver(self, data: bytes) -> None:
+        """Bytes from the device to the host; lost when the host reads too slowly (a full buffer)."""
+        with self._lock:
+            if self._closed or self._hung_up:
+                return
+            with contextlib.suppress(BlockingIOError):
+                os.write(self._write_fd, data)
+
+    def hang_up(self) -> None:
+        """The cable was pulled: the host reads end-of-file, then fails."""
+        with self._lock:
+            if self._closed or self._hung_up:
+                return
+            self._hung_up = True
+            os.close(self._write_fd)
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise serial.SerialException("Attempting to use a port that is not open")
+
+
+class InProcessCable:
+    """A simulated serial cable named ``inprocess:<name>``; ``received`` is the simulator's input, called
+    on the host's thread with every write."""
+
+    def __init__(self, name: str, received: Callable[[bytes], None]) -> None:
+        self.device_path = INPROCESS_PREFIX + name
+        self._received = received
+        self._lock = threading.Lock()
+        self._port: InProcessPort | None = None
+        self._plugged = True
+
+    # --- the host's side ------------------------------------------------------------------------------
+
+    def open_serial(self, port: str, baudrate: int) -> SerialPort:
+        """Open the host's end (``drivers.serial_port.OpenSerial``); as pyserial, SerialException when the
+        name is not this cable's or the cable is unplugged."""
+        if port != self.device_path:
+            raise serial.SerialException(f"could not open port {port}: no such in-process device")
+        with self._lock:
+            if not self._plugged:
+                raise serial.SerialException(f"could not open port {port}: the cable is unplugged")
+            previous, self._port = self._port, InProcessPort(self, baudrate)
+            opened = self._port
+        if previous is not None:
+            previous.hang_up()
+        return opened
+
+    def received(self, data: bytes) -> None:
+        self._received(data)
+
+    def host_closed(self, port: InProcessPort) -> None:
+        with self._lock:
+            if self._port is port:
+                self._port = None
+
+    # --- the device's side ---------------------------------------------------------------------------
+
+    @property
+    def plugged(self) -> bool:
+        return self._plugged
+
+    def write(self, data: bytes) -> None:
+        """Send to the host; lost when nothing is connected, as on a real cable."""
+        port = self._port
+        if port is not None and self._plugged:
+            port.deliver(data)
+
+    def host_baudrate(self) -> int | None:
+        """The baud rate the host opened its end at, or None when it is not open."""
+        port = self._port
+        return port.baudrate if port is not None else None
+
+    def unplug(self) -> None:
+        with self._lock:
+            self._plugged = False
+            port, self._port = self._port, None
+        if port is not None:
+            port.hang_up()
+
+    def plug(self) -> None:
+        with self._lock:
+            self._plugged = True
+
+    def close(self) -> None:
+        self.unplug()
+
+
+__all__ = ["INPROCESS_PREFIX", "InProcessCable", "InProcessPort"]
