@@ -22,7 +22,7 @@ WRITER = textwrap.dedent(
     from daemon.recording import Recorder
 
     rec = Recorder(Path(sys.argv[1]), chunk_size=65536)
-    rec.write_header({{"robot_id": "r1"}}, {{"dataset": 3}})
+    rec.write_header({{"robot_id": "r1"}}, {{"dataset": 3}}, log_time_ns=time.time_ns())
     start = time.monotonic()
     i = 0
     while True:
