@@ -14,7 +14,7 @@ small and the file is flushed after every chunk and at least every ``flush_inter
 ``flock`` on it: a reader can tell a file being written from one cut by a crash (``reader.being_written``).
 
 ``rotate`` finishes the current file and goes on in a new one at that point of the stream: the daemon starts
-a file per job and rotates idle files. A new file starts with its header and the deriver's ``opening``
+a file per job and rotates idle files. Every file starts with its header and the deriver's ``opening``
 messages (the scene as it stands), so every file can be read on its own. A file may thin the high-rate
 telemetry to ``thin_hz`` (idle files); the tee still gets every message.
 """
@@ -351,12 +351,17 @@ class Recorder:
         with self._lock:
             if self._closed:
                 raise RecordingError(f"recording {self._path} is closed; open a new Recorder")
-            if len(self._pending) >= self._queue_size:
+            full = len(self._pending) >= self._queue_size
+            if full:
                 self._dropped += 1
-                if self._dropped == 1 or self._dropped % 1000 == 0:
-                    log.warning("recording_queue_full", path=str(self._path), dropped=self._dropped)
-                return False
-            self._pending.append(_Item(topic, log_time_ns, data, flush_now))
+                dropped = self._dropped
+            else:
+                self._pending.append(_Item(topic, log_time_ns, data, flush_now))
+        if full:
+            # Logged outside the lock: the record itself comes back here through the `log` topic.
+            if dropped == 1 or dropped % 1000 == 0:
+                log.warning("recording_queue_full", path=str(self.path), dropped=dropped)
+            return False
         if flush_now:
             self._wake.set()
         return True
@@ -398,10 +403,11 @@ class Recorder:
         channel = json_channel(item.topic)
         wrote = keep and self._add(channel, item.data, item.log_time_ns)
         self._send(channel, item.data, item.log_time_ns)
-        for derived in self._derived(item):
+        derived = self._opening(item.log_time_ns) if item.topic == HEADER_TOPIC else self._derived(item)
+        for d in derived:
             if keep:
-                wrote = self._add(derived.channel, derived.data, derived.log_time_ns) or wrote
-            self._send(derived.channel, derived.data, derived.log_time_ns)
+                wrote = self._add(d.channel, d.data, d.log_time_ns) or wrote
+            self._send(d.channel, d.data, d.log_time_ns)
         return wrote
 
     def _kept(self, item: _Item) -> bool:
@@ -424,6 +430,16 @@ class Recorder:
             return deriver.derive(item.topic, json.loads(item.data), item.log_time_ns)
         except Exception as e:  # a bad message or a bug there must not stop the recording
             self._warn_once(f"derive:{item.topic}", "recording_derive_failed", topic=item.topic, error=str(e))
+            return ()
+
+    def _opening(self, log_time_ns: int) -> Sequence[Derived]:
+        """What a file starts with after its header: the deriver's scene as it stands."""
+        if self._deriver is None:
+            return ()
+        try:
+            return self._deriver.opening(log_time_ns)
+        except Exception as e:  # a bug there must not stop the recording
+            self._warn_once("opening", "recording_derive_failed", topic=HEADER_TOPIC, error=str(e))
             return ()
 
     def _send(self, channel: ChannelSpec, data: bytes, log_time_ns: int) -> None:
@@ -503,15 +519,7 @@ class Recorder:
         self._thin_hz = rotate.thin_hz
         self._last_kept = {}
         log.info("recording_rotated", path=str(file.path), thin_hz=rotate.thin_hz)
-        self._add(json_channel(HEADER_TOPIC), rotate.header, rotate.log_time_ns)
-        if self._deriver is not None:
-            try:
-                opening = self._deriver.opening(rotate.log_time_ns)
-            except Exception as e:  # a bug there must not stop the recording
-                self._warn_once("opening", "recording_derive_failed", topic="", error=repr(e))
-                opening = ()
-            for derived in opening:
-                self._add(derived.channel, derived.data, derived.log_time_ns)
+        self._handle(_Item(HEADER_TOPIC, rotate.log_time_ns, rotate.header))
         self._flush()
         if rotate.on_open is not None:
             try:
