@@ -14,7 +14,8 @@ it into protobuf messages of Foxglove's well-known schemas, encoded by the Foxgl
   (``foxglove.CameraCalibration``): the detections' depth preview, at most ``depth_hz``.
 - ``/log`` and ``/events`` (``foxglove.Log``): every ``log`` record; every event, with a level.
 
-The latched topics (arm, cell, mugs, plan, status, calibration and the latest transforms) are repeated at
+The latched topics (arm, cell, mugs, plan, status, the latest transforms, and the calibration once a depth
+image gave its size) are repeated at
 the start of every file (``opening``), so each file shows the whole scene on its own. Every timestamp inside
 a message is the log time the recorder was given for the message it derives from.
 """
@@ -254,7 +255,7 @@ class SceneView:
             _derived(STATUS, self._status_scene(t), t),
             _derived(TF, self._transforms(t), t),
         ]
-        if self._camera is not None:
+        if self._camera is not None and self._s.depth_size is not None:
             out.append(_derived(CALIBRATION, self._calibration(t), t))
         return out
 
@@ -582,7 +583,7 @@ class SceneView:
                 color=colour,
             )
         ]
-        label = mug.mug_id if not where else f"{mug.mug_id} ({where})"
+        label = mug.mug_id
         if mug.upside_down:
             # A red disc on the base, which faces up when the mug stands on its brim.
             base = _compose((xyz, q), ((0.0, 0.0, -shape.height_m / 2 - 0.002), IDENTITY))
@@ -596,6 +597,8 @@ class SceneView:
                 )
             )
             label += " upside down"
+        if where:
+            label += f" ({where})"
         top = pose @ np.array([0.0, 0.0, 0.0, 1.0])
         text_at = (float(top[0]), float(top[1]), float(top[2]) + shape.height_m / 2 + 0.03)
         return SceneEntity(
@@ -650,8 +653,9 @@ class SceneView:
 
     def _calibration(self, t: int) -> CameraCalibration:
         assert self._camera is not None
-        _, (width, height, fx, fy, cx, cy) = self._camera
-        w, h = self._s.depth_size or (width, height)
+        _, (width, _height, fx, fy, cx, cy) = self._camera
+        assert self._s.depth_size is not None
+        w, h = self._s.depth_size  # the depth image's size: the camera's, shrunk for the preview
         scale = w / width
         fx, fy, cx, cy = fx * scale, fy * scale, (cx + 0.5) * scale - 0.5, (cy + 0.5) * scale - 0.5
         return CameraCalibration(
