@@ -109,13 +109,14 @@ def _run(args: argparse.Namespace) -> int:
         raise UsageError(f"--speed {speed:g}: choose 0.1-1000 simulated seconds per second")
     if args.seed is not None:  # the recording's header shows the seed the simulated cell really used
         config = dataclasses.replace(config, sim=dataclasses.replace(config.sim, seed=args.seed))
+    foxglove = _foxglove_address(args.foxglove, config)
     worker_logs = multiprocessing.get_context("forkserver").Queue(maxsize=10_000)
     options = RunOptions(
         listen=listen,
         connect=connect,
         record_dir=args.record_dir or config.recording.dir,
         once=StartRequest() if args.once else None,
-        foxglove=_foxglove_address(args.foxglove, config),
+        foxglove=foxglove,
         worker_logs=worker_logs,
     )
     associate = association()

@@ -33,7 +33,7 @@ from daemon.config import RecordingConfig
 from daemon.errors import RecordingError
 from daemon.recording.reader import being_written
 from daemon.recording.schemas import topic_suffix
-from daemon.recording.writer import Deriver, Recorder, RecorderStats, Tee, header_payload
+from daemon.recording.writer import Deriver, Recorder, RecorderStats, Tee, free_path, header_payload
 
 log = structlog.get_logger(__name__)
 
@@ -211,7 +211,7 @@ class SessionRecording:
         path = self._directory / file_name(self._robot_id, self._kind, t)
         try:
             recorder = Recorder(
-                path,
+                free_path(path),
                 chunk_size=self._settings.chunk_size_bytes,
                 compression=self._settings.compression,
                 thin_hz=self._thin_hz(self._kind),
@@ -224,7 +224,7 @@ class SessionRecording:
             return None
         job = self._job_header(self._first_job) if self._first_job is not None else None
         recorder.write_header(
-            self._config, self._scene(), log_time_ns=t, job=job, file=self._file_header(None)
+            self._config, self._scene(), log_time_ns=t, job=job, file=self._file_header(self._kind)
         )
         self._opened_ns = t
         self._recorder = recorder
@@ -250,7 +250,6 @@ class SessionRecording:
     def _rotate(self, kind: str, t: int) -> None:
         recorder = self._recorder
         assert recorder is not None
-        previous = recorder.path.name
         job = self._job_header(self._expected or {}) if kind == JOB else None
         self._expected = None
         self._kind = kind
@@ -259,7 +258,7 @@ class SessionRecording:
         self._job_ended_ns = None
         path = self._directory / file_name(self._robot_id, kind, t)
         header = header_payload(
-            self._config, self._scene(), job=job, file=self._file_header(previous, kind=kind)
+            self._config, self._scene(), job=job, file=self._file_header(kind)
         )
         recorder.rotate(path, header, log_time_ns=t, thin_hz=self._thin_hz(kind), on_open=self._after_open)
 
@@ -275,6 +274,8 @@ class SessionRecording:
             out["dataset"] = self._scene().get("dataset")  # the same scene as the job before
         return out
 
-    def _file_header(self, previous: str | None, *, kind: str | None = None) -> dict[str, object]:
+    def _file_header(self, kind: str) -> dict[str, object]:
+        """The header's ``file``: its kind and number in this process, the writer's pid, the file before it
+        (filled in by the recorder when it switches files)."""
         self._index += 1
-        return {"kind": kind or self._kind, "index": self._index, "pid": os.getpid(), "previous": previous}
+        return {"kind": kind, "index": self._index, "pid": os.getpid(), "previous": None}

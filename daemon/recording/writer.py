@@ -116,7 +116,7 @@ class _Item:
 @dataclass(frozen=True, slots=True)
 class _Rotate:
     path: Path
-    header: bytes
+    header: Mapping[str, object]
     log_time_ns: int
     thin_hz: float | None
     on_open: Callable[[Path], None] | None
@@ -298,16 +298,18 @@ class Recorder:
         on_open: Callable[[Path], None] | None = None,
     ) -> None:
         """Finish the current file after the messages queued so far and go on in a new file at ``path``
-        (a ``-N`` suffix is added when it exists), starting with ``header`` (``header_payload``) and the
-        deriver's opening messages. ``on_open(path)`` then runs on the recorder's thread (retention).
-        The rotation is never dropped, even when the queue is full."""
+        (a ``-N`` suffix is added when it exists), starting with ``header`` (``header_payload``; its
+        ``file.previous``, when there, is set to the name of the file just finished) and the deriver's
+        opening messages. ``on_open(path)`` then runs on the recorder's thread (retention). The rotation is
+        never dropped, even when the queue is full."""
         _check_thin(thin_hz)
-        data = _encode(HEADER_TOPIC, header)
+        _check_time(HEADER_TOPIC, log_time_ns)
+        _encode(HEADER_TOPIC, header)  # refuse a header that is not JSON here, not on the thread
         with self._lock:
             if self._closed:
                 raise RecordingError(f"recording {self._path} is closed; open a new Recorder")
             self._header_pending = False
-            self._pending.append(_Rotate(Path(path), data, log_time_ns, thin_hz, on_open))
+            self._pending.append(_Rotate(Path(path), dict(header), log_time_ns, thin_hz, on_open))
         self._wake.set()
 
     def stats(self) -> RecorderStats:
@@ -502,6 +504,7 @@ class Recorder:
 
     def _switch(self, rotate: _Rotate) -> None:
         """Finish the current file and open the next one with its header and the opening messages."""
+        previous = self._file.path.name if self._file is not None else None
         self._finish()
         try:
             file = _create(rotate.path, chunk_size=self._chunk_size, compression=self._compression)
@@ -519,7 +522,10 @@ class Recorder:
         self._thin_hz = rotate.thin_hz
         self._last_kept = {}
         log.info("recording_rotated", path=str(file.path), thin_hz=rotate.thin_hz)
-        self._handle(_Item(HEADER_TOPIC, rotate.log_time_ns, rotate.header))
+        header = dict(rotate.header)
+        if isinstance(header.get("file"), Mapping):
+            header["file"] = {**header["file"], "previous": previous}  # type: ignore[dict-item]
+        self._handle(_Item(HEADER_TOPIC, rotate.log_time_ns, _encode(HEADER_TOPIC, header)))
         self._flush()
         if rotate.on_open is not None:
             try:
@@ -562,11 +568,15 @@ def header_payload(
 
 
 def _create(path: Path, *, chunk_size: int, compression: CompressionType) -> _File:
-    """A new file at ``path``, or at ``path`` with ``-1``, ``-2``, ... before the suffix when it exists."""
+    return _File(free_path(path), chunk_size=chunk_size, compression=compression)
+
+
+def free_path(path: Path) -> Path:
+    """``path``, or ``path`` with ``-1``, ``-2``, ... before the suffix when that is taken."""
     for i in range(_MAX_NAME_TRIES):
         candidate = path if i == 0 else path.with_name(f"{path.stem}-{i}{path.suffix}")
         if not candidate.exists():
-            return _File(candidate, chunk_size=chunk_size, compression=compression)
+            return candidate
     raise RecordingError(f"recording {path} and {_MAX_NAME_TRIES - 1} numbered variants already exist")
 
 
