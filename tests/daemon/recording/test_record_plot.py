@@ -158,5 +158,3 @@ def test_without_matplotlib_the_plot_says_what_to_install(
     assert capsys.readouterr().err == (
         "dishbot record: error: plotting needs matplotlib: pip install 'dishbot[plot]'\n"
     )
-
-
