@@ -257,9 +257,7 @@ class SessionRecording:
         self._job_started = False
         self._job_ended_ns = None
         path = self._directory / file_name(self._robot_id, kind, t)
-        header = header_payload(
-            self._config, self._scene(), job=job, file=self._file_header(kind)
-        )
+        header = header_payload(self._config, self._scene(), job=job, file=self._file_header(kind))
         recorder.rotate(path, header, log_time_ns=t, thin_hz=self._thin_hz(kind), on_open=self._after_open)
 
     def _after_open(self, path: Path) -> None:

@@ -223,3 +223,31 @@ def test_a_bad_urdf_is_refused_in_one_line(tmp_path: Path, body: str, message: s
     with pytest.raises(UrdfError) as err:
         ArmFrames.load(path)
     assert str(err.value) == f"{path}: {message}"
+
+
+def test_the_foxglove_layout_in_docs_shows_channels_the_recordings_have() -> None:
+    import json
+    import re
+
+    from daemon.foxglove_scene import TOPICS
+    from daemon.recording.schemas import schema_for
+
+    layout = json.loads((Path(__file__).resolve().parents[3] / "docs" / "foxglove-layout.json").read_text())
+    panels = set(layout["configById"])
+
+    def leaves(node: Any) -> list[str]:
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    assert sorted(leaves(layout["layout"])) == sorted(panels)
+    assert {p.split("!")[0] for p in panels} == {"3D", "Image", "StateTransitions", "Plot", "RosOut"}
+    for config in layout["configById"].values():
+        for topic in (*config.get("topics", {}), config.get("topicToRender")):
+            if topic:
+                assert topic in TOPICS
+        for key in ("imageTopic", "calibrationTopic"):
+            if key in config.get("imageMode", {}):
+                assert config["imageMode"][key] in TOPICS
+        for path in config.get("paths", []):
+            topic, field = re.match(r"^([^.]+)\.(\w+)", path["value"]).groups()  # type: ignore[union-attr]
+            assert topic.startswith("dishbot/dishbot/")  # the default robot_id
+            assert field in schema_for(topic)["properties"]  # type: ignore[operator]
