@@ -140,10 +140,16 @@ async def serve(
             live = LiveServer(*options.foxglove, name=f"dishbot {config.robot_id}")
         view = None
         if config.foxglove.channels:
+            from daemon.foxglove_arm import UrdfError
             from daemon.foxglove_scene import SceneView
 
-            view = SceneView(config, depth_hz=config.foxglove.depth_hz)
+            try:
+                view = SceneView(config, depth_hz=config.foxglove.depth_hz)
+            except UrdfError as e:
+                raise UsageError(str(e)) from e
     except BaseException:
+        if live is not None:
+            live.close()
         session.close()
         raise
     recording = SessionRecording(
@@ -173,10 +179,9 @@ async def serve(
                 stop or asyncio.Event(),
                 executor,
                 live,
+                relay,
             )
     finally:
-        if relay is not None:
-            relay.close()
         if live is not None:
             live.close()
 
@@ -193,6 +198,7 @@ async def _run(
     stop: asyncio.Event,
     executor: concurrent.futures.Executor | None,
     live: LiveServer | None,
+    relay: LogRelay | None,
 ) -> RunResult:
     loop = asyncio.get_running_loop()
     # Every read at the driver boundary (the telemetry's too) is recorded as an input for replay.
@@ -275,6 +281,8 @@ async def _run(
                 await task
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.remove_signal_handler(sig)
+        if relay is not None:
+            await asyncio.to_thread(relay.close)
         session.attach_recorder(None)
         session.close()
         await asyncio.to_thread(recording.close)

@@ -3,7 +3,9 @@
 A channel's schema has to describe every message the channel will ever carry: the first ``events`` message
 is a transition, but the channel also carries faults (``reason``), placements (``mug_id``, ``x_m``) and the
 drivers' device events. Each schema names the fields dishbot writes, with their types and units; fields a
-later version adds are allowed (``additionalProperties``), so an old schema never rejects a newer message.
+later version adds are allowed (``additionalProperties``). The ``kind`` of an event and the ``state`` are
+enumerations: a new event kind goes into ``EVENT_KINDS`` here (a test validates every message of a recorded
+job against the schema stored with it).
 
 Topics are matched by what follows ``dishbot/<robot_id>/``; a topic nobody described here (a test's, a
 tool's) gets a schema that says only "a JSON object".
@@ -251,10 +253,7 @@ _SCHEMAS: Final[dict[str, Schema]] = {
     "log": _object(
         {
             "event": _string("the structlog event name"),
-            "level": {
-                "type": "string",
-                "enum": ["debug", "info", "warning", "error", "critical", "exception"],
-            },
+            "level": _string("the logging method: debug, info, warning, error, exception, critical"),
             "timestamp": _string("when it was logged, as the log renderer writes it"),
             "logger": _string("the logger's name"),
             "process": _string("'planning' for records relayed from the planning worker"),
