@@ -1,11 +1,14 @@
-"""``dishbot bench daemon``: command latency, publish latency, event-loop jitter and recording throughput.
+"""``dishbot bench daemon``: command and publish latency, event-loop jitter, recording throughput and size.
 
-The daemon runs in this process on the simulated kinematic cell on the wall clock, as on the robot, listening
-on a free loopback port, with a loading job going (so every topic is published and recorded); a second Zenoh
-session, as a remote client would, sends ``status`` queries one after another and subscribes to ``state``
-and ``joints``. A probe task on the daemon's own event loop wakes at 50 Hz and measures how late each
-wake-up is. Separately, a recorder
-writes joint samples as fast as it accepts them.
+The daemon runs in this process on the simulated kinematic cell on the wall clock, as on the robot,
+listening on a free loopback port, with a loading job going (so every topic is published and recorded); a
+second Zenoh session, as a remote client would, sends ``status`` queries one after another and subscribes to
+``state`` and ``joints``. A probe task on
+the daemon's own event loop wakes at 50 Hz and measures how late each wake-up is. That run is made three
+times: with the JSON channels only, with the Foxglove channels derived beside them (the default), and with
+the live Foxglove server too, a WebSocket client in another process subscribed to every channel. Each run's
+job file gives the recording's size per minute of job. Separately, a recorder writes joint samples as fast as
+it accepts them, with and without the Foxglove channels derived from them.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from daemon.commands.output import add_json_flag, emit
 from daemon.commands.run import association, planning_pool
@@ -73,6 +76,22 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 @dataclass(frozen=True, slots=True)
+class _Variant:
+    """What one live run records and serves."""
+
+    name: str
+    channels: bool  # derive the Foxglove channels into the recording
+    live_server: bool  # serve them over WebSocket to a client
+
+
+VARIANTS: Final = (
+    _Variant("JSON channels only", channels=False, live_server=False),
+    _Variant("+ Foxglove channels", channels=True, live_server=False),
+    _Variant("+ live server, 1 client", channels=True, live_server=True),
+)
+
+
+@dataclass(frozen=True, slots=True)
 class _Live:
     round_trip_ms: list[float]
     state_ms: list[float]
@@ -80,6 +99,8 @@ class _Live:
     jitter_ms: list[float]
     baseline_jitter_ms: list[float]
     states_seen: int
+    job_kb_per_min: float
+    live_messages: int  # what the Foxglove client received while the loop was probed
 
 
 def _bench(args: argparse.Namespace) -> int:
@@ -90,43 +111,56 @@ def _bench(args: argparse.Namespace) -> int:
     if not 1000 <= args.messages <= 10_000_000:
         raise UsageError(f"--messages {args.messages}: choose 1000-10000000")
     with tempfile.TemporaryDirectory(prefix="dishbot-bench-") as tmp:
-        live = asyncio.run(_live(Path(tmp), args.commands, args.seconds, args.log_level))
-        rate, mb_s, dropped = _recording_throughput(Path(tmp) / "throughput.mcap", args.messages)
+        runs = {
+            v.name: asyncio.run(_live(Path(tmp) / f"run{i}", v, args.commands, args.seconds, args.log_level))
+            for i, v in enumerate(VARIANTS)
+        }
+        json_only = _recording_throughput(Path(tmp) / "json.mcap", args.messages, foxglove=False)
+        with_foxglove = _recording_throughput(Path(tmp) / "foxglove.mcap", args.messages, foxglove=True)
+    main = runs[VARIANTS[1].name]  # the default: what a daemon records
     rows = [
         [
             "command round trip (status)",
             "ms",
-            *_percentiles(live.round_trip_ms),
-            len(live.round_trip_ms),
+            *_percentiles(main.round_trip_ms),
+            len(main.round_trip_ms),
             "p99 <= 5",
         ],
-        ["state publish -> receive", "ms", *_percentiles(live.state_ms), len(live.state_ms), ""],
-        ["joints publish -> receive", "ms", *_percentiles(live.joints_ms), len(live.joints_ms), ""],
-        [
-            "event loop period error at 50 Hz",
-            "ms",
-            *_percentiles(live.jitter_ms),
-            len(live.jitter_ms),
-            "p99 <= 5",
-        ],
+        ["state publish -> receive", "ms", *_percentiles(main.state_ms), len(main.state_ms), ""],
+        ["joints publish -> receive", "ms", *_percentiles(main.joints_ms), len(main.joints_ms), ""],
+        *(
+            [
+                f"event loop period error at 50 Hz, {name}",
+                "ms",
+                *_percentiles(run.jitter_ms),
+                len(run.jitter_ms),
+                "p99 <= 5",
+            ]
+            for name, run in runs.items()
+        ),
         [
             "same, bare loop in another process",
             "ms",
-            *_percentiles(live.baseline_jitter_ms),
-            len(live.baseline_jitter_ms),
+            *_percentiles(main.baseline_jitter_ms),
+            len(main.baseline_jitter_ms),
             "machine floor",
         ],
     ]
+    live = runs[VARIANTS[2].name]
     emit(
         "dishbot bench daemon",
         ["measure", "unit", "p50", "p99", "max", "samples", "target"],
         rows,
         as_json=args.json,
         extra={
-            "recording_messages_per_s": round(rate),
-            "recording_mb_per_s": round(mb_s, 2),
-            "recording_queue_full_waits": dropped,
-            "state_changes_seen": live.states_seen,
+            "recording_messages_per_s": round(json_only[0]),
+            "recording_mb_per_s": round(json_only[1], 2),
+            "recording_queue_full_waits": json_only[2],
+            "recording_messages_per_s_with_foxglove": round(with_foxglove[0]),
+            "recording_mb_per_s_with_foxglove": round(with_foxglove[1], 2),
+            "job_file_kb_per_min": {name: round(run.job_kb_per_min, 1) for name, run in runs.items()},
+            "live_client_messages_per_s": round(live.live_messages / args.seconds, 1),
+            "state_changes_seen": main.states_seen,
             "load_average_1m": round(os.getloadavg()[0], 2),
             "cpus": os.cpu_count(),
         },
@@ -134,21 +168,29 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
-async def _live(tmp: Path, commands: int, seconds: float, log_level: str) -> _Live:
+async def _live(tmp: Path, variant: _Variant, commands: int, seconds: float, log_level: str) -> _Live:
     from daemon.app import RunOptions, serve
     from daemon.backend import ProcessMotionPlanner, SimOptions, open_backend
     from daemon.clock import RealClock
+    from daemon.recording.files import is_job_file
     from daemon.sdnotify import SdNotifier
 
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    config = load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}})
+    foxglove = ("127.0.0.1", _free_port()) if variant.live_server else None
+    config = load_config(
+        overrides={
+            "robot_id": ROBOT,
+            "planner": {"method": "bh"},
+            "foxglove": {"channels": variant.channels},
+        },
+    )
     with planning_pool(log_level) as pool:
         # The wall clock: what is measured is the loop's real-time behaviour, the robot's.
         sim = SimOptions(world="kinematic", dataset=1, seed=0)
         backend = await open_backend(config, sim=sim, clock=RealClock(), executor=pool)
         if isinstance(backend.motion, ProcessMotionPlanner):
             await asyncio.wrap_future(backend.motion.warm_up())
-        options = RunOptions(listen=(endpoint,), connect=(), record_dir=tmp, once=None)
+        options = RunOptions(listen=(endpoint,), connect=(), record_dir=tmp, once=None, foxglove=foxglove)
         stop = asyncio.Event()
         ready = asyncio.Event()
         daemon = asyncio.create_task(
@@ -167,18 +209,79 @@ async def _live(tmp: Path, commands: int, seconds: float, log_level: str) -> _Li
         probe_errors: list[float] = []
         # Start the helper processes first: spawning them blocks this loop, which must not be measured.
         baseline = _start_bare_probe(seconds + _CLIENT_SETTLE_S)
+        viewer = _start_viewer(foxglove, seconds) if foxglove is not None else None
         client = asyncio.create_task(asyncio.to_thread(_client_process, endpoint, commands, seconds))
         await asyncio.sleep(_CLIENT_SETTLE_S)
         probing = asyncio.create_task(_probe(probe_errors))
         try:
             result = await client
             baseline_errors = await asyncio.to_thread(_finish_bare_probe, baseline)
+            live_messages = await asyncio.to_thread(_finish_bare_probe, viewer) if viewer else []
         finally:
             probing.cancel()
             stop.set()
-            await daemon
+            outcome = await daemon
     round_trip, state, joints, states_seen = result
-    return _Live(round_trip, state, joints, probe_errors, baseline_errors, states_seen)
+    return _Live(
+        round_trip,
+        state,
+        joints,
+        probe_errors,
+        baseline_errors,
+        states_seen,
+        _kb_per_minute([p for p in outcome.files if is_job_file(p)]),
+        int(sum(live_messages)),
+    )
+
+
+def _kb_per_minute(files: list[Path]) -> float:
+    """The size of job files per minute of the time they cover."""
+    from daemon.recording import read_messages
+
+    size = sum(p.stat().st_size for p in files)
+    spans = [read_messages(p, keep=lambda topic: False) for p in files]
+    minutes = sum(((r.end_ns or 0) - (r.start_ns or 0)) / 60e9 for r in spans)
+    return size / 1000.0 / minutes if minutes > 0 else float("nan")
+
+
+def _start_viewer(address: tuple[str, int], seconds: float) -> _BareProbe:
+    """A Foxglove client in its own process: subscribes to every channel and counts what it receives."""
+    context = multiprocessing.get_context("spawn")
+    results: multiprocessing.queues.Queue[list[float]] = context.Queue()
+    url = f"ws://{address[0]}:{address[1]}"
+    process = context.Process(target=_viewer, args=(url, seconds, results), daemon=True)
+    process.start()
+    return process, results
+
+
+def _viewer(url: str, seconds: float, results: multiprocessing.queues.Queue[list[float]]) -> None:
+    import websockets
+    from websockets.typing import Subprotocol
+
+    async def run() -> float:
+        received = 0
+        protocols = [Subprotocol("foxglove.sdk.v1")]
+        async with websockets.connect(url, subprotocols=protocols, max_size=None) as ws:
+            subscribed: set[int] = set()
+            end = time.monotonic() + _CLIENT_SETTLE_S + seconds
+            counting_from = time.monotonic() + _CLIENT_SETTLE_S
+            while (left := end - time.monotonic()) > 0:
+                try:
+                    frame = await asyncio.wait_for(ws.recv(), left)
+                except TimeoutError:
+                    break
+                if isinstance(frame, str):
+                    doc = json.loads(frame)
+                    new = [c["id"] for c in doc.get("channels", []) if c["id"] not in subscribed]
+                    if doc.get("op") == "advertise" and new:
+                        subs = [{"id": cid, "channelId": cid} for cid in new]
+                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+                        subscribed.update(new)
+                elif time.monotonic() >= counting_from:
+                    received += 1
+        return float(received)
+
+    results.put([asyncio.run(run())])
 
 
 _BareProbe = tuple[multiprocessing.process.BaseProcess, "multiprocessing.queues.Queue[list[float]]"]
@@ -293,8 +396,10 @@ def _query(session: zenoh.Session, verb: str, request: StartRequest | None) -> N
         raise UsageError(f"the daemon did not answer {verb} during the benchmark")
 
 
-def _recording_throughput(path: Path, messages: int) -> tuple[float, float, int]:
-    """Messages per second and MB/s the recorder takes, from the first write until the file is finished."""
+def _recording_throughput(path: Path, messages: int, *, foxglove: bool) -> tuple[float, float, int]:
+    """Messages per second and MB/s the recorder takes, from the first write until the file is finished;
+    with ``foxglove``, each joint sample also gives its transforms (``/tf``), as in the daemon."""
+    from daemon.foxglove_scene import SceneView
     from daemon.recording import Recorder
     from daemon.zenoh_session import key
 
@@ -306,9 +411,10 @@ def _recording_throughput(path: Path, messages: int) -> tuple[float, float, int]
         "load": [0.01] * 5,
     }
     topic = key(ROBOT, "joints")
+    deriver = SceneView(load_config()) if foxglove else None
     start = time.perf_counter()
     full = 0
-    with Recorder(path, chunk_size=65536) as recorder:
+    with Recorder(path, chunk_size=65536, deriver=deriver) as recorder:
         for i in range(messages):
             payload["t"] = i * 0.001
             while not recorder.write(topic, payload, log_time_ns=time.time_ns()):

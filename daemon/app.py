@@ -1,9 +1,13 @@
 """The daemon process: one event loop running the job, the telemetry, the command server and the recording.
 
-``serve`` opens the recording and the Zenoh session, wires the backend's driver-boundary inputs into the
-recording, starts the job's control task and the telemetry loops (state, joints, gripper), answers commands,
-pings the systemd watchdog from the loop, and on SIGTERM/SIGINT (or, with ``once``, when the job ends) stops
-motion, finishes the recording and closes the session.
+``serve`` opens the Zenoh session (and the live Foxglove server when asked), then the recording: a file per
+job and rotating idle files (``daemon.recording.files``), with the Foxglove channels derived from what is
+recorded (``daemon.foxglove_scene``). It wires the backend's driver-boundary inputs into the recording,
+publishes every log record on ``log`` (the planning worker's too, through ``daemon.log_relay``), starts the
+job's control task and the telemetry loops (state, joints, gripper), answers commands, pings the systemd
+watchdog from the loop, and on SIGTERM/SIGINT (or, with ``once``, when the job ends) stops motion, finishes
+the recording and closes the session. A start that is refused (an endpoint or port in use, a directory that
+cannot be written) leaves no recording file behind.
 
 Everything runs on the backend's clock: telemetry periods, the watchdog's, the ``t`` of every message and
 the recording's log times (simulated time in simulation, the wall clock on the robot).
@@ -18,9 +22,9 @@ import gc
 import os
 import signal
 from collections.abc import Awaitable, Callable, Iterator, Mapping
-from dataclasses import dataclass
-from datetime import UTC, datetime
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import structlog
 import zenoh
@@ -29,14 +33,19 @@ from daemon import commands_handler
 from daemon.backend import Backend, joints_payload, recorded
 from daemon.clock import SessionClock, wall_seconds
 from daemon.config import Config
-from daemon.errors import RecordingError, UsageError
+from daemon.errors import UsageError
 from daemon.job import Job, JobSummary, StartRequest
-from daemon.recording import Recorder
+from daemon.log_relay import LogRelay, RecordQueue, plain_record
+from daemon.recording.files import SessionRecording, is_job_file
+from daemon.recording.outcome import JobOutcome
 from daemon.sdnotify import SdNotifier
 from daemon.zenoh_session import ZenohSession
 from drivers.dynamixel import BusTimeout
 from drivers.errors import BusLost, DriverError, ServoFault
 from perception.interfaces import Associate
+
+if TYPE_CHECKING:
+    from daemon.foxglove_server import LiveServer
 
 log = structlog.get_logger("daemon")
 
@@ -53,21 +62,52 @@ class RunOptions:
     connect: tuple[str, ...]
     record_dir: Path
     once: StartRequest | None = None  # run this one job at once, then exit
+    foxglove: tuple[str, int] | None = None  # serve the live Foxglove view on this host and port
+    worker_logs: RecordQueue | None = None  # the planning worker's log records, for the `log` topic
 
 
 @dataclass(frozen=True, slots=True)
 class RunResult:
     summary: JobSummary
-    recording: Path
+    recording: Path  # the last job's file (the last file when no job ran)
     end_state: str
+    outcome: JobOutcome = field(default_factory=JobOutcome)
+    files: tuple[Path, ...] = ()  # every recording file written
     wall_s: float = 0.0  # how long the ``once`` job took on this machine (its duration is on the clock)
     simulated: bool = False
 
 
-def recording_path(record_dir: Path, robot_id: str, wall_start: float) -> Path:
-    """``<robot>-<UTC start>-<pid>.mcap``, named after the session's wall-clock start."""
-    stamp = datetime.fromtimestamp(wall_start, UTC).strftime("%Y%m%dT%H%M%SZ")
-    return record_dir / f"{robot_id}-{stamp}-{os.getpid()}.mcap"
+def job_header(request: StartRequest, config: Config) -> dict[str, object]:
+    """What a job runs, for its recording's header: the dataset or mugs asked for, the effective planner
+    settings (the configured ones with the request's overrides, as the job applies them) and the seeds."""
+    p, r = config.planner, request.planner
+    asked = {
+        k: v
+        for k, v in (
+            ("method", r.method),
+            ("cost", r.cost),
+            ("fitness", r.fitness),
+            ("time_limit_s", r.time_limit_s),
+            ("seed", r.seed),
+        )
+        if v is not None
+    }
+    mugs = None
+    if request.mugs is not None:
+        mugs = [{"id": m.mug_id, "type": m.type, "x_m": m.x_m, "y_m": m.y_m} for m in request.mugs]
+    return {
+        "dataset": request.dataset,
+        "mugs": mugs,
+        "planner": {
+            "method": r.method or p.method,
+            "cost": r.cost or p.cost,
+            "fitness": r.fitness or p.fitness,
+            "time_limit_s": r.time_limit_s or p.time_limit_s,
+            "seed": p.seed if r.seed is None else r.seed,
+        },
+        "planner_overrides": asked,
+        "sim_seed": config.sim.seed if config.backend == "sim" else None,
+    }
 
 
 async def serve(
@@ -87,11 +127,8 @@ async def serve(
         options.record_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise UsageError(f"cannot create the recording directory {options.record_dir}: {e.strerror}") from e
-    path = recording_path(options.record_dir, config.robot_id, backend.clock.wall_start)
-    try:
-        recorder = Recorder(path, chunk_size=config.recording.chunk_size_bytes)
-    except RecordingError as e:
-        raise UsageError(str(e)) from e
+    if not os.access(options.record_dir, os.W_OK | os.X_OK):
+        raise UsageError(f"cannot write recordings to {options.record_dir}: permission denied")
     try:
         session = ZenohSession.open(
             config.robot_id,
@@ -100,24 +137,61 @@ async def serve(
             max_command_bytes=config.daemon.max_command_bytes,
         )
     except zenoh.ZError as e:
-        recorder.close()
         raise UsageError(f"cannot open the Zenoh session (listen {list(options.listen)}): {e}") from e
     clock = backend.clock
-    session.attach_recorder(recorder, lambda: round(clock.now() * 1e9))
-    with _logs_published(session, clock):
-        return await _run(
-            config,
-            backend,
-            associate,
-            options,
-            notifier,
-            session,
-            recorder,
-            path,
-            on_ready,
-            stop or asyncio.Event(),
-            executor,
-        )
+    live: LiveServer | None = None
+    try:
+        if options.foxglove is not None:
+            from daemon.foxglove_server import LiveServer
+
+            live = LiveServer(*options.foxglove, name=f"dishbot {config.robot_id}")
+        view = None
+        if config.foxglove.channels:
+            from daemon.foxglove_arm import UrdfError
+            from daemon.foxglove_scene import SceneView
+
+            try:
+                view = SceneView(config, depth_hz=config.foxglove.depth_hz)
+            except UrdfError as e:
+                raise UsageError(str(e)) from e
+    except BaseException:
+        if live is not None:
+            live.close()
+        session.close()
+        raise
+    recording = SessionRecording(
+        config.recording,
+        options.record_dir,
+        config.robot_id,
+        config=config.to_dict(),
+        scene=backend.scene,
+        clock=clock.describe(),
+        job=job_header(options.once, config) if options.once is not None else None,
+        deriver=view,
+        tee=live,
+    )
+    relay = LogRelay(options.worker_logs, _publish_log(session)) if options.worker_logs is not None else None
+    try:
+        with _logs_published(session, clock):
+            session.attach_recorder(recording, lambda: round(clock.now() * 1e9))
+            await asyncio.to_thread(recording.apply_retention)
+            return await _run(
+                config,
+                backend,
+                associate,
+                options,
+                notifier,
+                session,
+                recording,
+                on_ready,
+                stop or asyncio.Event(),
+                executor,
+                live,
+                relay,
+            )
+    finally:
+        if live is not None:
+            live.close()
 
 
 async def _run(
@@ -127,20 +201,34 @@ async def _run(
     options: RunOptions,
     notifier: SdNotifier,
     session: ZenohSession,
-    recorder: Recorder,
-    path: Path,
+    recording: SessionRecording,
     on_ready: Callable[[ZenohSession, Path], None] | None,
     stop: asyncio.Event,
     executor: concurrent.futures.Executor | None,
+    live: LiveServer | None,
+    relay: LogRelay | None,
 ) -> RunResult:
     loop = asyncio.get_running_loop()
     clock = backend.clock
     # Every read at the driver boundary (the telemetry's too) is recorded as an input for replay.
     backend = recorded(backend, session.record)
-    job = Job(backend, config, session.publish, associate, executor=executor)
-    recorder.write_header(
-        config.to_dict(), backend.scene(), log_time_ns=round(clock.now() * 1e9), clock=clock.describe()
-    )
+    outcome = JobOutcome()
+
+    def publish(topic: str, payload: Mapping[str, object]) -> None:
+        if topic == "events":
+            outcome.add(payload)  # what `--once` says about each mug
+        session.publish(topic, payload)
+
+    job = Job(backend, config, publish, associate, executor=executor)
+
+    async def handle(verb: str, payload: bytes) -> dict[str, object]:
+        if verb == "start":  # what the job will run goes into its file's header
+            with contextlib.suppress(commands_handler.BadCommand):
+                request = commands_handler.parse(verb, payload, config)
+                if request is not None:
+                    recording.expect_job(job_header(request, config))
+        return await commands_handler.handle(job, verb, payload)
+
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
     tasks = [
@@ -165,14 +253,21 @@ async def _run(
             loop.call_soon_threadsafe(job.device_event, event)
 
         backend.on_event(device_event)
-    session.serve(loop, lambda verb, payload: commands_handler.handle(job, verb, payload))
-    session.publish("state", job.status())
+    session.serve(loop, handle)
+    session.publish("state", job.status())  # the first message: it opens the first recording file
+    path = recording.path or options.record_dir
     # Everything allocated so far lives as long as the process: keep it out of the cyclic collector's
     # scans, whose full passes over it stalled the loop for tens of milliseconds.
     gc.collect()
     gc.freeze()
     notifier.ready(f"robot {config.robot_id} idle")
-    log.info("daemon_ready", robot_id=config.robot_id, listen=list(options.listen), recording=str(path))
+    log.info(
+        "daemon_ready",
+        robot_id=config.robot_id,
+        listen=list(options.listen),
+        recording=str(path),
+        foxglove=live.url if live is not None else None,
+    )
     if on_ready is not None:
         on_ready(session, path)
     wall_s = 0.0
@@ -200,11 +295,18 @@ async def _run(
                 await task
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.remove_signal_handler(sig)
+        if relay is not None:
+            await asyncio.to_thread(relay.close)
         session.attach_recorder(None)
         session.close()
-        await asyncio.to_thread(recorder.close)
+        await asyncio.to_thread(recording.close)
         await backend.close()
-    return RunResult(job.summary, path, job.chart.state, wall_s=wall_s, simulated=clock.simulated)
+    files = recording.files()
+    jobs = [p for p in files if is_job_file(p)]
+    last = jobs[-1] if jobs else (files[-1] if files else path)
+    return RunResult(
+        job.summary, last, job.chart.state, outcome, files, wall_s=wall_s, simulated=clock.simulated
+    )
 
 
 def _state(session: ZenohSession, job: Job) -> None:
@@ -310,14 +412,18 @@ class _LogForwarder:
         self.clock = clock
 
     def __call__(self, logger: object, method: str, event: Mapping[str, object]) -> Mapping[str, object]:
-        record = {
-            k: v if isinstance(v, str | int | float | bool | None) else str(v) for k, v in event.items()
-        }
-        record.setdefault("level", method)
-        record.setdefault("t", self.clock.now())
         with contextlib.suppress(Exception):  # logging must never take the daemon down
+            record = plain_record(event, method)
+            record.setdefault("t", self.clock.now())
             self.session.publish("log", record)
         return event
+
+
+def _publish_log(session: ZenohSession) -> Callable[[Mapping[str, object]], None]:
+    def publish(record: Mapping[str, object]) -> None:
+        session.publish("log", record)
+
+    return publish
 
 
 @contextlib.contextmanager

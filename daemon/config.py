@@ -10,6 +10,7 @@ layout (for ``dishbot config show`` and the recording's session header).
 
 from __future__ import annotations
 
+import ipaddress
 import math
 import re
 import tomllib
@@ -36,6 +37,8 @@ PLANNER_FITNESS = ("rf", "ws")
 PLANNER_COSTS = ("bpc", "upc", "ec")
 _ENERGY_MODELS = ("thesis", "dynamics")
 _CAMERAS = ("realsense", "none")
+RECORDING_COMPRESSIONS = ("zstd", "lz4", "none")
+_LISTEN = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,10 +51,33 @@ class ZenohConfig:
 
 @dataclass(frozen=True, slots=True)
 class RecordingConfig:
-    """One MCAP file per session goes to ``dir``; small chunks bound what a crash loses."""
+    """MCAP files in ``dir``: one per job, idle time in rotating files, old files deleted past the limits.
+
+    Small chunks bound what a crash loses. ``max_total_mb`` and ``max_age_days`` of 0 mean no limit."""
 
     dir: Path
     chunk_size_bytes: int
+    compression: str | None
+    idle_telemetry_hz: float
+    idle_file_s: float
+    job_tail_s: float
+    max_total_mb: int
+    max_age_days: float
+
+
+@dataclass(frozen=True, slots=True)
+class FoxgloveConfig:
+    """Foxglove's well-known channels in the recordings; the live WebSocket server (``listen = ""``: off)."""
+
+    channels: bool
+    listen: str
+    insecure: bool
+    depth_hz: float
+
+    @property
+    def address(self) -> tuple[str, int] | None:
+        """The server's host and port, or None when it is off."""
+        return parse_listen(self.listen, "foxglove.listen") if self.listen else None
 
 
 @dataclass(frozen=True, slots=True)
@@ -180,6 +206,7 @@ class Config:
     backend: str
     zenoh: ZenohConfig
     recording: RecordingConfig
+    foxglove: FoxgloveConfig
     # [cell] with [camera]'s image and pose (cell.camera); its tolerance is planner.tolerance_mm.
     cell: CellLayout
     camera: CameraConfig
@@ -206,6 +233,7 @@ class Config:
         out: dict[str, Any] = _plain(self)
         out["cell"] = _cell_table(self.cell)
         out["camera"] = {**_plain(self.cell.camera), "calibration_file": _plain(self.camera.calibration_file)}
+        out["recording"]["compression"] = self.recording.compression or "none"
         out["mug_types"] = {m["name"]: {k: v for k, v in m.items() if k != "name"} for m in out["mug_types"]}
         hw = out["hardware"]
         hw["servos"] = {s["joint"]: {"id": s["id"], "model": s["model"]} for s in hw["servos"]}
@@ -254,6 +282,7 @@ def parse_config(data: Mapping[str, Any]) -> Config:
         backend=backend,
         zenoh=zenoh,
         recording=recording,
+        foxglove=_foxglove(root.section("foxglove")),
         cell=_cell(root.section("cell"), camera_spec, tolerance_mm=planner.tolerance_mm),
         camera=camera,
         mug_types=_mug_types(root.section("mug_types")),
@@ -282,10 +311,30 @@ def _zenoh(s: _Section) -> ZenohConfig:
 
 
 def _recording(s: _Section) -> RecordingConfig:
+    compression = s.choice("compression", RECORDING_COMPRESSIONS)
     cfg = RecordingConfig(
         dir=Path(s.text("dir")),
         chunk_size_bytes=s.integer("chunk_size_bytes", 1024, 16 * 1024 * 1024),
+        compression=None if compression == "none" else compression,
+        idle_telemetry_hz=s.number("idle_telemetry_hz", 0.01, 100.0),
+        idle_file_s=s.number("idle_file_s", 10.0, 7 * 86400.0),
+        job_tail_s=s.number("job_tail_s", 0.0, 60.0),
+        max_total_mb=s.integer("max_total_mb", 0, 10**7),
+        max_age_days=s.number("max_age_days", 0.0, 3650.0),
     )
+    s.finish()
+    return cfg
+
+
+def _foxglove(s: _Section) -> FoxgloveConfig:
+    cfg = FoxgloveConfig(
+        channels=s.flag("channels"),
+        listen=s.string("listen"),
+        insecure=s.flag("insecure"),
+        depth_hz=s.number("depth_hz", 0.01, 30.0),
+    )
+    if cfg.listen:
+        check_foxglove_listen(cfg.listen, "foxglove.listen", insecure=cfg.insecure)
     s.finish()
     return cfg
 
@@ -621,6 +670,39 @@ def check_endpoint(value: object, name: str) -> str:
             "(protocol tcp, udp, tls, quic or ws; port 1-65535)"
         )
     return str(value)
+
+
+def parse_listen(value: object, name: str) -> tuple[str, int]:
+    """``HOST:PORT`` (``[IPv6]:PORT`` for an IPv6 address; port 0 takes a free one); ``ConfigError`` naming
+    ``name`` otherwise."""
+    match = _LISTEN.match(value) if isinstance(value, str) else None
+    if match is None or not 0 <= int(match.group(2)) <= 65535:
+        raise ConfigError(
+            f"{name}: {_show(value)} is not HOST:PORT like 127.0.0.1:8765 (IPv6 as [::1]:8765; port 0-65535)"
+        )
+    return match.group(1).strip("[]"), int(match.group(2))
+
+
+def check_foxglove_listen(value: object, name: str, *, insecure: bool) -> tuple[str, int]:
+    """A Foxglove server address; a non-loopback one only with ``insecure`` (the server has no
+    authentication or encryption: anyone who reaches the port sees everything the robot records)."""
+    host, port = parse_listen(value, name)
+    if not insecure and not is_loopback(host):
+        raise ConfigError(
+            f"{name}: {host} is not a loopback address; the Foxglove server has no authentication, so it "
+            "listens on 127.0.0.1 unless [foxglove] insecure = true"
+        )
+    return host, port
+
+
+def is_loopback(host: str) -> bool:
+    """Whether a host name or address is this machine's loopback (127.0.0.0/8, ::1, localhost)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 
 def _check_number(value: object, name: str, lo: float, hi: float) -> float:

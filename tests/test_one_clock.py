@@ -62,9 +62,13 @@ ALLOWED: Final[dict[tuple[str, str], str]] = {
     ("sim/mujoco/world.py", "SimWorld._step_to_clock"): (
         "measures how long stepping took on this machine (wall_stepping_s), nothing else"
     ),
-    ("daemon/recording.py", "Recorder._run"): (
+    ("daemon/recording/writer.py", "Recorder._run"): (
         "how often the writer thread flushes to disk: the disk's time, whatever clock the session runs on"
     ),
+    ("daemon/recording/files.py", "Retention.apply"): (
+        "file ages are the files' modification times, facts of the file system, against the wall clock"
+    ),
+    ("daemon/commands/record.py", "run_plot"): "says how long drawing took on this machine, nothing else",
     ("daemon/commands/monitor.py", "_monitor"): "a remote client redrawing its terminal in wall time",
     ("perception/observer.py", "CameraObserver.observe"): (
         "measures how long detection took (the observation's detect_ms), nothing else"

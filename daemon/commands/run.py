@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import concurrent.futures
+import dataclasses
 import multiprocessing
 import os
 import sys
@@ -24,10 +25,12 @@ if TYPE_CHECKING:
     from daemon.backend import Backend
     from daemon.clock import SessionClock
     from daemon.config import Config
+    from daemon.log_relay import RecordQueue
     from daemon.sdnotify import SdNotifier
     from perception.interfaces import Associate
 
 _PLANNING_NICENESS = 10
+DEFAULT_FOXGLOVE = "127.0.0.1:8765"
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -90,6 +93,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="ENDPOINT",
         help="Zenoh endpoint of a peer to connect to (repeatable; default: config)",
     )
+    parser.add_argument(
+        "--foxglove",
+        nargs="?",
+        const=DEFAULT_FOXGLOVE,
+        metavar="HOST:PORT",
+        help=f"serve the live Foxglove view over WebSocket (default address {DEFAULT_FOXGLOVE}; "
+        "a non-loopback one needs [foxglove] insecure = true; default: config foxglove.listen)",
+    )
     parser.set_defaults(handler=_run)
 
 
@@ -104,14 +115,20 @@ def _run(args: argparse.Namespace) -> int:
     if args.dataset is not None and not 1 <= args.dataset <= len(thesis.DATASETS):
         raise UsageError(f"--dataset {args.dataset}: choose a dataset 1-{len(thesis.DATASETS)}")
     clock = session_clock(args, config)
+    if args.seed is not None:  # the recording's header shows the seed the simulated cell really used
+        config = dataclasses.replace(config, sim=dataclasses.replace(config.sim, seed=args.seed))
+    foxglove = _foxglove_address(args.foxglove, config)
+    worker_logs: RecordQueue = multiprocessing.get_context("forkserver").Queue(maxsize=10_000)
     options = RunOptions(
         listen=listen,
         connect=connect,
         record_dir=args.record_dir or config.recording.dir,
         once=StartRequest() if args.once else None,
+        foxglove=foxglove,
+        worker_logs=worker_logs,
     )
     associate = association()
-    with planning_pool(args.log_level) as pool, SdNotifier.from_env() as notifier:
+    with planning_pool(args.log_level, worker_logs) as pool, SdNotifier.from_env() as notifier:
         result = clock.run(_serve(args, config, clock, options, associate, pool, notifier))
     if args.once:
         _print_summary(result)
@@ -158,22 +175,41 @@ def session_clock(args: argparse.Namespace, config: Config) -> SessionClock:
     return SimulatedClock(speed=speed)
 
 
-def planning_pool(log_level: str = "info") -> concurrent.futures.ProcessPoolExecutor:
+def planning_pool(
+    log_level: str = "info", log_records: RecordQueue | None = None
+) -> concurrent.futures.ProcessPoolExecutor:
     """One worker process for placement and motion planning (forkserver: never fork Zenoh's threads),
-    logging to stderr at the command line's ``--log-level``."""
+    logging to stderr at the command line's ``--log-level`` and, when given, to ``log_records`` (a
+    forkserver queue) for the daemon's ``log`` topic."""
     return concurrent.futures.ProcessPoolExecutor(
         max_workers=1,
         mp_context=multiprocessing.get_context("forkserver"),
         initializer=_planning_worker,
-        initargs=(log_level,),
+        initargs=(log_level, log_records),
     )
 
 
-def _planning_worker(log_level: str) -> None:
+def _planning_worker(log_level: str, log_records: RecordQueue | None) -> None:
     """Planning is background work: below the daemon's priority, so a busy planner cannot delay the loop
     that publishes telemetry and answers commands when the CPUs are short."""
     os.nice(_PLANNING_NICENESS)
     configure_cli_logging(log_level)
+    if log_records is not None:
+        from daemon.log_relay import forward_to
+
+        forward_to(log_records)
+
+
+def _foxglove_address(flag: str | None, config: Config) -> tuple[str, int] | None:
+    """``--foxglove [HOST:PORT]``, else the config's ``[foxglove] listen`` (None: no live server)."""
+    from daemon.config import check_foxglove_listen
+
+    if flag is None:
+        return config.foxglove.address
+    try:
+        return check_foxglove_listen(flag, "--foxglove", insecure=config.foxglove.insecure)
+    except ConfigError as e:
+        raise UsageError(str(e)) from e
 
 
 async def _serve(
@@ -239,6 +275,10 @@ def _print_summary(result: RunResult) -> None:
     out.write(f"grasp failures {s.grasp_failures}, drops {s.drops}, duration {s.duration_s:.1f} s\n")
     if result.simulated:
         out.write(f"{time_ratio_line(s.duration_s, result.wall_s)}\n")
+    for line in result.outcome.failed_lines():
+        out.write(f"failed {line}\n")
+    for reason in result.outcome.faults:
+        out.write(f"fault: {reason}\n")
     out.write(f"recording {result.recording}\n")
 
 

@@ -205,9 +205,9 @@ class KinematicWorld:
                 {
                     "id": m.mug_id,
                     "type": m.type,
-                    "x_m": round(m.x_m, 5),
-                    "y_m": round(m.y_m, 5),
-                    "upside_down": m.upside_down,
+                    "x_m": round(float(m.x_m), 5),
+                    "y_m": round(float(m.y_m), 5),
+                    "upside_down": bool(m.upside_down),  # the world may hold a numpy bool
                     "where": m.where,
                 }
                 for m in self.mugs.values()

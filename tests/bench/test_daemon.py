@@ -20,12 +20,19 @@ def test_bench_daemon_reports_every_measure_as_json(capsys: pytest.CaptureFixtur
         "command round trip (status)",
         "state publish -> receive",
         "joints publish -> receive",
-        "event loop period error at 50 Hz",
+        "event loop period error at 50 Hz, JSON channels only",
+        "event loop period error at 50 Hz, + Foxglove channels",
+        "event loop period error at 50 Hz, + live server, 1 client",
         "same, bare loop in another process",
     ]
     assert measures["command round trip (status)"]["samples"] == 10
     assert all(row["p50"] <= row["p99"] <= row["max"] for row in doc["rows"])
     assert doc["recording_messages_per_s"] > 0
+    assert doc["recording_messages_per_s_with_foxglove"] > 0
+    sizes = doc["job_file_kb_per_min"]
+    assert list(sizes) == ["JSON channels only", "+ Foxglove channels", "+ live server, 1 client"]
+    assert sizes["+ Foxglove channels"] > sizes["JSON channels only"] > 0  # the Foxglove channels are there
+    assert doc["live_client_messages_per_s"] > 0  # the client received the served channels
 
 
 def test_bench_daemon_refuses_a_silly_size(capsys: pytest.CaptureFixture[str]) -> None:

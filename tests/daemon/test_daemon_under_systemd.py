@@ -36,7 +36,8 @@ def notify_socket(tmp_path: Path) -> Iterator[socket.socket]:
 
 def start_daemon(tmp_path: Path, notify: socket.socket) -> subprocess.Popen[bytes]:
     config = tmp_path / "dishbot.toml"
-    config.write_text(f'robot_id = "{ROBOT}"\n')
+    # Idle files keep telemetry at the full rate here, so the cut can be seen to within a joint sample.
+    config.write_text(f'robot_id = "{ROBOT}"\n[recording]\nidle_telemetry_hz = 100.0\n')
     env = {
         **os.environ,
         "NOTIFY_SOCKET": notify.getsockname(),

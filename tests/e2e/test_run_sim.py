@@ -115,12 +115,16 @@ def test_run_sim_places_the_planned_mugs_and_records_what_it_published(tmp_path:
             daemon.wait()
         log.close()
 
-    recordings = list(record_dir.glob("*.mcap"))
-    assert len(recordings) == 1
-    read = read_messages(recordings[0])
-    assert not read.truncated
-    assert read.header is not None
-    recorded = [str(m.payload["state"]) for m in read if m.topic == f"dishbot/{ROBOT}/state"]
+    # An idle file until the start, the job's file, and an idle file again after the job's tail.
+    recordings = sorted(record_dir.glob("*.mcap"))
+    assert [p.name.rsplit("-", 1)[1] for p in recordings][:2] == ["idle.mcap", "job.mcap"]
+    reads = [read_messages(p) for p in recordings]
+    assert not any(r.truncated for r in reads)
+    assert all(r.header is not None for r in reads)
+    job = reads[1].header
+    assert job is not None
+    assert [m["id"] for m in job["job"]["mugs"]] == [m["id"] for m in _four_mugs()]  # type: ignore[index]
+    recorded = [str(m.payload["state"]) for r in reads for m in r if m.topic == f"dishbot/{ROBOT}/state"]
     with lock:
         subscribed = [str(s["state"]) for s in seen]
     recorded_seq = _dedupe(recorded)
@@ -132,7 +136,8 @@ def test_run_sim_places_the_planned_mugs_and_records_what_it_published(tmp_path:
     )
     assert recorded_seq[-1] == "done"
     assert {"detect", "plan", "side_grasp.approach", "flip.turn", "place.release"} <= set(recorded_seq)
-    topics = set(read.topic_counts)
+    topics = set(reads[1].topic_counts)
+    assert {"/tf", "/scene/arm", "/scene/cell", "/scene/mugs", "/scene/plan", "/log", "/events"} <= topics
     for topic in ("state", "joints", "gripper", "detections", "plan", "events", "log"):
         assert f"dishbot/{ROBOT}/{topic}" in topics
     for topic in ("input/observation", "input/grasp", "input/holding", "input/joints", "input/force"):

@@ -37,8 +37,59 @@ WRITER = textwrap.dedent(
 
 def test_sigkilled_writer_loses_at_most_about_a_second(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
+    last_sent = run_and_kill(WRITER, path)
+    rec = read_messages(path)
+    assert rec.truncated
+    assert not rec.being_written  # its writer is gone: cut by a crash
+    assert rec.header == {"config": {"robot_id": "r1"}, "scene": {"dataset": 3}}
+    recovered = [m.payload["i"] for m in rec if m.topic == "dishbot/r1/input/force"]
+    assert recovered == list(range(len(recovered)))
+    assert len(recovered) - 1 >= last_sent - RATE_HZ * 1.0
+    assert rec.cut_after_ns == rec.end_ns
+
+
+FOXGLOVE_WRITER = textwrap.dedent(
+    f"""
+    import sys, time
+    from pathlib import Path
+    from daemon.config import load_config
+    from daemon.foxglove_scene import SceneView
+    from daemon.recording import Recorder
+
+    rec = Recorder(Path(sys.argv[1]), chunk_size=65536, deriver=SceneView(load_config()))
+    rec.write_header({{"robot_id": "r1"}}, {{}}, log_time_ns=time.time_ns())
+    names = ["shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn"]
+    start = time.monotonic()
+    i = 0
+    while True:
+        q = [0.001 * i, -0.8, 1.6, 0.4, -1.57]
+        sample = {{"t": i, "names": names, "position_rad": q}}
+        rec.write("dishbot/r1/joints", sample, log_time_ns=time.time_ns())
+        if i % 10 == 0:
+            print(f"sent {{i}}", flush=True)
+        i += 1
+        time.sleep(max(0.0, start + i / {RATE_HZ} - time.monotonic()))
+    """
+)
+
+
+def test_sigkilled_writer_keeps_the_foxglove_channels_to_the_same_bound(tmp_path: Path) -> None:
+    path = tmp_path / "killed.mcap"
+    last_sent = run_and_kill(FOXGLOVE_WRITER, path)
+    rec = read_messages(path)
+    assert rec.truncated
+    joints = [m.payload["t"] for m in rec if m.topic == "dishbot/r1/joints"]
+    assert joints == list(range(len(joints)))
+    assert len(joints) - 1 >= last_sent - RATE_HZ * 1.0
+    # Every recovered sample's transforms are in the file too (one /tf per sample, plus the opening one).
+    assert len(joints) <= rec.topic_counts["/tf"] - 1 <= len(joints) + 1
+    assert rec.topic_counts["/scene/arm"] == 1
+
+
+def run_and_kill(script: str, path: Path) -> int:
+    """Run a writer script for 1.6 s after its first message, SIGKILL it; the last message number it sent."""
     proc = subprocess.Popen(
-        [sys.executable, "-c", WRITER, str(path)],
+        [sys.executable, "-c", script, str(path)],
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         text=True,
@@ -60,13 +111,7 @@ def test_sigkilled_writer_loses_at_most_about_a_second(tmp_path: Path) -> None:
         proc.kill()
         proc.wait(timeout=10)
     assert proc.returncode == -signal.SIGKILL
-    rec = read_messages(path)
-    assert rec.truncated
-    assert rec.header == {"config": {"robot_id": "r1"}, "scene": {"dataset": 3}}
-    recovered = [m.payload["i"] for m in rec if m.topic == "dishbot/r1/input/force"]
-    assert recovered == list(range(len(recovered)))
-    assert len(recovered) - 1 >= last_sent - RATE_HZ * 1.0
-    assert rec.cut_after_ns == rec.end_ns
+    return last_sent
 
 
 FULL_DISK = textwrap.dedent(

@@ -61,12 +61,15 @@ def test_finished_file_opens_with_the_standard_mcap_reader(make_recording: Recor
         assert all(c.message_encoding == "json" for c in topics.values())
         schema = summary.schemas[topics["dishbot/r1/input/force"].schema_id]
         assert schema.encoding == "jsonschema"
-        assert json.loads(schema.data)["properties"] == {
-            "t": {"type": "number"},
-            "force_n": {"type": "number"},
-            "raw": {"type": "number"},
-            "seq": {"type": "number"},
+        assert schema.name == "dishbot.input_force"
+        doc = json.loads(schema.data)
+        assert {k: v["type"] for k, v in doc["properties"].items()} == {
+            "t": "number",
+            "force_n": "number",
+            "raw": "integer",
+            "seq": "integer",
         }
+        assert doc["required"] == ["force_n"]
         assert summary.statistics is not None
         assert summary.statistics.message_count == 1 + 50 + 50 + 2
 
@@ -262,9 +265,9 @@ def test_write_rejects_bad_messages_and_records_nothing(
 def test_writes_after_close_and_a_second_header_are_refused(tmp_path: Path) -> None:
     path = tmp_path / "closed.mcap"
     rec = Recorder(path)
-    rec.write_header({"robot_id": "r1"}, {}, log_time_ns=0)
+    rec.write_header({"robot_id": "r1"}, {}, log_time_ns=1)
     with pytest.raises(RecordingError, match=r"already has a session header$"):
-        rec.write_header({"robot_id": "r1"}, {}, log_time_ns=0)
+        rec.write_header({"robot_id": "r1"}, {}, log_time_ns=1)
     rec.close()
     rec.close()
     with pytest.raises(RecordingError, match=r"is closed; open a new Recorder$"):

@@ -1,0 +1,86 @@
+"""Log records of the planning worker process, relayed to the daemon so they reach its ``log`` topic.
+
+The worker logs to its own stderr as before; ``forward_to(queue)`` adds a structlog processor there that also
+puts a plain copy of each record (at or above the worker's level, which is the daemon's) on a queue.
+``LogRelay`` drains that queue on a thread of the daemon and hands each record to a callback (publishing it
+on ``log``, which records it). Nothing blocks on either side: a full queue drops the record.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import queue
+import threading
+from collections.abc import Callable, Mapping, MutableMapping
+from typing import Any, Protocol
+
+import structlog
+
+_STOP = None
+
+
+class RecordQueue(Protocol):
+    """A ``multiprocessing`` queue of log records (the forkserver context's)."""
+
+    def put_nowait(self, item: Any) -> None: ...
+
+    def get(self, block: bool = True, timeout: float | None = None) -> Any: ...
+
+    def put(self, item: Any, block: bool = True, timeout: float | None = None) -> None: ...
+
+
+def plain_record(event: Mapping[str, object], method: str) -> dict[str, object]:
+    """A log record with JSON values only (anything else as its ``str``) and its level."""
+    record: dict[str, object] = {
+        k: v if isinstance(v, str | int | float | bool | None) else str(v) for k, v in event.items()
+    }
+    record.setdefault("level", method)
+    return record
+
+
+class _Forward:
+    def __init__(self, records: RecordQueue, process: str) -> None:
+        self.records = records
+        self.process = process
+
+    def __call__(
+        self, logger: object, method: str, event: MutableMapping[str, Any]
+    ) -> MutableMapping[str, Any]:
+        with contextlib.suppress(Exception):  # logging must never take the worker down
+            self.records.put_nowait({**plain_record(event, method), "process": self.process})
+        return event
+
+
+def forward_to(records: RecordQueue, *, process: str = "planning") -> None:
+    """In a worker process: also put every structlog record on ``records`` (before the final renderer)."""
+    processors = list(structlog.get_config()["processors"])
+    structlog.configure(processors=[*processors[:-1], _Forward(records, process), *processors[-1:]])
+
+
+class LogRelay:
+    """Hands the records put on ``records`` to ``deliver`` on a thread of its own, until ``close``."""
+
+    def __init__(self, records: RecordQueue, deliver: Callable[[Mapping[str, object]], None]) -> None:
+        self._records = records
+        self._deliver = deliver
+        self._thread = threading.Thread(target=self._run, name="log-relay", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self._records.put(_STOP, timeout=1.0)
+        self._thread.join(timeout=5.0)
+
+    def _run(self) -> None:
+        while True:
+            try:
+                record = self._records.get(timeout=1.0)
+            except queue.Empty:
+                continue
+            except (EOFError, OSError):  # the queue went away with the process
+                return
+            if record is _STOP:
+                return
+            if isinstance(record, Mapping):
+                with contextlib.suppress(Exception):  # a failing delivery must not end the relay
+                    self._deliver(record)
