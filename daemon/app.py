@@ -4,6 +4,10 @@
 recording, starts the job's control task and the telemetry loops (state, joints, gripper), answers commands,
 pings the systemd watchdog from the loop, and on SIGTERM/SIGINT (or, with ``once``, when the job ends) stops
 motion, finishes the recording and closes the session.
+
+It refuses to start on an endpoint other machines can reach without TLS unless told it is insecure on
+purpose (then it warns at every start), and it says once when it loses its last peer or router and once when
+one is back; Zenoh reconnects meanwhile, and nothing on the loop waits for the network.
 """
 
 from __future__ import annotations
@@ -30,7 +34,8 @@ from daemon.errors import RecordingError, UsageError
 from daemon.job import Associate, Job, JobSummary, StartRequest
 from daemon.recording import Recorder
 from daemon.sdnotify import SdNotifier
-from daemon.zenoh_session import ZenohSession
+from daemon.security import exposure_error
+from daemon.zenoh_session import ZenohSession, error_text
 from drivers.dynamixel import BusTimeout
 from drivers.errors import BusLost, DriverError, ServoFault
 
@@ -49,6 +54,7 @@ class RunOptions:
     connect: tuple[str, ...]
     record_dir: Path
     once: StartRequest | None = None  # run this one job at once, then exit
+    insecure: bool = False  # plain endpoints beyond loopback allowed for this run (--insecure)
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,6 +82,11 @@ async def serve(
 ) -> RunResult:
     """Run the daemon until SIGTERM/SIGINT or ``stop`` is set (or the ``once`` job ends); returns the last
     job's summary."""
+    exposed = exposure_error(options.listen, options.connect, config.zenoh)
+    if exposed is not None:
+        if not (options.insecure or config.zenoh.insecure):
+            raise UsageError(exposed)
+        log.warning("zenoh_insecure", problem=exposed)
     try:
         options.record_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -91,10 +102,13 @@ async def serve(
             listen=options.listen,
             connect=options.connect,
             max_command_bytes=config.daemon.max_command_bytes,
+            zenoh_config=config.zenoh,
         )
     except zenoh.ZError as e:
         recorder.close()
-        raise UsageError(f"cannot open the Zenoh session (listen {list(options.listen)}): {e}") from e
+        raise UsageError(
+            f"cannot open the Zenoh session (listen {list(options.listen)}): {error_text(e)}"
+        ) from e
     session.attach_recorder(recorder)
     with _logs_published(session):
         return await _run(
@@ -152,7 +166,12 @@ async def _run(
             loop.call_soon_threadsafe(job.device_event, event)
 
         backend.on_event(device_event)
-    session.serve(loop, lambda verb, payload: commands_handler.handle(job, verb, payload))
+    session.serve(
+        loop,
+        lambda verb, payload, many: commands_handler.handle(job, verb, payload, many),
+        verbs=commands_handler.VERBS,
+    )
+    session.watch_connections(loop, ConnectionHealth(session, job, expected=bool(options.connect)).changed)
     session.publish("state", job.status())
     # Everything allocated so far lives as long as the process: keep it out of the cyclic collector's
     # scans, whose full passes over it stalled the loop for tens of milliseconds.
@@ -189,6 +208,37 @@ async def _run(
         await asyncio.to_thread(recorder.close)
         await backend.close()
     return RunResult(job.summary, path, job.chart.state)
+
+
+class ConnectionHealth:
+    """Says once when the last peer or router goes away and once when one is back (log and ``events``).
+
+    Zenoh keeps reconnecting to the ``connect`` endpoints with backoff; this only reports. ``expected`` is
+    true when the daemon has endpoints to connect to, so having none at start is worth a warning too."""
+
+    def __init__(self, session: ZenohSession, job: Job, *, expected: bool) -> None:
+        self._session = session
+        self._job = job
+        self._expected = expected
+        self._connected: bool | None = None  # unknown until the first report
+
+    def changed(self, peers: int, routers: int) -> None:
+        connected = peers + routers > 0
+        if connected == self._connected:
+            return
+        first = self._connected is None
+        self._connected = connected
+        if first and (connected or not self._expected):
+            return
+        kind = "connection_restored" if connected else "connection_lost"
+        detail = {"peers": peers, "routers": routers}
+        if connected:
+            log.info(kind, **detail)
+        else:
+            log.warning(kind, **detail)
+        self._session.publish(
+            "events", {"kind": kind, "state": self._job.chart.state, "t": time.time(), **detail}
+        )
 
 
 def _state(session: ZenohSession, job: Job) -> None:

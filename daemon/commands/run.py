@@ -84,6 +84,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="ENDPOINT",
         help="Zenoh endpoint of a peer to connect to (repeatable; default: config)",
     )
+    parser.add_argument(
+        "--insecure",
+        action="store_true",
+        help="allow plain (non-TLS) endpoints other machines can reach: anyone who reaches them can command "
+        "the arm (default: refused; see docs/service.md for TLS)",
+    )
     parser.set_defaults(handler=_run)
 
 
@@ -101,6 +107,7 @@ def _run(args: argparse.Namespace) -> int:
         connect=connect,
         record_dir=args.record_dir or config.recording.dir,
         once=StartRequest() if args.once else None,
+        insecure=args.insecure,
     )
     associate = association()
     with planning_pool(args.log_level) as pool, SdNotifier.from_env() as notifier:

@@ -128,7 +128,7 @@ def test_each_class_of_bad_command_is_refused_with_its_reason_and_changes_nothin
         before = await send("status", b"")
         assert before["ok"] is True
         for verb, payload, error in BAD:
-            assert await send(verb, payload) == {"ok": False, "error": error}, (verb, payload)
+            assert await send(verb, payload) == {"robot_id": ROBOT, "ok": False, "error": error}, (verb, payload)
         after = await send("status", b"")
         assert (after["state"], after["transitions"]) == ("idle", 0)
         assert after["allowed"] == ["status", "start", "estop"]
@@ -139,6 +139,7 @@ def test_each_class_of_bad_command_is_refused_with_its_reason_and_changes_nothin
 def test_a_good_command_sequence_runs_a_job_over_zenoh(tmp_path: Path) -> None:
     async def scenario(endpoint: str, send: Client) -> None:
         assert await send("start", b'{"planner": {"method": "bh", "time_limit_s": 0.5}}') == {
+            "robot_id": ROBOT,
             "ok": True,
             "state": "detect",
         }
