@@ -64,6 +64,15 @@ class RunResult:
     end_state: str
 
 
+def tolerated_exposure(config: Config, options: RunOptions) -> str | None:
+    """How the endpoints expose the arm to other machines without TLS, when ``insecure`` allows it (to be
+    warned about); raises ``UsageError`` naming the fix when it does not. None: nothing is exposed."""
+    exposed = exposure_error(options.listen, options.connect, config.zenoh)
+    if exposed is not None and not (options.insecure or config.zenoh.insecure):
+        raise UsageError(exposed)
+    return exposed
+
+
 def recording_path(record_dir: Path, robot_id: str) -> Path:
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
     return record_dir / f"{robot_id}-{stamp}-{os.getpid()}.mcap"
@@ -82,10 +91,8 @@ async def serve(
 ) -> RunResult:
     """Run the daemon until SIGTERM/SIGINT or ``stop`` is set (or the ``once`` job ends); returns the last
     job's summary."""
-    exposed = exposure_error(options.listen, options.connect, config.zenoh)
+    exposed = tolerated_exposure(config, options)
     if exposed is not None:
-        if not (options.insecure or config.zenoh.insecure):
-            raise UsageError(exposed)
         log.warning("zenoh_insecure", problem=exposed)
     try:
         options.record_dir.mkdir(parents=True, exist_ok=True)

@@ -169,7 +169,7 @@ def parse_zenoh(section: Mapping[str, Any], where: str = "zenoh") -> ZenohConfig
     tls = TlsFiles(t.path("root_ca_certificate"), t.path("certificate"), t.path("private_key"))
     t.finish()
     a = s.table("auth")
-    auth = Auth(a.path("dictionary_file"), a.name("user"), a.text("password"))
+    auth = Auth(a.path("dictionary_file"), a.name("user"), a.text("password", ""))
     a.finish()
     r = s.table("access")
     access = Access(
@@ -381,7 +381,7 @@ def load_profile(path: Path) -> Profile:
     tls = TlsFiles(t.path("root_ca_certificate"), t.path("certificate"), t.path("private_key"))
     t.finish()
     a = s.table("auth")
-    user, password = a.name("user"), a.text("password")
+    user, password = a.name("user"), a.text("password", "")
     a.finish()
     s.finish()
     missing = _missing_tls(tls)

@@ -10,7 +10,7 @@ import os
 import sys
 from pathlib import Path
 
-from daemon.app import RunOptions, RunResult, serve
+from daemon.app import RunOptions, RunResult, serve, tolerated_exposure
 from daemon.backend import (
     Backend,
     ProcessMotionPlanner,
@@ -109,6 +109,7 @@ def _run(args: argparse.Namespace) -> int:
         once=StartRequest() if args.once else None,
         insecure=args.insecure,
     )
+    tolerated_exposure(config, options)  # refused before any simulator or device starts
     associate = association()
     with planning_pool(args.log_level) as pool, SdNotifier.from_env() as notifier:
         result = asyncio.run(_serve(args, config, speed, options, associate, pool, notifier))
