@@ -90,10 +90,10 @@ class Watch:
             view.values[topic] = payload
             if topic == "state" and payload.get("state") != view.last_state:
                 view.last_state = payload.get("state")
-                self._line(robot_id, f"state {view.last_state}  placed {payload.get('mugs_placed')}", False)
+                self.add_line(robot_id, f"state {view.last_state}  placed {payload.get('mugs_placed')}", False)
             elif topic == "events" and payload.get("kind") != "transition":
                 detail = {k: v for k, v in payload.items() if k not in ("kind", "t", "state")}
-                self._line(robot_id, f"event {payload.get('kind')} {json.dumps(detail)}", True)
+                self.add_line(robot_id, f"event {payload.get('kind')} {json.dumps(detail)}", True)
 
     def on_alive(self, sample: zenoh.Sample) -> None:
         robot_id = str(sample.key_expr).split("/")[1]
@@ -107,9 +107,9 @@ class Watch:
             if alive and first:
                 return
             what = "back (liveliness token)" if alive else "gone (liveliness token dropped)"
-            self._line(robot_id, f"daemon {what}", True)
+            self.add_line(robot_id, f"daemon {what}", True)
 
-    def _line(self, robot_id: str, text: str, keep: bool) -> None:
+    def add_line(self, robot_id: str, text: str, keep: bool) -> None:
         line = f"{robot_id}: {text}" if self.many else text
         self.lines.append(line)
         if keep:
@@ -202,8 +202,9 @@ def panel(
     lines = [f"dishbot {robot} @ {endpoint}"]
     if alive is False:
         when = "" if since is None else f" at {time.strftime('%H:%M:%S', time.localtime(since))}"
-        last = f"; its last state was {state.get('state')}" if state else ""
-        lines.append(f"daemon GONE{when} (its liveliness token dropped){last}")
+        lines.append(f"daemon GONE{when}: its liveliness token dropped")
+        if state:
+            lines.append(f"last state {state.get('state')} (no longer current)")
         return "\n".join(fit(line) for line in lines)
     if not state:
         lines.append("waiting for the daemon ...")
