@@ -305,13 +305,16 @@ def access_control(access: Access, *, by_certificate: bool, by_user: bool) -> di
         "router": ["watch_in", "watch_out", "command_in", "command_out"],
         "monitor": ["watch_in", "watch_out", "status_in", "status_out"],
     }
+    if access.routers and not by_certificate:
+        raise ConfigError("zenoh.access.routers: a router is known by its certificate; set zenoh.tls")
     for role, names in (
         ("operator", access.operators),
         ("monitor", access.monitors),
         ("router", access.routers),
     ):
         for name in names:
-            subjects.append(_subject(f"{role}-{name}", name, by_certificate, by_user))
+            # A router is connected to, not connecting: it shows its certificate but sends no user name.
+            subjects.append(_subject(f"{role}-{name}", name, by_certificate, by_user and role != "router"))
             policies.append({"rules": grants[role], "subjects": [f"{role}-{name}"]})
     for name in access.robots:
         # A robot serves its own keys only: it cannot publish or answer as another robot.

@@ -38,8 +38,8 @@ TOPICS = ("state", "joints", "gripper", "detections", "plan", "events", "log")
 CommandHandler = Callable[[str, bytes, bool], Awaitable[dict[str, object]]]
 ConnectionListener = Callable[[int, int], None]  # (peers, routers) connected now, called on the loop
 
-# Reconnecting to `connect` endpoints: first retry after 0.5 s, doubling up to 8 s, for ever.
-_RETRY = {"period_init_ms": 500, "period_max_ms": 8000, "period_increase_factor": 2}
+# Reconnecting to `connect` endpoints: first retry after 0.5 s, doubling up to 4 s, for ever.
+_RETRY = {"period_init_ms": 500, "period_max_ms": 4000, "period_increase_factor": 2}
 
 
 class RecordSink(Protocol):
@@ -66,8 +66,9 @@ def session_config(
         "listen/endpoints": list(listen),
         "connect/endpoints": list(connect),
     }
+    entries["connect/retry"] = _RETRY  # a client, once open, reconnects after a lost link too
     if mode != "client":
-        entries |= {"connect/timeout_ms": -1, "connect/exit_on_failure": False, "connect/retry": _RETRY}
+        entries |= {"connect/timeout_ms": -1, "connect/exit_on_failure": False}
     entries |= dict(settings or {})
     for name, value in entries.items():
         config.insert_json5(name, json.dumps(value))

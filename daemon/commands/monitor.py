@@ -90,7 +90,9 @@ class Watch:
             view.values[topic] = payload
             if topic == "state" and payload.get("state") != view.last_state:
                 view.last_state = payload.get("state")
-                self.add_line(robot_id, f"state {view.last_state}  placed {payload.get('mugs_placed')}", False)
+                self.add_line(
+                    robot_id, f"state {view.last_state}  placed {payload.get('mugs_placed')}", False
+                )
             elif topic == "events" and payload.get("kind") != "transition":
                 detail = {k: v for k, v in payload.items() if k not in ("kind", "t", "state")}
                 self.add_line(robot_id, f"event {payload.get('kind')} {json.dumps(detail)}", True)
