@@ -30,7 +30,7 @@ import zenoh
 from daemon import commands_handler
 from daemon.backend import Backend, joints_payload, recorded
 from daemon.config import Config
-from daemon.errors import RecordingError, UsageError
+from daemon.errors import ConfigError, RecordingError, UsageError
 from daemon.job import Associate, Job, JobSummary, StartRequest
 from daemon.recording import Recorder
 from daemon.sdnotify import SdNotifier
@@ -67,7 +67,10 @@ class RunResult:
 def tolerated_exposure(config: Config, options: RunOptions) -> str | None:
     """How the endpoints expose the arm to other machines without TLS, when ``insecure`` allows it (to be
     warned about); raises ``UsageError`` naming the fix when it does not. None: nothing is exposed."""
-    exposed = exposure_error(options.listen, options.connect, config.zenoh)
+    try:
+        exposed = exposure_error(options.listen, options.connect, config.zenoh)
+    except ConfigError as e:
+        raise UsageError(str(e)) from e
     if exposed is not None and not (options.insecure or config.zenoh.insecure):
         raise UsageError(exposed)
     return exposed

@@ -187,13 +187,11 @@ def parse_zenoh(section: Mapping[str, Any], where: str = "zenoh") -> ZenohConfig
             f"{where}.tls: set root_ca_certificate, certificate and private_key together "
             f"(missing {', '.join(missing)})"
         )
-    for i, endpoint in enumerate((*listen, *connect)):
-        if endpoint_protocol(endpoint) in ("tls", "quic") and not tls.enabled:
-            kind, n = ("listen", i) if i < len(listen) else ("connect", i - len(listen))
-            raise ConfigError(
-                f"{where}.{kind}[{n}]: {endpoint} needs {where}.tls (root_ca_certificate, certificate, "
-                "private_key); `dishbot security init` writes them"
-            )
+    for kind, endpoints in (("listen", listen), ("connect", connect)):
+        for n, endpoint in enumerate(endpoints):
+            missing_tls = tls_missing(endpoint, tls, where=where)
+            if missing_tls:
+                raise ConfigError(f"{where}.{kind}[{n}]: {missing_tls}")
     if auth.password and not auth.user:
         raise ConfigError(f"{where}.auth.password: set {where}.auth.user too (a password belongs to a user)")
     if access.enabled and not (tls.enabled or auth.dictionary_file is not None):
@@ -202,6 +200,16 @@ def parse_zenoh(section: Mapping[str, Any], where: str = "zenoh") -> ZenohConfig
             f"{where}.auth.dictionary_file (user names)"
         )
     return ZenohConfig(listen, connect, insecure, tls, auth, access, lease_s)
+
+
+def tls_missing(endpoint: str, tls: TlsFiles, *, where: str = "zenoh") -> str:
+    """Why ``endpoint`` cannot work with these TLS files ("" when it can: not TLS, or TLS configured)."""
+    if endpoint_protocol(endpoint) not in ("tls", "quic") or tls.enabled:
+        return ""
+    return (
+        f"{endpoint} needs {where}.tls (root_ca_certificate, certificate, private_key); "
+        "`dishbot security init` writes them"
+    )
 
 
 def check_files(zenoh: ZenohConfig, where: str = "zenoh") -> None:
@@ -243,9 +251,13 @@ def exposure_error(listen: Sequence[str], connect: Sequence[str], zenoh: ZenohCo
     """Why these endpoints would let other machines command the arm without TLS, or None when they do not.
 
     A ``tls/`` endpoint is always mutually authenticated (both ends show a certificate of the CA), so only
-    plain endpoints beyond loopback are exposed."""
+    plain endpoints beyond loopback are exposed. A TLS endpoint without the TLS files cannot open at all:
+    that is refused too (it always raises ``ConfigError``)."""
     for kind, endpoints in (("listen", listen), ("connect", connect)):
         for endpoint in endpoints:
+            missing_tls = tls_missing(endpoint, zenoh.tls)
+            if missing_tls:
+                raise ConfigError(f"{kind} {missing_tls}")
             if is_loopback(endpoint) or (endpoint_protocol(endpoint) == "tls" and zenoh.tls.enabled):
                 continue
             return (

@@ -7,6 +7,8 @@ import asyncio
 import os
 import shutil
 import stat
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -14,6 +16,7 @@ import zenoh
 from cryptography import x509
 from cryptography.x509.oid import NameOID
 
+from bench.remote import python_env
 from daemon.app import RunOptions, tolerated_exposure
 from daemon.cli import main
 from daemon.config import load_config
@@ -476,3 +479,78 @@ def test_zenoh_itself_refuses_a_client_without_a_certificate(keys: Path, tmp_pat
                 zenoh.open(session_config(listen=[], connect=list(config.zenoh.listen), mode="client"))
 
     asyncio.run(scenario())
+
+
+def test_a_tls_endpoint_without_tls_files_is_refused_before_starting(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = [
+        "run",
+        "--sim",
+        "--world",
+        "kinematic",
+        "--record-dir",
+        str(tmp_path),
+        "--listen",
+        "tls/127.0.0.1:7447",
+    ]
+    assert main(argv) == 2
+    assert capsys.readouterr().err == (
+        "dishbot run: error: listen tls/127.0.0.1:7447 needs zenoh.tls (root_ca_certificate, certificate, "
+        "private_key); `dishbot security init` writes them\n"
+    )
+
+
+@pytest.mark.parametrize(
+    ("argv", "error"),
+    [
+        (["--listen", "tcp/0.0.0.0:7447"], "zenoh listen tcp/0.0.0.0:7447 is reachable from other machines"),
+        (["--listen", "7447"], "--listen: '7447' is not a Zenoh endpoint like tcp/127.0.0.1:7447"),
+        (["--listen", "tls/127.0.0.1:7447"], "listen tls/127.0.0.1:7447 needs zenoh.tls"),
+        (
+            ["--config", "/nonexistent.toml"],
+            "cannot read config file /nonexistent.toml: No such file or directory",
+        ),
+    ],
+)
+def test_the_router_refuses_bad_or_exposed_endpoints(
+    argv: list[str], error: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["router", *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"dishbot router: error: {error}")
+    assert err.count("\n") == 1
+
+
+def test_the_router_routes_over_tls_with_roles(keys: Path, tmp_path: Path) -> None:
+    """`dishbot router` as a process: a robot's daemon connects out to it, the operator reaches the robot."""
+    home = tmp_path / "k"
+    port = str(free_port())
+    argv = ["security", "init", str(home), "--robot", ROBOT, "--address", "127.0.0.1", "--operator", "alice"]
+    assert main([*argv, "--router", "127.0.0.1", "--port", port]) == 0
+    # The robot listens on its own loopback port: the router has the profiles' one.
+    robot_toml = home / "robot.toml"
+    robot_toml.write_text(robot_toml.read_text().replace(f'listen = ["tls/127.0.0.1:{port}"]', "listen = []"))
+    router = subprocess.Popen(
+        [sys.executable, "-m", "daemon.cli", "router", "--config", str(home / "router.toml")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=python_env(),
+    )
+    try:
+        assert router.stdout is not None
+        for line in router.stdout:
+            if "router_ready" in line:
+                break
+        config = load_config(robot_toml)
+        profile = load_profile(home / "alice.profile.toml")
+
+        async def scenario() -> None:
+            async with daemon(tmp_path, config, listen=[], connect=config.zenoh.connect):
+                await until_state(profile.endpoint, "idle", profile=profile)
+
+        asyncio.run(scenario())
+    finally:
+        router.terminate()
+        assert router.wait(20) == 0
