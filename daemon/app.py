@@ -181,7 +181,8 @@ async def _run(
         lambda verb, payload, many: commands_handler.handle(job, verb, payload, many),
         verbs=commands_handler.VERBS,
     )
-    session.watch_connections(loop, ConnectionHealth(session, job, expected=bool(options.connect)).changed)
+    if options.connect:  # the peers and routers it relies on; clients come and go
+        session.watch_connections(loop, ConnectionHealth(session, job).changed)
     session.publish("state", job.status())
     # Everything allocated so far lives as long as the process: keep it out of the cyclic collector's
     # scans, whose full passes over it stalled the loop for tens of milliseconds.
@@ -223,32 +224,43 @@ async def _run(
 class ConnectionHealth:
     """Says once when the last peer or router goes away and once when one is back (log and ``events``).
 
-    Zenoh keeps reconnecting to the ``connect`` endpoints with backoff; this only reports. ``expected`` is
-    true when the daemon has endpoints to connect to, so having none at start is worth a warning too."""
+    Zenoh keeps reconnecting to the ``connect`` endpoints with backoff; this only reports, and only a change
+    that lasts ``settle_s`` (links flap while they are set up). Reaching none of them at start is said too."""
 
-    def __init__(self, session: ZenohSession, job: Job, *, expected: bool) -> None:
+    def __init__(self, session: ZenohSession, job: Job, *, settle_s: float = 1.0) -> None:
         self._session = session
         self._job = job
-        self._expected = expected
-        self._connected: bool | None = None  # unknown until the first report
+        self._settle_s = settle_s
+        self._reported = True  # as if connected: only a lasting absence is news
+        self._counts = (0, 0)
+        self._timer: asyncio.TimerHandle | None = None
 
     def changed(self, peers: int, routers: int) -> None:
+        """A transport opened or closed (on the loop): check again once things have settled."""
+        self._counts = (peers, routers)
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer = asyncio.get_running_loop().call_later(self._settle_s, self._settled)
+
+    def _settled(self) -> None:
+        peers, routers = self._counts
         connected = peers + routers > 0
-        if connected == self._connected:
+        if connected == self._reported:
             return
-        first = self._connected is None
-        self._connected = connected
-        if first and (connected or not self._expected):
-            return
+        self._reported = connected
         kind = "connection_restored" if connected else "connection_lost"
-        detail = {"peers": peers, "routers": routers}
         if connected:
-            log.info(kind, **detail)
+            log.info(kind, peers=peers, routers=routers)
         else:
-            log.warning(kind, **detail)
-        self._session.publish(
-            "events", {"kind": kind, "state": self._job.chart.state, "t": time.time(), **detail}
-        )
+            log.warning(kind, peers=peers, routers=routers)
+        event = {
+            "kind": kind,
+            "state": self._job.chart.state,
+            "t": time.time(),
+            "peers": peers,
+            "routers": routers,
+        }
+        self._session.publish("events", event)
 
 
 def _state(session: ZenohSession, job: Job) -> None:

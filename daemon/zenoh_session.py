@@ -223,6 +223,8 @@ class ZenohSession:
                 loop.call_soon_threadsafe(changed, opened, str(transport.zid), router)
 
         self._listener = self.session.info.declare_transport_events_listener(on_event, history=True)
+        # After the history (queued above, as every event is): a first report even when nothing is connected.
+        loop.call_soon_threadsafe(changed, False, "", False)
 
     def close(self) -> None:
         """Undeclare everything and close the session."""
