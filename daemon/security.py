@@ -36,7 +36,6 @@ NAMESPACE = "dishbot"
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 _NAME = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 NAME_RULE = "1-64 letters, digits, '_' or '-'"
-ROLES = ("operator", "monitor", "router", "robot")
 # The commands a query may address to many robots at once (dishbot/*/cmd/<verb>): looking at every robot and
 # stopping every robot are safe in one go; starting or resetting robots nobody named is not.
 FLEET_VERBS = ("status", "estop")
@@ -268,8 +267,8 @@ def exposure_error(listen: Sequence[str], connect: Sequence[str], zenoh: ZenohCo
     return None
 
 
-def node_settings(zenoh: ZenohConfig, *, name: str) -> dict[str, object]:
-    """Zenoh configuration entries (key → JSON value) for a daemon or router named ``name``."""
+def node_settings(zenoh: ZenohConfig) -> dict[str, object]:
+    """Zenoh configuration entries (key → JSON value) for a daemon or a router with this section."""
     out: dict[str, object] = {"transport/link/tx/lease": round(zenoh.lease_s * 1000)}
     if zenoh.tls.enabled:
         out.update(_tls_settings(zenoh.tls, listening=bool(zenoh.listen)))
@@ -361,7 +360,6 @@ class Profile:
     user: str = ""
     password: str = field(default="", repr=False)
     role: str = ""
-    path: Path | None = None
 
     def settings(self) -> dict[str, object]:
         """Zenoh configuration entries (key → JSON value) for a client session with this identity."""
@@ -388,7 +386,7 @@ def load_profile(path: Path) -> Profile:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{where} is not valid TOML: {e}") from e
-    s = _Table(data, where)
+    s = _Table(data, where, file=True)
     endpoint = check_endpoint(s.text("endpoint"), f"{where}: endpoint")
     robot = check_robot(s.text("robot"), f"{where}: robot")
     role = s.text("role", "")
@@ -413,7 +411,7 @@ def load_profile(path: Path) -> Profile:
     _readable(tls.root_ca_certificate, f"{where}: tls.root_ca_certificate")
     _readable(tls.certificate, f"{where}: tls.certificate")
     _private(tls.private_key, f"{where}: tls.private_key")
-    return Profile(endpoint, robot, tls, user, password, role, path)
+    return Profile(endpoint, robot, tls, user, password, role)
 
 
 def profile_text(profile: Profile, *, comment: str) -> str:
@@ -511,15 +509,19 @@ def _show(value: object) -> str:
 
 
 class _Table:
-    """Typed access to one TOML table with defaults; ``finish()`` rejects keys nobody asked for."""
+    """Typed access to one TOML table with defaults; ``finish()`` rejects keys nobody asked for.
 
-    def __init__(self, data: Mapping[str, Any], where: str) -> None:
+    Keys are named ``where.key`` (a config section, ``zenoh.tls.certificate``), or ``where: key`` and
+    ``where [table]: key`` in a file of its own (``profile FILE: endpoint``)."""
+
+    def __init__(self, data: Mapping[str, Any], where: str, *, file: bool = False) -> None:
         self._data = data
         self._where = where
+        self._file = file
         self._seen: set[str] = set()
 
     def _name(self, key: str) -> str:
-        return f"{self._where}.{key}" if not self._where.startswith("profile ") else f"{self._where}: {key}"
+        return f"{self._where}: {key}" if self._file else f"{self._where}.{key}"
 
     def _get(self, key: str, default: object) -> object:
         """The value at ``key``, or ``default``; a missing key without a default (None) is an error."""
@@ -534,8 +536,9 @@ class _Table:
         value = self._get(key, {})
         if not isinstance(value, Mapping):
             raise ConfigError(f"{self._name(key)}: expected a table, got {_show(value)}")
-        where = f"{self._where}.{key}" if not self._where.startswith("profile ") else f"{self._where} [{key}]"
-        return _Table(value, where)
+        if self._file:
+            return _Table(value, f"{self._where} [{key}]", file=True)
+        return _Table(value, f"{self._where}.{key}")
 
     def text(self, key: str, default: str | None = None) -> str:
         value = self._get(key, default)

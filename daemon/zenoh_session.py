@@ -160,7 +160,7 @@ class ZenohSession:
             "transport/shared_memory/enabled": False,
         }
         if zenoh_config is not None:
-            settings |= node_settings(zenoh_config, name=robot_id)
+            settings |= node_settings(zenoh_config)
         session = zenoh.open(session_config(listen=listen, connect=connect, settings=settings))
         return cls(session, robot_id, max_command_bytes=max_command_bytes)
 

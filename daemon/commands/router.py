@@ -69,7 +69,7 @@ def _router(args: argparse.Namespace) -> int:
         if not (args.insecure or zenoh_config.insecure):
             raise UsageError(exposed)
         log.warning("zenoh_insecure", problem=exposed)
-    settings = node_settings(zenoh_config, name="router")
+    settings = node_settings(zenoh_config)
     config = session_config(listen=listen, connect=connect, mode="router", settings=settings)
     stop = threading.Event()
 

@@ -71,7 +71,7 @@ def robot_config(robot_id: str, path: Path | None = None, **zenoh: Any) -> Confi
 @contextlib.contextmanager
 def router(listen: str, zenoh_config: ZenohConfig | None = None) -> Iterator[zenoh.Session]:
     """A Zenoh router session, as ``dishbot router`` opens it."""
-    settings = node_settings(zenoh_config, name="router") if zenoh_config is not None else {}
+    settings = node_settings(zenoh_config) if zenoh_config is not None else {}
     with zenoh.open(session_config(listen=[listen], connect=[], mode="router", settings=settings)) as session:
         yield session
 

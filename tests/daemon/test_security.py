@@ -369,7 +369,7 @@ def test_roles_become_a_default_deny_access_control_with_one_subject_per_identit
     )
     from daemon.security import node_settings
 
-    acl = node_settings(zenoh_config, name="router")["access_control"]
+    acl = node_settings(zenoh_config)["access_control"]
     assert isinstance(acl, dict)
     assert acl["default_permission"] == "deny"
     assert {"id": "monitor-bob", "cert_common_names": ["bob"], "usernames": ["bob"]} in acl["subjects"]
