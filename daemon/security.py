@@ -220,6 +220,11 @@ def check_files(zenoh: ZenohConfig, where: str = "zenoh") -> None:
         _readable(path, f"{where}.{name}")
     _private(zenoh.tls.private_key, f"{where}.tls.private_key")
     _private(zenoh.auth.dictionary_file, f"{where}.auth.dictionary_file")
+    if zenoh.auth.user and not own_password(zenoh.auth):
+        raise ConfigError(
+            f"{where}.auth.user: {zenoh.auth.user!r} has no password; set {where}.auth.password or give the "
+            f"user a line in {where}.auth.dictionary_file"
+        )
 
 
 def own_password(auth: Auth) -> str:
@@ -250,8 +255,8 @@ def exposure_error(listen: Sequence[str], connect: Sequence[str], zenoh: ZenohCo
     """Why these endpoints would let other machines command the arm without TLS, or None when they do not.
 
     A ``tls/`` endpoint is always mutually authenticated (both ends show a certificate of the CA), so only
-    plain endpoints beyond loopback are exposed. A TLS endpoint without the TLS files cannot open at all:
-    that is refused too (it always raises ``ConfigError``)."""
+    plain endpoints beyond loopback are exposed. Raises ``ConfigError`` for a TLS endpoint without the TLS
+    files, which could not open at all."""
     for kind, endpoints in (("listen", listen), ("connect", connect)):
         for endpoint in endpoints:
             missing_tls = tls_missing(endpoint, zenoh.tls)
@@ -274,15 +279,9 @@ def node_settings(zenoh: ZenohConfig) -> dict[str, object]:
         out.update(_tls_settings(zenoh.tls, listening=bool(zenoh.listen)))
     if zenoh.auth.dictionary_file is not None:
         out["transport/auth/usrpwd/dictionary_file"] = str(zenoh.auth.dictionary_file)
-    if zenoh.auth.user:
-        password = own_password(zenoh.auth)
-        if not password:
-            raise ConfigError(
-                f"zenoh.auth.user {zenoh.auth.user!r}: no password; set zenoh.auth.password or give the "
-                "user a line in zenoh.auth.dictionary_file"
-            )
+    if zenoh.auth.user:  # check_files made sure there is a password
         out["transport/auth/usrpwd/user"] = zenoh.auth.user
-        out["transport/auth/usrpwd/password"] = password
+        out["transport/auth/usrpwd/password"] = own_password(zenoh.auth)
     if zenoh.access.enabled:
         out["access_control"] = access_control(
             zenoh.access,
@@ -576,7 +575,11 @@ class _Table:
         value = self._get(key, [])
         if not isinstance(value, list):
             raise ConfigError(f"{self._name(key)}: expected a list of names, got {_show(value)}")
-        return tuple(check_name(v, f"{self._name(key)}[{i}]") for i, v in enumerate(value))
+        names = tuple(check_name(v, f"{self._name(key)}[{i}]") for i, v in enumerate(value))
+        twice = next((n for n in names if names.count(n) > 1), None)
+        if twice is not None:
+            raise ConfigError(f"{self._name(key)}: {twice!r} is listed twice")
+        return names
 
     def finish(self) -> None:
         unknown = sorted(set(self._data) - self._seen)

@@ -28,12 +28,13 @@ import zenoh
 
 from daemon.errors import ConfigError, UsageError
 from daemon.security import FLEET_VERBS, Profile, check_endpoint, check_robot, endpoint_host, load_profile
-from daemon.zenoh_session import encode, key, session_config
+from daemon.zenoh_session import encode, key, session_config, transport_limit_bytes
 from description import thesis
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_ROBOT = "dishbot"
 PROFILE_ENV = "DISHBOT_PROFILE"
+_BATCH_BYTES = transport_limit_bytes(0)  # what every daemon's transport takes, whatever its limit
 
 _HELP = {
     "status": "print the daemon's state, job progress and the commands allowed now",
@@ -223,7 +224,9 @@ def ask(
         except ValueError:
             decoded = None
         if not isinstance(decoded, dict):
-            decoded = {"ok": False, "error": raw.decode("utf-8", "replace") or "an empty error reply"}
+            if reply.ok is None:  # Zenoh's own error (a timeout), not a daemon's answer
+                continue
+            decoded = {"ok": False, "error": f"not a JSON object: {raw[:80].decode('utf-8', 'replace')!r}"}
         if reply.ok is None:
             decoded["ok"] = False
         out.append(decoded)
@@ -257,6 +260,9 @@ def _send(args: argparse.Namespace) -> int:
         print(f"dishbot {verb}: {e}", file=sys.stderr)
         return 1
     if not replies:
+        size = len(encode(body)) if body else 0
+        if size > _BATCH_BYTES:
+            silent += f" (the command is {size} bytes: more than a daemon accepts by default)"
         print(f"dishbot {verb}: {silent}", file=sys.stderr)
         return 1
     if t.many:

@@ -203,6 +203,12 @@ def test_init_bad_input_is_one_line_and_writes_nothing(
             "zenoh.auth.password: set zenoh.auth.user too (a password belongs to a user)",
         ),
         ({"insecure": "yes"}, "zenoh.insecure: expected true or false, got 'yes'"),
+        ({"access": {"monitors": ["bob", "bob"]}}, "zenoh.access.monitors: 'bob' is listed twice"),
+        (
+            {"auth": {"user": "r1"}},
+            "zenoh.auth.user: 'r1' has no password; set zenoh.auth.password or give the user a line in "
+            "zenoh.auth.dictionary_file",
+        ),
         ({"lease_s": 0.1}, "zenoh.lease_s: 0.1 is out of range; allowed [1, 60]"),
         (
             {"connect": ["tcp/robot:99999"]},
