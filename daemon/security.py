@@ -276,7 +276,7 @@ def node_settings(zenoh: ZenohConfig) -> dict[str, object]:
     """Zenoh configuration entries (key → JSON value) for a daemon or a router with this section."""
     out: dict[str, object] = {"transport/link/tx/lease": round(zenoh.lease_s * 1000)}
     if zenoh.tls.enabled:
-        out.update(_tls_settings(zenoh.tls, listening=bool(zenoh.listen)))
+        out.update(_tls_settings(zenoh.tls, listening=True))  # the endpoints may come from the command line
     if zenoh.auth.dictionary_file is not None:
         out["transport/auth/usrpwd/dictionary_file"] = str(zenoh.auth.dictionary_file)
     if zenoh.auth.user:  # check_files made sure there is a password
