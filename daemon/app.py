@@ -181,8 +181,9 @@ async def _run(
         lambda verb, payload, many: commands_handler.handle(job, verb, payload, many),
         verbs=commands_handler.VERBS,
     )
+    health = ConnectionHealth(session, job)
     if options.connect:  # the peers and routers it relies on; clients come and go
-        session.watch_connections(loop, ConnectionHealth(session, job).changed)
+        session.watch_connections(loop, health.changed)
     session.publish("state", job.status())
     # Everything allocated so far lives as long as the process: keep it out of the cyclic collector's
     # scans, whose full passes over it stalled the loop for tens of milliseconds.
@@ -214,6 +215,7 @@ async def _run(
                 await task
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.remove_signal_handler(sig)
+        health.close()
         session.attach_recorder(None)
         session.close()
         await asyncio.to_thread(recorder.close)
@@ -234,13 +236,22 @@ class ConnectionHealth:
         self._reported = True  # as if connected: only a lasting absence is news
         self._counts = (0, 0)
         self._timer: asyncio.TimerHandle | None = None
+        self._closed = False
 
     def changed(self, peers: int, routers: int) -> None:
         """A transport opened or closed (on the loop): check again once things have settled."""
+        if self._closed:
+            return
         self._counts = (peers, routers)
         if self._timer is not None:
             self._timer.cancel()
         self._timer = asyncio.get_running_loop().call_later(self._settle_s, self._settled)
+
+    def close(self) -> None:
+        """Report nothing more (the session is closing: its links go down on purpose)."""
+        self._closed = True
+        if self._timer is not None:
+            self._timer.cancel()
 
     def _settled(self) -> None:
         peers, routers = self._counts
