@@ -166,9 +166,10 @@ def _watch(session: zenoh.Session, t: Target, rate: float, deadline: float | Non
 
 
 def _show(tty: bool, lines: Sequence[str]) -> None:
+    """On a terminal: a fresh screen of lines cut to 80 columns; piped: the lines whole, for whoever reads."""
     if tty:
         sys.stdout.write("\x1b[2J\x1b[H")
-    sys.stdout.writelines(fit(line) + "\n" for line in lines)
+    sys.stdout.writelines((fit(line) if tty else line) + "\n" for line in lines)
     sys.stdout.flush()
 
 
