@@ -17,6 +17,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "bench.motion",
     "bench.perception",
     "bench.sim",
+    "bench.remote",
 )
 
 

@@ -11,6 +11,10 @@ cannot be written) leaves no recording file behind.
 
 Everything runs on the backend's clock: telemetry periods, the watchdog's, the ``t`` of every message and
 the recording's log times (simulated time in simulation, the wall clock on the robot).
+
+It refuses to start on an endpoint other machines can reach without TLS unless told it is insecure on
+purpose (then it warns at every start), and it says once when it loses its last peer or router and once when
+one is back; Zenoh reconnects meanwhile, and nothing on the loop waits for the network.
 """
 
 from __future__ import annotations
@@ -33,13 +37,14 @@ from daemon import commands_handler
 from daemon.backend import Backend, joints_payload, recorded
 from daemon.clock import SessionClock, wall_seconds
 from daemon.config import Config
-from daemon.errors import UsageError
+from daemon.errors import ConfigError, UsageError
 from daemon.job import Job, JobSummary, StartRequest
 from daemon.log_relay import LogRelay, RecordQueue, plain_record
 from daemon.recording.files import SessionRecording, is_job_file
 from daemon.recording.outcome import JobOutcome
 from daemon.sdnotify import SdNotifier
-from daemon.zenoh_session import ZenohSession
+from daemon.security import exposure_error
+from daemon.zenoh_session import ZenohSession, error_text
 from drivers.dynamixel import BusTimeout
 from drivers.errors import BusLost, DriverError, ServoFault
 from perception.interfaces import Associate
@@ -64,6 +69,7 @@ class RunOptions:
     once: StartRequest | None = None  # run this one job at once, then exit
     foxglove: tuple[str, int] | None = None  # serve the live Foxglove view on this host and port
     worker_logs: RecordQueue | None = None  # the planning worker's log records, for the `log` topic
+    insecure: bool = False  # plain endpoints beyond loopback allowed for this run (--insecure)
 
 
 @dataclass(frozen=True, slots=True)
@@ -110,6 +116,18 @@ def job_header(request: StartRequest, config: Config) -> dict[str, object]:
     }
 
 
+def tolerated_exposure(config: Config, options: RunOptions) -> str | None:
+    """How the endpoints expose the arm to other machines without TLS, when ``insecure`` allows it (to be
+    warned about); raises ``UsageError`` naming the fix when it does not. None: nothing is exposed."""
+    try:
+        exposed = exposure_error(options.listen, options.connect, config.zenoh)
+    except ConfigError as e:
+        raise UsageError(str(e)) from e
+    if exposed is not None and not (options.insecure or config.zenoh.insecure):
+        raise UsageError(exposed)
+    return exposed
+
+
 async def serve(
     config: Config,
     backend: Backend,
@@ -123,6 +141,9 @@ async def serve(
 ) -> RunResult:
     """Run the daemon until SIGTERM/SIGINT or ``stop`` is set (or the ``once`` job ends); returns the last
     job's summary."""
+    exposed = tolerated_exposure(config, options)
+    if exposed is not None:
+        log.warning("zenoh_insecure", problem=exposed)
     try:
         options.record_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -135,9 +156,12 @@ async def serve(
             listen=options.listen,
             connect=options.connect,
             max_command_bytes=config.daemon.max_command_bytes,
+            zenoh_config=config.zenoh,
         )
     except zenoh.ZError as e:
-        raise UsageError(f"cannot open the Zenoh session (listen {list(options.listen)}): {e}") from e
+        raise UsageError(
+            f"cannot open the Zenoh session (listen {list(options.listen)}): {error_text(e)}"
+        ) from e
     clock = backend.clock
     live: LiveServer | None = None
     try:
@@ -221,13 +245,13 @@ async def _run(
 
     job = Job(backend, config, publish, associate, executor=executor)
 
-    async def handle(verb: str, payload: bytes) -> dict[str, object]:
-        if verb == "start":  # what the job will run goes into its file's header
+    async def handle(verb: str, payload: bytes, many: bool) -> dict[str, object]:
+        if verb == "start" and not many:  # what the job will run goes into its file's header
             with contextlib.suppress(commands_handler.BadCommand):
                 request = commands_handler.parse(verb, payload, config)
                 if request is not None:
                     recording.expect_job(job_header(request, config))
-        return await commands_handler.handle(job, verb, payload)
+        return await commands_handler.handle(job, verb, payload, many)
 
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
@@ -253,7 +277,10 @@ async def _run(
             loop.call_soon_threadsafe(job.device_event, event)
 
         backend.on_event(device_event)
-    session.serve(loop, handle)
+    session.serve(loop, handle, verbs=commands_handler.VERBS)
+    health = ConnectionHealth(session, job, clock)
+    if options.connect:  # the peers and routers it relies on; clients come and go
+        session.watch_connections(loop, health.changed)
     session.publish("state", job.status())  # the first message: it opens the first recording file
     path = recording.path or options.record_dir
     # Everything allocated so far lives as long as the process: keep it out of the cyclic collector's
@@ -297,6 +324,7 @@ async def _run(
             loop.remove_signal_handler(sig)
         if relay is not None:
             await asyncio.to_thread(relay.close)
+        health.close()
         session.attach_recorder(None)
         session.close()
         await asyncio.to_thread(recording.close)
@@ -307,6 +335,60 @@ async def _run(
     return RunResult(
         job.summary, last, job.chart.state, outcome, files, wall_s=wall_s, simulated=clock.simulated
     )
+
+
+class ConnectionHealth:
+    """Says once when the last peer or router goes away and once when one is back (log and ``events``).
+
+    Zenoh keeps reconnecting to the ``connect`` endpoints with backoff; this only reports, and only a change
+    that lasts ``settle_s`` (links flap while they are set up). Reaching none of them at start is said too."""
+
+    def __init__(
+        self, session: ZenohSession, job: Job, clock: SessionClock, *, settle_s: float = 1.0
+    ) -> None:
+        self._session = session
+        self._job = job
+        self._clock = clock
+        self._settle_s = settle_s
+        self._reported = True  # as if connected: only a lasting absence is news
+        self._counts = (0, 0)
+        self._timer: asyncio.TimerHandle | None = None
+        self._closed = False
+
+    def changed(self, peers: int, routers: int) -> None:
+        """A transport opened or closed (on the loop): check again once things have settled."""
+        if self._closed:
+            return
+        self._counts = (peers, routers)
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer = asyncio.get_running_loop().call_later(self._settle_s, self._settled)
+
+    def close(self) -> None:
+        """Report nothing more (the session is closing: its links go down on purpose)."""
+        self._closed = True
+        if self._timer is not None:
+            self._timer.cancel()
+
+    def _settled(self) -> None:
+        peers, routers = self._counts
+        connected = peers + routers > 0
+        if connected == self._reported:
+            return
+        self._reported = connected
+        kind = "connection_restored" if connected else "connection_lost"
+        if connected:
+            log.info(kind, peers=peers, routers=routers)
+        else:
+            log.warning(kind, peers=peers, routers=routers)
+        event = {
+            "kind": kind,
+            "state": self._job.chart.state,
+            "t": self._clock.now(),
+            "peers": peers,
+            "routers": routers,
+        }
+        self._session.publish("events", event)
 
 
 def _state(session: ZenohSession, job: Job) -> None:

@@ -29,6 +29,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "daemon.commands.run",
     "daemon.commands.client",
     "daemon.commands.monitor",
+    "daemon.commands.security",
+    "daemon.commands.router",
     "daemon.commands.servo",
     "daemon.commands.fsr",
     "daemon.commands.sim",
@@ -50,6 +52,12 @@ def build_parser() -> argparse.ArgumentParser:
         choices=tuple(LEVELS),
         default="info",
         help="least severe log event written to stderr (default: info); stdout carries only results",
+    )
+    parser.add_argument(
+        "--profile",
+        metavar="FILE",
+        help="client verbs: the profile to connect with (dishbot security init writes one; also "
+        "$DISHBOT_PROFILE)",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMAND_MODULES:

@@ -2,7 +2,12 @@
 
 A command is refused (``{"ok": false, "error": ...}``) and changes nothing when its verb is unknown, its
 payload is not a JSON object, a field is unknown, has the wrong type or is out of range, or the verb is not
-allowed in the current state. The size limit is enforced before the payload is decoded (in ``zenoh_io``).
+allowed in the current state. The size limit is enforced before the payload is decoded (in
+``daemon.zenoh_session``).
+
+A command addressed to many robots at once (``dishbot/*/cmd/<verb>``) is answered only for ``status`` and
+``estop``: looking at every robot, and stopping every robot, are safe to do in one go; starting, pausing,
+resuming, stopping or resetting robots nobody named is not.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from typing import Any
 from daemon.backend import CounterMug
 from daemon.config import PLANNER_COSTS, PLANNER_FITNESS, Config
 from daemon.job import CommandRefused, Job, PlannerRequest, StartRequest
+from daemon.security import FLEET_VERBS
 from description import thesis
 from planning.placement import METHODS
 
@@ -48,9 +54,14 @@ def parse(verb: str, payload: bytes, config: Config) -> StartRequest | None:
     return StartRequest(dataset=dataset, mugs=mugs, planner=planner)
 
 
-async def handle(job: Job, verb: str, payload: bytes) -> dict[str, object]:
-    """The reply to one command."""
+async def handle(job: Job, verb: str, payload: bytes, many: bool = False) -> dict[str, object]:
+    """The reply to one command; ``many`` when the query named robots by wildcard."""
     try:
+        if many and verb in VERBS and verb not in FLEET_VERBS:
+            raise BadCommand(
+                f"{verb} addressed to many robots is refused: name one robot "
+                f"(only {' and '.join(FLEET_VERBS)} may go to every robot at once)"
+            )
         request = parse(verb, payload, job.config)
         if verb == "status":
             return {"ok": True, **status(job)}

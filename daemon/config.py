@@ -15,12 +15,14 @@ import math
 import re
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass, fields, is_dataclass
+from dataclasses import dataclass, fields, is_dataclass, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 from daemon.errors import ConfigError
+from daemon.security import ZenohConfig, check_files, parse_zenoh
+from daemon.security import check_endpoint as check_endpoint  # where the verbs have always found it
 from description.camera import MAX_FOVY_DEG, MIN_FOVY_DEG, CameraSpec
 from description.cell import CellLayout, Tray
 from description.errors import InvalidCell
@@ -29,7 +31,6 @@ from drivers.dynamixel.tables import BAUD_CODES_1, BAUD_CODES_2, MODELS
 from planning.placement import METHODS
 
 _ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
-_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 _BACKENDS = ("sim", "hardware")
 _WORLDS = ("kinematic", "mujoco")
 _TRANSPORTS = ("inprocess", "pty")
@@ -39,14 +40,6 @@ _ENERGY_MODELS = ("thesis", "dynamics")
 _CAMERAS = ("realsense", "none")
 RECORDING_COMPRESSIONS = ("zstd", "lz4", "none")
 _LISTEN = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
-
-
-@dataclass(frozen=True, slots=True)
-class ZenohConfig:
-    """Where the daemon's single Zenoh session listens and which peers it connects to."""
-
-    listen: tuple[str, ...]
-    connect: tuple[str, ...]
 
 
 @dataclass(frozen=True, slots=True)
@@ -238,6 +231,8 @@ class Config:
         hw = out["hardware"]
         hw["servos"] = {s["joint"]: {"id": s["id"], "model": s["model"]} for s in hw["servos"]}
         out["sim"]["speed"] = "max" if self.sim.speed is None else self.sim.speed
+        if out["zenoh"]["auth"]["password"]:  # shown and recorded everywhere: never the secret itself
+            out["zenoh"]["auth"]["password"] = "(hidden)"
         return out
 
 
@@ -247,7 +242,10 @@ def default_text() -> str:
 
 
 def load_config(path: Path | None = None, *, overrides: Mapping[str, Any] | None = None) -> Config:
-    """The defaults, updated by the TOML file at ``path`` and then by ``overrides`` (nested tables merge)."""
+    """The defaults, updated by the TOML file at ``path`` and then by ``overrides`` (nested tables merge).
+
+    The security files named in ``[zenoh]`` are taken relative to the file's folder (so a folder written by
+    ``dishbot security init`` works wherever it is copied) and must be readable."""
     data = tomllib.loads(default_text())
     if path is not None:
         try:
@@ -261,7 +259,11 @@ def load_config(path: Path | None = None, *, overrides: Mapping[str, Any] | None
         data = _merge(data, user)
     if overrides:
         data = _merge(data, overrides)
-    return parse_config(data)
+    config = parse_config(data)
+    if path is not None:
+        config = replace(config, zenoh=config.zenoh.resolved(path.parent))
+    check_files(config.zenoh)
+    return config
 
 
 def parse_config(data: Mapping[str, Any]) -> Config:
@@ -305,9 +307,7 @@ def to_toml(data: Mapping[str, Any]) -> str:
 
 
 def _zenoh(s: _Section) -> ZenohConfig:
-    cfg = ZenohConfig(listen=s.endpoints("listen"), connect=s.endpoints("connect"))
-    s.finish()
-    return cfg
+    return parse_zenoh(s.everything(), "zenoh")
 
 
 def _recording(s: _Section) -> RecordingConfig:
@@ -584,6 +584,11 @@ class _Section:
     def names(self) -> list[str]:
         return list(self._data)
 
+    def everything(self) -> Mapping[str, Any]:
+        """The whole table, for a parser of its own (which rejects unknown keys itself)."""
+        self._seen.update(self._data)
+        return self._data
+
     def section(self, key: str) -> _Section:
         value = self._get(key)
         if not isinstance(value, Mapping):
@@ -639,12 +644,6 @@ class _Section:
         items = self._list(key, n)
         return tuple(_check_integer(v, f"{self._name(key)}[{i}]", lo, hi) for i, v in enumerate(items))
 
-    def endpoints(self, key: str) -> tuple[str, ...]:
-        items = self._list(key, None)
-        for i, item in enumerate(items):
-            check_endpoint(item, f"{self._name(key)}[{i}]")
-        return tuple(items)
-
     def _list(self, key: str, n: int | None) -> list[Any]:
         value = self._get(key)
         if not isinstance(value, list):
@@ -659,17 +658,6 @@ class _Section:
             where = self._prefix.rstrip(".") or "the top level"
             known = ", ".join(sorted(self._seen))
             raise ConfigError(f"{self._name(unknown[0])}: unknown key in {where} (known keys: {known})")
-
-
-def check_endpoint(value: object, name: str) -> str:
-    """A Zenoh endpoint ``proto/host:port``; raises ``ConfigError`` naming ``name`` otherwise."""
-    match = _ENDPOINT.match(value) if isinstance(value, str) else None
-    if match is None or not 1 <= int(match.group(3)) <= 65535:
-        raise ConfigError(
-            f"{name}: {_show(value)} is not a Zenoh endpoint like tcp/127.0.0.1:7447 "
-            "(protocol tcp, udp, tls, quic or ws; port 1-65535)"
-        )
-    return str(value)
 
 
 def parse_listen(value: object, name: str) -> tuple[str, int]:

@@ -69,7 +69,10 @@ ALLOWED: Final[dict[tuple[str, str], str]] = {
         "file ages are the files' modification times, facts of the file system, against the wall clock"
     ),
     ("daemon/commands/record.py", "run_plot"): "says how long drawing took on this machine, nothing else",
-    ("daemon/commands/monitor.py", "_monitor"): "a remote client redrawing its terminal in wall time",
+    ("daemon/commands/monitor.py", "*"): (
+        "a remote client: its redraws, its reconnection and when it last heard a daemon, in wall time"
+    ),
+    ("daemon/credentials.py", "write"): "a certificate is valid from now on the wall clock, as TLS checks it",
     ("perception/observer.py", "CameraObserver.observe"): (
         "measures how long detection took (the observation's detect_ms), nothing else"
     ),

@@ -101,6 +101,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help=f"serve the live Foxglove view over WebSocket (default address {DEFAULT_FOXGLOVE}; "
         "a non-loopback one needs [foxglove] insecure = true; default: config foxglove.listen)",
     )
+    parser.add_argument(
+        "--insecure",
+        action="store_true",
+        help="allow plain (non-TLS) endpoints other machines can reach: anyone who reaches them can command "
+        "the arm (default: refused; see docs/service.md for TLS)",
+    )
     parser.set_defaults(handler=_run)
 
 
@@ -126,7 +132,11 @@ def _run(args: argparse.Namespace) -> int:
         once=StartRequest() if args.once else None,
         foxglove=foxglove,
         worker_logs=worker_logs,
+        insecure=args.insecure,
     )
+    from daemon.app import tolerated_exposure
+
+    tolerated_exposure(config, options)  # refused before any simulator or device starts
     associate = association()
     with planning_pool(args.log_level, worker_logs) as pool, SdNotifier.from_env() as notifier:
         result = clock.run(_serve(args, config, clock, options, associate, pool, notifier))

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from daemon.app import RunOptions, serve
 from daemon.cli import main
-from daemon.commands.client import request
+from daemon.commands.client import Unreachable, request
 from daemon.commands_handler import BadCommand, parse
 from daemon.config import load_config
 from daemon.sdnotify import SdNotifier
@@ -128,7 +128,10 @@ def test_each_class_of_bad_command_is_refused_with_its_reason_and_changes_nothin
         before = await send("status", b"")
         assert before["ok"] is True
         for verb, payload, error in BAD:
-            assert await send(verb, payload) == {"ok": False, "error": error}, (verb, payload)
+            assert await send(verb, payload) == {"robot_id": ROBOT, "ok": False, "error": error}, (
+                verb,
+                payload,
+            )
         after = await send("status", b"")
         assert (after["state"], after["transitions"]) == ("idle", 0)
         assert after["allowed"] == ["status", "start", "estop"]
@@ -139,6 +142,7 @@ def test_each_class_of_bad_command_is_refused_with_its_reason_and_changes_nothin
 def test_a_good_command_sequence_runs_a_job_over_zenoh(tmp_path: Path) -> None:
     async def scenario(endpoint: str, send: Client) -> None:
         assert await send("start", b'{"planner": {"method": "bh", "time_limit_s": 0.5}}') == {
+            "robot_id": ROBOT,
             "ok": True,
             "state": "detect",
         }
@@ -180,8 +184,10 @@ def test_the_client_verbs_print_the_reply_and_exit_by_its_outcome(
     _with_daemon(tmp_path, scenario)
     out, err = capsys.readouterr()
     printed = "".join(line for line in out.splitlines(keepends=True) if not line.startswith("20"))  # not logs
-    assert printed.startswith("state: idle\nmugs: 0 placed of 0 planned, 0 seen, 0 failed; current -\n")
-    assert "dishbot pause: refused: cannot pause in state idle\n" in err
+    assert printed.startswith(
+        f"robot: {ROBOT}\nstate: idle\nmugs: 0 placed of 0 planned, 0 seen, 0 failed; current -\n"
+    )
+    assert f"dishbot pause: refused by robot {ROBOT!r}: cannot pause in state idle\n" in err
     assert json.loads(printed[printed.index("{") :])["state"] == "idle"
 
 
@@ -189,7 +195,8 @@ def test_a_client_with_no_daemon_says_so_and_exits_1(capsys: pytest.CaptureFixtu
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     assert main(["status", "--connect", endpoint, "--robot", "nobody", "--timeout", "0.5"]) == 1
     assert capsys.readouterr().err == (
-        f"dishbot status: no daemon answered for robot 'nobody' at {endpoint} within 0.5 s\n"
+        f"dishbot status: cannot connect to {endpoint}: Connection refused "
+        "(is the daemon running, is the address right?)\n"
     )
 
 
@@ -201,8 +208,9 @@ def test_a_bad_client_endpoint_is_a_usage_error(capsys: pytest.CaptureFixture[st
     )
 
 
-def test_request_returns_none_when_nobody_answers() -> None:
-    assert request(f"tcp/127.0.0.1:{free_port()}", "ghost", "status", {}, timeout_s=0.3) is None
+def test_request_raises_unreachable_when_nothing_listens() -> None:
+    with pytest.raises(Unreachable, match=r"cannot connect to tcp/127\.0\.0\.1:"):
+        request(f"tcp/127.0.0.1:{free_port()}", "ghost", "status", {}, timeout_s=0.3)
 
 
 _CONFIG = load_config()

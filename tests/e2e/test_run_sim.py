@@ -90,6 +90,7 @@ def test_run_sim_places_the_planned_mugs_and_records_what_it_published(tmp_path:
             while not seen and time.monotonic() < deadline:
                 time.sleep(0.05)
             assert _query(session, "start", {"mugs": _four_mugs(), "planner": {"method": "bh"}}) == {
+                "robot_id": ROBOT,
                 "ok": True,
                 "state": "detect",
             }

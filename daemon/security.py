@@ -1,0 +1,588 @@
+"""Who may talk to a dishbot over Zenoh: endpoints, TLS, user/password, roles, and the clients' profiles.
+
+Three layers, each enforced by Zenoh itself:
+
+- **TLS with mutual authentication** (``[zenoh.tls]``): every ``tls/`` link is encrypted, and both ends show a
+  certificate signed by the fleet's CA. A certificate's common name is its holder's identity.
+- **User and password** (``[zenoh.auth]``): whoever opens a link names a user and proves the password found
+  in the listening side's dictionary file (``user:password`` lines).
+- **Roles** (``[zenoh.access]``): Zenoh access control, default deny. An *operator* may call every
+  ``cmd/<verb>``; a *monitor* may subscribe and call ``cmd/status`` only; a *router* (on a robot) forwards for
+  operators; a *robot* (on a router) serves its own ``dishbot/<id>/**``. Nobody else may do anything.
+
+Loopback without security stays the default for local work; an endpoint reachable from other machines
+without TLS is refused at start unless ``insecure`` is set (``exposure_error``). Client verbs read a *profile*
+(``dishbot security init`` writes one per operator and monitor): the endpoint, the robot id, the identity's
+certificate and key, the CA and the password.
+
+This module is plain data and JSON for Zenoh's configuration: it imports neither Zenoh nor a crypto library,
+so client verbs stay quick to start.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import re
+import stat
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from daemon.errors import ConfigError
+
+NAMESPACE = "dishbot"
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
+_NAME = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+NAME_RULE = "1-64 letters, digits, '_' or '-'"
+# The commands a query may address to many robots at once (dishbot/*/cmd/<verb>): looking at every robot and
+# stopping every robot are safe in one go; starting or resetting robots nobody named is not.
+FLEET_VERBS = ("status", "estop")
+
+# Who may do what, seen from the node that enforces it (a robot's daemon or a router). Zenoh allows a message
+# when one of the subject's rules *includes* its key expression, so wildcard queries such as
+# dishbot/*/cmd/status are allowed by the patterns below and nothing broader is.
+_EVERY_KEY = f"{NAMESPACE}/**"
+_EVERY_COMMAND = f"{NAMESPACE}/*/cmd/**"
+_STATUS = f"{NAMESPACE}/*/cmd/status"
+_WATCH_IN = ("declare_subscriber", "liveliness_query", "declare_liveliness_subscriber")
+_WATCH_OUT = ("put", "liveliness_token", "declare_queryable")
+
+
+def check_endpoint(value: object, name: str) -> str:
+    """A Zenoh endpoint ``proto/host:port``; raises ``ConfigError`` naming ``name`` otherwise."""
+    match = _ENDPOINT.match(value) if isinstance(value, str) else None
+    if match is None or not 1 <= int(match.group(3)) <= 65535:
+        raise ConfigError(
+            f"{name}: {_show(value)} is not a Zenoh endpoint like tcp/127.0.0.1:7447 "
+            "(protocol tcp, udp, tls, quic or ws; port 1-65535)"
+        )
+    return str(value)
+
+
+def endpoint_protocol(endpoint: str) -> str:
+    return endpoint.split("/", 1)[0]
+
+
+def endpoint_host(endpoint: str) -> str:
+    """The host part of ``proto/host:port`` (an IPv6 address without its brackets)."""
+    host = endpoint.split("/", 1)[1].rsplit(":", 1)[0]
+    return host[1:-1] if host.startswith("[") else host
+
+
+def is_loopback(endpoint: str) -> bool:
+    """Whether only this machine can reach ``endpoint`` (127.0.0.0/8, ::1 or localhost)."""
+    host = endpoint_host(endpoint)
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def check_name(value: object, name: str) -> str:
+    """A robot id or identity name: a Zenoh key chunk, a certificate common name, a user and a file name."""
+    if not isinstance(value, str) or not _NAME.match(value):
+        raise ConfigError(f"{name}: {_show(value)} is not a valid name; use {NAME_RULE}")
+    return value
+
+
+def check_robot(value: object, name: str, *, many: bool = False) -> str:
+    """A robot id as a client names it; with ``many`` also ``*`` (every robot that answers)."""
+    if many and value == "*":
+        return "*"
+    if not isinstance(value, str) or not _NAME.match(value):
+        extra = " (or '*' for every robot)" if many else ""
+        raise ConfigError(f"{name}: {_show(value)} is not a robot id; use {NAME_RULE}{extra}")
+    return value
+
+
+@dataclass(frozen=True, slots=True)
+class TlsFiles:
+    """The CA that signs everyone, and this node's certificate and private key (PEM files)."""
+
+    root_ca_certificate: Path | None = None
+    certificate: Path | None = None
+    private_key: Path | None = None
+
+    @property
+    def enabled(self) -> bool:
+        return self.root_ca_certificate is not None
+
+    def resolved(self, base: Path) -> TlsFiles:
+        return TlsFiles(*(None if p is None else base / p for p in _tls_paths(self)))
+
+
+@dataclass(frozen=True, slots=True)
+class Auth:
+    """User/password authentication: whom this node checks (``dictionary_file``) and who it says it is."""
+
+    dictionary_file: Path | None = None
+    user: str = ""
+    password: str = field(default="", repr=False)
+
+    def resolved(self, base: Path) -> Auth:
+        return replace(
+            self, dictionary_file=None if self.dictionary_file is None else base / self.dictionary_file
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Access:
+    """Roles by identity name (certificate common name and user name); ``enabled`` turns on default deny."""
+
+    enabled: bool = False
+    operators: tuple[str, ...] = ()
+    monitors: tuple[str, ...] = ()
+    routers: tuple[str, ...] = ()
+    robots: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class ZenohConfig:
+    """The daemon's (or router's) Zenoh session: endpoints and security."""
+
+    listen: tuple[str, ...]
+    connect: tuple[str, ...]
+    insecure: bool = False
+    tls: TlsFiles = TlsFiles()
+    auth: Auth = Auth()
+    access: Access = Access()
+    lease_s: float = 10.0
+
+    def resolved(self, base: Path) -> ZenohConfig:
+        """Relative file names taken relative to ``base`` (the config file's folder)."""
+        return replace(self, tls=self.tls.resolved(base), auth=self.auth.resolved(base))
+
+
+def parse_zenoh(section: Mapping[str, Any], where: str = "zenoh") -> ZenohConfig:
+    """The ``[zenoh]`` table, checked: endpoints, TLS files that go together, roles that need identities."""
+    s = _Table(section, where)
+    listen = s.endpoints("listen")
+    connect = s.endpoints("connect")
+    insecure = s.flag("insecure", False)
+    lease_s = s.number("lease_s", 10.0, 1.0, 60.0)
+    t = s.table("tls")
+    tls = TlsFiles(t.path("root_ca_certificate"), t.path("certificate"), t.path("private_key"))
+    t.finish()
+    a = s.table("auth")
+    auth = Auth(a.path("dictionary_file"), a.name("user"), a.text("password", ""))
+    a.finish()
+    r = s.table("access")
+    access = Access(
+        enabled=r.flag("enabled", False),
+        operators=r.names("operators"),
+        monitors=r.names("monitors"),
+        routers=r.names("routers"),
+        robots=r.names("robots"),
+    )
+    r.finish()
+    s.finish()
+    missing = _missing_tls(tls)
+    if missing:
+        raise ConfigError(
+            f"{where}.tls: set root_ca_certificate, certificate and private_key together "
+            f"(missing {', '.join(missing)})"
+        )
+    for kind, endpoints in (("listen", listen), ("connect", connect)):
+        for n, endpoint in enumerate(endpoints):
+            missing_tls = tls_missing(endpoint, tls, where=where)
+            if missing_tls:
+                raise ConfigError(f"{where}.{kind}[{n}]: {missing_tls}")
+    if auth.password and not auth.user:
+        raise ConfigError(f"{where}.auth.password: set {where}.auth.user too (a password belongs to a user)")
+    if access.enabled and not (tls.enabled or auth.dictionary_file is not None):
+        raise ConfigError(
+            f"{where}.access: roles need identities; set {where}.tls (certificate common names) or "
+            f"{where}.auth.dictionary_file (user names)"
+        )
+    return ZenohConfig(listen, connect, insecure, tls, auth, access, lease_s)
+
+
+def tls_missing(endpoint: str, tls: TlsFiles, *, where: str = "zenoh") -> str:
+    """Why ``endpoint`` cannot work with these TLS files ("" when it can: not TLS, or TLS configured)."""
+    if endpoint_protocol(endpoint) not in ("tls", "quic") or tls.enabled:
+        return ""
+    return (
+        f"{endpoint} needs {where}.tls (root_ca_certificate, certificate, private_key); "
+        "`dishbot security init` writes them"
+    )
+
+
+def check_files(zenoh: ZenohConfig, where: str = "zenoh") -> None:
+    """The configured security files exist, and private ones are not readable by everybody."""
+    for name, path in (
+        ("tls.root_ca_certificate", zenoh.tls.root_ca_certificate),
+        ("tls.certificate", zenoh.tls.certificate),
+    ):
+        _readable(path, f"{where}.{name}")
+    _private(zenoh.tls.private_key, f"{where}.tls.private_key")
+    _private(zenoh.auth.dictionary_file, f"{where}.auth.dictionary_file")
+    if zenoh.auth.user and not own_password(zenoh.auth):
+        raise ConfigError(
+            f"{where}.auth.user: {zenoh.auth.user!r} has no password; set {where}.auth.password or give the "
+            f"user a line in {where}.auth.dictionary_file"
+        )
+
+
+def own_password(auth: Auth) -> str:
+    """This node's password: ``auth.password``, else its user's line in the dictionary file."""
+    if auth.password or not auth.user or auth.dictionary_file is None:
+        return auth.password
+    return read_dictionary(auth.dictionary_file).get(auth.user, "")
+
+
+def read_dictionary(path: Path) -> dict[str, str]:
+    """A Zenoh user/password dictionary: ``user:password`` per line."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise ConfigError(f"cannot read the password dictionary {path}: {e.strerror}") from e
+    entries = {}
+    for number, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        user, sep, password = line.partition(":")
+        if not sep or not _NAME.match(user) or not password:
+            raise ConfigError(f"{path} line {number}: expected user:password with a user of {NAME_RULE}")
+        entries[user] = password
+    return entries
+
+
+def exposure_error(listen: Sequence[str], connect: Sequence[str], zenoh: ZenohConfig) -> str | None:
+    """Why these endpoints would let other machines command the arm without TLS, or None when they do not.
+
+    A ``tls/`` endpoint is always mutually authenticated (both ends show a certificate of the CA), so only
+    plain endpoints beyond loopback are exposed. Raises ``ConfigError`` for a TLS endpoint without the TLS
+    files, which could not open at all."""
+    for kind, endpoints in (("listen", listen), ("connect", connect)):
+        for endpoint in endpoints:
+            missing_tls = tls_missing(endpoint, zenoh.tls)
+            if missing_tls:
+                raise ConfigError(f"{kind} {missing_tls}")
+            if is_loopback(endpoint) or (endpoint_protocol(endpoint) == "tls" and zenoh.tls.enabled):
+                continue
+            return (
+                f"zenoh {kind} {endpoint} is reachable from other machines without TLS: anyone who reaches "
+                "it could command the arm; use a tls/ endpoint with [zenoh.tls] (`dishbot security init` "
+                "writes one), or set zenoh.insecure = true (--insecure) on a network that is yours alone"
+            )
+    return None
+
+
+def node_settings(zenoh: ZenohConfig) -> dict[str, object]:
+    """Zenoh configuration entries (key → JSON value) for a daemon or a router with this section."""
+    out: dict[str, object] = {"transport/link/tx/lease": round(zenoh.lease_s * 1000)}
+    if zenoh.tls.enabled:
+        out.update(_tls_settings(zenoh.tls, listening=True))  # the endpoints may come from the command line
+    if zenoh.auth.dictionary_file is not None:
+        out["transport/auth/usrpwd/dictionary_file"] = str(zenoh.auth.dictionary_file)
+    if zenoh.auth.user:  # check_files made sure there is a password
+        out["transport/auth/usrpwd/user"] = zenoh.auth.user
+        out["transport/auth/usrpwd/password"] = own_password(zenoh.auth)
+    if zenoh.access.enabled:
+        out["access_control"] = access_control(
+            zenoh.access,
+            by_certificate=zenoh.tls.enabled,
+            by_user=zenoh.auth.dictionary_file is not None,
+        )
+    return out
+
+
+def access_control(access: Access, *, by_certificate: bool, by_user: bool) -> dict[str, object]:
+    """Zenoh's ``access_control`` section for these roles: default deny, one subject per identity.
+
+    An identity is matched by its certificate's common name and/or its user name (both when both are
+    configured): a stolen password without the key, or a key without the password, is not enough."""
+    if not (by_certificate or by_user):
+        raise ConfigError("zenoh.access: roles need certificate common names or user names to match")
+    rules = [
+        _rule("watch_in", _WATCH_IN, "ingress", [_EVERY_KEY]),
+        _rule("watch_out", _WATCH_OUT, "egress", [_EVERY_KEY]),
+        _rule("command_in", ("query",), "ingress", [_EVERY_COMMAND]),
+        _rule("command_out", ("reply",), "egress", [_EVERY_COMMAND]),
+        _rule("status_in", ("query",), "ingress", [_STATUS]),
+        _rule("status_out", ("reply",), "egress", [_STATUS]),
+        _rule("robot_out", ("query",), "egress", [_EVERY_COMMAND]),
+        _rule("robot_watch_out", _WATCH_IN, "egress", [_EVERY_KEY]),
+    ]
+    subjects: list[dict[str, object]] = []
+    policies: list[dict[str, object]] = []
+    grants = {
+        "operator": ["watch_in", "watch_out", "command_in", "command_out"],
+        "router": ["watch_in", "watch_out", "command_in", "command_out"],
+        "monitor": ["watch_in", "watch_out", "status_in", "status_out"],
+    }
+    if access.routers and not by_certificate:
+        raise ConfigError("zenoh.access.routers: a router is known by its certificate; set zenoh.tls")
+    for role, names in (
+        ("operator", access.operators),
+        ("monitor", access.monitors),
+        ("router", access.routers),
+    ):
+        for name in names:
+            # A router is connected to, not connecting: it shows its certificate but sends no user name.
+            subjects.append(_subject(f"{role}-{name}", name, by_certificate, by_user and role != "router"))
+            policies.append({"rules": grants[role], "subjects": [f"{role}-{name}"]})
+    for name in access.robots:
+        # A robot serves its own keys only: it cannot publish or answer as another robot.
+        rules.append(
+            _rule(
+                f"serve-{name}",
+                ("put", "declare_queryable", "liveliness_token", "reply"),
+                "ingress",
+                [f"{NAMESPACE}/{name}/**"],
+            )
+        )
+        subjects.append(_subject(f"robot-{name}", name, by_certificate, by_user))
+        policies.append(
+            {"rules": [f"serve-{name}", "robot_out", "robot_watch_out"], "subjects": [f"robot-{name}"]}
+        )
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
+
+
+@dataclass(frozen=True, slots=True)
+class Profile:
+    """What a client verb needs to reach a robot: where, which robot, and as whom."""
+
+    endpoint: str
+    robot: str
+    tls: TlsFiles = TlsFiles()
+    user: str = ""
+    password: str = field(default="", repr=False)
+    role: str = ""
+
+    def settings(self) -> dict[str, object]:
+        """Zenoh configuration entries (key → JSON value) for a client session with this identity."""
+        out: dict[str, object] = {}
+        if self.tls.enabled:
+            out.update(_tls_settings(self.tls, listening=False))
+        if self.user:
+            out["transport/auth/usrpwd/user"] = self.user
+            out["transport/auth/usrpwd/password"] = self.password
+        return out
+
+
+def load_profile(path: Path) -> Profile:
+    """A client profile (TOML); relative file names are taken relative to the profile's folder."""
+    where = f"profile {path}"
+    try:
+        mode = path.stat().st_mode
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise ConfigError(f"{where}: cannot read it: {e.strerror}") from e
+    if mode & stat.S_IROTH:
+        raise ConfigError(f"{where}: readable by every user, and it holds a password; chmod 600 {path}")
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{where} is not valid TOML: {e}") from e
+    s = _Table(data, where, file=True)
+    endpoint = check_endpoint(s.text("endpoint"), f"{where}: endpoint")
+    robot = check_robot(s.text("robot"), f"{where}: robot")
+    role = s.text("role", "")
+    t = s.table("tls")
+    tls = TlsFiles(t.path("root_ca_certificate"), t.path("certificate"), t.path("private_key"))
+    t.finish()
+    a = s.table("auth")
+    user, password = a.name("user"), a.text("password", "")
+    a.finish()
+    s.finish()
+    missing = _missing_tls(tls)
+    if missing:
+        raise ConfigError(
+            f"{where}: [tls] needs root_ca_certificate, certificate and private_key together "
+            f"(missing {', '.join(missing)})"
+        )
+    if endpoint_protocol(endpoint) == "tls" and not tls.enabled:
+        raise ConfigError(f"{where}: endpoint {endpoint} needs the [tls] files")
+    if bool(user) != bool(password):
+        raise ConfigError(f"{where}: [auth] needs both user and password")
+    tls = tls.resolved(path.parent)
+    _readable(tls.root_ca_certificate, f"{where}: tls.root_ca_certificate")
+    _readable(tls.certificate, f"{where}: tls.certificate")
+    _private(tls.private_key, f"{where}: tls.private_key")
+    return Profile(endpoint, robot, tls, user, password, role)
+
+
+def profile_text(profile: Profile, *, comment: str) -> str:
+    """A profile file as ``load_profile`` reads it (file names as given, usually relative)."""
+    lines = [f"# {comment}", f'endpoint = "{profile.endpoint}"', f'robot = "{profile.robot}"']
+    if profile.role:
+        lines.append(f'role = "{profile.role}"')
+    if profile.tls.enabled:
+        lines += ["", "[tls]"]
+        for key, path in zip(_TLS_KEYS, _tls_paths(profile.tls), strict=True):
+            lines.append(f'{key} = "{path}"')
+    if profile.user:
+        lines += ["", "[auth]", f'user = "{profile.user}"', f'password = "{profile.password}"']
+    return "\n".join(lines) + "\n"
+
+
+# --- helpers ------------------------------------------------------------------------------------------------
+
+
+_TLS_KEYS = ("root_ca_certificate", "certificate", "private_key")
+
+
+def _tls_paths(tls: TlsFiles) -> tuple[Path | None, Path | None, Path | None]:
+    return (tls.root_ca_certificate, tls.certificate, tls.private_key)
+
+
+def _missing_tls(tls: TlsFiles) -> list[str]:
+    """The TLS keys left empty when some are set (none set: TLS is off, nothing is missing)."""
+    paths = _tls_paths(tls)
+    if all(p is None for p in paths):
+        return []
+    return [key for key, p in zip(_TLS_KEYS, paths, strict=True) if p is None]
+
+
+def _tls_settings(tls: TlsFiles, *, listening: bool) -> dict[str, object]:
+    out: dict[str, object] = {
+        "transport/link/tls/root_ca_certificate": str(tls.root_ca_certificate),
+        "transport/link/tls/connect_certificate": str(tls.certificate),
+        "transport/link/tls/connect_private_key": str(tls.private_key),
+        # Both ends show a certificate of the CA: the listener learns the client's common name (its
+        # identity for access control), and nobody without a certificate gets a link at all.
+        "transport/link/tls/enable_mtls": True,
+        "transport/link/tls/verify_name_on_connect": True,
+    }
+    if listening:
+        out["transport/link/tls/listen_certificate"] = str(tls.certificate)
+        out["transport/link/tls/listen_private_key"] = str(tls.private_key)
+    return out
+
+
+def _rule(rule_id: str, messages: Sequence[str], flow: str, keys: Sequence[str]) -> dict[str, object]:
+    return {
+        "id": rule_id,
+        "messages": list(messages),
+        "flows": [flow],
+        "permission": "allow",
+        "key_exprs": list(keys),
+    }
+
+
+def _subject(subject_id: str, name: str, by_certificate: bool, by_user: bool) -> dict[str, object]:
+    subject: dict[str, object] = {"id": subject_id}
+    if by_certificate:
+        subject["cert_common_names"] = [name]
+    if by_user:
+        subject["usernames"] = [name]
+    return subject
+
+
+def _readable(path: Path | None, name: str) -> None:
+    if path is None:
+        return
+    try:
+        path.read_bytes()
+    except OSError as e:
+        raise ConfigError(f"{name}: cannot read {path}: {e.strerror}") from e
+
+
+def _private(path: Path | None, name: str) -> None:
+    if path is None:
+        return
+    _readable(path, name)
+    if path.stat().st_mode & stat.S_IROTH:
+        raise ConfigError(f"{name}: {path} is readable by every user; chmod 600 {path} (or 640 for a group)")
+
+
+def _show(value: object) -> str:
+    if isinstance(value, Mapping):
+        return "a table"
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return repr(value)
+
+
+class _Table:
+    """Typed access to one TOML table with defaults; ``finish()`` rejects keys nobody asked for.
+
+    Keys are named ``where.key`` (a config section, ``zenoh.tls.certificate``), or ``where: key`` and
+    ``where [table]: key`` in a file of its own (``profile FILE: endpoint``)."""
+
+    def __init__(self, data: Mapping[str, Any], where: str, *, file: bool = False) -> None:
+        self._data = data
+        self._where = where
+        self._file = file
+        self._seen: set[str] = set()
+
+    def _name(self, key: str) -> str:
+        return f"{self._where}: {key}" if self._file else f"{self._where}.{key}"
+
+    def _get(self, key: str, default: object) -> object:
+        """The value at ``key``, or ``default``; a missing key without a default (None) is an error."""
+        self._seen.add(key)
+        if key in self._data:
+            return self._data[key]
+        if default is None:
+            raise ConfigError(f"{self._name(key)}: missing")
+        return default
+
+    def table(self, key: str) -> _Table:
+        value = self._get(key, {})
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{self._name(key)}: expected a table, got {_show(value)}")
+        if self._file:
+            return _Table(value, f"{self._where} [{key}]", file=True)
+        return _Table(value, f"{self._where}.{key}")
+
+    def text(self, key: str, default: str | None = None) -> str:
+        value = self._get(key, default)
+        if not isinstance(value, str):
+            raise ConfigError(f"{self._name(key)}: expected a string, got {_show(value)}")
+        return value
+
+    def name(self, key: str) -> str:
+        value = self.text(key, "")
+        return check_name(value, self._name(key)) if value else ""
+
+    def path(self, key: str) -> Path | None:
+        value = self.text(key, "")
+        return Path(value) if value else None
+
+    def flag(self, key: str, default: bool) -> bool:
+        value = self._get(key, default)
+        if not isinstance(value, bool):
+            raise ConfigError(f"{self._name(key)}: expected true or false, got {_show(value)}")
+        return value
+
+    def number(self, key: str, default: float, lo: float, hi: float) -> float:
+        value = self._get(key, default)
+        if isinstance(value, bool) or not isinstance(value, int | float) or not lo <= value <= hi:
+            raise ConfigError(f"{self._name(key)}: {_show(value)} is out of range; allowed [{lo:g}, {hi:g}]")
+        return float(value)
+
+    def endpoints(self, key: str) -> tuple[str, ...]:
+        value = self._get(key, None)
+        if not isinstance(value, list):
+            raise ConfigError(f"{self._name(key)}: expected a list, got {_show(value)}")
+        return tuple(check_endpoint(v, f"{self._name(key)}[{i}]") for i, v in enumerate(value))
+
+    def names(self, key: str) -> tuple[str, ...]:
+        value = self._get(key, [])
+        if not isinstance(value, list):
+            raise ConfigError(f"{self._name(key)}: expected a list of names, got {_show(value)}")
+        names = tuple(check_name(v, f"{self._name(key)}[{i}]") for i, v in enumerate(value))
+        twice = next((n for n in names if names.count(n) > 1), None)
+        if twice is not None:
+            raise ConfigError(f"{self._name(key)}: {twice!r} is listed twice")
+        return names
+
+    def finish(self) -> None:
+        unknown = sorted(set(self._data) - self._seen)
+        if unknown:
+            known = ", ".join(sorted(self._seen))
+            raise ConfigError(f"{self._name(unknown[0])}: unknown key (known keys: {known})")
