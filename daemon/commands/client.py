@@ -22,19 +22,19 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
-
-import zenoh
+from typing import TYPE_CHECKING, Any
 
 from daemon.errors import ConfigError, UsageError
 from daemon.security import FLEET_VERBS, Profile, check_endpoint, check_robot, endpoint_host, load_profile
-from daemon.zenoh_session import encode, key, session_config, transport_limit_bytes
 from description import thesis
+
+# Zenoh is imported when a verb runs: `dishbot --help` and the verbs' --help load none of it.
+if TYPE_CHECKING:
+    import zenoh
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_ROBOT = "dishbot"
 PROFILE_ENV = "DISHBOT_PROFILE"
-_BATCH_BYTES = transport_limit_bytes(0)  # what every daemon's transport takes, whatever its limit
 
 _HELP = {
     "status": "print the daemon's state, job progress and the commands allowed now",
@@ -162,6 +162,10 @@ def target(args: argparse.Namespace, *, many: bool = False) -> Target:
 @contextmanager
 def client_session(t: Target) -> Iterator[zenoh.Session]:
     """A Zenoh client session to ``t.endpoint``; ``Unreachable`` (saying why) when none opens."""
+    import zenoh
+
+    from daemon.zenoh_session import session_config
+
     config = session_config(listen=[], connect=[t.endpoint], mode="client", settings=t.settings())
     try:
         session = zenoh.open(config)
@@ -212,6 +216,10 @@ def ask(
     session: zenoh.Session, t: Target, verb: str, body: Mapping[str, object], *, timeout_s: float
 ) -> list[dict[str, Any]]:
     """Every reply to ``cmd/<verb>`` from the robots ``t`` addresses, decoded (error replies too)."""
+    import zenoh
+
+    from daemon.zenoh_session import encode, key
+
     payload = encode(body) if body else b""
     out = []
     for reply in session.get(
@@ -235,6 +243,8 @@ def ask(
 
 def alive_robots(session: zenoh.Session, *, timeout_s: float) -> list[str]:
     """The robot ids whose liveliness tokens (``dishbot/<id>/alive``) this session can see, sorted."""
+    from daemon.zenoh_session import key
+
     robots = {
         str(r.ok.key_expr).split("/")[1]
         for r in session.liveliness().get(key("*", "alive"), timeout=timeout_s)
@@ -260,8 +270,10 @@ def _send(args: argparse.Namespace) -> int:
         print(f"dishbot {verb}: {e}", file=sys.stderr)
         return 1
     if not replies:
+        from daemon.zenoh_session import encode, transport_limit_bytes
+
         size = len(encode(body)) if body else 0
-        if size > _BATCH_BYTES:
+        if size > transport_limit_bytes(0):  # what every daemon's transport takes, whatever its limit
             silent += f" (the command is {size} bytes: more than a daemon accepts by default)"
         print(f"dishbot {verb}: {silent}", file=sys.stderr)
         return 1

@@ -18,13 +18,14 @@ import time
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
-
-import zenoh
+from typing import TYPE_CHECKING, Any
 
 from daemon.commands.client import Target, Unreachable, add_target_flags, client_session, target
 from daemon.errors import UsageError
-from daemon.zenoh_session import key
+
+# Zenoh is imported when the verb runs: `dishbot monitor --help` loads none of it.
+if TYPE_CHECKING:
+    import zenoh
 
 WIDTH = 80
 EVENTS_SHOWN = 8
@@ -99,6 +100,8 @@ class Watch:
 
     def on_alive(self, sample: zenoh.Sample) -> None:
         robot_id = str(sample.key_expr).split("/")[1]
+        import zenoh
+
         alive = sample.kind == zenoh.SampleKind.PUT
         with self.lock:
             view = self.robot(robot_id)
@@ -144,6 +147,8 @@ def _monitor(args: argparse.Namespace) -> int:
 
 
 def _watch(session: zenoh.Session, t: Target, rate: float, deadline: float | None, tty: bool) -> None:
+    from daemon.zenoh_session import key
+
     watch = Watch(many=t.many)
     subscribers = [  # kept referenced for the session's lifetime; closing it undeclares them
         session.declare_subscriber(key(t.robot, topic), watch.on_sample) for topic in _TOPICS
