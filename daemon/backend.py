@@ -18,7 +18,7 @@ import functools
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -58,6 +58,9 @@ from planning.interfaces import CyclePlan, MotionPlanner, MugPose, TraySlot
 from planning.motion import DynamicsMoveCost, check_reachable
 from planning.motion.planner import CyclePlanner
 from planning.placement import PlanOptions, PlanResult, Problem, plan
+
+if TYPE_CHECKING:
+    from perception.calibration import CameraModel
 
 log = structlog.get_logger("daemon.backend")
 
@@ -603,35 +606,42 @@ async def open_hardware_backend(
     )
 
 
+def configured_camera_model(config: Config) -> CameraModel:
+    """The camera as the config describes it: ``[camera]``'s image and pose, or its calibration file;
+    ``ValueError`` (``CalibrationError``) naming what is wrong."""
+    from perception.calibration import camera_model
+
+    c = config.cell.camera
+    return camera_model(
+        width=c.width,
+        height=c.height,
+        fovy_deg=c.fovy_deg,
+        position_m=c.position_m,
+        yaw_rad=c.yaw_rad,
+        pitch_rad=c.pitch_rad,
+        calibration_file=config.camera.calibration_file,
+    )
+
+
 async def _hardware_observer(
     config: Config, stack: contextlib.AsyncExitStack, camera: Camera | None, clock: SessionClock
 ) -> MugObserver:
     """The mug observer on the configured camera: depth detection over the table, the tray left out."""
     from drivers.camera import RealSenseCamera
-    from perception.calibration import camera_model
     from perception.observer import cell_observer_factory
 
     if camera is None and config.hardware.camera == "none":
         return _NoCamera(clock)
-    c = config.cell.camera
     try:
-        model = camera_model(
-            width=c.width,
-            height=c.height,
-            fovy_deg=c.fovy_deg,
-            position_m=c.position_m,
-            yaw_rad=c.yaw_rad,
-            pitch_rad=c.pitch_rad,
-            calibration_file=config.camera.calibration_file,
-        )
+        model = configured_camera_model(config)
     except ValueError as e:
         raise UsageError(f"camera: {e}") from e
     if camera is None:
         camera = await stack.enter_async_context(
             RealSenseCamera(
                 world_from_camera=model.world_from_camera,
-                width=c.width,
-                height=c.height,
+                width=config.cell.camera.width,
+                height=config.cell.camera.height,
                 serial_number=config.hardware.camera_serial or None,
                 clock=clock,
             )

@@ -57,6 +57,7 @@ from foxglove.messages import (
     Vector3,
 )
 
+from daemon.backend import configured_camera_model
 from daemon.config import Config
 from daemon.foxglove_arm import (
     IDENTITY,
@@ -72,7 +73,6 @@ from daemon.foxglove_arm import (
 from daemon.recording.schemas import topic_suffix
 from daemon.recording.writer import ChannelSpec, Derived
 from description.arm import GripperGeometry
-from perception.calibration import camera_model
 from perception.errors import CalibrationError
 
 log = structlog.get_logger(__name__)
@@ -688,17 +688,8 @@ class SceneView:
 
 def _camera(config: Config) -> tuple[tuple[Vec3, Quat], tuple[int, int, float, float, float, float]] | None:
     """The camera's pose (world from the optical frame: z forward, x right, y down) and intrinsics."""
-    c = config.cell.camera
     try:
-        model = camera_model(
-            width=c.width,
-            height=c.height,
-            fovy_deg=c.fovy_deg,
-            position_m=c.position_m,
-            yaw_rad=c.yaw_rad,
-            pitch_rad=c.pitch_rad,
-            calibration_file=config.camera.calibration_file,
-        )
+        model = configured_camera_model(config)
     except (CalibrationError, ValueError) as e:
         log.warning("foxglove_camera_unknown", error=str(e))
         return None
