@@ -86,7 +86,8 @@ class RunResult:
 def job_header(request: StartRequest, config: Config) -> dict[str, object]:
     """What a job runs, for its recording's header: the dataset or mugs asked for, the effective planner
     settings (the configured ones with the request's overrides, as the job applies them) and the seeds."""
-    p, r = config.planner, request.planner
+    r = request.planner
+    effective = r.options(config.planner)  # as the job applies them
     asked = {
         k: v
         for k, v in (
@@ -105,11 +106,11 @@ def job_header(request: StartRequest, config: Config) -> dict[str, object]:
         "dataset": request.dataset,
         "mugs": mugs,
         "planner": {
-            "method": r.method or p.method,
-            "cost": r.cost or p.cost,
-            "fitness": r.fitness or p.fitness,
-            "time_limit_s": r.time_limit_s or p.time_limit_s,
-            "seed": p.seed if r.seed is None else r.seed,
+            "method": effective.method,
+            "cost": effective.cost,
+            "fitness": effective.fitness,
+            "time_limit_s": effective.time_limit_s,
+            "seed": effective.seed,
         },
         "planner_overrides": asked,
         "sim_seed": config.sim.seed if config.backend == "sim" else None,
