@@ -73,6 +73,31 @@ class RunOptions:
 
 
 @dataclass(frozen=True, slots=True)
+class ServeContext:
+    """What a running daemon is made of, for the hooks that act on it from outside the job (a replay's
+    scripted commands and injected faults): all of it lives on the clock's event loop."""
+
+    config: Config
+    backend: Backend  # as the job sees it (recorded: every input also goes to the recording)
+    job: Job
+    session: ZenohSession
+    recording: SessionRecording
+    stop: asyncio.Event
+    clock: SessionClock
+    handle: Callable[[str, bytes, bool], Awaitable[dict[str, object]]]  # a command, as if it came by Zenoh
+
+
+@dataclass(frozen=True, slots=True)
+class ServeHooks:
+    """Ways in for a replay or a fault plan, without reaching into the job: ``on_publish`` sees every
+    message the daemon publishes (on the loop, in order; it must not block), ``on_ready`` is called once
+    the daemon is ready, before the ``once`` job starts."""
+
+    on_publish: tuple[Callable[[str, Mapping[str, object]], None], ...] = ()
+    on_ready: Callable[[ServeContext], None] | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class RunResult:
     summary: JobSummary
     recording: Path  # the last job's file (the last file when no job ran)
@@ -139,6 +164,7 @@ async def serve(
     on_ready: Callable[[ZenohSession, Path], None] | None = None,
     stop: asyncio.Event | None = None,
     executor: concurrent.futures.Executor | None = None,
+    hooks: ServeHooks | None = None,
 ) -> RunResult:
     """Run the daemon until SIGTERM/SIGINT or ``stop`` is set (or the ``once`` job ends); returns the last
     job's summary."""
@@ -213,6 +239,7 @@ async def serve(
                 executor,
                 live,
                 relay,
+                hooks or ServeHooks(),
             )
     finally:
         if live is not None:
@@ -232,6 +259,7 @@ async def _run(
     executor: concurrent.futures.Executor | None,
     live: LiveServer | None,
     relay: LogRelay | None,
+    hooks: ServeHooks,
 ) -> RunResult:
     loop = asyncio.get_running_loop()
     clock = backend.clock
@@ -243,6 +271,8 @@ async def _run(
         if topic == "events":
             outcome.add(payload)  # what `--once` says about each mug
         session.publish(topic, payload)
+        for tap in hooks.on_publish:
+            tap(topic, payload)
 
     job = Job(backend, config, publish, associate, executor=executor)
 
@@ -252,7 +282,16 @@ async def _run(
                 request = commands_handler.parse(verb, payload, config)
                 if request is not None:
                     recording.expect_job(job_header(request, config))
-        return await commands_handler.handle(job, verb, payload, many)
+        # The operator's commands are inputs too: a replay sends them again at the same times (``status``
+        # asks and changes nothing, so it is not kept).
+        t = clock.now()
+        reply = await commands_handler.handle(job, verb, payload, many)
+        if verb != "status":
+            text = payload.decode("utf-8", "replace")
+            session.record(
+                "input/command", {"t": t, "verb": verb, "payload": text, "many": many, "reply": reply}
+            )
+        return reply
 
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
@@ -298,6 +337,8 @@ async def _run(
     )
     if on_ready is not None:
         on_ready(session, path)
+    if hooks.on_ready is not None:
+        hooks.on_ready(ServeContext(config, backend, job, session, recording, stop, clock, handle))
     wall_s = 0.0
     try:
         if options.once is not None:

@@ -10,6 +10,7 @@ handed to the recording, which is what a replay needs.
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import concurrent.futures
 import contextlib
@@ -164,7 +165,7 @@ def recorded(backend: Backend, sink: Sink) -> Backend:
     return replace(
         backend,
         arm=_RecordedArm(backend.arm, sink, clock),
-        gripper=_RecordedGripper(backend.gripper, sink),
+        gripper=_RecordedGripper(backend.gripper, sink, clock),
         force=_RecordedForce(backend.force, sink, clock),
         observer=_RecordedObserver(backend.observer, sink, clock),
     )
@@ -200,6 +201,10 @@ def depth_preview_payload(depth_m: npt.NDArray[np.float32]) -> dict[str, object]
     }
 
 
+def _failure(e: BaseException) -> str:
+    return f"{type(e).__name__}: {e}"
+
+
 class _RecordedArm:
     def __init__(self, inner: ArmDriver, sink: Sink, clock: SessionClock) -> None:
         self._inner = inner
@@ -212,34 +217,83 @@ class _RecordedArm:
 
     async def read_joints(self) -> JointState:
         js = await self._inner.read_joints()
-        self._sink("input/joints", joints_payload(js, t=self._clock.now()))
+        self._sink(
+            "input/joints", {**joints_payload(js, t=self._clock.now()), "t_read": self._clock.monotonic()}
+        )
         return js
 
     async def follow(self, trajectory: JointTrajectory) -> None:
-        await self._inner.follow(trajectory)
+        """Recorded once done (or failed, or cancelled): what the daemon asked of the arm and how it went,
+        so that a replay can tell whether it asks the same and take as long."""
+        started = self._clock.monotonic()
+        record: dict[str, object] = {
+            "label": trajectory.label,
+            "points": len(trajectory.times),
+            "duration_s": round(trajectory.duration, 6),
+            "end_rad": [round(float(v), 6) for v in trajectory.positions[-1]]
+            if len(trajectory.times)
+            else [],
+            "t_start": started,
+        }
+        try:
+            await self._inner.follow(trajectory)
+        except asyncio.CancelledError:
+            self._sink("output/follow", {**record, "t_end": self._clock.monotonic(), "cancelled": True})
+            raise
+        except BaseException as e:
+            self._sink("output/follow", {**record, "t_end": self._clock.monotonic(), "error": _failure(e)})
+            raise
+        self._sink("output/follow", {**record, "t_end": self._clock.monotonic()})
 
     async def stop(self) -> None:
+        self._sink("output/arm", {"action": "stop", "t_start": self._clock.monotonic()})
         await self._inner.stop()
 
     async def relax(self) -> None:
+        self._sink("output/arm", {"action": "relax", "t_start": self._clock.monotonic()})
         await self._inner.relax()
 
 
 class _RecordedGripper:
-    def __init__(self, inner: GripperDriver, sink: Sink) -> None:
+    def __init__(self, inner: GripperDriver, sink: Sink, clock: SessionClock) -> None:
         self._inner = inner
         self._sink = sink
+        self._clock = clock
 
     async def read(self) -> GripperState:
         return await self._inner.read()
 
     async def open(self, aperture_m: float | None = None) -> None:
-        await self._inner.open(aperture_m)
+        record: dict[str, object] = {
+            "action": "open",
+            "aperture_m": aperture_m,
+            "t_start": self._clock.monotonic(),
+        }
+        try:
+            await self._inner.open(aperture_m)
+        except asyncio.CancelledError:
+            self._sink("output/gripper", {**record, "t_end": self._clock.monotonic(), "cancelled": True})
+            raise
+        except BaseException as e:
+            self._sink("output/gripper", {**record, "t_end": self._clock.monotonic(), "error": _failure(e)})
+            raise
+        self._sink("output/gripper", {**record, "t_end": self._clock.monotonic()})
 
     async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
-        result = await self._inner.close_on_mug(
-            force_threshold_n=force_threshold_n, min_aperture_m=min_aperture_m
-        )
+        started = self._clock.monotonic()
+        asked = {"force_threshold_n": force_threshold_n, "min_aperture_m": min_aperture_m, "t_start": started}
+        try:
+            result = await self._inner.close_on_mug(
+                force_threshold_n=force_threshold_n, min_aperture_m=min_aperture_m
+            )
+        except asyncio.CancelledError:
+            self._sink("input/grasp_failed", {**asked, "t_end": self._clock.monotonic(), "cancelled": True})
+            raise
+        except BaseException as e:
+            self._sink(
+                "input/grasp_failed", {**asked, "t_end": self._clock.monotonic(), "error": _failure(e)}
+            )
+            raise
         self._sink(
             "input/grasp",
             {
@@ -247,11 +301,14 @@ class _RecordedGripper:
                 "force_n": result.force_n,
                 "aperture_m": result.aperture_m,
                 "reason": result.reason,
+                **asked,
+                "t_end": self._clock.monotonic(),
             },
         )
         return result
 
     async def stop(self) -> None:
+        self._sink("output/gripper", {"action": "stop", "t_start": self._clock.monotonic()})
         await self._inner.stop()
 
 
@@ -269,6 +326,7 @@ class _RecordedForce:
                 {
                     "t": self._clock.now(),
                     "t_device": reading.t,
+                    "t_read": self._clock.monotonic(),
                     "force_n": reading.force_n,
                     "raw": reading.raw,
                     "seq": reading.seq,
@@ -278,7 +336,7 @@ class _RecordedForce:
 
     def holding(self) -> bool:
         held = self._inner.holding()
-        self._sink("input/holding", {"holding": held})
+        self._sink("input/holding", {"holding": held, "t_read": self._clock.monotonic()})
         return held
 
 
@@ -289,8 +347,39 @@ class _RecordedObserver:
         self._clock = clock
 
     async def observe(self) -> Observation:
-        obs = await self._inner.observe()
-        self._sink("input/observation", observation_payload(obs, t=self._clock.now()))
+        started = self._clock.monotonic()
+        try:
+            obs = await self._inner.observe()
+        except asyncio.CancelledError:
+            self._sink(
+                "input/observe_failed",
+                {
+                    "t": self._clock.now(),
+                    "t_start": started,
+                    "t_end": self._clock.monotonic(),
+                    "cancelled": True,
+                },
+            )
+            raise
+        except BaseException as e:
+            self._sink(
+                "input/observe_failed",
+                {
+                    "t": self._clock.now(),
+                    "t_start": started,
+                    "t_end": self._clock.monotonic(),
+                    "error": _failure(e),
+                },
+            )
+            raise
+        self._sink(
+            "input/observation",
+            {
+                **observation_payload(obs, t=self._clock.now()),
+                "t_start": started,
+                "t_end": self._clock.monotonic(),
+            },
+        )
         return obs
 
 

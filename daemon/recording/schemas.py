@@ -188,6 +188,13 @@ _EVENT_PROPERTIES: dict[str, Schema] = {
     "event": _string("tray_collision: the collision's own name"),
 }
 
+_FAILED_PROPERTIES: Final[dict[str, Schema]] = {
+    "error": _string("the driver's error when the call failed: its type, a colon, its message"),
+    "cancelled": _boolean("the call was cancelled (the job left the state)"),
+    "t_start": _DEVICE_T,
+    "t_end": _DEVICE_T,
+}
+
 _SCHEMAS: Final[dict[str, Schema]] = {
     "state": _object(
         {
@@ -280,8 +287,49 @@ _SCHEMAS: Final[dict[str, Schema]] = {
             "force_n": _number("pad force when the close ended, N"),
             "aperture_m": _number("aperture when the close ended, m"),
             "reason": _string("why the close ended"),
+            "force_threshold_n": _number("the force the close was asked to reach, N"),
+            "min_aperture_m": _number("the aperture below which the close gives up, m"),
+            "t_start": _DEVICE_T,
+            "t_end": _DEVICE_T,
         },
         ("held",),
+    ),
+    "input/grasp_failed": _object(_FAILED_PROPERTIES, ("t_start", "t_end")),
+    "input/observe_failed": _object(_FAILED_PROPERTIES, ("t_start", "t_end")),
+    "input/command": _object(
+        {
+            "t": _WALL_T,
+            "verb": _string("the command's verb (cmd/<verb>); status queries are not kept"),
+            "payload": _string("the command's JSON payload as received (UTF-8, undecodable bytes replaced)"),
+            "many": _boolean("the query named robots by wildcard"),
+            "reply": {"type": "object", "description": "the daemon's reply"},
+        },
+        ("t", "verb", "payload"),
+    ),
+    "output/follow": _object(
+        {
+            "label": _string("what the trajectory is for (approach, lift, transit, ...)"),
+            "points": _integer("trajectory points"),
+            "duration_s": _number("the trajectory's planned duration, s"),
+            "end_rad": _array({"type": "number"}, "the goal joint positions, rad"),
+            "t_start": _DEVICE_T,
+            "t_end": _DEVICE_T,
+            **_FAILED_PROPERTIES,
+        },
+        ("label", "t_start", "t_end"),
+    ),
+    "output/arm": _object(
+        {"action": _string("stop (hold here) or relax (torque off)"), "t_start": _DEVICE_T}, ("action",)
+    ),
+    "output/gripper": _object(
+        {
+            "action": _string("open or stop"),
+            "aperture_m": _nullable(_number("the opening asked for, m (null: fully)")),
+            "t_start": _DEVICE_T,
+            "t_end": _DEVICE_T,
+            **_FAILED_PROPERTIES,
+        },
+        ("action",),
     ),
 }
 

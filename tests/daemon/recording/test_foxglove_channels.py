@@ -103,6 +103,9 @@ def test_every_channel_decodes_with_the_schema_in_the_file(decoded: dict[str, li
                 "input/holding",
                 "input/grasp",
                 "input/observation",
+                "output/follow",
+                "output/arm",
+                "output/gripper",
             )
         },
     }
