@@ -493,9 +493,12 @@ class DynamixelBus:
 
     def _check_corruption(self, servo_ids: Iterable[int]) -> None:
         """BusCorrupt when more of a servo's recent answers were corrupt than ``corrupt_rate_max`` allows."""
-        over = [
-            i for i in servo_ids if sum(self._recent.get(i, ())) > self.corrupt_rate_max * self.corrupt_window
-        ]
+        over = []
+        for servo_id in servo_ids:
+            if sum(self._recent.get(servo_id, ())) > self.corrupt_rate_max * self.corrupt_window:
+                over.append(servo_id)
+            elif self._faulted.get(servo_id) == ("bus_corrupt",):
+                self._mark_clear(servo_id)  # back under the threshold
         if not over:
             return
         for servo_id in over:
@@ -568,7 +571,8 @@ class DynamixelBus:
                 servo_id=servo_id,
                 bits=shutdown,
             )
-        self._mark_clear(servo_id)
+        if self._faulted.get(servo_id) != ("bus_corrupt",):  # that clears with the rate, not one answer
+            self._mark_clear(servo_id)
         return names
 
     def _read_hardware_error(self, servo_id: int) -> int:
