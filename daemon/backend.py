@@ -586,6 +586,20 @@ async def open_backend(
     return backend
 
 
+def health_limits(config: Config) -> HealthLimits:
+    """The servos' voltage and temperature limits of ``[hardware.health]`` (the MuJoCo cell's servos are
+    judged by the same)."""
+    h = config.hardware.health
+    return HealthLimits(
+        voltage_min_v=h.voltage_min_v,
+        voltage_max_v=h.voltage_max_v,
+        voltage_warn_margin_v=h.voltage_warn_margin_v,
+        temperature_warn_c=h.temperature_warn_c,
+        temperature_limit_c=h.temperature_limit_c,
+        poll_period_s=h.poll_period_s,
+    )
+
+
 def hardware_stack_spec(config: Config, arm: ArmModel) -> StackSpec:
     """The device stack of ``[hardware]``: each joint's servo with the URDF's limits, the gripper (its
     measured aperture map, or the arm model's gripper geometry when none is given), the FSR and the bus."""
@@ -620,14 +634,7 @@ def hardware_stack_spec(config: Config, arm: ArmModel) -> StackSpec:
             ),
             retries=hw.retries,
             read_timeout_s=hw.read_timeout_s,
-            health=HealthLimits(
-                voltage_min_v=hw.health.voltage_min_v,
-                voltage_max_v=hw.health.voltage_max_v,
-                voltage_warn_margin_v=hw.health.voltage_warn_margin_v,
-                temperature_warn_c=hw.health.temperature_warn_c,
-                temperature_limit_c=hw.health.temperature_limit_c,
-                poll_period_s=hw.health.poll_period_s,
-            ),
+            health=health_limits(config),
             corrupt_rate_max=hw.health.corrupt_rate_max,
             corrupt_window=hw.health.corrupt_window,
         )
