@@ -112,8 +112,9 @@ class Job:
     def device_event(self, event: Mapping[str, object]) -> None:
         """A driver's fault or recovery (``backend.device_event_payload``), on the event loop: published on
         ``events``; a lost bus, and a silent or unplugged force sensor while a job works (a drop could no
-        longer be seen), fault the job. Servo faults are only reported here: the gripper recovers overloads
-        itself, and a fault that stands reaches the job as the driver's exception."""
+        longer be seen), fault the job. Servo faults and warnings are only reported here: the gripper recovers
+        overloads itself, and a fault that stands reaches the job as the driver's exception (from its work,
+        the telemetry or the health poll). However many of them report one cause, the job faults once."""
         kind = str(event.get("kind", ""))
         self._services.publish("events", {**event, "state": self.chart.state})
         reason = f"{kind} on {event.get('port', event.get('device', '?'))}"

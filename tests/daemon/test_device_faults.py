@@ -350,3 +350,15 @@ def test_corruption_over_the_threshold_faults_bus_corrupt_and_under_it_does_not(
         assert d.kinds().count("servo_fault") == 1
 
     _sim(tmp_path, scenario)
+
+
+def test_reset_after_an_estop_enables_the_torque_again_where_the_arm_stands(tmp_path: Path) -> None:
+    async def scenario(d: SimDaemon) -> None:
+        assert (await d.command("estop"))["state"] == "estop"
+        assert [d.servos.servo(i).get("torque_enable") for i in range(1, 6)] == [0] * 5
+        before = [d.servos.servo(i).get("present_position") for i in range(1, 6)]
+        assert (await d.command("reset")) == {"ok": True, "state": "idle"}
+        assert [d.servos.servo(i).get("torque_enable") for i in range(1, 6)] == [1] * 5
+        assert [d.servos.servo(i).get("goal_position") for i in range(1, 6)] == before
+
+    _sim(tmp_path, scenario)
