@@ -80,13 +80,33 @@ class Finding:
     value: float
     limit: float
     error_bit: bool = False  # the servo raised its own error bit for it
+    past: bool = (
+        True  # the value itself is beyond ``limit`` (not so: held by the hysteresis, or a latched bit)
+    )
 
     def describe(self) -> str:
         unit = "V" if self.reason == "voltage" else "°C"
         what = "supply voltage" if self.reason == "voltage" else "temperature"
-        where = "is past its limit" if self.level == "fault" else "is near its limit"
-        bit = " (the servo reports the input voltage error)" if self.error_bit else ""
-        return f"servo {self.servo} {what} {self.value:g} {unit} {where} {self.limit:g} {unit}{bit}"
+        error = "the input voltage error" if self.reason == "voltage" else "overheating"
+        reading = f"servo {self.servo} {what} {self.value:g} {unit}"
+        if self.level == "warning":
+            return f"{reading} is near its limit {self.limit:g} {unit}"
+        if self.past:
+            bit = f" (the servo reports {error})" if self.error_bit else ""
+            return f"{reading} is past its limit {self.limit:g} {unit}{bit}"
+        if self.error_bit:  # latched, or raised against the servo's own limit
+            now = f"{what} now {self.value:g} {unit}, limit {self.limit:g} {unit}"
+            return f"servo {self.servo} reports {error} ({now})"
+        return f"{reading} is not yet back inside its limit {self.limit:g} {unit}"  # the hysteresis
+
+
+@dataclass(frozen=True, slots=True)
+class ServoLimits:
+    """A servo's own limits (its control table's), behind its error bits."""
+
+    voltage_min_v: float
+    voltage_max_v: float
+    temperature_c: float
 
 
 def _level(excess_fault: float, excess_warn: float, before: Level | None, hysteresis: float) -> Level | None:
@@ -103,10 +123,10 @@ def assess(
     limits: HealthLimits,
     before: Mapping[Reason, Level] | None = None,
     *,
-    servo_window_v: tuple[float, float] | None = None,
+    servo_limits: ServoLimits | None = None,
 ) -> list[Finding]:
     """The findings for one servo's reading; ``before`` holds its levels at the last poll (hysteresis);
-    ``servo_window_v`` is the servo's own voltage limits, named when only its error bit says so."""
+    ``servo_limits`` are the servo's own, named when only its error bit says so."""
     before = before or {}
     found: list[Finding] = []
     t = float(reading.temperature_c)
@@ -117,7 +137,11 @@ def assess(
         level = "fault"
     if level is not None:
         limit = limits.temperature_limit_c if level == "fault" else limits.temperature_warn_c
-        found.append(Finding(reading.servo_id, level, "overheat", t, limit, "overheating" in reading.errors))
+        bit = "overheating" in reading.errors
+        if bit and t <= limit and servo_limits is not None:  # only the servo's own limit says so
+            limit = servo_limits.temperature_c
+        past = t > limit if level == "fault" else t >= limit
+        found.append(Finding(reading.servo_id, level, "overheat", t, limit, bit, past))
     v = reading.voltage_v
     lo, hi, margin = limits.voltage_min_v, limits.voltage_max_v, limits.voltage_warn_margin_v
     low = v < (lo + hi) / 2
@@ -130,9 +154,10 @@ def assess(
     bit = "input_voltage" in reading.errors
     if level == "fault" or bit:
         limit = lo if low else hi
-        if level != "fault" and servo_window_v is not None:  # only the servo's own window says so
-            limit = servo_window_v[0] if low else servo_window_v[1]
-        found.append(Finding(reading.servo_id, "fault", "voltage", round(v, 2), limit, bit))
+        if level != "fault" and servo_limits is not None:  # only the servo's own window says so
+            limit = servo_limits.voltage_min_v if low else servo_limits.voltage_max_v
+        past = v < limit if low else v > limit
+        found.append(Finding(reading.servo_id, "fault", "voltage", round(v, 2), limit, bit, past))
     elif level == "warning":
         limit = lo + margin if low else hi - margin
         found.append(Finding(reading.servo_id, "warning", "voltage", round(v, 2), limit))
@@ -195,12 +220,14 @@ class ChainHealth:
             standing += [f for f in findings if f.level == "fault"]
         return standing
 
-    def _judge(self, bus: DynamixelBus, reading: ServoReading) -> list[Finding]:
-        """Assess one reading against the last levels, emitting an event for each level entered."""
+    def _judge(self, bus: DynamixelBus, reading: ServoReading, *, afresh: bool = False) -> list[Finding]:
+        """Assess one reading against the last levels (``afresh``: without their hysteresis, as reset
+        does), emitting an event for each level entered."""
         servo_id = reading.servo_id
         before = self._levels.get(servo_id, {})
-        window = self._servo_window(bus, servo_id) if "input_voltage" in reading.errors else None
-        findings = assess(reading, self.limits, before, servo_window_v=window)
+        bits = {"input_voltage", "overheating"} & set(reading.errors)
+        own = self._servo_limits(bus, servo_id) if bits else None
+        findings = assess(reading, self.limits, {} if afresh else before, servo_limits=own)
         now: dict[Reason, Level] = {f.reason: f.level for f in findings}
         for f in findings:
             if before.get(f.reason) == f.level:
@@ -233,13 +260,15 @@ class ChainHealth:
         return name in bus.faulted().get(servo_id, ())
 
     @staticmethod
-    def _servo_window(bus: DynamixelBus, servo_id: int) -> tuple[float, float] | None:
+    def _servo_limits(bus: DynamixelBus, servo_id: int) -> ServoLimits | None:
         try:
-            lo = bus.read_register(servo_id, "min_voltage", check=False)
-            hi = bus.read_register(servo_id, "max_voltage", check=False)
+            return ServoLimits(
+                volts_from_ticks(bus.read_register(servo_id, "min_voltage", check=False)),
+                volts_from_ticks(bus.read_register(servo_id, "max_voltage", check=False)),
+                float(bus.read_register(servo_id, "temperature_limit", check=False)),
+            )
         except ServoFault:
             return None
-        return volts_from_ticks(lo), volts_from_ticks(hi)
 
     def _clear(self, bus: DynamixelBus) -> tuple[str, ...]:
         bus.reset_link_stats()
@@ -260,6 +289,8 @@ class ChainHealth:
         protocol = self._chain.config.protocol
         reading = bus.read_states([servo_id], check=False)[servo_id]
         shutdown = _shutdown(reading.errors)
+        if protocol == 2 and "input_voltage" in reading.errors:
+            shutdown += ("input_voltage",)  # latched in Hardware Error Status until a reboot
         if shutdown:
             how = "a reboot" if protocol == 2 else "restoring its torque limit"
             log.info("servo_clearing", servo_id=servo_id, faults=list(shutdown), how=how)
@@ -272,11 +303,11 @@ class ChainHealth:
             reading = bus.read_states([servo_id], check=False)[servo_id]
             still = _shutdown(reading.errors)
             if still:
-                self._judge(bus, reading)
+                self._judge(bus, reading, afresh=True)
                 return f"servo {servo_id} still reports {', '.join(still)} after {how}; " + _advice(
                     still, reading
                 )
-        standing = [f for f in self._judge(bus, reading) if f.level == "fault"]
+        standing = [f for f in self._judge(bus, reading, afresh=True) if f.level == "fault"]
         if standing:
             return "; ".join(f.describe() for f in standing) + "; " + _advice((), reading, standing)
         self._enable(bus, servo_id, protocol)

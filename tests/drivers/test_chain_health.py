@@ -137,8 +137,9 @@ def test_heat_warns_then_faults_past_the_configured_limit_even_without_the_error
         assert detail(ev, "servo_fault") == [(3, "overheat", 95.0, 70.0)]
         assert sim.servo(3).get("torque_limit") > 0  # no error bit, no shutdown: only the poll saw it
         sim.set_present_temperature(3, 69)  # inside again, but within the hysteresis: still a fault
-        with pytest.raises(ServoHealthFault):
+        with pytest.raises(ServoHealthFault) as raised:
             await health.poll()
+        assert str(raised.value) == "servo 3 temperature 69 °C is not yet back inside its limit 70 °C"
         sim.set_present_temperature(3, 50)
         await health.poll()
         assert [e.kind for e in ev][-1] == "servo_health_ok"
@@ -223,6 +224,51 @@ def test_reset_is_refused_while_the_cause_stays_and_clears_once_it_is_gone(proto
         assert health.problems() == ()
 
     run(body, protocol=protocol)
+
+
+def test_reset_judges_afresh_a_servo_back_inside_its_limit() -> None:
+    """The poll's hysteresis keeps a fault until the value is well inside; reset, asked for by a person,
+    needs it only inside the limit."""
+
+    async def body(
+        sim: ServoChainSimulator, chain: ServoChain, health: ChainHealth, ev: list[DeviceEvent]
+    ) -> None:
+        sim.servo(3).set("temperature_limit", 99)
+        sim.set_present_temperature(3, 80)
+        with pytest.raises(ServoHealthFault):
+            await health.poll()
+        sim.set_present_temperature(3, 69)
+        with pytest.raises(ServoHealthFault):
+            await health.poll()
+        assert await health.clear() == ()
+        assert health.problems() == ()
+        assert [e.kind for e in ev] == ["servo_fault", "servo_warning"]  # 69 °C: past the warning level
+
+    run(body)
+
+
+def test_a_protocol_2_input_voltage_error_stays_latched_until_reset_reboots_the_servo() -> None:
+    async def body(
+        sim: ServoChainSimulator, chain: ServoChain, health: ChainHealth, ev: list[DeviceEvent]
+    ) -> None:
+        sim.set_present_voltage(2, 5.5)  # below the servo's own 6 V
+        with pytest.raises(ServoHealthFault) as raised:
+            await health.poll()
+        assert str(raised.value) == (
+            "servo 2 supply voltage 5.5 V is past its limit 10 V (the servo reports the input voltage error)"
+        )
+        sim.set_present_voltage(2, 12.0)
+        with pytest.raises(ServoHealthFault) as raised:  # Hardware Error Status holds it until a reboot
+            await health.poll()
+        assert str(raised.value) == (
+            "servo 2 reports the input voltage error (supply voltage now 12 V, limit 14 V)"
+        )
+        assert await health.clear() == ()
+        assert sim.servo(2).hardware_error == 0
+        await health.poll()
+        assert [e.kind for e in ev][-1] == "servo_health_ok"
+
+    run(body, protocol=2)
 
 
 def test_reset_names_a_silent_servo_and_a_lost_bus() -> None:
