@@ -195,13 +195,13 @@ class ChainHealth:
         bus = self._chain.bus
         if bus.lost:
             return (f"servo bus {self._chain.config.port} is lost; plug the USB adapter back in and reset",)
+        faulted = bus.faulted()
         out = [
-            f"servo {i} reports {', '.join(names)}; reset to clear it"
-            for i, names in sorted(bus.faulted().items())
+            f"servo {i} reports {', '.join(names)}; reset to clear it" for i, names in sorted(faulted.items())
         ]
-        for servo, levels in sorted(self._levels.items()):
+        for servo, levels in sorted(self._levels.copy().items()):  # a copy: the bus thread replaces entries
             for reason, level in levels.items():
-                if level == "fault" and servo not in bus.faulted():
+                if level == "fault" and servo not in faulted:
                     out.append(f"servo {servo} is past its {reason} limit; reset once it is back inside")
         return tuple(out)
 
