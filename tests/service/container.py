@@ -133,6 +133,9 @@ exec env -i container=dishbot-test PATH=/usr/sbin:/usr/bin:/sbin:/bin \
 """
 
 
+_PREFIX: Final = "dishbot-systemd-"  # then the test process's PID: leftovers of a dead one can go
+
+
 class Refused(RuntimeError):
     """This machine cannot run the container (not root, a tool missing, or the kernel refused a namespace,
     a mount or a cgroup); the message says which, for a test's skip reason."""
@@ -237,7 +240,7 @@ class Container:
         which = ["-u", unit] if unit else []
         self.run("journalctl", "--sync", check=False)  # what journald has received, written out
         out = self.run("journalctl", "-b", "--no-pager", "-o", "short-monotonic", *which, check=False).stdout
-        return "".join(line for line in out.splitlines(keepends=True) if _monotonic(line) >= since)
+        return "".join(line for line in out.splitlines(keepends=True) if monotonic_stamp(line) >= since)
 
     def processes(self, unit: str) -> set[int]:
         """The host's PIDs of every process in ``unit``'s cgroup."""
@@ -261,7 +264,8 @@ def booted(*, masked: Sequence[str] = MASKED, timeout_s: float = BOOT_TIMEOUT_S)
     reason = refusal()
     if reason is not None:
         raise Refused(reason)
-    base = Path(tempfile.mkdtemp(prefix="dishbot-systemd-"))
+    _remove_leftovers()
+    base = Path(tempfile.mkdtemp(prefix=f"{_PREFIX}{os.getpid()}-"))
     marker = base / "host-tmp-marker"
     marker.write_text("the container must leave the host's /tmp alone\n")
     (base / "fs").mkdir()
@@ -270,7 +274,7 @@ def booted(*, masked: Sequence[str] = MASKED, timeout_s: float = BOOT_TIMEOUT_S)
     for unit in masked:
         (units / unit).symlink_to("/dev/null")
     (base / "seed" / "etc" / "fstab").write_text("# the container mounts nothing from fstab\n")
-    cgroup = own_cgroup2() / f"dishbot-systemd-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    cgroup = own_cgroup2() / f"{_PREFIX}{os.getpid()}-{uuid.uuid4().hex[:8]}"
     proc: subprocess.Popen[bytes] | None = None
     pid_one: int | None = None
     try:
@@ -315,7 +319,22 @@ def booted(*, masked: Sequence[str] = MASKED, timeout_s: float = BOOT_TIMEOUT_S)
         if proc is not None:
             _power_off(proc, pid_one, cgroup)
         _remove_cgroup(cgroup)
-        shutil.rmtree(base, ignore_errors=True)
+        _remove_directory(base)
+
+
+def _remove_leftovers() -> None:
+    """The cgroup groups and host-side directories of containers whose test process was killed (its
+    container died with it, by the parent-death chain, but nothing was left to remove these)."""
+    places = [(own_cgroup2(), _remove_cgroup), (Path(tempfile.gettempdir()), _remove_directory)]
+    for parent, remove in places:
+        for path in parent.glob(f"{_PREFIX}*"):
+            pid = path.name.removeprefix(_PREFIX).split("-", 1)[0]
+            if pid.isdigit() and not Path(f"/proc/{pid}").exists():
+                remove(path)
+
+
+def _remove_directory(path: Path) -> None:
+    shutil.rmtree(path, ignore_errors=True)
 
 
 def _into_cgroup_and_die_with_parent(cgroup: Path) -> Callable[[], None]:
@@ -404,7 +423,7 @@ def _remove_cgroup(cgroup: Path) -> None:
             os.rmdir(directory)
 
 
-def _monotonic(line: str) -> float:
+def monotonic_stamp(line: str) -> float:
     """The ``[  12.345678]`` stamp of a ``short-monotonic`` journal line (0 for lines without one)."""
     match = re.match(r"\[\s*(\d+\.\d+)\]", line)
     return float(match.group(1)) if match else 0.0
