@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Final
 
 SYSTEMD: Final = Path("/lib/systemd/systemd")
-TOOLS: Final = ("unshare", "nsenter", "setpriv", "chroot", "mount")
+TOOLS: Final = ("unshare", "nsenter", "setpriv", "chroot", "mount", "ip")
 BOOT_TIMEOUT_S: Final = 30.0
 POWEROFF_TIMEOUT_S: Final = 15.0
 
@@ -147,7 +147,7 @@ def refusal() -> str | None:
         return "booting systemd in a container needs root"
     missing = [tool for tool in TOOLS if shutil.which(tool) is None]
     if missing:
-        return f"missing {', '.join(missing)} (util-linux, coreutils)"
+        return f"missing {', '.join(missing)} (util-linux, coreutils, iproute2)"
     if not SYSTEMD.exists():
         return f"systemd is not installed ({SYSTEMD})"
     filesystems = Path("/proc/filesystems").read_text()

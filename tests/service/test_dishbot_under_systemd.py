@@ -19,6 +19,7 @@ import contextlib
 import json
 import os
 import re
+import shutil
 import signal
 import stat
 import subprocess
@@ -114,6 +115,8 @@ def write_config(c: Container, text: str) -> None:
 
 @pytest.fixture(scope="module")
 def container() -> Iterator[Container]:
+    if shutil.which("useradd") is None:
+        pytest.skip("useradd is missing: the unit runs as its own user (docs/service.md, Install)")
     try:
         with booted() as c:
             install_dishbot(c)
@@ -264,7 +267,7 @@ def test_a_stalled_loop_is_killed_by_the_watchdog_and_restarted(
     assert "status=6/ABRT" in journal
     # The last ping came at most 5 s (half of WatchdogSec) before SIGSTOP; then RestartSec=3s and the start.
     assert WATCHDOG_S / 2 - 0.5 < killed_after < WATCHDOG_S + 0.5
-    assert 5.0 < took < 20.0
+    assert 5.0 < took < 25.0
     record_property("sigstop_to_watchdog_s", round(killed_after, 2))
     record_property("sigstop_to_restarted_s", round(took, 2))
     print(f"SIGSTOP -> watchdog kill after {killed_after:.2f} s, running again after {took:.2f} s")
