@@ -412,7 +412,8 @@ def test_start_limit_burst_ends_a_crash_loop(
         journal = container.journal(SERVICE, since=started)
         assert journal.count("status=2/INVALIDARGUMENT") == 5  # StartLimitBurst=5 within 120 s
         assert service(container)["NRestarts"] == "5"
-        # Given up, not waiting for the next RestartSec: a further start is refused at once.
+        # The loop is over, not waiting for its next RestartSec: a further start is refused at once.
+        # (systemd 252 leaves Result=exit-code here, not start-limit-hit: a restart hit the limit.)
         again = container.systemctl("start", SERVICE, check=False)
         assert again.returncode != 0
 
@@ -420,10 +421,9 @@ def test_start_limit_burst_ends_a_crash_loop(
             return container.journal(SERVICE, since=started).count("Start request repeated too quickly.") == 2
 
         wait_for("the refusal", refused_again, timeout_s=10, c=container)
-        # refused without running the daemon again
-        assert container.journal(SERVICE, since=started).count("status=2/INVALIDARGUMENT") == 5
+        assert container.journal(SERVICE, since=started).count("status=2/INVALIDARGUMENT") == 5  # not run
     finally:
         write_config(container, CONFIG)
         container.systemctl("reset-failed", SERVICE, check=False)
     record_property("crash_loop_to_start_limit_s", round(took, 2))
-    print(f"crash loop: start-limit-hit after {took:.2f} s")
+    print(f"crash loop: ended by the start limit after {took:.2f} s")
