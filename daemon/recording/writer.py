@@ -23,9 +23,12 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import errno
 import fcntl
 import functools
+import io
 import json
+import os
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -122,13 +125,56 @@ class _Rotate:
     on_open: Callable[[Path], None] | None
 
 
+class DiskSpace:
+    """Whether the disk under the recording has room. ``fill()`` makes every write of the recording's files
+    fail with ENOSPC, as a full disk does, until ``free()``: the ``disk_full`` fault of a fault file. The
+    writer then takes its own disk-failure path. Thread-safe."""
+
+    def __init__(self) -> None:
+        self._full = threading.Event()
+
+    @property
+    def full(self) -> bool:
+        return self._full.is_set()
+
+    def fill(self) -> None:
+        self._full.set()
+
+    def free(self) -> None:
+        self._full.clear()
+
+    def check(self, path: Path) -> None:
+        if self._full.is_set():
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+
+class _DiskFile(io.BufferedWriter):
+    """A recording file whose writes go through ``disk`` (which may be full)."""
+
+    def __init__(self, path: Path, disk: DiskSpace) -> None:
+        super().__init__(io.FileIO(path, "xb"))
+        self._path = path
+        self._disk = disk
+
+    def write(self, data: bytes) -> int:  # type: ignore[override]  # bytes is what the MCAP writer gives
+        self._disk.check(self._path)
+        return super().write(data)
+
+    def flush(self) -> None:
+        if not self.closed:
+            self._disk.check(self._path)
+        super().flush()
+
+
 class _File:
     """One open MCAP file: its writer, channel ids and sequence numbers, and the writer's lock on it."""
 
-    def __init__(self, path: Path, *, chunk_size: int, compression: CompressionType) -> None:
+    def __init__(
+        self, path: Path, *, chunk_size: int, compression: CompressionType, disk: DiskSpace | None = None
+    ) -> None:
         self.path = path
         try:
-            self.file: IO[bytes] = open(path, "xb")  # noqa: SIM115 — owned until close()
+            self.file: IO[bytes] = _DiskFile(path, disk or DiskSpace())
         except FileExistsError as e:
             raise RecordingError(f"recording {path} already exists; choose a new file name") from e
         except OSError as e:
@@ -198,6 +244,7 @@ class Recorder:
         thin_hz: float | None = None,
         deriver: Deriver | None = None,
         tee: Tee | None = None,
+        disk: DiskSpace | None = None,
     ) -> None:
         if compression not in COMPRESSIONS:
             raise RecordingError(
@@ -216,7 +263,10 @@ class Recorder:
         _check_thin(thin_hz)
         self._chunk_size = chunk_size
         self._compression = COMPRESSIONS[compression]
-        self._file: _File | None = _File(Path(path), chunk_size=chunk_size, compression=self._compression)
+        self.disk = disk or DiskSpace()
+        self._file: _File | None = _File(
+            Path(path), chunk_size=chunk_size, compression=self._compression, disk=self.disk
+        )
         self._path = Path(path)
         self._paths = [self._path]
         self._flush_interval_s = flush_interval_s
@@ -510,7 +560,9 @@ class Recorder:
         previous = self._file.path.name if self._file is not None else None
         self._finish()
         try:
-            file = _create(rotate.path, chunk_size=self._chunk_size, compression=self._compression)
+            file = _create(
+                rotate.path, chunk_size=self._chunk_size, compression=self._compression, disk=self.disk
+            )
         except RecordingError as e:
             with self._lock:
                 self._file = None
@@ -574,8 +626,8 @@ def header_payload(
     return payload
 
 
-def _create(path: Path, *, chunk_size: int, compression: CompressionType) -> _File:
-    return _File(free_path(path), chunk_size=chunk_size, compression=compression)
+def _create(path: Path, *, chunk_size: int, compression: CompressionType, disk: DiskSpace) -> _File:
+    return _File(free_path(path), chunk_size=chunk_size, compression=compression, disk=disk)
 
 
 def free_path(path: Path) -> Path:
