@@ -305,13 +305,13 @@ class _Entry:
         if value is None:
             return None
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self.error(key, f"must be a number ({unit}), got {_shown(value)}")
+            raise self.error(key, f"must be a number{f' ({unit})' if unit else ''}, got {_shown(value)}")
         value = float(value)
         if not math.isfinite(value):
             raise self.error(key, f"must be a finite number, got {value}")
         if value < minimum or (strict and value == minimum):
             bound = f"greater than {minimum:g}" if strict else f"at least {minimum:g}"
-            raise self.error(key, f"must be {bound} {unit}, got {value:g}")
+            raise self.error(key, f"must be {bound}{f' {unit}' if unit else ''}, got {value:g}")
         return value
 
     def real(self, key: str) -> float | None:

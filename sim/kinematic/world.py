@@ -144,7 +144,9 @@ class KinematicWorld:
             base = p + r @ self._held_local
             up = r @ self._held_up_local
             mug = self.mugs[self.held]
-            self.mugs[self.held] = replace(mug, x_m=float(base[0]), y_m=float(base[1]), upside_down=up[2] < 0)
+            self.mugs[self.held] = replace(
+                mug, x_m=float(base[0]), y_m=float(base[1]), upside_down=bool(up[2] < 0)
+            )
 
     # --- gripper ---------------------------------------------------------------------------------------
 
