@@ -26,7 +26,6 @@ import contextlib
 import errno
 import fcntl
 import functools
-import io
 import json
 import os
 import threading
@@ -126,44 +125,34 @@ class _Rotate:
 
 
 class DiskSpace:
-    """Whether the disk under the recording has room. ``fill()`` makes every write of the recording's files
-    fail with ENOSPC, as a full disk does, until ``free()``: the ``disk_full`` fault of a fault file. The
-    writer then takes its own disk-failure path. Thread-safe."""
+    """Whether the disk under the recording has room, by log time: between ``fill(t)`` and ``free(t)`` every
+    message fails to reach the file with ENOSPC, as on a full disk (the ``disk_full`` fault of a fault
+    file), and the recorder takes its own disk-failure path. Kept by log time rather than by the moment the
+    writer thread gets to a message, so that on a simulated clock the same messages fail every run.
+    Thread-safe."""
 
     def __init__(self) -> None:
-        self._full = threading.Event()
+        self._lock = threading.Lock()
+        self._full: list[tuple[int, int | None]] = []  # [from, until) in log-time nanoseconds
 
-    @property
-    def full(self) -> bool:
-        return self._full.is_set()
+    def fill(self, log_time_ns: int) -> None:
+        with self._lock:
+            if not self._full or self._full[-1][1] is not None:
+                self._full.append((log_time_ns, None))
 
-    def fill(self) -> None:
-        self._full.set()
+    def free(self, log_time_ns: int) -> None:
+        with self._lock:
+            if self._full and self._full[-1][1] is None:
+                self._full[-1] = (self._full[-1][0], log_time_ns)
 
-    def free(self) -> None:
-        self._full.clear()
+    def full_at(self, log_time_ns: int) -> bool:
+        with self._lock:
+            return any(a <= log_time_ns and (b is None or log_time_ns < b) for a, b in self._full)
 
-    def check(self, path: Path) -> None:
-        if self._full.is_set():
+    def check(self, path: Path, log_time_ns: int) -> None:
+        """Raise ENOSPC for a message logged while the disk is full."""
+        if self.full_at(log_time_ns):
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
-
-
-class _DiskFile(io.BufferedWriter):
-    """A recording file whose writes go through ``disk`` (which may be full)."""
-
-    def __init__(self, path: Path, disk: DiskSpace) -> None:
-        super().__init__(io.FileIO(path, "xb"))
-        self._path = path
-        self._disk = disk
-
-    def write(self, data: bytes) -> int:  # type: ignore[override]  # bytes is what the MCAP writer gives
-        self._disk.check(self._path)
-        return super().write(data)
-
-    def flush(self) -> None:
-        if not self.closed:
-            self._disk.check(self._path)
-        super().flush()
 
 
 class _File:
@@ -173,8 +162,9 @@ class _File:
         self, path: Path, *, chunk_size: int, compression: CompressionType, disk: DiskSpace | None = None
     ) -> None:
         self.path = path
+        self.disk = disk or DiskSpace()
         try:
-            self.file: IO[bytes] = _DiskFile(path, disk or DiskSpace())
+            self.file: IO[bytes] = open(path, "xb")  # noqa: SIM115 — owned until close()
         except FileExistsError as e:
             raise RecordingError(f"recording {path} already exists; choose a new file name") from e
         except OSError as e:
@@ -203,6 +193,7 @@ class _File:
                 topic=channel.topic, message_encoding=channel.message_encoding, schema_id=schema_id
             )
             self.channels[channel.topic] = channel_id
+        self.disk.check(self.path, log_time_ns)
         sequence = self.sequence.get(channel_id, 0)
         self.sequence[channel_id] = sequence + 1
         before = self.file.tell()

@@ -31,7 +31,7 @@ import re
 import signal
 import time
 import tomllib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Coroutine, Mapping, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, Protocol
@@ -527,7 +527,10 @@ class FaultInjector:
             assert spec.at_state is not None
             if spec.at_state in entered and self._entries[spec.at_state] == spec.occurrence:
                 self._waiting.remove(spec)
-                self._spawn(self._fire_at(spec, self._ctx.clock.monotonic() + spec.after_s))
+                if spec.after_s == 0.0:
+                    self._fire(spec)
+                else:
+                    self._spawn(self._fire_at(spec, self._ctx.clock.monotonic() + spec.after_s))
 
     def close(self) -> None:
         """End every fault still on (a replugged bus, a freed disk) and close the loopback peer."""
@@ -563,8 +566,8 @@ class FaultInjector:
                 f"{where}: the daemon has no peer to lose; call FaultInjector.prepare(options) before serve"
             )
 
-    def _spawn(self, work: Any) -> None:
-        task: asyncio.Task[None] = asyncio.get_running_loop().create_task(work)
+    def _spawn(self, work: Coroutine[Any, Any, None]) -> None:
+        task = asyncio.get_running_loop().create_task(work)
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
 
@@ -572,35 +575,42 @@ class FaultInjector:
         ctx = self._ctx
         assert ctx is not None
         await ctx.clock.sleep_until(t)
-        await self._fire(spec)
+        self._fire(spec)
 
-    async def _fire(self, spec: FaultSpec) -> None:
+    def _fire(self, spec: FaultSpec) -> None:
+        """Make ``spec`` happen now, on the loop (before anything else runs: a fault due as a state is
+        entered is there before the state's work starts)."""
         ctx = self._ctx
         assert ctx is not None
         if self.on_fire is not None:
             self.on_fire(spec)
         fired_at = round(ctx.clock.monotonic() - self._t0, 3)
         record: dict[str, object] = {"kind": spec.kind, "fired_at_s": fired_at, "index": spec.index}
-        end, target = await self._act(spec)
+        end, target = self._act(spec)
         record.update(target)
         self.fired.append(record)
-        detail = {k: v for k, v in record.items() if k != "kind"}
-        log.warning("fault_injected", fault=spec.kind, state=ctx.job.chart.state, **detail)
-        ctx.session.publish(
-            "events",
-            {
-                **detail,
-                "kind": "fault_injected",
-                "fault": spec.kind,
-                "state": ctx.job.chart.state,
-                "t": ctx.clock.now(),
-            },
-        )
+        self._report(record)
         if end is None:
             return
         self._ends.append(end)
         if spec.duration_s is not None and spec.kind != "loop_stall":
             self._spawn(self._end_after(spec, record, end))
+
+    def _report(self, record: Mapping[str, object]) -> None:
+        """Log the firing (``fault_injected``, also published on ``log``) and publish it on ``events``."""
+        ctx = self._ctx
+        assert ctx is not None
+        detail = {k: v for k, v in record.items() if k != "kind"}
+        state = ctx.job.chart.state
+        log.warning("fault_injected", fault=record["kind"], state=state, **detail)
+        event = {
+            **detail,
+            "kind": "fault_injected",
+            "fault": record["kind"],
+            "state": state,
+            "t": ctx.clock.now(),
+        }
+        ctx.session.publish("events", event)
 
     async def _end_after(self, spec: FaultSpec, record: dict[str, object], end: End) -> None:
         ctx = self._ctx
@@ -627,7 +637,7 @@ class FaultInjector:
             },
         )
 
-    async def _act(self, spec: FaultSpec) -> tuple[End | None, dict[str, object]]:
+    def _act(self, spec: FaultSpec) -> tuple[End | None, dict[str, object]]:
         ctx = self._ctx
         assert ctx is not None
         kind = spec.kind
@@ -640,18 +650,25 @@ class FaultInjector:
             return None, {"stalled_s": spec.duration_s}
         if kind == "disk_full":
             disk = ctx.recording.disk
-            disk.fill()
-            return disk.free, {}
+            clock = ctx.clock
+            disk.fill(_log_time_ns(clock.now()))
+            return (lambda: disk.free(_log_time_ns(clock.now()))), {}
         if kind == "zenoh_peer_loss":
             peer = self._peer
             assert peer is not None
-            await asyncio.to_thread(peer.close)
+            # Closing a Zenoh session blocks until its links are down: off the loop.
+            self._spawn(asyncio.to_thread(peer.close))
             return peer.close, {"peer": peer.endpoint}
         assert self._cell is not None
         return self._cell.act(spec)
 
 
 _CELL_KINDS: Final = frozenset(FAULT_KINDS) - {"sigterm", "loop_stall", "disk_full", "zenoh_peer_loss"}
+
+
+def _log_time_ns(t: float) -> int:
+    """A recording's log time for the clock's ``now()`` (as ``serve`` stamps every message)."""
+    return round(t * 1e9)
 
 
 def _stall(seconds: float) -> None:
