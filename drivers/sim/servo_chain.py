@@ -482,15 +482,14 @@ class ServoChainSimulator(SimulatedDevice):
             servo.table[:] = saved
             return self._range_error()
         if self.protocol == 1 and "torque_limit" in written and servo.get("torque_limit") > 0:
-            # Restoring the torque limit clears a latched shutdown on the 1.0 servos and powers them again,
-            # unless its cause is still there (then the servo trips again at once).
+            # Restoring the torque limit clears a latched shutdown on the 1.0 servos and powers them again;
+            # a servo still too hot trips again at once (a lasting overload trips when next driven).
             latched = faults.bits_for(1, ("overload", "overheating"))
             if servo.hardware_error & latched and servo.get("torque_enable"):
                 self.plant.set_torque(servo.servo_id, True)
             servo.hardware_error &= ~latched
-            if servo.conditions & {"overload", "overheating"}:
-                for name in sorted(servo.conditions & {"overload", "overheating"}):
-                    self._raise_error(servo, name)
+            if "overheating" in servo.conditions:
+                self._raise_error(servo, "overheating")
                 return self._error_byte(servo)
         if "torque_enable" in written:
             on = bool(servo.get("torque_enable"))
@@ -543,7 +542,7 @@ class ServoChainSimulator(SimulatedDevice):
         self.plant.set_torque(servo.servo_id, False)
         if self.protocol == 1:
             servo.set("torque_limit", servo.get("max_torque"))
-        for name in sorted(servo.conditions):  # a cause that lasts is reported again at once
+        for name in sorted(servo.conditions - {"overload"}):  # still hot, still short of voltage
             self._raise_error(servo, name)
 
     def _sync_from_plant(self, servo: SimServo) -> None:

@@ -74,9 +74,14 @@ def run_with_faults(
     stop_after_s: float | None = None,
     config: Config | None = None,
     on_ready: Callable[[ServeContext], None] | None = None,
+    stop_when: Callable[[list[dict[str, object]]], bool] | None = None,
+    polls: int = 20_000,
 ) -> FaultRun:
     """Run the daemon with the faults ``text`` lists until its ``once`` job ends, or (``stop_after_s``) that
-    many simulated seconds after it is ready; the recording goes under ``tmp_path``."""
+    many simulated seconds after it is ready, or once ``stop_when`` holds for the events the daemon has
+    published so far (checked every half simulated second, at most ``polls`` times: things that happen in
+    wall time, as Zenoh links do, take many simulated seconds on an idle daemon at full speed); the
+    recording goes under ``tmp_path``."""
     config = config or robot_config()
     faults = parse_faults(text, source="faults.toml", config=config) if isinstance(text, str) else text
     injector = FaultInjector(faults)
@@ -94,10 +99,31 @@ def run_with_faults(
     def tap(topic: str, payload: Mapping[str, object]) -> None:
         published.append((topic, dict(payload)))
 
+    live: list[dict[str, object]] = []
+
     def ready(ctx: ServeContext) -> None:
         injector.attach(ctx)
         if on_ready is not None:
             on_ready(ctx)
+        session = ctx.session
+        publish = session.publish
+
+        def published(topic: str, payload: Mapping[str, object]) -> None:  # everything, not only the job's
+            if topic == "events":
+                live.append(dict(payload))
+            publish(topic, payload)
+
+        session.publish = published  # type: ignore[method-assign]
+        if stop_when is not None:
+
+            async def stop_once() -> None:
+                for _ in range(polls):
+                    if stop_when(live):
+                        break
+                    await ctx.clock.sleep(0.5)
+                stop.set()
+
+            asyncio.get_running_loop().create_task(stop_once())
         if stop_after_s is not None:
 
             async def stop_later() -> None:
