@@ -76,6 +76,7 @@ def run_with_faults(
     on_ready: Callable[[ServeContext], None] | None = None,
     stop_when: Callable[[list[dict[str, object]]], bool] | None = None,
     polls: int = 20_000,
+    prepare: bool = True,
 ) -> FaultRun:
     """Run the daemon with the faults ``text`` lists until its ``once`` job ends, or (``stop_after_s``) that
     many simulated seconds after it is ready, or once ``stop_when`` holds for the events the daemon has
@@ -87,11 +88,11 @@ def run_with_faults(
     injector = FaultInjector(faults)
     published: list[tuple[str, dict[str, object]]] = []
     request = StartRequest(mugs=counter_mugs(config, mugs)) if once else None
-    options = injector.prepare(
-        RunOptions(
-            listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path / "rec", once=request
-        )
+    options = RunOptions(
+        listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path / "rec", once=request
     )
+    if prepare:
+        options = injector.prepare(options)
     clock = SimulatedClock()
     stop = asyncio.Event()
     opened: list[Backend] = []

@@ -1,4 +1,5 @@
-"""Fault files: every kind of bad entry gets one line naming the entry and the field; valid files round-trip."""
+"""Fault files: every kind of bad entry gets one line naming the entry and the field; valid files
+round-trip."""
 
 from __future__ import annotations
 
@@ -63,8 +64,8 @@ def test_a_full_entry_parses_with_its_defaults() -> None:
         ("[[fault]]\nkind = 3\nat_s = 1\n", "faults.toml: fault 1: kind: must be a string, got 3"),
         (
             '[[fault]]\nkind = "fsr_drop"\nat_s = 1\ncolour = "red"\n',
-            "faults.toml: fault 1 (fsr_drop): colour: unknown key (allowed: kind, at_s, at_state, occurrence, "
-            "after_s, duration_s)",
+            "faults.toml: fault 1 (fsr_drop): colour: unknown key (allowed: kind, at_s, at_state, "
+            "occurrence, after_s, duration_s)",
         ),
         (
             '[[fault]]\nkind = "fsr_drop"\n',
@@ -97,8 +98,8 @@ def test_a_full_entry_parses_with_its_defaults() -> None:
         ),
         (
             '[[fault]]\nkind = "fsr_drop"\nat_state = "flip.spin"\n',
-            "faults.toml: fault 1 (fsr_drop): at_state: 'flip.spin' is not a state of the chart (e.g. detect, "
-            "flip, flip.turn, place.release)",
+            "faults.toml: fault 1 (fsr_drop): at_state: 'flip.spin' is not a state of the chart (e.g. "
+            "detect, flip, flip.turn, place.release)",
         ),
         (
             '[[fault]]\nkind = "fsr_drop"\nat_state = "flip.turn"\noccurrence = 0\n',
@@ -164,7 +165,10 @@ def test_a_full_entry_parses_with_its_defaults() -> None:
         ),
         ("", "faults.toml: no [[fault]] table; list the faults as [[fault]] tables"),
         ('fault = "servo_overload"\n', "faults.toml: fault: must be a list of [[fault]] tables"),
-        ('[faults]\nkind = "x"\n', "faults.toml: faults: unknown key (a fault file holds only [[fault]] tables)"),
+        (
+            '[faults]\nkind = "x"\n',
+            "faults.toml: faults: unknown key (a fault file holds only [[fault]] tables)",
+        ),
         (
             '[[fault]]\nkind = "fsr_drop"\nat_s = \n',
             "faults.toml: line 3: not valid TOML: Invalid value",
@@ -235,7 +239,7 @@ def fault_specs(draw: st.DrawFn, index: int) -> FaultSpec:
     if kind == "mug_moved":
         values["dx_m"], values["dy_m"] = draw(_offsets), draw(_offsets)
         if draw(st.booleans()):
-            values["mug"] = draw(st.text(alphabet="abcm0123456789_-\"\\ é", min_size=1, max_size=8))
+            values["mug"] = draw(st.text(alphabet='abcm0123456789_-"\\ é', min_size=1, max_size=8))
     return FaultSpec(index=index, kind=kind, **values)  # type: ignore[arg-type]
 
 
