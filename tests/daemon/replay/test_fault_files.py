@@ -3,6 +3,7 @@ round-trip."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -253,3 +254,19 @@ def fault_files(draw: st.DrawFn) -> tuple[FaultSpec, ...]:
 @given(fault_files())
 def test_a_valid_fault_file_round_trips(faults: tuple[FaultSpec, ...]) -> None:
     assert parse_faults(dump_faults(faults), source="faults.toml", config=load_config()) == faults
+
+
+def test_the_docs_list_every_kind_and_their_example_parses() -> None:
+    doc = (Path(__file__).resolve().parents[3] / "docs" / "recording.md").read_text()
+    section = doc.split("### Fault files", 1)[1]
+    listed = re.findall(r"^\| `([a-z_]+)` \|", section, flags=re.MULTILINE)
+    assert listed == list(FAULT_KINDS)
+    example = re.findall(r"```toml\n(.*?)```", section, flags=re.DOTALL)[0]
+    faults = parse_faults(example, source="recording.md", config=load_config())
+    assert [(f.kind, f.at_state, f.occurrence) for f in faults] == [
+        ("servo_overload", "flip.turn", 1),
+        ("mug_slip", "flip", 2),
+    ]
+    shown = re.findall(r"^dishbot run: error: (faults\.toml: fault 2 .*)$", section, flags=re.MULTILINE)
+    text = '[[fault]]\nkind = "fsr_drop"\nat_s = 1\n\n[[fault]]\nkind = "servo_overload"\nat_s = 2\n'
+    assert shown == [error_of(text)]
