@@ -77,6 +77,7 @@ def run_with_faults(
     stop_when: Callable[[list[dict[str, object]]], bool] | None = None,
     polls: int = 20_000,
     prepare: bool = True,
+    on_fire: Callable[[FaultSpec], None] | None = None,
 ) -> FaultRun:
     """Run the daemon with the faults ``text`` lists until its ``once`` job ends, or (``stop_after_s``) that
     many simulated seconds after it is ready, or once ``stop_when`` holds for the events the daemon has
@@ -85,7 +86,7 @@ def run_with_faults(
     recording goes under ``tmp_path``."""
     config = config or robot_config()
     faults = parse_faults(text, source="faults.toml", config=config) if isinstance(text, str) else text
-    injector = FaultInjector(faults)
+    injector = FaultInjector(faults, on_fire=on_fire)
     published: list[tuple[str, dict[str, object]]] = []
     request = StartRequest(mugs=counter_mugs(config, mugs)) if once else None
     options = RunOptions(

@@ -12,13 +12,18 @@ from pathlib import Path
 
 import pytest
 
-from daemon.app import ServeContext
+from daemon.app import RunOptions, ServeContext, serve
+from daemon.clock import SimulatedClock
 from daemon.errors import UsageError
-from daemon.replay import parse_faults
+from daemon.replay import FaultInjector, FaultSpec, parse_faults
+from daemon.sdnotify import SdNotifier
 from daemon.sim_backend import KinematicCounter
+from perception import associate
 from sim.kinematic import KinematicWorld
 from sim.truth import FaultyObserver
-from tests.daemon.replay.faulty import FaultRun, run_with_faults
+from tests.daemon.conftest import free_port
+from tests.daemon.replay.faulty import FaultRun, robot_config, run_with_faults
+from tests.fakes.job import make_backend, make_world
 
 FULL_JOB = [
     "detect",
@@ -385,3 +390,38 @@ def test_a_peer_loss_without_a_prepared_peer_is_refused_at_attach(tmp_path: Path
     faults = parse_faults('[[fault]]\nkind = "zenoh_peer_loss"\nat_s = 1\n', source="f.toml")
     with pytest.raises(UsageError, match=r"^fault 1 \(zenoh_peer_loss\): the daemon has no peer to lose; "):
         run_with_faults(tmp_path, faults, prepare=False)
+
+
+def test_the_on_fire_callback_runs_just_before_the_fault_takes_effect(tmp_path: Path) -> None:
+    latched_when_called: list[set[str]] = []
+    contexts: list[ServeContext] = []
+    faults = parse_faults(
+        '[[fault]]\nkind = "servo_overload"\nservo = 3\nat_state = "flip.turn"\n', source="f"
+    )
+
+    def on_fire(spec: FaultSpec) -> None:
+        assert spec is faults[0]
+        latched_when_called.append(set(world_of(contexts[0]).faults.servo(3).latched))
+
+    run = run_with_faults(tmp_path, faults, on_ready=contexts.append, on_fire=on_fire)
+    assert latched_when_called == [set()]  # not yet
+    assert world(run).faults.servo(3).latched == {"overload"}
+
+
+def test_device_faults_on_a_backend_without_a_simulated_cell_are_refused_at_attach(tmp_path: Path) -> None:
+    faults = parse_faults('[[fault]]\nkind = "fsr_drop"\nat_s = 1\n', source="f.toml")
+    injector = FaultInjector(faults)
+    options = RunOptions(listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path / "rec")
+
+    async def run() -> None:
+        await serve(
+            robot_config(), make_backend(make_world(1)), associate, options, notifier=SdNotifier(None),
+            hooks=injector.hooks(),
+        )  # fmt: skip
+
+    with pytest.raises(UsageError) as refused:
+        SimulatedClock().run(run())
+    assert str(refused.value) == (
+        "fault 1 (fsr_drop): the fake backend has no simulated devices or world to fail; fault files run on "
+        "the simulated cell (--sim)"
+    )
