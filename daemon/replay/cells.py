@@ -110,7 +110,7 @@ class MujocoFaultCell:
         self._counter = counter
 
     def servo_ids(self) -> tuple[int, ...]:
-        return tuple(sorted(s.servo_id for s in self._counter.cell.servo_sim._servos))
+        return tuple(sorted(self._counter.cell.servo_sim.servo_ids))
 
     def act(self, spec: FaultSpec) -> Acted:
         cell = self._counter.cell

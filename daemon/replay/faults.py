@@ -32,7 +32,7 @@ import signal
 import time
 import tomllib
 from collections.abc import Callable, Coroutine, Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, Protocol
 
@@ -488,14 +488,13 @@ class FaultInjector:
         peer on a free loopback port that the daemon connects to (and later loses)."""
         if not any(f.kind == "zenoh_peer_loss" for f in self.faults):
             return options
-        import dataclasses
-
         if self._peer is None:
             self._peer = _LoopbackPeer()
             self._peer.open()
-        return dataclasses.replace(options, connect=(*options.connect, self._peer.endpoint))
+        return replace(options, connect=(*options.connect, self._peer.endpoint))
 
     def hooks(self) -> ServeHooks:
+        """The hooks for ``serve``: ``attach`` when ready, ``on_publish`` for every message."""
         from daemon.app import ServeHooks
 
         return ServeHooks(on_publish=(self.on_publish,), on_ready=self.attach)

@@ -166,6 +166,11 @@ class ServoChainSimulator(SimulatedDevice):
 
     # ------------------------------------------------------------------------------------------ fault hooks
 
+    @property
+    def servo_ids(self) -> tuple[int, ...]:
+        """The ids of the simulated servos, in chain order."""
+        return tuple(s.servo_id for s in self._servos)
+
     def servo(self, servo_id: int) -> SimServo:
         for servo in self._servos:
             if servo.servo_id == servo_id:
