@@ -339,10 +339,11 @@ async def _run(
     )
     if on_ready is not None:
         on_ready(session, path)
-    if hooks.on_ready is not None:
-        hooks.on_ready(ServeContext(config, backend, job, session, recording, stop, clock, handle))
     wall_s = 0.0
     try:
+        # Inside the try: a hook that refuses (a fault the cell cannot have) still stops everything cleanly.
+        if hooks.on_ready is not None:
+            hooks.on_ready(ServeContext(config, backend, job, session, recording, stop, clock, handle))
         if options.once is not None:
             started = wall_seconds()
             await job.command("start", options.once)

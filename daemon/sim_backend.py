@@ -8,6 +8,11 @@ cell observes through the world's truth with noise and takes any dataset, switch
 (the full-size one of datasets 4-6); the MuJoCo cell observes through the rendered depth camera and the
 depth detector, and its tray is built into the scene, so a dataset planned on another tray is refused
 (``sim.counter.require_cell_tray``: one message, whether at start-up or on a ``start`` command).
+
+Both cells can fail as the robot does, for fault files (``daemon.replay.faults``): the kinematic cell's
+devices carry their faults (``sim.kinematic.faults``) and its observer the camera's (``FaultyObserver``); the
+MuJoCo cell's device simulators have their own fault hooks and its camera is a ``FaultyCamera``. Each
+counter keeps what a fault acts on (``KinematicCounter.observer``, ``MujocoCounter.camera``).
 """
 
 from __future__ import annotations
@@ -31,14 +36,16 @@ from daemon.config import Config
 from daemon.errors import UsageError
 from description.cell import CellLayout, Tray
 from description.thesis import MugSpec
-from perception.interfaces import Detection
+from drivers.interfaces import Camera
+from drivers.sim.camera import FaultyCamera
+from perception.interfaces import Detection, MugObserver
 from perception.observer import cell_observer_factory
 from planning.arm import ArmModel
 from planning.interfaces import MotionPlanner
 from sim.counter import Counter, dataset_counter, listed_counter, require_cell_tray
 from sim.kinematic import KinematicCell, MugGeometry, SimMug, open_kinematic_cell
 from sim.mujoco.cell import SimCell, start_sim_cell
-from sim.truth import TruthObserver
+from sim.truth import FaultyObserver, TruthObserver
 
 WORLDS = ("kinematic", "mujoco")
 
@@ -90,12 +97,17 @@ def open_kinematic_backend(
         tray = counter.set_counter(dataset=options.dataset, mugs=None)
     except ValueError as e:
         raise UsageError(str(e)) from e
-    observer = TruthObserver(
-        counter.visible_mugs, clock=clock, noise_m=config.sim.detection_noise_m, seed=seed
+    observer = FaultyObserver(
+        TruthObserver(counter.visible_mugs, clock=clock, noise_m=config.sim.detection_noise_m, seed=seed),
+        clock=clock,
     )
+    counter.observer = observer
 
     def motion_for(tray: Tray) -> MotionPlanner:
         return cycle_planner(config, tray, arm=arm, executor=executor)
+
+    def on_event(listener: EventListener) -> None:
+        counter.cell.world.faults.on_event(lambda e: listener(device_event_payload(e, t=clock.now())))
 
     return Backend(
         name="sim-kinematic",
@@ -107,6 +119,7 @@ def open_kinematic_backend(
         tray=tray,
         counter=counter,
         motion_for=motion_for,
+        on_event=on_event,
         clock=clock,
     )
 
@@ -134,6 +147,7 @@ class KinematicCounter:
             q0=np.asarray(config.sim.start_q_rad, dtype=np.float64),
         )
         self.dataset: int | None = None
+        self.observer: FaultyObserver | None = None  # the cell's observer, whose camera faults act there
 
     def set_counter(self, *, dataset: int | None, mugs: Sequence[CounterMug] | None) -> Tray:
         counter = counter_for(self._layout, self._catalogue, dataset=dataset, mugs=mugs)
@@ -175,6 +189,13 @@ async def open_mujoco_backend(
         first = mujoco_counter(config, options.dataset)
     except ValueError as e:
         raise UsageError(str(e)) from e
+    cameras: list[FaultyCamera] = []
+    make_observer = cell_observer_factory(layout, catalogue)
+
+    def observer_factory(camera: Camera) -> MugObserver:
+        cameras.append(FaultyCamera(camera, clock=clock))
+        return make_observer(cameras[-1])
+
     try:
         cell, closer = await start_sim_cell(
             layout,
@@ -186,12 +207,12 @@ async def open_mujoco_backend(
             # As the kinematic cell: "holding" at half the grasp threshold.
             holding_threshold_n=config.grasp.force_threshold_n / 2.0,
             fsr_debounce_s=options.fsr_debounce_s,
-            observer_factory=cell_observer_factory(layout, catalogue),
+            observer_factory=observer_factory,
             health=health_limits(config),
         )
     except ValueError as e:  # a transport the clock cannot drive
         raise UsageError(str(e)) from e
-    counter = MujocoCounter(cell, layout, catalogue, dataset=first.dataset)
+    counter = MujocoCounter(cell, layout, catalogue, dataset=first.dataset, camera=cameras[0])
 
     def on_event(listener: EventListener) -> None:
         cell.on_collision(
@@ -225,12 +246,20 @@ def mujoco_counter(config: Config, dataset: int) -> Counter:
 
 class MujocoCounter:
     """Sets the MuJoCo cell's counter up for a job (``daemon.backend.CounterSetup``); ``cell`` is the
-    simulated cell itself (its world's ground truth and tray collisions, for tests and benches)."""
+    simulated cell itself (its world's ground truth and tray collisions, for tests and benches), ``camera``
+    the one its observer looks through."""
 
     def __init__(
-        self, cell: SimCell, layout: CellLayout, catalogue: Mapping[str, MugSpec], *, dataset: int | None
+        self,
+        cell: SimCell,
+        layout: CellLayout,
+        catalogue: Mapping[str, MugSpec],
+        *,
+        dataset: int | None,
+        camera: FaultyCamera | None = None,
     ) -> None:
         self.cell = cell
+        self.camera = camera  # the camera the observer looks through, whose faults act there
         self._layout = layout
         self._catalogue = dict(catalogue)
         self.dataset = dataset

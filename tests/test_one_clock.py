@@ -72,6 +72,10 @@ ALLOWED: Final[dict[tuple[str, str], str]] = {
     ("daemon/commands/monitor.py", "*"): (
         "a remote client: its redraws, its reconnection and when it last heard a daemon, in wall time"
     ),
+    ("daemon/replay/faults.py", "_stall"): (
+        "the loop_stall fault blocks the event loop for wall-clock time on purpose: a stall is the wall "
+        "time the loop does not run, whatever clock the session is on"
+    ),
     ("daemon/credentials.py", "write"): "a certificate is valid from now on the wall clock, as TLS checks it",
     ("perception/observer.py", "CameraObserver.observe"): (
         "measures how long detection took (the observation's detect_ms), nothing else"

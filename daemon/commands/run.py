@@ -12,6 +12,7 @@ import dataclasses
 import multiprocessing
 import os
 import sys
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -21,11 +22,12 @@ from daemon.logs import configure_cli_logging
 from description import thesis
 
 if TYPE_CHECKING:
-    from daemon.app import RunOptions, RunResult
+    from daemon.app import RunOptions, RunResult, ServeHooks
     from daemon.backend import Backend
     from daemon.clock import SessionClock
     from daemon.config import Config
     from daemon.log_relay import RecordQueue
+    from daemon.replay.faults import FaultInjector
     from daemon.sdnotify import SdNotifier
     from perception.interfaces import Associate
 
@@ -102,6 +104,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "a non-loopback one needs [foxglove] insecure = true; default: config foxglove.listen)",
     )
     parser.add_argument(
+        "--faults",
+        type=Path,
+        metavar="FILE",
+        help="simulation: inject the faults a fault file lists ([[fault]] tables; see docs/recording.md)",
+    )
+    parser.add_argument(
         "--insecure",
         action="store_true",
         help="allow plain (non-TLS) endpoints other machines can reach: anyone who reaches them can command "
@@ -121,6 +129,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.dataset is not None and not 1 <= args.dataset <= len(thesis.DATASETS):
         raise UsageError(f"--dataset {args.dataset}: choose a dataset 1-{len(thesis.DATASETS)}")
     clock = session_clock(args, config)
+    injector = fault_injector(args, config)
     if args.seed is not None:  # the recording's header shows the seed the simulated cell really used
         config = dataclasses.replace(config, sim=dataclasses.replace(config.sim, seed=args.seed))
     foxglove = _foxglove_address(args.foxglove, config)
@@ -134,14 +143,21 @@ def _run(args: argparse.Namespace) -> int:
         worker_logs=worker_logs,
         insecure=args.insecure,
     )
+    if injector is not None:
+        options = injector.prepare(options)
     from daemon.app import tolerated_exposure
 
     tolerated_exposure(config, options)  # refused before any simulator or device starts
     associate = association()
-    with planning_pool(args.log_level, worker_logs) as pool, SdNotifier.from_env() as notifier:
-        result = clock.run(_serve(args, config, clock, options, associate, pool, notifier))
+    hooks = injector.hooks() if injector is not None else None
+    try:
+        with planning_pool(args.log_level, worker_logs) as pool, SdNotifier.from_env() as notifier:
+            result = clock.run(_serve(args, config, clock, options, associate, pool, notifier, hooks))
+    finally:
+        if injector is not None:
+            injector.close()
     if args.once:
-        _print_summary(result)
+        _print_summary(result, injector.fired if injector is not None else ())
         return 0 if result.end_state == "done" else 1
     return 0
 
@@ -183,6 +199,18 @@ def session_clock(args: argparse.Namespace, config: Config) -> SessionClock:
     if args.speed is None:
         speed = None if args.once else config.sim.speed
     return SimulatedClock(speed=speed)
+
+
+def fault_injector(args: argparse.Namespace, config: Config) -> FaultInjector | None:
+    """The faults ``--faults`` lists, read and checked before anything starts (a bad file is a usage
+    error); they act on the simulated cell only."""
+    if args.faults is None:
+        return None
+    if not (args.sim or config.backend == "sim"):
+        raise UsageError("--faults injects faults into the simulated cell; add --sim (backend is hardware)")
+    from daemon.replay.faults import FaultInjector, load_fault_file
+
+    return FaultInjector(load_fault_file(args.faults, config=config))
 
 
 def planning_pool(
@@ -230,12 +258,13 @@ async def _serve(
     associate: Associate,
     pool: concurrent.futures.Executor,
     notifier: SdNotifier,
+    hooks: ServeHooks | None = None,
 ) -> RunResult:
     """Open the backend on the event loop that will drive its devices (the clock's), then serve."""
     from daemon.app import serve
 
     backend = await _backend(args, config, clock, pool)
-    return await serve(config, backend, associate, options, notifier=notifier, executor=pool)
+    return await serve(config, backend, associate, options, notifier=notifier, executor=pool, hooks=hooks)
 
 
 async def _backend(
@@ -277,7 +306,7 @@ def _endpoints(values: list[str], flag: str) -> list[str]:
         raise UsageError(str(e)) from e
 
 
-def _print_summary(result: RunResult) -> None:
+def _print_summary(result: RunResult, fired: Sequence[Mapping[str, object]] = ()) -> None:
     s = result.summary
     out = sys.stdout
     out.write(f"job ended in state {result.end_state}\n")
@@ -289,7 +318,24 @@ def _print_summary(result: RunResult) -> None:
         out.write(f"failed {line}\n")
     for reason in result.outcome.faults:
         out.write(f"fault: {reason}\n")
+    for record in fired:
+        out.write(f"{fault_fired_line(record)}\n")
     out.write(f"recording {result.recording}\n")
+
+
+def fault_fired_line(record: Mapping[str, object]) -> str:
+    """``fault fired: servo_overload servo 3 at 12.4 s`` (an injected fault, as ``FaultInjector.fired``
+    lists it)."""
+    target = ""
+    for key in ("servo", "device", "mug"):
+        if record.get(key) is not None:
+            target += f" {key} {record[key]}"
+    at = record.get("fired_at_s")
+    when = f"{at:.1f}" if isinstance(at, float | int) else "?"
+    line = f"fault fired: {record.get('kind')}{target} at {when} s"
+    if isinstance(record.get("ended_at_s"), float | int):
+        line += f", ended at {record['ended_at_s']:.1f} s"
+    return line
 
 
 def time_ratio_line(simulated_s: float, wall_s: float) -> str:

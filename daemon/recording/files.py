@@ -33,7 +33,15 @@ from daemon.config import RecordingConfig
 from daemon.errors import RecordingError
 from daemon.recording.reader import being_written
 from daemon.recording.schemas import topic_suffix
-from daemon.recording.writer import Deriver, Recorder, RecorderStats, Tee, free_path, header_payload
+from daemon.recording.writer import (
+    Deriver,
+    DiskSpace,
+    Recorder,
+    RecorderStats,
+    Tee,
+    free_path,
+    header_payload,
+)
 
 log = structlog.get_logger(__name__)
 
@@ -150,6 +158,7 @@ class SessionRecording:
         self._unusable = False
         self._opening = False
         self._early: list[tuple[str, Mapping[str, object], int]] = []
+        self.disk = DiskSpace()  # shared by every file of the session (a full disk stays full across them)
 
     @property
     def recorder(self) -> Recorder | None:
@@ -220,6 +229,7 @@ class SessionRecording:
                 thin_hz=self._thin_hz(self._kind),
                 deriver=self._deriver,
                 tee=self._tee,
+                disk=self.disk,
             )
         except RecordingError as e:  # the robot keeps running without a recording; said once
             self._unusable = True

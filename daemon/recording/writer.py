@@ -23,9 +23,11 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import errno
 import fcntl
 import functools
 import json
+import os
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -122,11 +124,45 @@ class _Rotate:
     on_open: Callable[[Path], None] | None
 
 
+class DiskSpace:
+    """Whether the disk under the recording has room, by log time: between ``fill(t)`` and ``free(t)`` every
+    message fails to reach the file with ENOSPC, as on a full disk (the ``disk_full`` fault of a fault
+    file), and the recorder takes its own disk-failure path. Kept by log time rather than by the moment the
+    writer thread gets to a message, so that on a simulated clock the same messages fail every run.
+    Thread-safe."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._full: list[tuple[int, int | None]] = []  # [from, until) in log-time nanoseconds
+
+    def fill(self, log_time_ns: int) -> None:
+        with self._lock:
+            if not self._full or self._full[-1][1] is not None:
+                self._full.append((log_time_ns, None))
+
+    def free(self, log_time_ns: int) -> None:
+        with self._lock:
+            if self._full and self._full[-1][1] is None:
+                self._full[-1] = (self._full[-1][0], log_time_ns)
+
+    def full_at(self, log_time_ns: int) -> bool:
+        with self._lock:
+            return any(a <= log_time_ns and (b is None or log_time_ns < b) for a, b in self._full)
+
+    def check(self, path: Path, log_time_ns: int) -> None:
+        """Raise ENOSPC for a message logged while the disk is full."""
+        if self.full_at(log_time_ns):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+
 class _File:
     """One open MCAP file: its writer, channel ids and sequence numbers, and the writer's lock on it."""
 
-    def __init__(self, path: Path, *, chunk_size: int, compression: CompressionType) -> None:
+    def __init__(
+        self, path: Path, *, chunk_size: int, compression: CompressionType, disk: DiskSpace | None = None
+    ) -> None:
         self.path = path
+        self.disk = disk or DiskSpace()
         try:
             self.file: IO[bytes] = open(path, "xb")  # noqa: SIM115 — owned until close()
         except FileExistsError as e:
@@ -157,6 +193,7 @@ class _File:
                 topic=channel.topic, message_encoding=channel.message_encoding, schema_id=schema_id
             )
             self.channels[channel.topic] = channel_id
+        self.disk.check(self.path, log_time_ns)
         sequence = self.sequence.get(channel_id, 0)
         self.sequence[channel_id] = sequence + 1
         before = self.file.tell()
@@ -198,6 +235,7 @@ class Recorder:
         thin_hz: float | None = None,
         deriver: Deriver | None = None,
         tee: Tee | None = None,
+        disk: DiskSpace | None = None,
     ) -> None:
         if compression not in COMPRESSIONS:
             raise RecordingError(
@@ -216,7 +254,10 @@ class Recorder:
         _check_thin(thin_hz)
         self._chunk_size = chunk_size
         self._compression = COMPRESSIONS[compression]
-        self._file: _File | None = _File(Path(path), chunk_size=chunk_size, compression=self._compression)
+        self.disk = disk or DiskSpace()
+        self._file: _File | None = _File(
+            Path(path), chunk_size=chunk_size, compression=self._compression, disk=self.disk
+        )
         self._path = Path(path)
         self._paths = [self._path]
         self._flush_interval_s = flush_interval_s
@@ -510,7 +551,9 @@ class Recorder:
         previous = self._file.path.name if self._file is not None else None
         self._finish()
         try:
-            file = _create(rotate.path, chunk_size=self._chunk_size, compression=self._compression)
+            file = _create(
+                rotate.path, chunk_size=self._chunk_size, compression=self._compression, disk=self.disk
+            )
         except RecordingError as e:
             with self._lock:
                 self._file = None
@@ -574,8 +617,8 @@ def header_payload(
     return payload
 
 
-def _create(path: Path, *, chunk_size: int, compression: CompressionType) -> _File:
-    return _File(free_path(path), chunk_size=chunk_size, compression=compression)
+def _create(path: Path, *, chunk_size: int, compression: CompressionType, disk: DiskSpace) -> _File:
+    return _File(free_path(path), chunk_size=chunk_size, compression=compression, disk=disk)
 
 
 def free_path(path: Path) -> Path:

@@ -6,6 +6,14 @@ injected at the device boundary or in the simulated world (``daemon.replay.fault
 ``FaultPlan`` and served back by stand-in drivers (for tests of one driver or one rule).
 """
 
+from daemon.replay.faults import (
+    FAULT_KINDS,
+    FaultInjector,
+    FaultSpec,
+    dump_faults,
+    load_fault_file,
+    parse_faults,
+)
 from daemon.replay.streams import (
     DEFAULT_STREAMS,
     Cut,
@@ -27,11 +35,14 @@ from daemon.replay.streams import (
 
 __all__ = [
     "DEFAULT_STREAMS",
+    "FAULT_KINDS",
     "Cut",
     "Delay",
     "Drop",
     "Fault",
+    "FaultInjector",
     "FaultPlan",
+    "FaultSpec",
     "Noise",
     "ReplayClock",
     "ReplayForceSensor",
@@ -42,4 +53,7 @@ __all__ = [
     "decode_force",
     "decode_joints",
     "decode_observation",
+    "dump_faults",
+    "load_fault_file",
+    "parse_faults",
 ]

@@ -153,7 +153,9 @@ class DynamixelArm:
             failure: Exception | None = None
             for servo_id in self._ids:
                 try:
-                    bus.write_register(servo_id, "torque_enable", 0)
+                    # Unchecked: a servo in a shutdown fault (overload, overheating) must still go limp, and
+                    # its acknowledgement carries the fault's bits.
+                    bus.write_register(servo_id, "torque_enable", 0, check=False)
                 except Exception as e:  # keep going: every other joint must still go limp
                     failure = failure or e
             if failure is not None:

@@ -4,8 +4,10 @@ Each simulated servo owns a control table (the model's registers at their real a
 answers instruction packets the way the e-Manual describes: status packets with checksum or CRC and byte
 stuffing, the return delay, error bits, a torque limit that drops to 0 on a 1.0 overload, Hardware Error
 Status and reboot on 2.0, the moving flag and the present load. A :class:`~drivers.sim.plant.ServoPlant`
-supplies where the servos are. Fault hooks make a servo overload, fall silent or send corrupt bytes, and
-unplug the whole adapter.
+supplies where the servos are. Fault hooks make a servo overload, overheat or see its input voltage leave the
+limits (the present temperature or voltage register and the error bits as the firmware sets them, with the
+torque cut where the Shutdown register says so), fall silent or send corrupt bytes (a number of packets, or a
+seeded fraction of all of them), and unplug the whole adapter.
 
 On a pseudo-terminal (``start()``) the chain answers from its own thread; in-process
 (``start_in_process(clock)``) it answers on the host's thread as the host writes, with no wire time (on a
@@ -14,6 +16,7 @@ simulated clock a bus transaction then takes no simulated time).
 
 from __future__ import annotations
 
+import random
 import threading
 import time
 from collections.abc import Sequence
@@ -50,6 +53,9 @@ class SimServo:
     hardware_error: int = 0  # 2.0 Hardware Error Status bits; 1.0 latched error bits
     corrupt_every: int = 0  # every nth status packet is corrupt (0: none); see ``corrupt_every``
     answers: int = 0  # status packets sent, for ``corrupt_every``
+    # A load the servo cannot hold (``keep_overloaded``): it trips again whenever it is driven. Heat and the
+    # supply are registers (present temperature and voltage against the servo's limits), not conditions.
+    conditions: set[str] = field(default_factory=set)
 
     @property
     def servo_id(self) -> int:
@@ -99,7 +105,11 @@ class ServoChainSimulator(SimulatedDevice):
         self._silent_all = False
         self._garbage = b""
         self._framer = p.Framer(protocol)
+        self._corrupt_rate = 0.0
+        self._corrupt_only: int | None = None
+        self._rng = random.Random(0)
         self.packets_seen = 0
+        self.packets_corrupted = 0
 
     @staticmethod
     def _new_servo(spec: ModelSpec, servo_id: int, baudrate: int, return_delay: int) -> SimServo:
@@ -110,6 +120,13 @@ class ServoChainSimulator(SimulatedDevice):
         servo.set("baud_rate", baud_code(spec.protocol, baudrate))
         servo.set("return_delay", return_delay)
         servo.set("temperature_limit", 70 if spec.protocol == 1 else 80)
+        # The factory voltage limits in 0.1 V: 1.0 AX 6-14 V, MX 6-16 V; 2.0 X series 9.5-16 V.
+        if spec.protocol == 1:
+            servo.set("min_voltage", 60)
+            servo.set("max_voltage", 140 if spec.name.startswith("AX") else 160)
+        else:
+            servo.set("min_voltage", 95)
+            servo.set("max_voltage", 160)
         if spec.protocol == 1:
             servo.set("cw_angle_limit", 0)
             servo.set("ccw_angle_limit", spec.max_tick)
@@ -126,8 +143,6 @@ class ServoChainSimulator(SimulatedDevice):
             servo.set("min_position", 0)
             servo.set("status_return_level", 2)
             servo.set("shutdown", 0x34)
-        servo.set("min_voltage", 60)  # the servo's own input voltage window, 6.0-14.0 V (factory settings)
-        servo.set("max_voltage", 140)
         servo.set("present_voltage", 120)
         servo.set("present_temperature", 32)
         servo.set("present_position", spec.center_tick)
@@ -153,6 +168,11 @@ class ServoChainSimulator(SimulatedDevice):
 
     # ------------------------------------------------------------------------------------------ fault hooks
 
+    @property
+    def servo_ids(self) -> tuple[int, ...]:
+        """The ids of the simulated servos, in chain order."""
+        return tuple(s.servo_id for s in self._servos)
+
     def servo(self, servo_id: int) -> SimServo:
         for servo in self._servos:
             if servo.servo_id == servo_id:
@@ -167,6 +187,43 @@ class ServoChainSimulator(SimulatedDevice):
             if now:
                 self._trip(servo)
             servo.overload_repeats = repeats
+
+    def keep_overloaded(self, servo_id: int, *, on: bool = True) -> None:
+        """Trip the overload now and (``on``) every time the servo is driven or its fault cleared, until
+        called with ``on=False``: a load the servo cannot hold (a jam) that lasts."""
+        with self._lock:
+            servo = self.servo(servo_id)
+            if on:
+                servo.conditions.add("overload")
+                self._trip(servo)
+            else:
+                servo.conditions.discard("overload")
+
+    def overheat(self, servo_id: int, *, on: bool = True) -> None:
+        """Raise the present temperature 5 °C above the servo's Temperature Limit (``on``), which sets the
+        overheating error bit and, as the factory Shutdown register asks, cuts the torque; with ``on=False``
+        the servo cools back to 32 °C, and the latched bit clears the way the servo allows (1.0: rewriting
+        the torque limit, 2.0: a reboot)."""
+        limit = self.servo(servo_id).get("temperature_limit")
+        self.set_present_temperature(servo_id, limit + 5 if on else 32)
+
+    def brown_out(self, servo_id: int, *, on: bool = True) -> None:
+        """Drop the present voltage 1 V below the servo's Min Voltage Limit (``on``): the input voltage
+        error bit is set (1.0: in every status while it lasts; 2.0: in Hardware Error Status, with the alert
+        flag, until a reboot). The factory Shutdown register does not cut the torque for it. With
+        ``on=False`` the supply is back at 12 V."""
+        low = self.servo(servo_id).get("min_voltage") / 10.0 - 1.0
+        self.set_present_voltage(servo_id, max(0.0, low) if on else 12.0)
+
+    def corrupt_fraction(self, rate: float, *, seed: int = 0, servo_id: int | None = None) -> None:
+        """Flip a bit in ``rate`` (0-1) of all status packets (of one servo, or the whole chain), chosen by a
+        random generator seeded with ``seed``: a noisy line. ``rate`` 0 stops it."""
+        if not 0.0 <= rate <= 1.0:
+            raise ValueError(f"corrupt rate {rate} is outside 0..1")
+        with self._lock:
+            self._corrupt_rate = rate
+            self._corrupt_only = servo_id
+            self._rng = random.Random(seed)
 
     def silence(self, servo_id: int | None = None, *, on: bool = True) -> None:
         """Stop one servo (or, with None, the whole chain) from answering, as with a loose cable."""
@@ -270,11 +327,19 @@ class ServoChainSimulator(SimulatedDevice):
                 continue
             servo.answers += 1
             every = servo.corrupt_every and servo.answers % servo.corrupt_every == 0
-            if servo.corrupt_next or every:
-                servo.corrupt_next -= not every
+            if servo.corrupt_next or every or self._corrupts(servo):
+                if servo.corrupt_next and not every:
+                    servo.corrupt_next -= 1
+                self.packets_corrupted += 1
                 packet = packet[:-2] + bytes((packet[-2] ^ 0x10,)) + packet[-1:]
             self._wire_delay(servo, len(packet))
             link.write(packet)
+
+    def _corrupts(self, servo: SimServo) -> bool:
+        """Whether the random line noise hits this status packet."""
+        if self._corrupt_rate <= 0.0 or self._corrupt_only not in (None, servo.servo_id):
+            return False
+        return self._rng.random() < self._corrupt_rate
 
     def _wire_delay(self, servo: SimServo, nbytes: int) -> None:
         """On a pty, sleep (never spin: the driver may share this interpreter) for the return delay and the
@@ -435,14 +500,16 @@ class ServoChainSimulator(SimulatedDevice):
             servo.table[:] = saved
             return self._range_error()
         if self.protocol == 1 and "torque_limit" in written and servo.get("torque_limit") > 0:
-            # Restoring the torque limit clears a latched overload on the 1.0 servos and powers them again.
-            if servo.hardware_error & faults.bits_for(1, ("overload",)) and servo.get("torque_enable"):
+            # Restoring the torque limit clears a latched shutdown on the 1.0 servos and powers them again;
+            # a servo still too hot trips again at once (a lasting overload trips when next driven).
+            latched = faults.bits_for(1, ("overload", "overheating"))
+            if servo.hardware_error & latched and servo.get("torque_enable"):
                 self.plant.set_torque(servo.servo_id, True)
-            servo.hardware_error &= ~faults.bits_for(1, ("overload",))
-            self._apply_conditions(servo)  # a cause still present shuts it down again
+            servo.hardware_error &= ~latched
+            self._apply_conditions(servo)  # a cause still present (still too hot) shuts it down again
         if "torque_enable" in written:
             on = bool(servo.get("torque_enable"))
-            if on and (self.protocol == 2 and servo.hardware_error):
+            if on and (self.protocol == 2 and servo.hardware_error & servo.get("shutdown")):
                 servo.set("torque_enable", 0)  # a 2.0 servo in shutdown refuses torque until rebooted
             elif on != bool(before_torque):
                 self.plant.set_torque(servo.servo_id, on)
@@ -452,8 +519,8 @@ class ServoChainSimulator(SimulatedDevice):
             and servo.get("torque_enable")
             and not limp
         ):
-            if servo.overload_repeats and written & {"goal_position"}:
-                servo.overload_repeats -= 1
+            if (servo.overload_repeats or "overload" in servo.conditions) and written & {"goal_position"}:
+                servo.overload_repeats = max(0, servo.overload_repeats - 1)
                 self._trip(servo)
                 return self._error_byte(servo) if self.protocol == 1 else 0
             speed_reg = "moving_speed" if self.protocol == 1 else "profile_velocity"
@@ -468,13 +535,22 @@ class ServoChainSimulator(SimulatedDevice):
     def _trip(self, servo: SimServo) -> None:
         """Overload shutdown: 1.0 drops the torque limit to 0 until it is rewritten, 2.0 clears Torque Enable
         and refuses it until a reboot."""
-        servo.hardware_error |= faults.bits_for(self.protocol, ("overload",))
+        self._raise_error(servo, "overload")
+        log.info("sim_overload", servo_id=servo.servo_id)
+
+    def _raise_error(self, servo: SimServo, name: str) -> None:
+        """Set an error condition's bit; cut the torque when the Shutdown register names it (1.0: the torque
+        limit drops to 0 until it is rewritten; 2.0: Torque Enable clears and stays refused until a
+        reboot)."""
+        bit = faults.bits_for(self.protocol, (name,))
+        servo.hardware_error |= bit
+        if not servo.get("shutdown") & bit:
+            return
         if self.protocol == 1:
             servo.set("torque_limit", 0)
         else:
             servo.set("torque_enable", 0)
         self.plant.set_torque(servo.servo_id, False)
-        log.info("sim_overload", servo_id=servo.servo_id)
 
     def _reboot(self, servo: SimServo) -> None:
         servo.hardware_error = 0

@@ -423,6 +423,24 @@ class SimWorld:
             self.model.geom_priority[self._gripper_geoms] = 1
             return mug
 
+    def move_mug(self, mug: str, dx_m: float, dy_m: float) -> None:
+        """Shift a mug that stands free (not held) by ``dx_m``, ``dy_m``, at rest: someone moved it on the
+        counter. ValueError for an unknown or held mug."""
+        with self.lock:
+            body = self._mug_body.get(mug)
+            if body is None or mug == self._held:
+                raise ValueError(f"mug {mug} is not standing free in the world")
+            joint = int(self.model.body_jntadr[body])
+            if joint < 0 or self.model.jnt_type[joint] != mujoco.mjtJoint.mjJNT_FREE:
+                raise ValueError(f"mug {mug} has no free joint to move it by")
+            adr = int(self.model.jnt_qposadr[joint])
+            dof = int(self.model.jnt_dofadr[joint])
+            self.data.qpos[adr] += dx_m
+            self.data.qpos[adr + 1] += dy_m
+            self.data.qvel[dof : dof + 6] = 0.0
+            mujoco.mj_forward(self.model, self.data)
+        log.info("simworld_mug_moved", mug_id=mug, dx_m=dx_m, dy_m=dy_m)
+
     # ------------------------------------------------------------------------------------------ stepping
 
     def attach(self, clock: SteppedClock) -> None:

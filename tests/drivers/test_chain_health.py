@@ -261,7 +261,7 @@ def test_a_protocol_2_input_voltage_error_stays_latched_until_reset_reboots_the_
         with pytest.raises(ServoHealthFault) as raised:  # Hardware Error Status holds it until a reboot
             await health.poll()
         assert str(raised.value) == (
-            "servo 2 reports the input voltage error (supply voltage now 12 V, limit 14 V)"
+            "servo 2 reports the input voltage error (supply voltage now 12 V, limit 16 V)"
         )
         assert await health.clear() == ()
         assert sim.servo(2).hardware_error == 0
