@@ -274,7 +274,13 @@ async def _run(
         for tap in hooks.on_publish:
             tap(topic, payload)
 
-    job = Job(backend, config, publish, associate, executor=executor)
+    job = Job(backend, config, publish, associate, executor=executor, recording=recording)
+
+    def recording_health(path: Path, error: str | None) -> None:  # from the recorder's thread
+        with contextlib.suppress(RuntimeError):  # the loop is closed: the daemon is gone
+            loop.call_soon_threadsafe(job.recording_health, str(path), error)
+
+    recording.on_health(recording_health)
 
     async def handle(verb: str, payload: bytes, many: bool) -> dict[str, object]:
         if verb == "start" and not many:  # what the job will run goes into its file's header

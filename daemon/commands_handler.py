@@ -77,9 +77,14 @@ async def handle(job: Job, verb: str, payload: bytes, many: bool = False) -> dic
 
 
 def status(job: Job) -> dict[str, object]:
-    """``status``: the state payload, the job's summary and the commands allowed now."""
+    """``status``: the state payload, the job's summary, the commands allowed now and the recording's
+    health (``{"ok": false, "error": ...}`` once the disk failed)."""
     allowed = [v for v in VERBS if v == "status" or job.chart.can(v)]
-    return {**job.status(), "summary": job.summary.to_json(), "allowed": allowed}
+    out = {**job.status(), "summary": job.summary.to_json(), "allowed": allowed}
+    recording = job.recording()
+    if recording is not None:
+        out["recording"] = recording
+    return out
 
 
 def _body(payload: bytes) -> dict[str, Any]:

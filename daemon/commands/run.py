@@ -297,6 +297,8 @@ def _print_summary(result: RunResult) -> None:
     out.write(f"job ended in state {result.end_state}\n")
     out.write(f"detected {s.detected}, planned {s.planned}, placed {s.placed}, failed {s.failed}\n")
     out.write(f"grasp failures {s.grasp_failures}, drops {s.drops}, duration {s.duration_s:.1f} s\n")
+    if s.recording_dropped:
+        out.write(f"recording lost {s.recording_dropped} messages (the disk failed or was too slow)\n")
     if result.simulated:
         out.write(f"{time_ratio_line(s.duration_s, result.wall_s)}\n")
     for line in result.outcome.failed_lines():

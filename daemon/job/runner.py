@@ -18,6 +18,7 @@ import concurrent.futures
 import contextlib
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Protocol
 
 import structlog
 
@@ -42,6 +43,14 @@ log = structlog.get_logger("daemon.job")
 _FORCE_GRACE_S = 0.3
 
 
+class RecordingHealth(Protocol):
+    """What the job asks of the session's recording (``daemon.recording.SessionRecording``)."""
+
+    def dropped(self) -> int: ...
+
+    def health(self) -> dict[str, object]: ...
+
+
 @dataclass(slots=True)
 class _Command:
     verb: str
@@ -62,9 +71,11 @@ class Job:
         *,
         chart: StateChart | None = None,
         executor: concurrent.futures.Executor | None = None,
+        recording: RecordingHealth | None = None,
     ) -> None:
         """``executor`` (a process pool) runs placement planning off this process, so its CPU time does not
-        hold the GIL against the event loop; without it, planning runs in a thread."""
+        hold the GIL against the event loop; without it, planning runs in a thread. ``recording`` is the
+        session's recording, whose health ``status`` reports and whose losses the summary counts."""
         self.backend = backend
         self.config = config
         self.chart = chart or StateChart()
@@ -77,6 +88,8 @@ class Job:
         self._ctx = JobContext(planner=PlannerRequest().options(config.planner))
         self._transitions = 0
         self._force_down = 0  # FSR lost/stale reports since it was last restored
+        self._recording = recording
+        self._dropped_before = 0  # the recording's losses when the job started
         self.finished = asyncio.Event()
         self.chart.subscribe(self._on_transition)
 
@@ -84,7 +97,23 @@ class Job:
 
     @property
     def summary(self) -> JobSummary:
+        if self._recording is not None and self._ctx.summary.started_at is not None:
+            self._ctx.summary.recording_dropped = self._recording.dropped() - self._dropped_before
         return self._ctx.summary
+
+    def recording(self) -> dict[str, object] | None:
+        """The recording's health for ``status`` (None: this job records nothing)."""
+        return self._recording.health() if self._recording is not None else None
+
+    def recording_health(self, path: str, error: str | None) -> None:
+        """Writing the recording failed (``error``) or works again (None), on the event loop: published on
+        ``events`` (``recording_failed``, ``recording_restored``). The job carries on either way: a robot
+        that loses its recording is still safe."""
+        if error is not None:
+            dropped = self._recording.dropped() if self._recording is not None else 0
+            self._services.event("recording_failed", path=path, error=error, dropped=dropped)
+        else:
+            self._services.event("recording_restored", path=path)
 
     def status(self) -> dict[str, object]:
         """The ``state`` payload: where the chart is and how far the job got."""
@@ -204,6 +233,7 @@ class Job:
             self._ctx = self._ctx.next_job(options)
         self._ctx.summary.started_at = self._services.monotonic()
         self._ctx.summary.clock = self._services.clock
+        self._dropped_before = self._recording.dropped() if self._recording is not None else 0
         self.finished.clear()
 
     def _set_counter(self, request: StartRequest) -> None:
