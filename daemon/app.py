@@ -315,7 +315,7 @@ async def _run(
         # On a simulated clock the pings follow simulated time, which stands still while a plan is being
         # computed; the robot, the one systemd supervises for real, runs on the wall clock.
         interval = notifier.watchdog_interval_s / 2.0
-        tasks.append(asyncio.create_task(_every(clock, interval, _ping(notifier)), name="watchdog"))
+        tasks.append(asyncio.create_task(_every(clock, interval, _ping(notifier, job)), name="watchdog"))
     if backend.on_event is not None:
         # Device events (driver faults, tray collisions) may come from other threads: the job handles them
         # on the loop, publishes them on `events` and faults when the device can no longer be trusted.
@@ -443,9 +443,14 @@ def _state(session: ZenohSession, job: Job) -> None:
     session.publish("state", job.status())
 
 
-def _ping(notifier: SdNotifier) -> Callable[[], None]:
+def _ping(notifier: SdNotifier, job: Job) -> Callable[[], None]:
+    """The watchdog ping: sent while the loop runs and the job makes progress (``Job.overdue``); a state past
+    its bound stops it until the job has left the state (faulted), so a stall the fault cannot end gets the
+    daemon restarted."""
+
     def ping() -> None:
-        notifier.watchdog()
+        if job.overdue() is None:
+            notifier.watchdog()
 
     return ping
 

@@ -24,6 +24,7 @@ from daemon.backend import (
     SimOptions,
     cycle_planner,
     device_event_payload,
+    frame_limits,
 )
 from daemon.clock import SessionClock
 from daemon.config import Config
@@ -185,7 +186,9 @@ async def open_mujoco_backend(
             # As the kinematic cell: "holding" at half the grasp threshold.
             holding_threshold_n=config.grasp.force_threshold_n / 2.0,
             fsr_debounce_s=options.fsr_debounce_s,
-            observer_factory=cell_observer_factory(layout, catalogue),
+            observer_factory=cell_observer_factory(
+                layout, catalogue, clock=clock, limits=frame_limits(config)
+            ),
         )
     except ValueError as e:  # a transport the clock cannot drive
         raise UsageError(str(e)) from e
