@@ -31,7 +31,7 @@ _ID = re.compile(r"^[A-Za-z0-9_-]{1,32}$")
 _MAX_MUGS = 64
 # The deepest command is three levels (start -> mugs -> a mug); anything much deeper is not a command.
 MAX_NESTING = 8
-_STRING = re.compile(r'"(?:[^"\\]|\\.)*"?', re.DOTALL)
+_STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"?', re.DOTALL)
 _NOT_BRACKET = re.compile(r"[^\[\]{}]+")
 
 

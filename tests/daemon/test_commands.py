@@ -325,3 +325,25 @@ def test_the_monitor_panel_shows_state_joints_and_force() -> None:
         "joints  a +0.100  b -1.250",
         "gripper aperture 72.5 mm  force 3.00 N  holding",
     ]
+
+
+def _depth(value: object) -> int:
+    if isinstance(value, dict):
+        return 1 + max((_depth(v) for v in value.values()), default=0)
+    if isinstance(value, list):
+        return 1 + max((_depth(v) for v in value), default=0)
+    return 0
+
+
+_bracket_text = st.text(alphabet='[]{}"\\ ab', max_size=6)
+_nested = st.recursive(
+    st.none() | st.integers(-3, 3) | _bracket_text,
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(_bracket_text, inner, max_size=3),
+    max_leaves=12,
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(body=_nested, levels=st.integers(0, 6))
+def test_the_nesting_check_agrees_with_the_parsed_depth(body: object, levels: int) -> None:
+    assert nested_deeper_than(json.dumps(body), levels) == (_depth(body) > levels)
