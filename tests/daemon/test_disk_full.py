@@ -96,3 +96,23 @@ def test_a_disk_full_mid_job_is_published_shown_in_status_and_counted_and_the_jo
     assert cut.truncated
     assert next(m.topic for m in cut) == HEADER_TOPIC
     print(f"dropped {recording['dropped']}, of the job {status['summary']['recording_dropped']}")
+
+
+def test_the_status_verb_prints_a_failed_recording() -> None:
+    from daemon.commands.client import _readable
+
+    reply = {
+        "robot_id": "r1",
+        "state": "place.descend",
+        "allowed": ["status", "pause"],
+        "recording": {
+            "ok": False,
+            "path": "/rec/r1-job.mcap",
+            "error": "[Errno 28] No space left",
+            "dropped": 7,
+        },
+    }
+    assert _readable(reply).splitlines()[-1] == (
+        "recording: failed at /rec/r1-job.mcap: [Errno 28] No space left; 7 messages lost"
+    )
+    assert "recording" not in _readable({**reply, "recording": {"ok": True, "path": "x", "dropped": 0}})
