@@ -446,11 +446,17 @@ def _state(session: ZenohSession, job: Job) -> None:
 def _ping(notifier: SdNotifier, job: Job) -> Callable[[], None]:
     """The watchdog ping: sent while the loop runs and the job makes progress (``Job.overdue``); a state past
     its bound stops it until the job has left the state (faulted), so a stall the fault cannot end gets the
-    daemon restarted."""
+    daemon restarted. The status line says why meanwhile."""
+    stalled: str | None = None
 
     def ping() -> None:
-        if job.overdue() is None:
+        nonlocal stalled
+        overdue = job.overdue()
+        if overdue is None:
             notifier.watchdog()
+        elif overdue != stalled:
+            notifier.status(f"stalled: {overdue}")
+        stalled = overdue
 
     return ping
 

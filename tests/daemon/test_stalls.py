@@ -48,6 +48,7 @@ class _TimedNotifier(SdNotifier):
         self._receiver = receiver
         self._clock = clock
         self.pings: list[float] = []
+        self.received: list[str] = []
 
     def watchdog(self) -> bool:
         sent = super().watchdog()
@@ -56,6 +57,7 @@ class _TimedNotifier(SdNotifier):
                 message = self._receiver.recv(4096).decode()
             except BlockingIOError:
                 return sent
+            self.received.append(message)
             if message == "WATCHDOG=1":
                 self.pings.append(self._clock.monotonic())
 
@@ -219,3 +221,4 @@ def test_a_stall_the_fault_cannot_end_stops_the_watchdog_pings_until_the_job_has
     assert times["fault"] == pytest.approx(times["released"])  # the fault ended the stall once it could
     assert [t for t in pings if t > times["fault"]] != []
     assert [e["reason"] for e in _events(published, "fault")] == ["state flip exceeded its 20 s bound"]
+    assert "STATUS=stalled: state flip exceeded its 20 s bound" in notifier.received  # systemctl status
