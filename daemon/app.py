@@ -275,7 +275,13 @@ async def _run(
         for tap in hooks.on_publish:
             tap(topic, payload)
 
-    job = Job(backend, config, publish, associate, executor=executor)
+    job = Job(backend, config, publish, associate, executor=executor, recording=recording)
+
+    def recording_health(path: Path, error: str | None) -> None:  # from the recorder's thread
+        with contextlib.suppress(RuntimeError):  # the loop is closed: the daemon is gone
+            loop.call_soon_threadsafe(job.recording_health, str(path), error)
+
+    recording.on_health(recording_health)
 
     async def handle(verb: str, payload: bytes, many: bool) -> dict[str, object]:
         if verb == "start" and not many:  # what the job will run goes into its file's header
@@ -311,7 +317,7 @@ async def _run(
         # On a simulated clock the pings follow simulated time, which stands still while a plan is being
         # computed; the robot, the one systemd supervises for real, runs on the wall clock.
         interval = notifier.watchdog_interval_s / 2.0
-        tasks.append(asyncio.create_task(_every(clock, interval, _ping(notifier)), name="watchdog"))
+        tasks.append(asyncio.create_task(_every(clock, interval, _ping(notifier, job)), name="watchdog"))
     if backend.on_event is not None:
         # Device events (driver faults, tray collisions) may come from other threads: the job handles them
         # on the loop, publishes them on `events` and faults when the device can no longer be trusted.
@@ -440,9 +446,20 @@ def _state(session: ZenohSession, job: Job) -> None:
     session.publish("state", job.status())
 
 
-def _ping(notifier: SdNotifier) -> Callable[[], None]:
+def _ping(notifier: SdNotifier, job: Job) -> Callable[[], None]:
+    """The watchdog ping: sent while the loop runs and the job makes progress (``Job.overdue``); a state past
+    its bound stops it until the job has left the state (faulted), so a stall the fault cannot end gets the
+    daemon restarted. The status line says why meanwhile."""
+    stalled: str | None = None
+
     def ping() -> None:
-        notifier.watchdog()
+        nonlocal stalled
+        overdue = job.overdue()
+        if overdue is None:
+            notifier.watchdog()
+        elif overdue != stalled:
+            notifier.status(f"stalled: {overdue}")
+        stalled = overdue
 
     return ping
 

@@ -65,6 +65,7 @@ from planning.placement import PlanOptions, PlanResult, Problem, plan
 
 if TYPE_CHECKING:
     from perception.calibration import CameraModel
+    from perception.observer import FrameLimits
 
 log = structlog.get_logger("daemon.backend")
 
@@ -763,4 +764,15 @@ async def _hardware_observer(
                 clock=clock,
             )
         )
-    return cell_observer_factory(config.cell, config.mug_catalogue())(camera)
+    factory = cell_observer_factory(
+        config.cell, config.mug_catalogue(), clock=clock, limits=frame_limits(config)
+    )
+    return factory(camera)
+
+
+def frame_limits(config: Config) -> FrameLimits:
+    """What a camera frame must meet, from ``[camera]``: its timeout, its age limit, the retries."""
+    from perception.observer import FrameLimits
+
+    c = config.camera
+    return FrameLimits(timeout_s=c.frame_timeout_s, max_age_s=c.max_frame_age_s, retries=c.frame_retries)

@@ -3,7 +3,8 @@
 A command is refused (``{"ok": false, "error": ...}``) and changes nothing when its verb is unknown, its
 payload is not a JSON object, a field is unknown, has the wrong type or is out of range, or the verb is not
 allowed in the current state. The size limit is enforced before the payload is decoded (in
-``daemon.zenoh_session``).
+``daemon.zenoh_session``), and so is the nesting limit (here): a payload nested deeper than any command
+needs is refused before the JSON parser recurses into it.
 
 A command addressed to many robots at once (``dishbot/*/cmd/<verb>``) is answered only for ``status`` and
 ``estop``: looking at every robot, and stopping every robot, are safe to do in one go; starting, pausing,
@@ -28,6 +29,10 @@ from planning.placement import METHODS
 VERBS = ("status", "start", "pause", "resume", "stop", "estop", "reset")
 _ID = re.compile(r"^[A-Za-z0-9_-]{1,32}$")
 _MAX_MUGS = 64
+# The deepest command is three levels (start -> mugs -> a mug); anything much deeper is not a command.
+MAX_NESTING = 8
+_STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"?', re.DOTALL)
+_NOT_BRACKET = re.compile(r"[^\[\]{}]+")
 
 
 class BadCommand(ValueError):
@@ -72,23 +77,46 @@ async def handle(job: Job, verb: str, payload: bytes, many: bool = False) -> dic
 
 
 def status(job: Job) -> dict[str, object]:
-    """``status``: the state payload, the job's summary and the commands allowed now."""
+    """``status``: the state payload, the job's summary, the commands allowed now and the recording's
+    health (``{"ok": false, "error": ...}`` once the disk failed)."""
     allowed = [v for v in VERBS if v == "status" or job.chart.can(v)]
-    return {**job.status(), "summary": job.summary.to_json(), "allowed": allowed}
+    out = {**job.status(), "summary": job.summary.to_json(), "allowed": allowed}
+    recording = job.recording()
+    if recording is not None:
+        out["recording"] = recording
+    return out
 
 
 def _body(payload: bytes) -> dict[str, Any]:
     if not payload.strip():
         return {}
     try:
-        body = json.loads(payload.decode("utf-8"))
+        text = payload.decode("utf-8")
     except UnicodeDecodeError as e:
         raise BadCommand(f"payload is not UTF-8 text: {e.reason} at byte {e.start}") from e
+    if nested_deeper_than(text, MAX_NESTING):
+        raise BadCommand(f"command payload nested deeper than {MAX_NESTING} levels")
+    try:
+        body = json.loads(text)
+    except RecursionError as e:  # not reached after the check above; a parser change must not crash
+        raise BadCommand(f"command payload nested deeper than {MAX_NESTING} levels") from e
     except json.JSONDecodeError as e:
         raise BadCommand(f"payload is not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from e
     if not isinstance(body, dict):
         raise BadCommand(f"payload must be a JSON object, got {_kind(body)}")
     return body
+
+
+def nested_deeper_than(text: str, levels: int) -> bool:
+    """Whether the arrays and objects of a JSON text nest deeper than ``levels`` (brackets inside strings do
+    not count), found without parsing it: the json module recurses once per level and gives up with
+    ``RecursionError``."""
+    depth = 0
+    for c in _NOT_BRACKET.sub("", _STRING.sub("", text)):
+        depth += 1 if c in "[{" else -1
+        if depth > levels:
+            return True
+    return False
 
 
 def _mugs(value: object, config: Config) -> tuple[CounterMug, ...]:

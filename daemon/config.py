@@ -15,7 +15,7 @@ import math
 import re
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass, fields, is_dataclass, replace
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -29,6 +29,7 @@ from description.errors import InvalidCell
 from description.thesis import JOINT_SERVOS, MugSpec, mug_catalogue
 from drivers.dynamixel.tables import BAUD_CODES_1, BAUD_CODES_2, MODELS
 from planning.placement import METHODS
+from statechart.chart import JOB_LEAVES, JOB_STATES, top_level
 
 _ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 _BACKENDS = ("sim", "hardware")
@@ -76,10 +77,14 @@ class FoxgloveConfig:
 @dataclass(frozen=True, slots=True)
 class CameraConfig:
     """The depth camera's calibration file (``dishbot calibrate`` writes it), overriding the pose in
-    ``[camera]``. The camera itself (image size, field of view, pose) is part of the cell:
-    ``Config.cell.camera``."""
+    ``[camera]``, and what a frame must meet: arrive within ``frame_timeout_s``, be at most
+    ``max_frame_age_s`` old, else be tried again up to ``frame_retries`` times before the job faults. The
+    camera itself (image size, field of view, pose) is part of the cell: ``Config.cell.camera``."""
 
     calibration_file: Path | None
+    frame_timeout_s: float = 2.0
+    max_frame_age_s: float = 1.0
+    frame_retries: int = 2
 
 
 @dataclass(frozen=True, slots=True)
@@ -98,13 +103,23 @@ class PlannerConfig:
 
 @dataclass(frozen=True, slots=True)
 class DaemonConfig:
-    """Telemetry rates and command limits of the daemon process."""
+    """Telemetry rates and command limits of the daemon process, and how long each job state may last.
+
+    ``state_bounds_s`` maps every top-level job state (``detect``, ``plan``, ...) to the longest it may stay
+    entered, and may add bounds of their own for leaves (``"flip.turn"``); a state past its bound faults
+    the job (``state detect exceeded its 60 s bound``) instead of stalling it silently, and the systemd
+    watchdog is not pinged meanwhile."""
 
     state_rate_hz: float
     joints_rate_hz: float
     gripper_rate_hz: float
     max_command_bytes: int
     drop_check_period_s: float
+    state_bounds_s: Mapping[str, float] = field(default_factory=lambda: dict.fromkeys(JOB_STATES, 60.0))
+
+    def state_bound_s(self, state: str) -> float | None:
+        """The bound of a job state or leaf (None: it has none of its own)."""
+        return self.state_bounds_s.get(state)
 
 
 @dataclass(frozen=True, slots=True)
@@ -243,7 +258,13 @@ class Config:
         """The effective values as plain TOML/JSON types, in the file's layout."""
         out: dict[str, Any] = _plain(self)
         out["cell"] = _cell_table(self.cell)
-        out["camera"] = {**_plain(self.cell.camera), "calibration_file": _plain(self.camera.calibration_file)}
+        out["camera"] = {
+            **_plain(self.cell.camera),
+            "calibration_file": _plain(self.camera.calibration_file),
+            "frame_timeout_s": self.camera.frame_timeout_s,
+            "max_frame_age_s": self.camera.max_frame_age_s,
+            "frame_retries": self.camera.frame_retries,
+        }
         out["recording"]["compression"] = self.recording.compression or "none"
         out["mug_types"] = {m["name"]: {k: v for k, v in m.items() if k != "name"} for m in out["mug_types"]}
         hw = out["hardware"]
@@ -405,8 +426,14 @@ def _camera(s: _Section) -> tuple[CameraSpec, CameraConfig]:
         )
     except InvalidCell as e:
         raise ConfigError(str(e)) from e
+    camera = CameraConfig(
+        calibration_file=Path(calibration) if calibration else None,
+        frame_timeout_s=s.number("frame_timeout_s", 0.05, 60.0),
+        max_frame_age_s=s.number("max_frame_age_s", 0.01, 60.0),
+        frame_retries=s.integer("frame_retries", 0, 10),
+    )
     s.finish()
-    return spec, CameraConfig(calibration_file=Path(calibration) if calibration else None)
+    return spec, camera
 
 
 def _mug_types(s: _Section) -> tuple[MugSpec, ...]:
@@ -456,9 +483,33 @@ def _daemon(s: _Section) -> DaemonConfig:
         gripper_rate_hz=s.number("gripper_rate_hz", 50.0, 500.0),
         max_command_bytes=s.integer("max_command_bytes", 256, 1024 * 1024),
         drop_check_period_s=s.number("drop_check_period_s", 0.001, 0.5),
+        state_bounds_s=_state_bounds(s.section("state_bounds_s")),
     )
     s.finish()
     return cfg
+
+
+def _state_bounds(s: _Section) -> dict[str, float]:
+    """``[daemon.state_bounds_s]``: a bound for every top-level job state, optionally for leaves too."""
+    bounds = {}
+    for name in s.names():
+        if name not in JOB_STATES and name not in JOB_LEAVES:
+            raise ConfigError(
+                f"{s._name(name)}: {name!r} is not a job state or leaf (states: {', '.join(JOB_STATES)}; "
+                'leaves such as "flip.turn")'
+            )
+        bounds[name] = s.number(name, 1.0, 3600.0)
+    missing = [state for state in JOB_STATES if state not in bounds]
+    if missing:
+        raise ConfigError(f"{s._name(missing[0])}: missing; every job state needs a bound")
+    for leaf, bound in bounds.items():
+        state = top_level(leaf)
+        if leaf != state and bound > bounds[state]:
+            raise ConfigError(
+                f"{s._name(leaf)}: {bound:g} s is longer than {state}'s own bound of {bounds[state]:g} s"
+            )
+    s.finish()
+    return bounds
 
 
 def _grasp(s: _Section) -> GraspConfig:
@@ -792,7 +843,8 @@ def _emit_table(data: Mapping[str, Any], path: list[str], lines: list[str]) -> N
         lines.append("")
         lines.append(f"[{'.'.join(path)}]")
     for key, value in scalars.items():
-        lines.append(f"{key} = {_toml_value(value)}")
+        bare = re.fullmatch(r"[A-Za-z0-9_-]+", key) is not None
+        lines.append(f"{key if bare else _toml_value(key)} = {_toml_value(value)}")
     for key, value in tables.items():
         _emit_table(value, [*path, key], lines)
 

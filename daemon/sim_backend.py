@@ -29,6 +29,7 @@ from daemon.backend import (
     SimOptions,
     cycle_planner,
     device_event_payload,
+    frame_limits,
     health_limits,
 )
 from daemon.clock import SessionClock
@@ -190,7 +191,7 @@ async def open_mujoco_backend(
     except ValueError as e:
         raise UsageError(str(e)) from e
     cameras: list[FaultyCamera] = []
-    make_observer = cell_observer_factory(layout, catalogue)
+    make_observer = cell_observer_factory(layout, catalogue, clock=clock, limits=frame_limits(config))
 
     def observer_factory(camera: Camera) -> MugObserver:
         cameras.append(FaultyCamera(camera, clock=clock))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from drivers.errors import DriverError
+
 
 class PerceptionError(ValueError):
     """Base of perception's input errors."""
@@ -17,3 +19,8 @@ class CalibrationError(PerceptionError):
 
 class BoardNotFound(CalibrationError):
     """The calibration board could not be found (or not enough of it) in the image."""
+
+
+class CameraFault(DriverError):
+    """The camera gave no usable frame within the retries: none in time, too old, or unusable. The message
+    starts with ``camera:`` and says which (``camera: no frame within 2.0 s``); the job faults with it."""

@@ -77,7 +77,7 @@ ALLOWED: Final[dict[tuple[str, str], str]] = {
         "time the loop does not run, whatever clock the session is on"
     ),
     ("daemon/credentials.py", "write"): "a certificate is valid from now on the wall clock, as TLS checks it",
-    ("perception/observer.py", "CameraObserver.observe"): (
+    ("perception/observer.py", "CameraObserver._look"): (
         "measures how long detection took (the observation's detect_ms), nothing else"
     ),
     ("planning/placement/planner.py", "Context.__init__"): (

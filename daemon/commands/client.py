@@ -427,4 +427,10 @@ def _readable(reply: Mapping[str, Any]) -> str:
         )
     if "allowed" in reply:
         lines.append(f"allowed: {', '.join(reply['allowed'])}")
+    recording = reply.get("recording")
+    if isinstance(recording, Mapping) and recording.get("ok") is False:
+        lines.append(
+            f"recording: failed at {recording.get('path')}: {recording.get('error')}; "
+            f"{recording.get('dropped')} messages lost"
+        )
     return "\n".join(lines)

@@ -10,8 +10,10 @@ import asyncio
 import concurrent.futures
 import dataclasses
 import multiprocessing
+import multiprocessing.forkserver
 import os
 import sys
+import threading
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -218,18 +220,30 @@ def planning_pool(
 ) -> concurrent.futures.ProcessPoolExecutor:
     """One worker process for placement and motion planning (forkserver: never fork Zenoh's threads),
     logging to stderr at the command line's ``--log-level`` and, when given, to ``log_records`` (a
-    forkserver queue) for the daemon's ``log`` topic."""
+    forkserver queue) for the daemon's ``log`` topic. The worker and the forkserver die with this process,
+    even by SIGKILL (``daemon.lifeline``)."""
+    context = multiprocessing.get_context("forkserver")
+    if threading.current_thread() is threading.main_thread():
+        # Started now, from the thread that lives as long as the process: the forkserver's death signal
+        # follows the thread that started it.
+        context.set_forkserver_preload(["__main__", "daemon.forkserver_preload"])
+        multiprocessing.forkserver.ensure_running()
     return concurrent.futures.ProcessPoolExecutor(
         max_workers=1,
-        mp_context=multiprocessing.get_context("forkserver"),
+        mp_context=context,
         initializer=_planning_worker,
-        initargs=(log_level, log_records),
+        initargs=(log_level, log_records, os.getpid()),
     )
 
 
-def _planning_worker(log_level: str, log_records: RecordQueue | None) -> None:
+def _planning_worker(log_level: str, log_records: RecordQueue | None, daemon_pid: int) -> None:
     """Planning is background work: below the daemon's priority, so a busy planner cannot delay the loop
-    that publishes telemetry and answers commands when the CPUs are short."""
+    that publishes telemetry and answers commands when the CPUs are short. It ends with the forkserver it
+    was forked from and with the daemon it works for."""
+    from daemon.lifeline import die_with_parent, exit_with
+
+    die_with_parent()
+    exit_with(daemon_pid)
     os.nice(_PLANNING_NICENESS)
     configure_cli_logging(log_level)
     if log_records is not None:
@@ -312,6 +326,8 @@ def _print_summary(result: RunResult, fired: Sequence[Mapping[str, object]] = ()
     out.write(f"job ended in state {result.end_state}\n")
     out.write(f"detected {s.detected}, planned {s.planned}, placed {s.placed}, failed {s.failed}\n")
     out.write(f"grasp failures {s.grasp_failures}, drops {s.drops}, duration {s.duration_s:.1f} s\n")
+    if s.recording_dropped:
+        out.write(f"recording lost {s.recording_dropped} messages (the disk failed or was too slow)\n")
     if result.simulated:
         out.write(f"{time_ratio_line(s.duration_s, result.wall_s)}\n")
     for line in result.outcome.failed_lines():

@@ -33,6 +33,7 @@ class JobSummary:
     failed: int = 0
     grasp_failures: int = 0
     drops: int = 0
+    recording_dropped: int = 0  # messages the recording lost since the job started (a full disk, say)
     started_at: float | None = None
     ended_at: float | None = None
     end_state: str = ""
@@ -54,6 +55,7 @@ class JobSummary:
             "failed": self.failed,
             "grasp_failures": self.grasp_failures,
             "drops": self.drops,
+            "recording_dropped": self.recording_dropped,
             "duration_s": round(self.duration_s, 3),
             "end_state": self.end_state,
         }

@@ -18,6 +18,7 @@ import concurrent.futures
 import contextlib
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Protocol
 
 import structlog
 
@@ -25,11 +26,13 @@ from daemon.backend import Backend
 from daemon.config import Config
 from daemon.job.context import JobContext, JobSummary, Outcome
 from daemon.job.errors import CommandRefused
+from daemon.job.progress import Deadline, Progress
 from daemon.job.registry import UNITS
 from daemon.job.requests import PlannerRequest, StartRequest
 from daemon.job.services import Publish, Services
 from daemon.job.unit import Unit
 from drivers.errors import BusLost, DriverError, LimitViolation
+from perception.errors import CameraFault
 from perception.interfaces import Associate
 from planning.interfaces import MotionRefused
 from statechart.chart import JOB_STATES, top_level
@@ -40,6 +43,14 @@ log = structlog.get_logger("daemon.job")
 
 # How long the force sensor may be lost or silent while the job works before it faults (see device_event).
 _FORCE_GRACE_S = 0.3
+
+
+class RecordingHealth(Protocol):
+    """What the job asks of the session's recording (``daemon.recording.SessionRecording``)."""
+
+    def dropped(self) -> int: ...
+
+    def health(self) -> dict[str, object]: ...
 
 
 @dataclass(slots=True)
@@ -62,9 +73,11 @@ class Job:
         *,
         chart: StateChart | None = None,
         executor: concurrent.futures.Executor | None = None,
+        recording: RecordingHealth | None = None,
     ) -> None:
         """``executor`` (a process pool) runs placement planning off this process, so its CPU time does not
-        hold the GIL against the event loop; without it, planning runs in a thread."""
+        hold the GIL against the event loop; without it, planning runs in a thread. ``recording`` is the
+        session's recording, whose health ``status`` reports and whose losses the summary counts."""
         self.backend = backend
         self.config = config
         self.chart = chart or StateChart()
@@ -77,6 +90,10 @@ class Job:
         self._ctx = JobContext(planner=PlannerRequest().options(config.planner))
         self._transitions = 0
         self._force_down = 0  # FSR lost/stale reports since it was last restored
+        self._recording = recording
+        self._dropped_before = 0  # the recording's losses when the job started
+        self._progress = Progress(config.daemon.state_bound_s)
+        self._deadline: asyncio.Task[None] | None = None  # faults the job when its state passes its bound
         self.finished = asyncio.Event()
         self.chart.subscribe(self._on_transition)
 
@@ -84,7 +101,29 @@ class Job:
 
     @property
     def summary(self) -> JobSummary:
+        if self._recording is not None and self._ctx.summary.started_at is not None:
+            self._ctx.summary.recording_dropped = self._recording.dropped() - self._dropped_before
         return self._ctx.summary
+
+    def overdue(self) -> str | None:
+        """Why the job is not making progress: its state has passed its time bound and the job has not left
+        it yet (None: within its bound, or not working). The watchdog is not pinged meanwhile."""
+        deadline = self._progress.overdue(self._services.monotonic())
+        return deadline.reason if deadline is not None else None
+
+    def recording(self) -> dict[str, object] | None:
+        """The recording's health for ``status`` (None: this job records nothing)."""
+        return self._recording.health() if self._recording is not None else None
+
+    def recording_health(self, path: str, error: str | None) -> None:
+        """Writing the recording failed (``error``) or works again (None), on the event loop: published on
+        ``events`` (``recording_failed``, ``recording_restored``). The job carries on either way: a robot
+        that loses its recording is still safe."""
+        if error is not None:
+            dropped = self._recording.dropped() if self._recording is not None else 0
+            self._services.event("recording_failed", path=path, error=error, dropped=dropped)
+        else:
+            self._services.event("recording_restored", path=path)
 
     def status(self) -> dict[str, object]:
         """The ``state`` payload: where the chart is and how far the job got."""
@@ -143,6 +182,8 @@ class Job:
 
     async def shutdown(self) -> None:
         """Stop any motion safely (the process is exiting)."""
+        if self._deadline is not None:
+            self._deadline.cancel()
         await self._cancel_work()
         with contextlib.suppress(DriverError, BusLost):
             await self.backend.arm.stop()
@@ -237,6 +278,7 @@ class Job:
             self._ctx = self._ctx.next_job(options)
         self._ctx.summary.started_at = self._services.monotonic()
         self._ctx.summary.clock = self._services.clock
+        self._dropped_before = self._recording.dropped() if self._recording is not None else 0
         self.finished.clear()
 
     def _set_counter(self, request: StartRequest) -> None:
@@ -275,10 +317,33 @@ class Job:
             "transition", trigger=change.trigger, source=change.source, dest=change.dest, **detail
         )
         self._services.publish("state", self.status())
+        self._progress.entered(
+            change.source,
+            change.dest,
+            self._services.monotonic(),
+            plan_time_limit_s=self._ctx.planner.time_limit_s,
+        )
+        self._watch_deadline()
         if change.dest in ("done", "fault", "estop") or (change.dest == "idle" and change.trigger == "stop"):
             self._ctx.summary.ended_at = self._services.monotonic()
             self._ctx.summary.end_state = change.dest
             self.finished.set()
+
+    def _watch_deadline(self) -> None:
+        """Fault the job when the state just entered passes its bound (the last state's watch ends)."""
+        if self._deadline is not None:
+            self._deadline.cancel()
+        deadline = self._progress.deadline()
+        self._deadline = None
+        if deadline is not None:
+            self._deadline = asyncio.get_running_loop().create_task(
+                self._fault_at(deadline), name=f"deadline:{deadline.state}"
+            )
+
+    async def _fault_at(self, deadline: Deadline) -> None:
+        await self._services.clock.sleep_until(deadline.at)
+        log.error("state_stalled", state=deadline.state, bound_s=deadline.bound_s)
+        await self.fault(deadline.reason)
 
     def _working(self) -> bool:
         return top_level(self.chart.state) in JOB_STATES
@@ -297,6 +362,9 @@ class Job:
             outcome = await unit.work(self._services, self._ctx)
         except asyncio.CancelledError:
             raise
+        except CameraFault as e:  # its message names the camera and why: "camera: no frame within 2.0 s"
+            bound.error("camera_failed", error=str(e))
+            outcome = Outcome("fault", {"reason": str(e)})
         except (DriverError, BusLost, LimitViolation) as e:
             bound.error("device_failed", error=str(e))
             outcome = Outcome("fault", {"reason": f"{type(e).__name__}: {e}"})

@@ -36,6 +36,7 @@ from daemon.recording.schemas import topic_suffix
 from daemon.recording.writer import (
     Deriver,
     DiskSpace,
+    HealthListener,
     Recorder,
     RecorderStats,
     Tee,
@@ -121,6 +122,9 @@ class SessionRecording:
     the job about to start runs (``--once``), else an idle file. ``scene`` gives the scene for a new file's
     header, ``config`` is the effective config, ``clock`` the session's clock as every header records it
     (``SessionClock.describe()``: its source and its wall-clock start).
+
+    A disk that fails (full, gone) never stops the robot: what cannot be written is counted (``dropped``),
+    ``health`` says what failed, and the listener given to ``on_health`` hears of each failure and recovery.
     """
 
     def __init__(
@@ -159,6 +163,8 @@ class SessionRecording:
         self._opening = False
         self._early: list[tuple[str, Mapping[str, object], int]] = []
         self.disk = DiskSpace()  # shared by every file of the session (a full disk stays full across them)
+        self._listener: HealthListener | None = None
+        self._failure: tuple[Path, str] | None = None  # the file that failed and why, until one works again
 
     @property
     def recorder(self) -> Recorder | None:
@@ -176,6 +182,29 @@ class SessionRecording:
         """Every file opened so far, in order."""
         recorder = self.recorder
         return recorder.paths if recorder is not None else ()
+
+    def on_health(self, listener: HealthListener) -> None:
+        """Call ``listener(path, error)`` when writing a file fails, ``listener(path, None)`` when a new file
+        is written again; from the recorder's thread or the caller's (it must not block)."""
+        self._listener = listener
+
+    def dropped(self) -> int:
+        """Messages that could not be recorded so far (disk failed, queue full)."""
+        recorder = self.recorder
+        return recorder.dropped if recorder is not None else 0
+
+    def health(self) -> dict[str, object]:
+        """For ``status``: whether recording works, the file and error of a failure, the messages lost."""
+        failure = self._failure
+        out: dict[str, object] = {"ok": failure is None, "path": str(self.path) if self.path else None}
+        if failure is not None:
+            out |= {"path": str(failure[0]), "error": failure[1]}
+        return {**out, "dropped": self.dropped()}
+
+    def _health_changed(self, path: Path, error: str | None) -> None:
+        self._failure = None if error is None else (path, error)
+        if self._listener is not None:
+            self._listener(path, error)
 
     def apply_retention(self) -> list[Path]:
         """Delete recordings past the limits now (blocking: from the event loop, call it in a thread)."""
@@ -230,10 +259,12 @@ class SessionRecording:
                 deriver=self._deriver,
                 tee=self._tee,
                 disk=self.disk,
+                on_health=self._health_changed,
             )
         except RecordingError as e:  # the robot keeps running without a recording; said once
             self._unusable = True
             log.error("recording_failed", path=str(path), error=str(e))
+            self._health_changed(path, str(e))
             return None
         job = self._job_header(self._first_job) if self._first_job is not None else None
         recorder.write_header(

@@ -51,6 +51,8 @@ EVENT_KINDS: Final = (
     "fsr_lost",
     "fsr_stale",
     "fsr_restored",
+    "recording_failed",
+    "recording_restored",
 )
 
 
@@ -186,6 +188,8 @@ _EVENT_PROPERTIES: dict[str, Schema] = {
     "position_m": _array({"type": "number"}, "tray_collision: contact point, world frame, m"),
     "t_sim": _number("tray_collision: simulated time, s"),
     "event": _string("tray_collision: the collision's own name"),
+    "path": _string("recording_failed, recording_restored: the recording file"),
+    "dropped": _integer("recording_failed: messages the recording lost so far"),
 }
 
 _FAILED_PROPERTIES: Final[dict[str, Schema]] = {

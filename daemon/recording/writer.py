@@ -89,6 +89,10 @@ class Deriver(Protocol):
     def opening(self, log_time_ns: int) -> Sequence[Derived]: ...
 
 
+# Told of the recording's health: (file, error) when writing a file failed, (file, None) once writing again.
+HealthListener = Callable[[Path, str | None], None]
+
+
 class Tee(Protocol):
     """Receives every message the recorder handles, thinned or not (``daemon.foxglove_server``)."""
 
@@ -220,7 +224,9 @@ class Recorder:
     loop (or a Zenoh callback). ``close`` blocks until the queue is drained and the summary is written; from
     the event loop call it through ``asyncio.to_thread``. If the disk fails, the failure is logged once,
     kept in ``failure``, and every later message of that file counts as dropped; the file stays readable up
-    to the failure, and the next ``rotate`` tries a new file.
+    to the failure, and the next ``rotate`` tries a new file. ``on_health(path, error)`` hears of it on the
+    recorder's thread (it must not block): once with the error when a file fails, once with None when a new
+    file is written again.
     """
 
     def __init__(
@@ -236,6 +242,7 @@ class Recorder:
         deriver: Deriver | None = None,
         tee: Tee | None = None,
         disk: DiskSpace | None = None,
+        on_health: HealthListener | None = None,
     ) -> None:
         if compression not in COMPRESSIONS:
             raise RecordingError(
@@ -265,6 +272,7 @@ class Recorder:
         self._queue_size = queue_size
         self._deriver = deriver
         self._tee = tee
+        self._on_health = on_health
         self._pending: collections.deque[_Item | _Rotate] = collections.deque()
         self._wake = threading.Event()
         self._lock = threading.Lock()
@@ -355,6 +363,12 @@ class Recorder:
             self._header_pending = False
             self._pending.append(_Rotate(Path(path), dict(header), log_time_ns, thin_hz, on_open))
         self._wake.set()
+
+    @property
+    def dropped(self) -> int:
+        """Messages lost so far (``stats().dropped``, without looking at the file)."""
+        with self._lock:
+            return self._dropped
 
     def stats(self) -> RecorderStats:
         with self._lock:
@@ -542,6 +556,7 @@ class Recorder:
             self._dropped += self._unflushed
             self._unflushed = 0
         log.error("recording_failed", path=str(self._path), error=str(error))
+        self._health(self._path, str(error))
         if self._file is not None:
             with contextlib.suppress(OSError, ValueError):
                 self._file.file.flush()
@@ -559,12 +574,16 @@ class Recorder:
                 self._file = None
                 self.failure = e
             log.error("recording_failed", path=str(rotate.path), error=str(e))
+            self._health(rotate.path, str(e))
             return
         with self._lock:
             self._file = file
             self._path = file.path
             self._paths.append(file.path)
-            self.failure = None
+            failed, self.failure = self.failure is not None, None
+        if failed:
+            log.info("recording_restored", path=str(file.path))
+            self._health(file.path, None)
         self._thin_hz = rotate.thin_hz
         self._last_kept = {}
         log.info("recording_rotated", path=str(file.path), thin_hz=rotate.thin_hz)
@@ -578,6 +597,14 @@ class Recorder:
                 rotate.on_open(file.path)
             except Exception as e:  # retention failing must not stop the recording
                 log.error("recording_retention_failed", error=repr(e))
+
+    def _health(self, path: Path, error: str | None) -> None:
+        if self._on_health is None:
+            return
+        try:
+            self._on_health(path, error)
+        except Exception as e:  # the listener failing must not stop the recording
+            self._warn_once("health", "recording_listener_failed", error=repr(e))
 
     def _finish(self) -> None:
         file = self._file

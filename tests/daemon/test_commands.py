@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from daemon.app import RunOptions, serve
 from daemon.cli import main
 from daemon.commands.client import Unreachable, request
-from daemon.commands_handler import BadCommand, parse
+from daemon.commands_handler import BadCommand, nested_deeper_than, parse
 from daemon.config import load_config
 from daemon.sdnotify import SdNotifier
 from daemon.zenoh_session import session_config
@@ -137,6 +137,54 @@ def test_each_class_of_bad_command_is_refused_with_its_reason_and_changes_nothin
         assert after["allowed"] == ["status", "start", "estop"]
 
     _with_daemon(tmp_path, scenario)
+
+
+VERBS = ("status", "start", "pause", "resume", "stop", "estop", "reset")
+
+
+def test_deep_or_huge_payloads_are_refused_with_their_reason_for_every_verb(tmp_path: Path) -> None:
+    deep = b"[" * 2000 + b"]" * 2000  # 4000 bytes: under the size limit, far past the nesting limit
+    deep_object = b'{"mugs": ' + b'{"a": ' * 9 + b"1" + b"}" * 10
+
+    async def scenario(endpoint: str, send: Client) -> None:
+        for verb in VERBS:
+            for payload in (deep, deep_object):
+                assert await send(verb, payload) == {
+                    "robot_id": ROBOT,
+                    "ok": False,
+                    "error": "command payload nested deeper than 8 levels",
+                }, verb
+            assert await send(verb, b" " * 4097) == {
+                "robot_id": ROBOT,
+                "ok": False,
+                "error": "payload of 4097 bytes is larger than the limit of 4096 bytes",
+            }, verb
+            huge = b'{"x": "' + b"y" * 60_000 + b'"}'
+            assert await send(verb, huge) == {
+                "robot_id": ROBOT,
+                "ok": False,
+                "error": "payload of 60009 bytes is larger than the limit of 4096 bytes",
+            }, verb
+
+        def beyond_the_transport_limit() -> list[str | None]:
+            with zenoh.open(session_config(listen=[], connect=[endpoint])) as s:
+                replies = s.get(f"dishbot/{ROBOT}/cmd/start", payload=b" " * 200_000, timeout=1.0)
+                return [r.err.payload.to_string() if r.err else None for r in replies]
+
+        # Zenoh drops it before it is reassembled (``transport_limit_bytes``): nothing reaches the daemon.
+        assert await asyncio.to_thread(beyond_the_transport_limit) == ["Timeout"]
+        after = await send("status", b"")
+        assert (after["state"], after["transitions"]) == ("idle", 0)
+
+    _with_daemon(tmp_path, scenario)
+
+
+def test_brackets_inside_strings_do_not_count_as_nesting() -> None:
+    body = json.dumps({"mugs": [{"id": "[[[[[[[[[[", "type": '{{{{{{{{{{\\"[[[[', "x_m": 0, "y_m": 0}]})
+    with pytest.raises(BadCommand, match=r"mugs\[0\]\.id: expected 1-32 letters"):
+        parse("start", body.encode(), _CONFIG)
+    assert nested_deeper_than(body, 3) is False
+    assert nested_deeper_than(body, 2) is True
 
 
 def test_a_good_command_sequence_runs_a_job_over_zenoh(tmp_path: Path) -> None:
@@ -277,3 +325,25 @@ def test_the_monitor_panel_shows_state_joints_and_force() -> None:
         "joints  a +0.100  b -1.250",
         "gripper aperture 72.5 mm  force 3.00 N  holding",
     ]
+
+
+def _depth(value: object) -> int:
+    if isinstance(value, dict):
+        return 1 + max((_depth(v) for v in value.values()), default=0)
+    if isinstance(value, list):
+        return 1 + max((_depth(v) for v in value), default=0)
+    return 0
+
+
+_bracket_text = st.text(alphabet='[]{}"\\ ab', max_size=6)
+_nested = st.recursive(
+    st.none() | st.integers(-3, 3) | _bracket_text,
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(_bracket_text, inner, max_size=3),
+    max_leaves=12,
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(body=_nested, levels=st.integers(0, 6))
+def test_the_nesting_check_agrees_with_the_parsed_depth(body: object, levels: int) -> None:
+    assert nested_deeper_than(json.dumps(body), levels) == (_depth(body) > levels)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -179,4 +180,31 @@ def test_the_cell_and_catalogue_are_the_description_types_the_planners_and_world
         "yaw_rad",
         "pitch_rad",
         "calibration_file",
+        "frame_timeout_s",
+        "max_frame_age_s",
+        "frame_retries",
     ]
+
+
+def test_every_job_state_has_a_time_bound_and_leaves_may_have_shorter_ones() -> None:
+    bounds = load_config(overrides={"daemon": {"state_bounds_s": {"flip.turn": 20.0}}}).daemon
+    assert bounds.state_bound_s("detect") == 60.0
+    assert bounds.state_bound_s("flip.turn") == 20.0
+    assert bounds.state_bound_s("flip.transit") is None
+    for bad, message in (
+        ({"fly": 3}, "daemon.state_bounds_s.fly: 'fly' is not a job state or leaf"),
+        (
+            {"flip.turn": 500},
+            "daemon.state_bounds_s.flip.turn: 500 s is longer than flip's own bound of 120 s",
+        ),
+        ({"detect": 0}, "daemon.state_bounds_s.detect: 0 is out of range; allowed [1, 3600]"),
+    ):
+        with pytest.raises(ConfigError, match=f"^{re.escape(message)}"):
+            load_config(overrides={"daemon": {"state_bounds_s": bad}})
+
+
+def test_the_camera_frame_limits_are_read_and_checked() -> None:
+    camera = load_config(overrides={"camera": {"frame_timeout_s": 0.5, "frame_retries": 0}}).camera
+    assert (camera.frame_timeout_s, camera.max_frame_age_s, camera.frame_retries) == (0.5, 1.0, 0)
+    with pytest.raises(ConfigError, match=r"^camera.frame_retries: 11 is out of range"):
+        load_config(overrides={"camera": {"frame_retries": 11}})

@@ -6,13 +6,16 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import functools
 import threading
-from collections.abc import Callable, Coroutine, Iterator
+from collections.abc import Callable, Coroutine, Iterable, Iterator
 from typing import Any, Final, ParamSpec, TypeVar
 
+import numpy as np
+
 from daemon.clock import RealClock, SessionClock, SimulatedClock
-from drivers.interfaces import Clock, ForceReading
+from drivers.interfaces import Clock, ForceReading, RGBDFrame
 from drivers.serial_port import OpenSerial, open_pyserial
 from drivers.sim.device import SimulatedDevice
 from drivers.sim.plant import FirstOrderPlant
@@ -120,3 +123,48 @@ class PlantForceSensor:
 
     def holding(self) -> bool:
         return self.plant.force_n() >= self.threshold_n
+
+
+CAMERA_FAULTS: Final = ("ok", "hang", "stale", "nan", "shape")
+
+
+class ScriptedCamera:
+    """A depth camera seeing ``frame`` (stamped with the clock's time at each capture), whose captures go
+    by ``script``, one entry each, then ``then`` for ever: ``ok``; ``hang`` (the capture never returns, as
+    a camera whose USB link stalled); ``stale`` (a frame stamped ``stale_s`` ago, as a driver handing out
+    an old buffer); ``nan`` (half the depth NaN); ``shape`` (a half-size depth image)."""
+
+    def __init__(
+        self,
+        frame: RGBDFrame,
+        clock: Clock,
+        script: Iterable[str] = (),
+        *,
+        then: str = "ok",
+        stale_s: float = 600.0,
+    ) -> None:
+        self._frame = frame
+        self._clock = clock
+        self._script = list(script)
+        self._then = then
+        self._stale_s = stale_s
+        self.captures: list[str] = []
+        for fault in (*self._script, then):
+            if fault not in CAMERA_FAULTS:
+                raise ValueError(f"camera fault {fault!r}: one of {', '.join(CAMERA_FAULTS)}")
+
+    async def capture(self) -> RGBDFrame:
+        fault = self._script.pop(0) if self._script else self._then
+        self.captures.append(fault)
+        frame = dataclasses.replace(self._frame, t=self._clock.monotonic())
+        if fault == "hang":
+            await asyncio.Event().wait()
+        if fault == "stale":
+            return dataclasses.replace(frame, t=frame.t - self._stale_s)
+        if fault == "nan":
+            depth = frame.depth_m.copy()
+            depth[: depth.shape[0] // 2] = np.nan
+            return dataclasses.replace(frame, depth_m=depth)
+        if fault == "shape":
+            return dataclasses.replace(frame, depth_m=np.ascontiguousarray(frame.depth_m[::2, ::2]))
+        return frame

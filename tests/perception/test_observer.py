@@ -13,10 +13,12 @@ from description.cell import CellLayout, SceneMug
 from description.thesis import BIG_MUG, MUG_TYPES, SMALL_MUG
 from drivers.interfaces import RGBDFrame
 from perception import CameraObserver, DepthMugDetector
-from perception.errors import FrameError
-from perception.interfaces import MugObserver
+from perception.errors import CameraFault, FrameError
+from perception.interfaces import MugObserver, Observation
+from perception.observer import FrameLimits
 from sim.mujoco.camera import DepthCamera, DepthNoise
 from sim.mujoco.scene import build_mjcf
+from tests.fakes.devices import ScriptedCamera
 
 
 class StillCamera:
@@ -58,21 +60,97 @@ def test_detection_runs_off_the_event_loop_thread(layout: CellLayout) -> None:
             threads.append(threading.current_thread().name)
             return []
 
-    frame = RGBDFrame(0.0, np.ones((48, 64), np.float32), layout.camera.intrinsics(), np.eye(4))
+    K = layout.camera.intrinsics()
+    frame = RGBDFrame(0.0, np.ones((K.height, K.width), np.float32), K, np.eye(4))
     observer = CameraObserver(StillCamera(frame), RecordingDetector(MUG_TYPES))
     asyncio.run(observer.observe())
     assert len(threads) == 1
     assert threads[0] != threading.main_thread().name
 
 
-def test_an_unusable_frame_raises_instead_of_reporting_an_empty_counter(layout: CellLayout) -> None:
+def test_an_unusable_frame_is_a_camera_fault_instead_of_an_empty_counter(layout: CellLayout) -> None:
     K = layout.camera.intrinsics()
     blank = RGBDFrame(0.0, np.zeros((K.height, K.width), np.float32), K, layout.camera.world_from_camera())
     observer = CameraObserver(StillCamera(blank))
     with pytest.raises(
-        FrameError, match=r"^the depth image has only 0 valid pixels; is the camera covered\?$"
-    ):
+        CameraFault,
+        match=r"^camera: bad frame \(the depth image has only 0 valid pixels; is the camera covered\?\)$",
+    ) as caught:
         asyncio.run(observer.observe())
+    assert isinstance(caught.value.__cause__.__cause__, FrameError)  # type: ignore[union-attr]
+
+
+@pytest.fixture(scope="module")
+def counter_frame(layout: CellLayout) -> RGBDFrame:
+    """The cell with a big and a small mug on the counter, as the configured camera sees it."""
+    from tests.perception.scenes import render
+
+    x0, y0, x1, y1 = layout.counter_region_m
+    mugs = [
+        SceneMug("a", BIG_MUG, x0 + 0.1, (y0 + y1) / 2),
+        SceneMug("b", SMALL_MUG, x1 - 0.1, (y0 + y1) / 2),
+    ]
+    return render(layout, mugs, noise=DepthNoise(), seed=3)
+
+
+def _observe_on_simulated_time(
+    layout: CellLayout, frame: RGBDFrame, script: list[str], *, then: str = "ok"
+) -> tuple[Observation | CameraFault, list[str], float]:
+    """What observing through a scripted camera gives (the observation or the fault), the captures, and the
+    simulated time it took."""
+    from daemon.clock import SimulatedClock
+    from perception.observer import cell_observer_factory
+
+    clock = SimulatedClock()
+    camera = ScriptedCamera(frame, clock, script, then=then)
+    observer = cell_observer_factory(layout, MUG_TYPES, clock=clock, limits=FrameLimits(2.0, 1.0, 2))(camera)
+
+    async def go() -> tuple[Observation | CameraFault, float]:
+        started = clock.monotonic()
+        try:
+            result: Observation | CameraFault = await observer.observe()
+        except CameraFault as e:
+            result = e
+        return result, clock.monotonic() - started
+
+    result, took = clock.run(go())
+    return result, camera.captures, took
+
+
+@pytest.mark.parametrize(
+    ("fault", "reason", "took_s"),
+    [
+        ("hang", "camera: no frame within 2.0 s", 6.0),
+        ("stale", "camera: frame 600.0 s old", 0.0),
+        ("nan", "camera: bad frame (NaN depth)", 0.0),
+        ("shape", "camera: bad frame (depth image is 320x240 pixels but the intrinsics say 640x480)", 0.0),
+    ],
+)
+def test_a_failing_camera_is_tried_three_times_then_a_camera_fault_with_the_reason(
+    layout: CellLayout, counter_frame: RGBDFrame, fault: str, reason: str, took_s: float
+) -> None:
+    result, captures, took = _observe_on_simulated_time(layout, counter_frame, [], then=fault)
+    assert isinstance(result, CameraFault)
+    assert str(result) == reason
+    assert captures == [fault] * 3
+    assert took == pytest.approx(took_s)
+
+
+def test_a_camera_that_fails_less_often_than_the_retries_still_sees_the_mugs(
+    layout: CellLayout, counter_frame: RGBDFrame
+) -> None:
+    result, captures, took = _observe_on_simulated_time(layout, counter_frame, ["hang", "nan"])
+    assert isinstance(result, Observation)
+    assert sorted(d.type for d in result.detections) == ["big", "small"]
+    assert captures == ["hang", "nan", "ok"]
+    assert took == pytest.approx(2.0)
+
+
+def test_frame_limits_are_checked() -> None:
+    with pytest.raises(ValueError, match=r"^frame timeout_s 0.0: must be positive$"):
+        FrameLimits(timeout_s=0.0)
+    with pytest.raises(ValueError, match=r"^frame retries -1: must be 0 or more$"):
+        FrameLimits(retries=-1)
 
 
 def test_a_tiny_preview_is_refused() -> None:

@@ -15,7 +15,9 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from daemon.errors import RecordingError
-from daemon.recording import HEADER_TOPIC, Recorder, read_messages
+from daemon.recording import HEADER_TOPIC, Recorder, read_messages, writer
+from daemon.recording.writer import header_payload
+from tests.fakes.disk import SmallDisk
 
 RecordingFactory = Callable[..., Path]
 
@@ -309,3 +311,28 @@ def test_reading_a_directory_fails_with_one_line(tmp_path: Path) -> None:
     with pytest.raises(RecordingError) as err:
         read_messages(tmp_path)
     assert str(err.value) == f"{tmp_path}: is a directory, not a recording file"
+
+
+def test_the_health_listener_hears_once_of_a_full_disk_and_once_of_the_next_file_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    disk = SmallDisk(free=10**9)
+    monkeypatch.setattr(writer, "open", disk.open, raising=False)
+    heard: list[tuple[str, str | None]] = []
+    rec = Recorder(tmp_path / "a.mcap", chunk_size=1024, on_health=lambda p, e: heard.append((p.name, e)))
+    disk.free = 0
+    for i in range(2000):
+        rec.write("dishbot/r1/joints", {"i": i}, log_time_ns=i)
+    deadline = time.monotonic() + 10.0
+    while rec.failure is None and time.monotonic() < deadline:  # the recorder's thread meets the full disk
+        time.sleep(0.01)
+    disk.free = 10**9
+    rec.rotate(tmp_path / "b.mcap", header_payload({}, {}), log_time_ns=3000)
+    rec.write("dishbot/r1/joints", {"i": 3000}, log_time_ns=3000)
+    stats = rec.close()
+    assert heard == [("a.mcap", "[Errno 28] No space left on device"), ("b.mcap", None)]
+    assert stats.dropped == rec.dropped > 0
+    assert rec.failure is None
+    assert [m.payload for m in read_messages(tmp_path / "b.mcap") if m.topic.endswith("joints")] == [
+        {"i": 3000}
+    ]

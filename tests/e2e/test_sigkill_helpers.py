@@ -1,0 +1,90 @@
+"""A ``kill -9`` of the daemon mid-job leaves none of its helper processes running: the multiprocessing
+forkserver, the planning worker it forked and the resource tracker end with it (``daemon.lifeline``)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from daemon.commands.client import request
+from tests.daemon.conftest import free_port
+
+
+@dataclass(frozen=True, slots=True)
+class _Proc:
+    pid: int
+    state: str  # R, S, Z (exited, not reaped yet), ...
+    ppid: int
+    session: int
+    cmdline: str
+
+
+def _processes() -> list[_Proc]:
+    out = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:  # gone meanwhile
+            continue
+        fields = stat[stat.rindex(")") + 2 :].split()
+        out.append(_Proc(int(entry.name), fields[0], int(fields[1]), int(fields[3]), cmdline))
+    return out
+
+
+def _in_session(sid: int) -> list[_Proc]:
+    """The processes of a session, the daemon's descendants (re-parented to PID 1 or not), alive or zombie."""
+    return [p for p in _processes() if p.session == sid]
+
+
+def _alive(sid: int) -> list[_Proc]:
+    return [p for p in _in_session(sid) if p.state != "Z"]
+
+
+def test_sigkill_mid_job_leaves_no_helper_process_alive(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    run = ["run", "--sim", "--world", "kinematic", "--listen", endpoint, "--record-dir", str(tmp_path)]
+    daemon = subprocess.Popen(
+        [sys.executable, "-m", "daemon.cli", *run, "--speed", "1"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,  # the session id marks its descendants, wherever they are re-parented
+    )
+    try:
+        assert daemon.stdout is not None
+        for line in daemon.stdout:
+            if "daemon_ready" in line:
+                break
+        reply = request(endpoint, "dishbot", "start", {}, timeout_s=5.0)
+        assert reply is not None
+        assert reply["ok"], reply
+        deadline = time.monotonic() + 30.0
+        helpers: list[_Proc] = []
+        while time.monotonic() < deadline:
+            helpers = [p for p in _alive(daemon.pid) if p.pid != daemon.pid]
+            if sum("forkserver" in p.cmdline for p in helpers) >= 2:  # the forkserver and its worker
+                break
+            time.sleep(0.1)
+        assert sum("forkserver import main" in p.cmdline for p in helpers) == 2, helpers
+        assert sum("resource_tracker" in p.cmdline for p in helpers) == 1, helpers
+        os.kill(daemon.pid, signal.SIGKILL)
+        killed = time.monotonic()
+        daemon.wait(timeout=10)
+        while _alive(daemon.pid) and time.monotonic() - killed < 10.0:
+            time.sleep(0.05)
+        print(f"helpers gone {time.monotonic() - killed:.3f} s after the kill")
+        assert _alive(daemon.pid) == []
+    finally:
+        if daemon.poll() is None:
+            daemon.kill()
+            daemon.wait(timeout=10)
+        for p in _alive(daemon.pid):  # without the fix: do not leave them behind on the machine
+            os.kill(p.pid, signal.SIGKILL)
