@@ -231,7 +231,8 @@ class _RecordedArm:
     async def read_joints(self) -> JointState:
         js = await self._inner.read_joints()
         self._sink(
-            "input/joints", {**joints_payload(js, t=self._clock.now()), "t_read": self._clock.monotonic()}
+            "input/joints",
+            {**joints_payload(js, t=self._clock.now(), exact=True), "t_read": self._clock.monotonic()},
         )
         return js
 
@@ -388,7 +389,7 @@ class _RecordedObserver:
         self._sink(
             "input/observation",
             {
-                **observation_payload(obs, t=self._clock.now()),
+                **observation_payload(obs, t=self._clock.now(), exact=True),
                 "t_start": started,
                 "t_end": self._clock.monotonic(),
             },

@@ -40,7 +40,16 @@ class Services:
 
     def event(self, kind: str, **detail: Any) -> None:
         """Publish one job event on ``events``: its kind, the chart's state, the wall clock and the detail."""
-        self.publish("events", {"kind": kind, "state": self.state(), "t": self.wall_time(), **detail})
+        self.publish(
+            "events",
+            {
+                "kind": kind,
+                "state": self.state(),
+                "t": self.wall_time(),
+                "t_device": self.monotonic(),
+                **detail,
+            },
+        )
 
     async def plan_placement(
         self, planner: PlacementPlanner, problem: Problem, options: PlanOptions

@@ -48,6 +48,8 @@ from planning.placement import PlanOptions, PlanResult, Problem
 
 log = structlog.get_logger("daemon.replay")
 
+# Reads this close together are the same instant (simulated time is exact; the wall clock never is).
+_SAME_S = 1e-7
 # Streams served by time, and those served by order (several recorded topics make one stream).
 _TIMED = ("input/joints", "input/force", "input/holding")
 _ORDERED: Mapping[str, tuple[str, ...]] = {
@@ -77,8 +79,10 @@ class Replayer:
         self.served: dict[str, int] = {}
         self._on_diverge = on_diverge
         self._start_now: float | None = None  # the replay's now() at its job's start transition
+        self._start_mono = 0.0  # and its monotonic time then
+        # Timed inputs by the recorded monotonic time of their read (older recordings: their log time).
         self._timed = {k: list(session.streams.get(k, ())) for k in _TIMED}
-        self._timed_ns = {k: [r.t_ns for r in v] for k, v in self._timed.items()}
+        self._timed_t = {k: [self._read_time(r) for r in v] for k, v in self._timed.items()}
         self._ordered: dict[str, list[Recorded]] = {}
         for name, topics in _ORDERED.items():
             items = [r for t in topics for r in session.streams.get(t, ())]
@@ -86,6 +90,7 @@ class Replayer:
                 items = [r for r in items if r.payload.get("action") == "open"]
             self._ordered[name] = sorted(items, key=lambda r: r.t_ns)
         self._next = dict.fromkeys(_ORDERED, 0)
+        self._cursor: dict[str, int] = {}  # per timed stream: the first record not yet consumed
 
     # --- time --------------------------------------------------------------------------------------------
 
@@ -96,25 +101,32 @@ class Replayer:
     def job_started(self) -> None:
         """The replay's job just entered its first state: lay the recording's clock over the replay's."""
         self._start_now = self.clock.now()
+        self._start_mono = self.clock.monotonic()
+
+    def _read_time(self, r: Recorded) -> float:
+        t = r.payload.get("t_read")
+        if isinstance(t, int | float):
+            return float(t)
+        return r.t_ns / 1e9 - self.session.mono_offset_s
 
     def t_s(self) -> float:
         """Seconds since the replay's job started (0 before)."""
         return 0.0 if self._start_now is None else self.clock.now() - self._start_now
 
-    def _recorded_now_ns(self) -> int:
-        return self.session.start_ns + round(self.t_s() * 1e9)
+    def recorded_monotonic(self) -> float:
+        """Now, on the recorded session's monotonic clock (both clocks lined up at the job's start; exact
+        arithmetic on small numbers, so that a replay of a simulated session meets every recorded instant
+        exactly)."""
+        return self.clock.monotonic() - self._start_mono + self.session.start_monotonic
 
     def replay_monotonic(self, recorded_monotonic: float) -> float:
         """The replay's monotonic time for a recorded one (a device time or the end of a call)."""
-        recorded_now = recorded_monotonic + self.session.mono_offset_s
-        offset = recorded_now - self.session.start_ns / 1e9
-        start = self._start_now if self._start_now is not None else self.clock.now()
-        return start + offset - (self.clock.now() - self.clock.monotonic())
+        return recorded_monotonic - self.session.start_monotonic + self._start_mono
 
     async def until_recorded(self, recorded: Recorded, key: str = "t_end") -> None:
         """Wait until the moment a recorded call ended, as the replay's clock lays it."""
         end = recorded.payload.get(key)
-        if isinstance(end, int | float) and math.isfinite(self.session.mono_offset_s):
+        if isinstance(end, int | float) and math.isfinite(end):
             await self.clock.sleep_until(self.replay_monotonic(float(end)))
 
     # --- following the recording ---------------------------------------------------------------------------
@@ -135,16 +147,30 @@ class Replayer:
         if not self.replaying or self._start_now is None:
             return False
         if self.session.cut is not None and self.t_s() > self.session.end_s:
-            self.diverge("recording_end", f"the recording's end ({self.session.cut})", "the job going on")
+            self.recording_ended()
             return False
         return True
 
+    def recording_ended(self) -> None:
+        """A recording cut short has nothing more to serve: not a divergence (the replay did what it did up
+        to here); the simulated cell goes on alone until the replay stops at the cut."""
+        if self.replaying:
+            self.replaying = False
+            log.info("replay_recording_ended", t_s=self.t_s(), cut=self.session.cut)
+
     def latest(self, stream: str) -> Recorded | None:
-        """The last input of ``stream`` recorded at or before now."""
-        times = self._timed_ns[stream]
-        i = bisect.bisect_right(times, self._recorded_now_ns() + 1000) - 1  # within a microsecond
-        if i < 0:
-            return None
+        """The input of ``stream`` the daemon consumed at this moment: of those recorded at the same time
+        , the next in the order they were consumed; else the last one recorded
+         before."""
+        times = self._timed_t[stream]
+        now = self.recorded_monotonic()
+        i = max(self._cursor.get(stream, 0), bisect.bisect_left(times, now - _SAME_S))
+        if i < len(times) and abs(times[i] - now) <= _SAME_S:
+            self._cursor[stream] = i + 1
+        else:
+            i = bisect.bisect_right(times, now) - 1
+            if i < 0:
+                return None
         self.served[stream] = self.served.get(stream, 0) + 1
         return self._timed[stream][i]
 
@@ -153,7 +179,10 @@ class Replayer:
         items = self._ordered[stream]
         i = self._next[stream]
         if i >= len(items):
-            self.diverge(stream, "nothing more recorded", got)
+            if self.session.cut is not None:
+                self.recording_ended()
+            else:
+                self.diverge(stream, "nothing more recorded", got)
             return None
         self._next[stream] = i + 1
         self.served[stream] = self.served.get(stream, 0) + 1
@@ -193,7 +222,8 @@ def recorded_failure(text: str) -> BaseException:
         with contextlib.suppress(TypeError):
             error: BaseException = cls(message)
             return error
-    return type(name, (DriverError,), {})(message)
+    stand_in: type[DriverError] = type(name, (DriverError,), {})
+    return stand_in(message)
 
 
 class ReplayArm:

@@ -161,7 +161,7 @@ def replay(
             kept = options.record
     recorded = session.trace
     divergence = replayer.divergence
-    compared = compare(recorded, replayed.cut(session.end_s) if session.cut is not None else replayed)
+    compared = compare(recorded, replayed, prefix=session.cut is not None)
     if compared is not None and (divergence is None or compared.t_s < divergence.t_s):
         divergence = compared
     return ReplayReport(
@@ -278,10 +278,10 @@ async def _drive(session: RecordedSession, replayer: Replayer, ctx: ServeContext
     """The operator's side: the recorded commands at their times (the first starts the job), then, once
     the job has ended and its file's tail is recorded, the end of the daemon."""
     clock = ctx.clock
-    if session.simulated and math_finite(session.mono_offset_s):
+    if session.simulated:
         # Start when the recorded daemon did (the same simulated time after the start of its clock): the
         # simulated cell then is exactly as it was.
-        start_at = session.start_ns / 1e9 - session.mono_offset_s
+        start_at = session.start_monotonic
         if 0.0 < start_at - clock.monotonic() <= _MAX_IDLE_WAIT_S:
             await clock.sleep_until(start_at)
     reply = await ctx.handle("start", session.start_payload(), False)
@@ -325,10 +325,6 @@ def _recorded_now(session: RecordedSession, replayer: Replayer) -> float:
 
 def _answer(reply: Mapping[str, object]) -> str:
     return "ok" if reply.get("ok") else f"refused ({reply.get('error', '')})"
-
-
-def math_finite(x: float) -> bool:
-    return x == x and abs(x) != float("inf")
 
 
 def load_and_replay(path: Path, options: ReplayOptions = ReplayOptions()) -> ReplayReport:

@@ -14,6 +14,7 @@ whatever clock either ran on.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import statistics
@@ -176,9 +177,19 @@ def trace_of(read: RecordingRead, *, start_ns: int | None = None) -> Trace:
     events: list[TraceEvent] = []
     outputs: list[DeviceCommand] = []
     final = ""
+    started = False
     for m in messages:
         suffix = topic_suffix(m.topic)
         t_s = (m.log_time_ns - start_ns) / 1e9
+        if not started:  # the trace begins with the start transition (what came before it, such as the
+            # scene being set up, may be in the file before or not, as the file was opened)
+            started = (
+                suffix == "events"
+                and m.payload.get("kind") == "transition"
+                and m.payload.get("trigger") == "start"
+            )
+            if not started:
+                continue
         if suffix == "events":
             kind = str(m.payload.get("kind", ""))
             detail = {k: v for k, v in m.payload.items() if k not in ("kind", "t", "state", "t_device")}
@@ -204,22 +215,38 @@ def trace_of(read: RecordingRead, *, start_ns: int | None = None) -> Trace:
     )
 
 
-def job_start_ns(messages: Sequence[RecordedMessage]) -> int | None:
-    """The log time of the job's ``start`` transition."""
+def job_start(messages: Sequence[RecordedMessage]) -> RecordedMessage | None:
+    """The job's ``start`` transition."""
     for m in messages:
         if (
             topic_suffix(m.topic) == "events"
             and m.payload.get("kind") == "transition"
             and m.payload.get("trigger") == "start"
         ):
-            return m.log_time_ns
+            return m
     return None
 
 
-def compare(expected: Trace, got: Trace) -> Divergence | None:
+def job_start_ns(messages: Sequence[RecordedMessage]) -> int | None:
+    """The log time of the job's ``start`` transition."""
+    start = job_start(messages)
+    return None if start is None else start.log_time_ns
+
+
+def compare(expected: Trace, got: Trace, *, prefix: bool = False) -> Divergence | None:
     """The first place where ``got`` did otherwise than ``expected``: the states entered, the events (their
     kinds, in order, those of ``UNCOMPARED_EVENTS`` left out) and the device commands; None when they agree.
-    Times are not compared (they are reported)."""
+    Times are not compared (they are reported). With ``prefix`` (``expected`` is a recording cut short),
+    ``got`` may go on where ``expected`` ends."""
+    if prefix:
+        n, m, k = len(expected.states), len(expected.outputs), len(expected.compared_events())
+        got = dataclasses.replace(
+            got,
+            states=got.states[:n],
+            state_times_s=got.state_times_s[:n],
+            events=tuple(got.compared_events()[:k]),
+            outputs=got.outputs[:m],
+        )
     found: list[Divergence] = []
     for i, (a, b) in enumerate(zip(expected.states, got.states, strict=False)):
         if a != b:
@@ -298,6 +325,7 @@ class RecordedSession:
     job: Mapping[str, object]
     clock: Mapping[str, object]
     start_ns: int  # the job's start transition
+    start_monotonic: float  # the same moment on the recorded session's monotonic clock
     streams: Mapping[str, tuple[Recorded, ...]]  # by topic suffix: input/joints, output/follow, ...
     trace: Trace
     mono_offset_s: float  # recorded now() minus recorded monotonic time (the clocks' fixed difference)
@@ -368,9 +396,10 @@ class RecordedSession:
             config = parse_config(config_doc)
         except ConfigError as e:
             raise ReplayError(f"{path}: the recorded config does not load: {e}") from e
-        start_ns = job_start_ns(messages)
-        if start_ns is None:
+        start = job_start(messages)
+        if start is None:
             raise ReplayError(f"{path}: the job never started (no start transition recorded)")
+        start_ns = start.log_time_ns
         streams: dict[str, list[Recorded]] = {}
         for m in messages[1:]:
             suffix = topic_suffix(m.topic)
@@ -390,10 +419,20 @@ class RecordedSession:
             job=job,
             clock=clock if isinstance(clock, Mapping) else {},
             start_ns=start_ns,
+            start_monotonic=_start_monotonic(start, streams.get("input/joints", []), clock),
             streams={k: tuple(v) for k, v in streams.items()},
             trace=trace_of(read, start_ns=start_ns),
             mono_offset_s=_mono_offset(streams.get("input/joints", []), clock),
         )
+
+
+def _start_monotonic(start: RecordedMessage, joints: Sequence[Recorded], clock: object) -> float:
+    """The monotonic time of the job's start: as the transition says (``t_device``), else from its log time
+    and the clocks' difference."""
+    t = start.payload.get("t_device")
+    if isinstance(t, int | float):
+        return float(t)
+    return start.log_time_ns / 1e9 - _mono_offset(joints, clock)
 
 
 def _mono_offset(joints: Sequence[Recorded], clock: object) -> float:
