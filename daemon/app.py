@@ -46,6 +46,7 @@ from daemon.sdnotify import SdNotifier
 from daemon.security import exposure_error
 from daemon.zenoh_session import ZenohSession, error_text
 from drivers.dynamixel import BusTimeout
+from drivers.dynamixel.health import ServoHealthFault
 from drivers.errors import BusLost, DriverError, ServoFault
 from perception.interfaces import Associate
 
@@ -305,6 +306,7 @@ async def _run(
         asyncio.create_task(
             _gripper_loop(session, backend, job, config.daemon.gripper_rate_hz), name="gripper"
         ),
+        asyncio.create_task(_health_loop(backend, job), name="health"),
     ]
     if notifier.watchdog_interval_s is not None:
         # On a simulated clock the pings follow simulated time, which stands still while a plan is being
@@ -466,9 +468,10 @@ async def _polled(
     """Call ``read`` every ``period_s``; a device failure faults the job once and is logged once, then
     reading resumes quietly until it works again (logged once more).
 
-    A lost bus or a servo that no longer answers faults at once. A servo reporting a fault (overload, say)
-    faults only when it still does after ``servo_fault_grace_s``: the gripper driver clears an overload
-    itself and retries the grasp, and the telemetry must not cut that recovery short."""
+    A lost bus, a servo that no longer answers (or only garbled) and a servo past a health limit fault at
+    once. A servo reporting a fault (overload, say) faults only when it still does after
+    ``servo_fault_grace_s``: the gripper driver clears an overload itself and retries the grasp, and the
+    telemetry must not cut that recovery short."""
     next_t = clock.monotonic()
     failing = False
     servo_fault_since: float | None = None
@@ -481,7 +484,7 @@ async def _polled(
                 failing = False
         except (DriverError, BusLost) as e:
             now = clock.monotonic()
-            recoverable = isinstance(e, ServoFault) and not isinstance(e, BusTimeout)
+            recoverable = isinstance(e, ServoFault) and not isinstance(e, BusTimeout | ServoHealthFault)
             if recoverable and servo_fault_since is None:
                 servo_fault_since = now
             persistent = not recoverable or (
@@ -493,6 +496,15 @@ async def _polled(
                 asyncio.get_running_loop().create_task(job.fault(f"{type(e).__name__}: {e}"))
         next_t += period_s
         await clock.sleep_until(next_t)
+
+
+async def _health_loop(backend: Backend, job: Job) -> None:
+    """Poll the devices' health (servo voltage and temperature) on the backend's clock: a servo past a
+    limit faults the job at once, like a lost bus (none to poll: nothing to do)."""
+    health = backend.health
+    if health is None:
+        return
+    await _polled(backend.clock, health.poll_period_s, health.poll, job, "health")
 
 
 async def _joints_loop(session: ZenohSession, backend: Backend, job: Job, rate_hz: float) -> None:

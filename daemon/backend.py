@@ -35,6 +35,7 @@ from drivers.errors import BusLost, DriverError
 from drivers.interfaces import (
     ArmDriver,
     Camera,
+    DeviceHealth,
     ForceReading,
     ForceSensor,
     GraspResult,
@@ -43,10 +44,12 @@ from drivers.interfaces import (
     JointState,
     JointTrajectory,
 )
+from drivers.serial_port import OpenSerial
 from drivers.stack import (
     ARM_JOINTS,
     DeviceStack,
     FsrSettings,
+    HealthLimits,
     StackSpec,
     arm_joints,
     gripper_spec,
@@ -142,6 +145,9 @@ class Backend:
     on_event: Callable[[EventListener], None] | None = None
     # The Dynamixel/FSR device stack when the backend runs one (hardware): bus counters, diagnostics.
     devices: DeviceStack | None = None
+    # The devices' health, polled by the daemon, asked before a start and cleared on reset; None when the
+    # backend has no devices of its own to check (the kinematic cell).
+    health: DeviceHealth | None = None
     # The one clock everything of this backend and the job on it reads and waits on: the wall clock on the
     # robot, the simulated cell's clock in simulation.
     clock: SessionClock = field(default_factory=RealClock)
@@ -594,6 +600,20 @@ async def open_backend(
     return backend
 
 
+def health_limits(config: Config) -> HealthLimits:
+    """The servos' voltage and temperature limits of ``[hardware.health]`` (the MuJoCo cell's servos are
+    judged by the same)."""
+    h = config.hardware.health
+    return HealthLimits(
+        voltage_min_v=h.voltage_min_v,
+        voltage_max_v=h.voltage_max_v,
+        voltage_warn_margin_v=h.voltage_warn_margin_v,
+        temperature_warn_c=h.temperature_warn_c,
+        temperature_limit_c=h.temperature_limit_c,
+        poll_period_s=h.poll_period_s,
+    )
+
+
 def hardware_stack_spec(config: Config, arm: ArmModel) -> StackSpec:
     """The device stack of ``[hardware]``: each joint's servo with the URDF's limits, the gripper (its
     measured aperture map, or the arm model's gripper geometry when none is given), the FSR and the bus."""
@@ -628,6 +648,9 @@ def hardware_stack_spec(config: Config, arm: ArmModel) -> StackSpec:
             ),
             retries=hw.retries,
             read_timeout_s=hw.read_timeout_s,
+            health=health_limits(config),
+            corrupt_rate_max=hw.health.corrupt_rate_max,
+            corrupt_window=hw.health.corrupt_window,
         )
     except ValueError as e:
         raise UsageError(f"hardware: {e}") from e
@@ -651,16 +674,20 @@ async def open_hardware_backend(
     executor: concurrent.futures.Executor | None = None,
     camera: Camera | None = None,
     clock: SessionClock | None = None,
+    open_bus: OpenSerial | None = None,
+    open_fsr: OpenSerial | None = None,
 ) -> Backend:
     """The robot: the device stack of ``[hardware]`` on its serial ports (the same stack the MuJoCo cell
     builds over its simulators) and the RealSense camera with the depth detector, on the wall clock
-    (``clock``, default a ``RealClock``). ``camera`` replaces the configured camera (a stand-in for tests).
-    A missing port, a missing pyrealsense2 or a servo chain that does not match the config is a one-line
-    ``UsageError``. Call it on the event loop that will use the devices."""
+    (``clock``, default a ``RealClock``). ``camera`` replaces the configured camera (a stand-in for tests);
+    ``open_bus`` and ``open_fsr`` open the ports instead of pyserial (the in-process simulators' cables,
+    for tests on a simulated clock). A missing port, a missing pyrealsense2 or a servo chain that does not
+    match the config is a one-line ``UsageError``. Call it on the event loop that will use the devices."""
     clock = clock or RealClock()
     hw = config.hardware
-    for key, port in (("hardware.servo_port", hw.servo_port), ("hardware.fsr.port", hw.fsr.port)):
-        if not Path(port).exists():  # noqa: ASYNC240 (one stat at start-up, before any device runs)
+    ports = (("hardware.servo_port", hw.servo_port, open_bus), ("hardware.fsr.port", hw.fsr.port, open_fsr))
+    for key, port, opener in ports:
+        if opener is None and not Path(port).exists():  # noqa: ASYNC240 (one stat at start-up)
             raise UsageError(
                 f"{key}: {port} does not exist; plug the adapter in and install the udev rule "
                 "(docs/hardware.md), or set the port"
@@ -673,7 +700,7 @@ async def open_hardware_backend(
         except CameraUnavailable as e:
             raise UsageError(f"hardware.camera: {e}") from e
     arm_model = arm or ArmModel.load()
-    spec = hardware_stack_spec(config, arm_model)
+    spec = dataclasses.replace(hardware_stack_spec(config, arm_model), open_bus=open_bus, open_fsr=open_fsr)
     motion = cycle_planner(config, config.cell.tray, arm=arm_model, executor=executor)
     events = _DeviceEvents(clock)
     stack = contextlib.AsyncExitStack()
@@ -705,6 +732,7 @@ async def open_hardware_backend(
         closer=close,
         on_event=events.add,
         devices=devices,
+        health=devices.health,
         clock=clock,
     )
 

@@ -169,6 +169,23 @@ class FsrConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class HealthConfig:
+    """How the servos' health is watched: every ``poll_period_s`` their supply voltage (a warning
+    ``voltage_warn_margin_v`` inside ``voltage_min_v``..``voltage_max_v``, a fault outside) and temperature
+    (a warning from ``temperature_warn_c``, a fault past ``temperature_limit_c``); and when the bus calls a
+    servo's answers too corrupt (more than ``corrupt_rate_max`` of its last ``corrupt_window``)."""
+
+    poll_period_s: float
+    voltage_min_v: float
+    voltage_max_v: float
+    voltage_warn_margin_v: float
+    temperature_warn_c: float
+    temperature_limit_c: float
+    corrupt_rate_max: float
+    corrupt_window: int
+
+
+@dataclass(frozen=True, slots=True)
 class HardwareConfig:
     """The robot's devices, used when ``backend = "hardware"``: the servo bus, each joint's servo, the
     gripper, the FSR and the depth camera."""
@@ -183,6 +200,7 @@ class HardwareConfig:
     fsr: FsrConfig
     camera: str
     camera_serial: str
+    health: HealthConfig
 
     def servo(self, joint: str) -> ServoConfig:
         for servo in self.servos:
@@ -492,7 +510,33 @@ def _hardware(s: _Section) -> HardwareConfig:
         fsr=_fsr(s.section("fsr")),
         camera=s.choice("camera", _CAMERAS),
         camera_serial=s.string("camera_serial"),
+        health=_health(s.section("health")),
     )
+    s.finish()
+    return cfg
+
+
+def _health(s: _Section) -> HealthConfig:
+    cfg = HealthConfig(
+        poll_period_s=s.number("poll_period_s", 0.05, 60.0),
+        voltage_min_v=s.number("voltage_min_v", 0.0, 30.0),
+        voltage_max_v=s.number("voltage_max_v", 0.0, 30.0),
+        voltage_warn_margin_v=s.number("voltage_warn_margin_v", 0.0, 5.0),
+        temperature_warn_c=s.number("temperature_warn_c", 0.0, 100.0),
+        temperature_limit_c=s.number("temperature_limit_c", 0.0, 100.0),
+        corrupt_rate_max=s.number("corrupt_rate_max", 0.0, 1.0),
+        corrupt_window=s.integer("corrupt_window", 1, 10_000),
+    )
+    if not cfg.voltage_min_v + 2 * cfg.voltage_warn_margin_v < cfg.voltage_max_v:
+        raise ConfigError(
+            f"hardware.health.voltage_max_v: {cfg.voltage_max_v:g} must be above voltage_min_v "
+            f"{cfg.voltage_min_v:g} by more than twice voltage_warn_margin_v {cfg.voltage_warn_margin_v:g}"
+        )
+    if not cfg.temperature_warn_c < cfg.temperature_limit_c:
+        raise ConfigError(
+            f"hardware.health.temperature_warn_c: {cfg.temperature_warn_c:g} must be below "
+            f"temperature_limit_c {cfg.temperature_limit_c:g}"
+        )
     s.finish()
     return cfg
 

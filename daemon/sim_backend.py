@@ -24,6 +24,7 @@ from daemon.backend import (
     SimOptions,
     cycle_planner,
     device_event_payload,
+    health_limits,
 )
 from daemon.clock import SessionClock
 from daemon.config import Config
@@ -186,6 +187,7 @@ async def open_mujoco_backend(
             holding_threshold_n=config.grasp.force_threshold_n / 2.0,
             fsr_debounce_s=options.fsr_debounce_s,
             observer_factory=cell_observer_factory(layout, catalogue),
+            health=health_limits(config),
         )
     except ValueError as e:  # a transport the clock cannot drive
         raise UsageError(str(e)) from e
@@ -208,6 +210,7 @@ async def open_mujoco_backend(
         counter=counter,
         closer=closer,
         on_event=on_event,
+        health=cell.health,
         clock=clock,
     )
 

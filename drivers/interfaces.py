@@ -204,6 +204,28 @@ class ForceSensor(Protocol):
 
 
 @runtime_checkable
+class DeviceHealth(Protocol):
+    """The devices' own health: polled for slow dangers (supply voltage, temperature), asked before a
+    start, and cleared on reset."""
+
+    @property
+    def poll_period_s(self) -> float: ...
+
+    async def poll(self) -> None:
+        """Look at every device once and report what changed; raises a ``drivers.errors.DriverError``
+        subclass (or ``BusLost``) while a device is past a limit or unreachable."""
+        ...
+
+    def problems(self) -> tuple[str, ...]:
+        """What stands against a start now, one line each (empty: nothing); never blocks."""
+        ...
+
+    async def clear(self) -> tuple[str, ...]:
+        """Clear every device's fault that can be cleared (reset); what still stands, one line each."""
+        ...
+
+
+@runtime_checkable
 class Camera(Protocol):
     """An RGB-D camera."""
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -26,6 +26,7 @@ from drivers.dynamixel import (
     ServoChain,
     tables,
 )
+from drivers.dynamixel.health import ChainHealth, HealthLimits
 from drivers.fsr.reader import FsrReader
 from drivers.interfaces import Clock
 from drivers.serial_port import OpenSerial, open_pyserial
@@ -56,6 +57,10 @@ class StackSpec:
     fsr: FsrSettings
     retries: int = 2
     read_timeout_s: float = 0.02
+    # The servos' supply and temperature limits, and when the bus calls their answers too corrupt.
+    health: HealthLimits = field(default_factory=HealthLimits)
+    corrupt_rate_max: float = 0.2
+    corrupt_window: int = 50
     # How the ports are opened: None is pyserial on the device files (the robot, pseudo-terminals); an
     # in-process simulator's opener carries the same bytes without a tty.
     open_bus: OpenSerial | None = None
@@ -69,12 +74,14 @@ class StackSpec:
 
 @dataclass(frozen=True, slots=True)
 class DeviceStack:
-    """The open devices: what a daemon backend's ``arm``, ``gripper`` and ``force`` are."""
+    """The open devices: what a daemon backend's ``arm``, ``gripper`` and ``force`` are, and the chain's
+    health (polled by the daemon, cleared on reset)."""
 
     chain: ServoChain
     arm: DynamixelArm
     gripper: DynamixelGripper
     force: FsrReader
+    health: ChainHealth
 
 
 def arm_joints(servos: Sequence[tuple[str, int, str]]) -> tuple[JointSpec, ...]:
@@ -145,19 +152,24 @@ async def open_device_stack(
             clock=clock,
             retries=spec.retries,
             read_timeout_s=spec.read_timeout_s,
+            corrupt_rate_max=spec.corrupt_rate_max,
+            corrupt_window=spec.corrupt_window,
             on_event=on_event,
             open_serial=spec.open_bus,
         )
     )
     arm = await stack.enter_async_context(DynamixelArm(chain, spec.joints))
     gripper = await stack.enter_async_context(DynamixelGripper(chain, spec.gripper, force))
-    return DeviceStack(chain=chain, arm=arm, gripper=gripper, force=force)
+    return DeviceStack(
+        chain=chain, arm=arm, gripper=gripper, force=force, health=ChainHealth(chain, spec.health)
+    )
 
 
 __all__ = [
     "ARM_JOINTS",
     "DeviceStack",
     "FsrSettings",
+    "HealthLimits",
     "StackSpec",
     "arm_joints",
     "gripper_spec",

@@ -112,8 +112,9 @@ class Job:
     def device_event(self, event: Mapping[str, object]) -> None:
         """A driver's fault or recovery (``backend.device_event_payload``), on the event loop: published on
         ``events``; a lost bus, and a silent or unplugged force sensor while a job works (a drop could no
-        longer be seen), fault the job. Servo faults are only reported here: the gripper recovers overloads
-        itself, and a fault that stands reaches the job as the driver's exception."""
+        longer be seen), fault the job. Servo faults and warnings are only reported here: the gripper recovers
+        overloads itself, and a fault that stands reaches the job as the driver's exception (from its work,
+        the telemetry or the health poll). However many of them report one cause, the job faults once."""
         kind = str(event.get("kind", ""))
         self._services.publish("events", {**event, "state": self.chart.state})
         reason = f"{kind} on {event.get('port', event.get('device', '?'))}"
@@ -167,10 +168,9 @@ class Job:
         if not self.chart.can(verb):
             raise CommandRefused(f"cannot {verb} in state {self.chart.state}")
         if verb == "start":
-            if self._force_down:
-                raise CommandRefused(
-                    "the gripper's force sensor is not reporting (lost or silent); check the FSR Arduino"
-                )
+            problems = self._device_problems()
+            if problems:
+                raise CommandRefused("; ".join(problems))
             self._begin(cmd.request or StartRequest())
             await self._fire(Outcome("start"))
         elif verb in ("pause", "stop"):
@@ -178,6 +178,9 @@ class Job:
             await self._safe_stop()
             await self._fire(Outcome(verb))
         elif verb == "fault":
+            if self.chart.state == "fault":  # one cause, many reporters (telemetry, events, the work)
+                log.info("fault_already", reason=cmd.reason)
+                return {"state": self.chart.state}
             await self._cancel_work()
             await self._advance(Outcome("fault", {"reason": cmd.reason}))
         elif verb == "estop":
@@ -187,11 +190,41 @@ class Job:
                 await self.backend.arm.relax()
             await self._fire(Outcome("estop"))
         elif verb in ("resume", "reset"):
+            if verb == "reset":
+                await self._clear_devices()
             self._ctx.rejoin = verb == "resume"
             await self._fire(Outcome(verb))
         else:
             raise CommandRefused(f"unknown command {verb!r}")
         return {"state": self.chart.state}
+
+    def _device_problems(self) -> list[str]:
+        """What stands against a start: a force sensor that is not reporting, a device in error."""
+        problems = []
+        if self._force_down:
+            problems.append(
+                "the gripper's force sensor is not reporting (lost or silent); check the FSR Arduino"
+            )
+        if self.backend.health is not None:
+            problems += self.backend.health.problems()
+        return problems
+
+    async def _clear_devices(self) -> None:
+        """Reset's device check: clear what can be cleared (a tripped servo, a bus plugged back in);
+        refused, naming what still stands, when anything does."""
+        problems: list[str] = []
+        if self.backend.health is not None:
+            try:
+                problems += await self.backend.health.clear()
+            except (DriverError, BusLost) as e:
+                problems.append(str(e))
+        if self._force_down:
+            problems.append(
+                "the gripper's force sensor is not reporting (lost or silent); check the FSR Arduino"
+            )
+        if problems:
+            log.warning("reset_refused", problems=problems)
+            raise CommandRefused("cannot reset: " + "; ".join(problems))
 
     def _begin(self, request: StartRequest) -> None:
         """A new job's context: a new scene (a dataset or mugs to set the simulated counter up with) starts

@@ -19,6 +19,7 @@ from drivers.dynamixel.tables import MODELS, ModelSpec
 if TYPE_CHECKING:
     from drivers.dynamixel.arm import DynamixelArm
     from drivers.dynamixel.bus import (
+        BusCorrupt,
         BusTimeout,
         ChainMismatch,
         DeviceEvent,
@@ -31,6 +32,7 @@ if TYPE_CHECKING:
 
 _ON_FIRST_USE = {
     "DynamixelArm": "drivers.dynamixel.arm",
+    "BusCorrupt": "drivers.dynamixel.bus",
     "BusTimeout": "drivers.dynamixel.bus",
     "ChainMismatch": "drivers.dynamixel.bus",
     "DeviceEvent": "drivers.dynamixel.bus",
@@ -44,6 +46,7 @@ _ON_FIRST_USE = {
 __all__ = [
     "MODELS",
     "BusConfig",
+    "BusCorrupt",
     "BusTimeout",
     "ChainMismatch",
     "DeviceEvent",

@@ -5,8 +5,10 @@ whole chain is done here instead, with this package's codec: dynamixel-sdk 4.1's
 Protocol 1.0 and GroupSyncRead drops each servo's status error byte, which would hide an overload. Waiting
 for those answers sleeps in ``select`` rather than spinning, so the bus thread leaves the GIL to the event
 loop. Timeouts and corrupt packets are retried a bounded number of times with per-servo counters; a
-servo's fault bits become a :class:`ServoFault`; a vanished adapter is closed, reopened and, when that fails,
-reported as :class:`BusLost`.
+servo's fault bits become a :class:`ServoFault`; a servo that only answers with corrupt packets, or whose
+recent answers are corrupt more often than ``corrupt_rate_max`` allows, a :class:`BusCorrupt`; a vanished
+adapter is closed, reopened once and, when that fails, reported as :class:`BusLost` (once: while it stays
+lost every access fails at once, so the daemon faults within a control tick, not after a round of waits).
 
 The bus's own waits (for a status packet, a rebooting servo, a re-enumerating adapter) are waits on the
 device, in wall-clock time like dynamixel-sdk's packet timeouts; on a simulated clock they take no simulated
@@ -15,13 +17,14 @@ time (the in-process simulator has answered before the wait starts). Event times
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import select
 import termios
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import Any, Final, TypeVar
 
 import serial
 import structlog
@@ -58,6 +61,28 @@ class ChainMismatch(ServoFault):
 
 class BusTimeout(ServoFault):
     """A servo did not answer (or only with corrupt packets) after every retry."""
+
+
+class BusCorrupt(BusTimeout):
+    """A servo's answers arrive garbled: every retry was corrupt, or more of its recent answers were corrupt
+    than the bus's ``corrupt_rate_max`` allows (reason ``bus_corrupt``)."""
+
+
+# The reason a fault event gives for each fault name (the first name that has one wins).
+FAULT_REASONS: Final = {
+    "overload": "overload",
+    "overheating": "overheat",
+    "input_voltage": "voltage",
+    "no_status": "no_status",
+    "bus_corrupt": "bus_corrupt",
+    "electrical_shock": "electrical_shock",
+    "motor_encoder": "motor_encoder",
+}
+
+
+def fault_reason(names: Sequence[str]) -> str:
+    """The event ``reason`` of a fault carrying ``names`` (``overheating`` -> ``overheat``, ...)."""
+    return next((FAULT_REASONS[n] for n in names if n in FAULT_REASONS), names[0] if names else "")
 
 
 @dataclass(frozen=True, slots=True)
@@ -110,16 +135,24 @@ class DynamixelBus:
         clock: Clock,
         retries: int = 2,
         read_timeout_s: float = 0.02,
-        reopen_attempts: int = 2,
+        reopen_attempts: int = 1,
+        corrupt_rate_max: float = 0.2,
+        corrupt_window: int = 50,
         on_event: EventSink | None = None,
         open_serial: OpenSerial | None = None,
     ) -> None:
+        """``reopen_attempts`` is how often a failing port is reopened when it first fails (later accesses
+        try once, without waiting). A servo faults ``bus_corrupt`` when more than ``corrupt_rate_max`` of
+        its last ``corrupt_window`` answers were corrupt."""
         self.config = config
         self.clock = clock
         self._open_serial = open_serial
         self.retries = retries
         self.read_timeout_s = read_timeout_s
         self.reopen_attempts = reopen_attempts
+        self.corrupt_rate_max = corrupt_rate_max
+        self.corrupt_window = corrupt_window
+        self._recent: dict[int, collections.deque[bool]] = {}  # per servo: was each recent answer corrupt
         self._on_event = on_event
         self._port: Any = None
         self._packets: Any = PacketHandler(float(config.protocol))
@@ -308,13 +341,15 @@ class DynamixelBus:
         if result != _COMM_SUCCESS:
             raise BusLost(f"sync write failed on {self.config.port} (result {result})", port=self.config.port)
 
-    def read_states(self, servo_ids: Sequence[int]) -> dict[int, ServoReading]:
+    def read_states(self, servo_ids: Sequence[int], *, check: bool = True) -> dict[int, ServoReading]:
         """Present position, speed, load, voltage and temperature of every listed servo, in one request.
 
         Protocol 1.0 uses a bulk read, 2.0 a sync read, both parsed here so every status error byte is seen.
-        Missing or corrupt answers are retried ``retries`` times; a shutdown fault raises ServoFault.
+        Missing or corrupt answers are retried ``retries`` times; a shutdown fault raises ServoFault (with
+        ``check=False`` it is only reported and its name left in the reading's ``errors``).
         """
         statuses: dict[int, p.Status] = {}
+        corrupt_before = {i: self._counters(i).corrupt for i in servo_ids}
         for attempt in range(1 + self.retries):
             missing = [i for i in servo_ids if i not in statuses]
             statuses.update(self._read_block(missing))
@@ -325,9 +360,13 @@ class DynamixelBus:
                 self._counters(servo_id).retries += 1
             self._log.debug("read_retry", attempt=attempt + 1, missing=still)
         else:
-            # A daisy chain stalls behind a silent servo: blame only those that miss a ping too.
             missing = [i for i in servo_ids if i not in statuses]
-            silent = [i for i in missing if self.ping(i) is None] or missing
+            garbled = [i for i in missing if self._counters(i).corrupt > corrupt_before[i]]
+            if garbled:
+                self._raise_corrupt(garbled)
+            # A daisy chain stalls behind a silent servo: blame those that miss a ping too, else the first
+            # that did not answer (the ones after it only waited for it).
+            silent = [i for i in missing if self.ping(i) is None] or missing[:1]
             for servo_id in silent:
                 self._mark_fault(servo_id, ("no_status",))
             raise BusTimeout(
@@ -336,7 +375,13 @@ class DynamixelBus:
                 servo_id=silent[0],
                 bits=("no_status",),
             )
-        return {i: self._reading(statuses[i]) for i in servo_ids}
+        readings = {i: self._reading(statuses[i], check=check) for i in servo_ids}
+        self._check_corruption(servo_ids)
+        return readings
+
+    def reset_link_stats(self) -> None:
+        """Forget the recent answers the corruption rate is judged on (after the cause was dealt with)."""
+        self._recent.clear()
 
     # ------------------------------------------------------------------------------------------ internals
 
@@ -400,6 +445,11 @@ class DynamixelBus:
                     got[status.servo_id] = status
 
         self._io(io)
+        for servo_id in expected:
+            if servo_id in got:
+                self._note_answer(servo_id, corrupt=False)
+            elif framer.corrupt or servo_id in short:
+                self._note_answer(servo_id, corrupt=True)
         for servo_id, error in short.items():
             if servo_id not in got:
                 self._check_error(servo_id, error)  # a shutdown fault must not hide behind a short answer
@@ -414,15 +464,19 @@ class DynamixelBus:
 
     def _transact(self, servo_id: int, packet: bytes, *, expect_data: int = 0, check: bool = True) -> bytes:
         """One instruction to one servo with retries; its status data, after checking the error byte."""
+        corrupt_before = self._counters(servo_id).corrupt
         for attempt in range(1 + self.retries):
             got = self._exchange(packet, {servo_id: expect_data})
             if servo_id in got:
                 status = got[servo_id]
                 if check:
                     self._check_error(servo_id, status.error)
+                    self._check_corruption([servo_id])
                 return status.data
             self._counters(servo_id).retries += 1
             self._log.debug("transaction_retry", servo_id=servo_id, attempt=attempt + 1)
+        if self._counters(servo_id).corrupt > corrupt_before:
+            self._raise_corrupt([servo_id])
         self._mark_fault(servo_id, ("no_status",))
         raise BusTimeout(
             f"servo {servo_id} did not answer on {self.config.port} after {1 + self.retries} tries; "
@@ -431,9 +485,45 @@ class DynamixelBus:
             bits=("no_status",),
         )
 
-    def _reading(self, status: p.Status) -> ServoReading:
+    def _note_answer(self, servo_id: int, *, corrupt: bool) -> None:
+        window = self._recent.get(servo_id)
+        if window is None:
+            window = self._recent[servo_id] = collections.deque(maxlen=self.corrupt_window)
+        window.append(corrupt)
+
+    def _check_corruption(self, servo_ids: Iterable[int]) -> None:
+        """BusCorrupt when more of a servo's recent answers were corrupt than ``corrupt_rate_max`` allows."""
+        over = []
+        for servo_id in servo_ids:
+            if sum(self._recent.get(servo_id, ())) > self.corrupt_rate_max * self.corrupt_window:
+                over.append(servo_id)
+            elif self._faulted.get(servo_id) == ("bus_corrupt",):
+                self._mark_clear(servo_id)  # back under the threshold
+        if not over:
+            return
+        for servo_id in over:
+            self._mark_fault(servo_id, ("bus_corrupt",))
+        counts = ", ".join(f"servo {i}: {sum(self._recent[i])}" for i in over)
+        raise BusCorrupt(
+            f"corrupt answers on {self.config.port} passed {self.corrupt_rate_max:.0%} of the last "
+            f"{self.corrupt_window} ({counts}); check the cable, its connectors and the supply",
+            servo_id=over[0],
+            bits=("bus_corrupt",),
+        )
+
+    def _raise_corrupt(self, servo_ids: Sequence[int]) -> None:
+        for servo_id in servo_ids:
+            self._mark_fault(servo_id, ("bus_corrupt",))
+        raise BusCorrupt(
+            f"servo(s) {', '.join(map(str, servo_ids))} answered only with corrupt packets on "
+            f"{self.config.port} after {1 + self.retries} tries; check the cable, its connectors and the "
+            "supply",
+            servo_id=servo_ids[0],
+            bits=("bus_corrupt",),
+        )
+
+    def _reading(self, status: p.Status, *, check: bool = True) -> ServoReading:
         servo_id = status.servo_id
-        errors = self._check_error(servo_id, status.error)
         spec = self._model(servo_id)
         data = status.data
         if self.config.protocol == 1:  # 36: position, 38: speed, 40: load, 42: voltage, 43: temperature
@@ -444,6 +534,8 @@ class DynamixelBus:
             speed = p.from_le(data[2:6], signed=True)
             position = p.from_le(data[6:10], signed=True)
             volts, temp = p.from_le(data[18:20]), data[20]
+        values = {"overheating": float(temp), "input_voltage": volts_from_ticks(volts)}
+        errors = self._check_error(servo_id, status.error, raise_shutdown=check, values=values)
         return ServoReading(
             servo_id=servo_id,
             position_rad=spec.rad_from_ticks(position),
@@ -454,22 +546,33 @@ class DynamixelBus:
             errors=errors,
         )
 
-    def _check_error(self, servo_id: int, error: int) -> tuple[str, ...]:
-        """Decode a status error byte; raise ServoFault on a shutdown fault, else return the names."""
+    def _check_error(
+        self,
+        servo_id: int,
+        error: int,
+        *,
+        raise_shutdown: bool = True,
+        values: Mapping[str, float] | None = None,
+    ) -> tuple[str, ...]:
+        """Decode a status error byte; raise ServoFault on a shutdown fault (``raise_shutdown=False``: only
+        report it), else return the names."""
         names = faults.error_names(self.config.protocol, error)
         if "alert" in names:
             status = self._read_hardware_error(servo_id)
             names = tuple(n for n in names if n != "alert") + faults.hardware_error_names(status)
         shutdown = tuple(n for n in names if n in faults.SHUTDOWN_FAULTS)
         if shutdown:
-            self._mark_fault(servo_id, shutdown)
+            self._mark_fault(servo_id, shutdown, values)
+            if not raise_shutdown:
+                return names
             raise ServoFault(
                 f"servo {servo_id} on {self.config.port} reports {', '.join(shutdown)}; "
                 "its torque is off until the fault is cleared",
                 servo_id=servo_id,
                 bits=shutdown,
             )
-        self._mark_clear(servo_id)
+        if self._faulted.get(servo_id) != ("bus_corrupt",):  # that clears with the rate, not one answer
+            self._mark_clear(servo_id)
         return names
 
     def _read_hardware_error(self, servo_id: int) -> int:
@@ -477,13 +580,30 @@ class DynamixelBus:
         got = self._exchange(p.read(2, servo_id, reg.address, reg.size), {servo_id: reg.size})
         return got[servo_id].data[0] if servo_id in got else 0
 
-    def _mark_fault(self, servo_id: int, names: tuple[str, ...]) -> None:
+    def _mark_fault(
+        self, servo_id: int, names: tuple[str, ...], values: Mapping[str, float] | None = None
+    ) -> None:
+        """Report a servo's fault once (until it changes or clears); ``values`` are the present readings
+        behind some names (temperature for ``overheating``), given as the event's ``value``."""
         self._counters(servo_id).faults += 1
         if self._faulted.get(servo_id) == names:
             return
         self._faulted[servo_id] = names
-        self._log.warning("servo_fault", servo_id=servo_id, faults=list(names))
-        self.emit("servo_fault", f"servo/{servo_id}", servo_id=servo_id, faults=list(names))
+        reason = fault_reason(names)
+        extra: dict[str, object] = {}
+        value = next((values[n] for n in names if values and n in values), None)
+        if value is not None:
+            extra["value"] = value
+        self._log.warning("servo_fault", servo_id=servo_id, faults=list(names), reason=reason)
+        self.emit(
+            "servo_fault",
+            f"servo/{servo_id}",
+            servo_id=servo_id,
+            servo=servo_id,
+            reason=reason,
+            faults=list(names),
+            **extra,
+        )
 
     def _mark_clear(self, servo_id: int) -> None:
         if self._faulted.pop(servo_id, None) is None:
@@ -533,20 +653,30 @@ class DynamixelBus:
                 self._port.closePort()
         self._port = None
 
+    @property
+    def lost(self) -> bool:
+        """Whether the adapter is gone (since the last access failed, until one succeeds)."""
+        return self._lost
+
     def _reopen(self, cause: BaseException) -> None:
-        if not self._lost:
+        """Reopen a failed port: ``reopen_attempts`` times when it first fails, once (without waiting) while
+        it stays lost, so every access to a pulled adapter fails at once."""
+        first = not self._lost
+        if first:
             self._lost = True
             self._log.warning("bus_lost", error=str(cause))
             self.emit("bus_lost", "bus", port=self.config.port, error=str(cause))
         self._drop_port()
         last: BaseException = cause
-        for _ in range(self.reopen_attempts):
+        attempts = max(1, self.reopen_attempts) if first else 1
+        for attempt in range(attempts):
             try:
                 self.open()
                 return
             except BusLost as e:
                 last = e
-                time.sleep(0.05)
+                if attempt + 1 < attempts:
+                    time.sleep(0.05)
         raise BusLost(
             f"servo bus {self.config.port} is gone ({last}); plug the USB adapter back in to reconnect",
             port=self.config.port,

@@ -73,6 +73,8 @@ class ServoChain:
         clock: Clock,
         retries: int = 2,
         read_timeout_s: float = 0.02,
+        corrupt_rate_max: float = 0.2,
+        corrupt_window: int = 50,
         on_event: EventListener | None = None,
         open_serial: OpenSerial | None = None,
     ) -> None:
@@ -87,6 +89,8 @@ class ServoChain:
             clock=clock,
             retries=retries,
             read_timeout_s=read_timeout_s,
+            corrupt_rate_max=corrupt_rate_max,
+            corrupt_window=corrupt_window,
             on_event=self._forward,
             open_serial=open_serial,
         )

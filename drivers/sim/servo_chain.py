@@ -48,6 +48,8 @@ class SimServo:
     overload_repeats: int = 0  # how many more times the servo trips when it is next driven
     registered: list[tuple[int, bytes]] = field(default_factory=list)
     hardware_error: int = 0  # 2.0 Hardware Error Status bits; 1.0 latched error bits
+    corrupt_every: int = 0  # every nth status packet is corrupt (0: none); see ``corrupt_every``
+    answers: int = 0  # status packets sent, for ``corrupt_every``
 
     @property
     def servo_id(self) -> int:
@@ -124,6 +126,8 @@ class ServoChainSimulator(SimulatedDevice):
             servo.set("min_position", 0)
             servo.set("status_return_level", 2)
             servo.set("shutdown", 0x34)
+        servo.set("min_voltage", 60)  # the servo's own input voltage window, 6.0-14.0 V (factory settings)
+        servo.set("max_voltage", 140)
         servo.set("present_voltage", 120)
         servo.set("present_temperature", 32)
         servo.set("present_position", spec.center_tick)
@@ -181,6 +185,30 @@ class ServoChainSimulator(SimulatedDevice):
         """Flip a bit in the next ``packets`` status packets of a servo, so their checksum fails."""
         with self._lock:
             self.servo(servo_id).corrupt_next = packets
+
+    def corrupt_every(self, servo_id: int, nth: int) -> None:
+        """From now on corrupt every ``nth`` status packet of a servo (0 stops it): a marginal cable."""
+        with self._lock:
+            servo = self.servo(servo_id)
+            servo.corrupt_every, servo.answers = nth, 0
+
+    def set_present_voltage(self, servo_id: int, volts: float) -> None:
+        """The servo's supply now reads ``volts``. Outside its Min/Max Voltage Limit it raises the input
+        voltage error (1.0: in every status while it lasts; 2.0: latched in Hardware Error Status until a
+        reboot finds it gone), and shuts down when its Shutdown register says so."""
+        with self._lock:
+            servo = self.servo(servo_id)
+            servo.set("present_voltage", round(volts * 10))
+            self._apply_conditions(servo)
+
+    def set_present_temperature(self, servo_id: int, celsius: int) -> None:
+        """The servo's internal temperature now reads ``celsius``; past its Temperature Limit it raises the
+        overheating error and (with the factory Shutdown setting) cuts its torque, as the e-Manual says:
+        1.0 drops Torque Limit to 0, 2.0 clears Torque Enable until a reboot."""
+        with self._lock:
+            servo = self.servo(servo_id)
+            servo.set("present_temperature", celsius)
+            self._apply_conditions(servo)
 
     def inject_garbage(self, data: bytes) -> None:
         """Bytes sent to the host before the next answer, as electrical noise on the line would be."""
@@ -240,8 +268,10 @@ class ServoChainSimulator(SimulatedDevice):
                 if frame.code in (p.BULK_READ, p.SYNC_READ):
                     return
                 continue
-            if servo.corrupt_next:
-                servo.corrupt_next -= 1
+            servo.answers += 1
+            every = servo.corrupt_every and servo.answers % servo.corrupt_every == 0
+            if servo.corrupt_next or every:
+                servo.corrupt_next -= not every
                 packet = packet[:-2] + bytes((packet[-2] ^ 0x10,)) + packet[-1:]
             self._wire_delay(servo, len(packet))
             link.write(packet)
@@ -321,7 +351,7 @@ class ServoChainSimulator(SimulatedDevice):
 
     def _error_byte(self, servo: SimServo) -> int:
         if self.protocol == 1:
-            return servo.hardware_error
+            return servo.hardware_error | self._live_conditions(servo)
         return faults.ALERT_2 if servo.hardware_error else 0
 
     def _status(self, servo: SimServo, error: int, data: bytes = b"") -> bytes:
@@ -409,6 +439,7 @@ class ServoChainSimulator(SimulatedDevice):
             if servo.hardware_error & faults.bits_for(1, ("overload",)) and servo.get("torque_enable"):
                 self.plant.set_torque(servo.servo_id, True)
             servo.hardware_error &= ~faults.bits_for(1, ("overload",))
+            self._apply_conditions(servo)  # a cause still present shuts it down again
         if "torque_enable" in written:
             on = bool(servo.get("torque_enable"))
             if on and (self.protocol == 2 and servo.hardware_error):
@@ -451,6 +482,32 @@ class ServoChainSimulator(SimulatedDevice):
         self.plant.set_torque(servo.servo_id, False)
         if self.protocol == 1:
             servo.set("torque_limit", servo.get("max_torque"))
+        self._apply_conditions(servo)  # a cause still present is found again at boot
+
+    def _live_conditions(self, servo: SimServo) -> int:
+        """The error bits the present voltage and temperature raise against the servo's own limits."""
+        volts = servo.get("present_voltage")
+        names = []
+        if not servo.get("min_voltage") <= volts <= servo.get("max_voltage"):
+            names.append("input_voltage")
+        if servo.get("present_temperature") > servo.get("temperature_limit"):
+            names.append("overheating")
+        return faults.bits_for(self.protocol, tuple(names))
+
+    def _apply_conditions(self, servo: SimServo) -> None:
+        """Raise the errors of the present conditions (2.0 latches them) and shut the servo down for those
+        its Shutdown register selects."""
+        live = self._live_conditions(servo)
+        if self.protocol == 2:
+            servo.hardware_error |= live
+            servo.set("hardware_error_status", servo.hardware_error)
+        if not live & servo.get("shutdown"):
+            return
+        if self.protocol == 1:
+            servo.set("torque_limit", 0)
+        else:
+            servo.set("torque_enable", 0)
+        self.plant.set_torque(servo.servo_id, False)
 
     def _sync_from_plant(self, servo: SimServo) -> None:
         spec = servo.spec

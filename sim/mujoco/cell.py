@@ -38,6 +38,7 @@ from drivers.dynamixel import (
     DynamixelArm,
     DynamixelGripper,
 )
+from drivers.dynamixel.health import ChainHealth, HealthLimits
 from drivers.fsr.reader import FsrReader
 from drivers.interfaces import Camera, Clock, RGBDFrame, SteppedClock
 from drivers.sim.fsr import FsrSimulator
@@ -155,6 +156,8 @@ class SimCell:
     _rebuild: Callable[[Sequence[SceneMug]], tuple[SimWorld, SnapshotCamera, TrayCollisionCounter]]
     _collision_listeners: list[Callable[[TrayCollision], None]] = field(default_factory=list)
     _device_listeners: list[Callable[[DeviceEvent], None]] = field(default_factory=list)
+    # The servo chain's health (voltage, temperature, clearing on reset), as on the robot.
+    health: ChainHealth | None = None
 
     @property
     def world(self) -> SimWorld:
@@ -227,6 +230,7 @@ async def start_sim_cell(
     fsr_debounce_s: float = 0.03,
     depth_noise: DepthNoise | None = None,
     observer_factory: ObserverFactory | None = None,
+    health: HealthLimits | None = None,
 ) -> tuple[SimCell, Callable[[], Awaitable[None]]]:
     """Start the simulated cell with ``mugs`` on the counter; returns it and the coroutine that stops it.
 
@@ -237,7 +241,8 @@ async def start_sim_cell(
     ``start_pose_rad`` places the five arm joints (default: the world's ready pose); ``holding_threshold_n``
     is the FSR reader's "a mug is in the gripper" level (below the grasp threshold, which the squeeze relaxes
     from once the gripper stops closing); ``observer_factory`` turns the camera into the mug observer
-    (default: perception's ``CameraObserver``).
+    (default: perception's ``CameraObserver``); ``health`` the servos' voltage and temperature limits
+    (default ``HealthLimits()``).
     """
     if transport not in TRANSPORTS:
         raise ValueError(f"transport {transport!r}: choose one of {', '.join(TRANSPORTS)}")
@@ -308,6 +313,7 @@ async def start_sim_cell(
             read_timeout_s=0.05,
             open_bus=servo_sim.open_serial,
             open_fsr=fsr_sim.open_serial,
+            health=health or HealthLimits(),
         )
         devices = await open_device_stack(spec, stack, clock=clock, on_event=device_event)
         arm, gripper, force = devices.arm, devices.gripper, devices.force
@@ -332,6 +338,7 @@ async def start_sim_cell(
         _rebuild=rebuild,
         _collision_listeners=listeners,
         _device_listeners=device_listeners,
+        health=devices.health,
     )
     log.info(
         "sim_cell_open",

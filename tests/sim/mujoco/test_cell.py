@@ -18,6 +18,7 @@ from description.arm import GripperGeometry
 from description.camera import CameraSpec
 from description.cell import CellLayout
 from description.thesis import MUG_TYPES, SMALL_MUG
+from drivers.errors import ServoFault
 from drivers.interfaces import ArmDriver, Clock, ForceSensor, GripperDriver, JointTrajectory
 from perception.interfaces import MugObserver
 from planning.arm.grasp import side_grasp
@@ -156,6 +157,25 @@ def test_a_new_counter_brings_a_new_world_with_the_arm_where_it_was() -> None:
                     "upside_down": False,
                 }
             ]
+
+    run_on("inprocess", main)
+
+
+def test_the_cells_servos_are_watched_and_cleared_as_on_the_robot() -> None:
+    """The MuJoCo cell's chain has the robot's health check: polled fine, a tripped servo refused at start
+    and cleared by reset's check (issue 13)."""
+
+    async def main(clock: SessionClock) -> None:
+        async with open_sim_cell(cell_layout(), [], clock=clock) as cell:
+            assert cell.health is not None
+            await cell.health.poll()
+            cell.servo_sim.overload(2)
+            with pytest.raises(ServoFault):
+                await cell.arm.read_joints()
+            assert cell.health.problems() == ("servo 2 reports overload; reset to clear it",)
+            assert await cell.health.clear() == ()
+            assert cell.health.problems() == ()
+            await cell.arm.read_joints()
 
     run_on("inprocess", main)
 
