@@ -18,6 +18,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "bench.perception",
     "bench.sim",
     "bench.remote",
+    "bench.replay",
 )
 
 
