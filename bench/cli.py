@@ -19,6 +19,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "bench.sim",
     "bench.remote",
     "bench.replay",
+    "bench.soak",
 )
 
 

@@ -20,10 +20,10 @@ import contextlib
 import dataclasses
 import shutil
 import tempfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import structlog
 
@@ -52,9 +52,15 @@ _MAX_IDLE_WAIT_S = 3600.0
 class FaultSource(Protocol):
     """What the replay needs of a fault plan (``daemon.replay.faults.FaultInjector``)."""
 
+    on_fire: Callable[[Any], None] | None
+
+    def prepare(self, options: RunOptions) -> RunOptions: ...
+
     def attach(self, ctx: ServeContext) -> None: ...
 
     def on_publish(self, topic: str, payload: Mapping[str, object]) -> None: ...
+
+    def close(self) -> None: ...
 
     @property
     def fired(self) -> Sequence[Mapping[str, object]]: ...
@@ -248,6 +254,12 @@ async def _replay(
 
     stop = asyncio.Event()
     drive: list[asyncio.Task[None]] = []
+    if faults is not None:
+
+        def fired(spec: Any) -> None:  # just before the fault acts: the simulated cell takes over
+            replayer.diverge("fault", "no fault", f"{spec.kind} {spec.trigger}")
+
+        faults.on_fire = fired
 
     def on_ready(ctx: ServeContext) -> None:
         if faults is not None:
@@ -260,6 +272,8 @@ async def _replay(
     run_options = RunOptions(
         listen=options.listen, connect=(), record_dir=record_dir, insecure=options.insecure
     )
+    if faults is not None:
+        run_options = faults.prepare(run_options)
     from perception import associate
 
     try:
@@ -271,6 +285,8 @@ async def _replay(
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await task
+        if faults is not None:
+            faults.close()
     return replayer, result.files
 
 
