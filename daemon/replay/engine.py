@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import json
 import shutil
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
@@ -34,7 +35,6 @@ from daemon.config import Config
 from daemon.errors import ReplayError
 from daemon.recording import read_messages
 from daemon.recording.files import is_job_file
-from daemon.recording.schemas import topic_suffix
 from daemon.replay.drivers import Replayer, replay_backend
 from daemon.replay.session import Divergence, RecordedSession, Trace, compare, trace_of
 from daemon.sdnotify import SdNotifier
@@ -348,4 +348,38 @@ def load_and_replay(path: Path, options: ReplayOptions = ReplayOptions()) -> Rep
     return replay(RecordedSession.load(path), options)
 
 
-__all__ = ["FaultSource", "ReplayOptions", "ReplayReport", "load_and_replay", "replay", "topic_suffix"]
+Faults = str | Path | Sequence[Mapping[str, object]]
+
+
+def fault_text(faults: Faults) -> str:
+    """TOML text for ``faults``: a file's text, the text itself, or ``[[fault]]`` tables of scalars."""
+    if isinstance(faults, Path):
+        return faults.read_text(encoding="utf-8")
+    if isinstance(faults, str):
+        return faults
+    lines = []
+    for table in faults:
+        lines.append("[[fault]]")
+        lines.extend(f"{key} = {_toml_value(value)}" for key, value in table.items())
+    return "\n".join(lines) + "\n"
+
+
+def _toml_value(value: object) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)
+    raise TypeError(f"a fault's values are strings, numbers or booleans, not {value!r}")
+
+
+__all__ = [
+    "FaultSource",
+    "Faults",
+    "ReplayOptions",
+    "ReplayReport",
+    "fault_text",
+    "load_and_replay",
+    "replay",
+]

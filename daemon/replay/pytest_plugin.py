@@ -27,10 +27,8 @@ from typing import Any
 import pytest
 
 from daemon.recording import RecordingRead, read_messages
-from daemon.replay.engine import ReplayOptions, ReplayReport, replay
+from daemon.replay.engine import Faults, ReplayOptions, ReplayReport, fault_text, replay
 from daemon.replay.session import Divergence, RecordedSession, TraceEvent
-
-Faults = str | Path | Sequence[Mapping[str, object]]
 
 
 @dataclass(frozen=True)
@@ -126,29 +124,6 @@ class DishbotReplay:
             )
         report = replay(recorded, ReplayOptions(speed=speed, record=out), faults=injector)
         return ReplayTrace(report, read_messages(out))
-
-
-def fault_text(faults: Faults) -> str:
-    """TOML text for ``faults``: a file's text, the text itself, or ``[[fault]]`` tables of scalars."""
-    if isinstance(faults, Path):
-        return faults.read_text(encoding="utf-8")
-    if isinstance(faults, str):
-        return faults
-    lines = []
-    for table in faults:
-        lines.append("[[fault]]")
-        lines.extend(f"{key} = {_toml_value(value)}" for key, value in table.items())
-    return "\n".join(lines) + "\n"
-
-
-def _toml_value(value: object) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int | float):
-        return repr(value)
-    if isinstance(value, str):
-        return json.dumps(value)
-    raise TypeError(f"a fault's values are strings, numbers or booleans, not {value!r}")
 
 
 @pytest.fixture(scope="session")
