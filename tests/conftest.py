@@ -8,6 +8,9 @@ from collections.abc import Iterator
 import pytest
 import structlog
 
+# pytester: the tests of the pytest plugin dishbot ships run pytest inside pytest.
+pytest_plugins = ["pytester"]
+
 # MuJoCo renders offscreen without a GPU through EGL (Mesa llvmpipe); set before any mujoco import.
 os.environ.setdefault("MUJOCO_GL", "egl")
 
