@@ -148,14 +148,13 @@ def rss_mb() -> float:
 
 
 def soak(jobs: int, seed: int, record_dir: Path) -> Soak:
-    from daemon.replay.faults import FaultInjector, parse_faults
-
     from daemon.app import RunOptions, ServeContext, ServeHooks, serve
     from daemon.backend import SimOptions, open_backend
     from daemon.clock import SimulatedClock
     from daemon.config import load_config
     from daemon.recording import read_messages
     from daemon.replay.engine import fault_text
+    from daemon.replay.faults import FaultInjector, parse_faults
     from daemon.sdnotify import SdNotifier
     from perception import associate
     from sim.counter import dataset_counter

@@ -17,7 +17,7 @@ def readme_example() -> str:
     section = text.split("## Replaying sessions in your tests", 1)[1].split("\n## ", 1)[0]
     blocks = re.findall(r"```python\n(.*?)```", section, flags=re.S)
     assert len(blocks) == 1, "the README's replay section lost its example"
-    return blocks[0]
+    return str(blocks[0])
 
 
 def test_the_plugin_is_an_entry_point_of_the_installed_package() -> None:
