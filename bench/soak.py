@@ -30,14 +30,11 @@ log = structlog.get_logger("bench.soak")
 # (fault table, the states a job may end in with it): docs/faults.md has the same rows with their reasons.
 SOAK_FAULTS: tuple[tuple[Mapping[str, object], frozenset[str]], ...] = (
     ({"kind": "servo_overload", "servo": 3, "at_state": "flip.turn", "after_s": 0.2}, frozenset({"fault"})),
-    ({"kind": "servo_overheat", "servo": 2, "at_state": "side_grasp.lift"}, frozenset({"fault"})),
-    ({"kind": "servo_voltage", "servo": 1, "at_state": "place.transit"}, frozenset({"fault"})),
     ({"kind": "servo_silent", "servo": 4, "at_state": "flip.transit"}, frozenset({"fault"})),
     ({"kind": "bus_unplug", "at_state": "place.descend", "duration_s": 1.0}, frozenset({"fault"})),
     ({"kind": "fsr_drop", "at_state": "flip.transit", "duration_s": 0.5}, frozenset({"done"})),
     ({"kind": "fsr_spike", "at_state": "side_grasp.lift"}, frozenset({"done"})),
     ({"kind": "fsr_silent", "at_state": "place.transit"}, frozenset({"fault"})),
-    ({"kind": "camera_no_frame", "at_state": "detect", "duration_s": 0.5}, frozenset({"done"})),
     ({"kind": "camera_hang", "at_state": "detect", "occurrence": 2}, frozenset({"fault"})),
     ({"kind": "mug_slip", "at_state": "flip.transit", "after_s": 0.3}, frozenset({"done"})),
     ({"kind": "mug_moved", "at_state": "side_grasp.lift", "dx_m": 0.03, "dy_m": 0.0}, frozenset({"done"})),
@@ -64,6 +61,7 @@ class Soak:
     jobs: list[JobRun] = field(default_factory=list)
     crashes: list[str] = field(default_factory=list)
     rss_start_mb: float = 0.0
+    rss_samples_mb: list[float] = field(default_factory=list)  # after each job
     rss_end_mb: float = 0.0
     files: tuple[Path, ...] = ()
     unreadable: list[str] = field(default_factory=list)
@@ -117,6 +115,13 @@ def run(args: argparse.Namespace) -> int:
         "rss_start_mb": round(result.rss_start_mb, 1),
         "rss_end_mb": round(result.rss_end_mb, 1),
         "rss_growth_mb": round(result.rss_end_mb - result.rss_start_mb, 1),
+        "rss_after_first_job_mb": round(result.rss_samples_mb[0], 1) if result.rss_samples_mb else None,
+        "rss_growth_after_first_job_mb": round(result.rss_end_mb - result.rss_samples_mb[0], 1)
+        if result.rss_samples_mb
+        else None,
+        "rss_per_decile_mb": [
+            round(v, 1) for v in result.rss_samples_mb[:: max(1, len(result.rss_samples_mb) // 10)]
+        ],
         "seed": args.seed,
     }
     if result.crashes:
@@ -211,7 +216,10 @@ def soak(jobs: int, seed: int, record_dir: Path) -> Soak:
                         break
                     await ctx.clock.sleep(1.0)
                     await ctx.handle("reset", b"", False)
-                log.info("soak_job", job=k + 1, fault=table["kind"], end_state=state)
+                out.rss_samples_mb.append(rss_mb())
+                log.info(
+                    "soak_job", job=k + 1, fault=table["kind"], end_state=state, rss_mb=out.rss_samples_mb[-1]
+                )
             out.rss_end_mb = rss_mb()
         finally:
             ctx.stop.set()
