@@ -18,6 +18,8 @@ BENCH_MODULES: tuple[str, ...] = (
     "bench.perception",
     "bench.sim",
     "bench.remote",
+    "bench.replay",
+    "bench.soak",
 )
 
 

@@ -291,12 +291,13 @@ async def _run(
                     recording.expect_job(job_header(request, config))
         # The operator's commands are inputs too: a replay sends them again at the same times (``status``
         # asks and changes nothing, so it is not kept).
-        t = clock.now()
+        t, t_device = clock.now(), clock.monotonic()
         reply = await commands_handler.handle(job, verb, payload, many)
         if verb != "status":
             text = payload.decode("utf-8", "replace")
             session.record(
-                "input/command", {"t": t, "verb": verb, "payload": text, "many": many, "reply": reply}
+                "input/command",
+                {"t": t, "t_device": t_device, "verb": verb, "payload": text, "many": many, "reply": reply},
             )
         return reply
 

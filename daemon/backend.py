@@ -58,7 +58,7 @@ from drivers.stack import (
 from perception.interfaces import MugObserver, Observation
 from planning.arm import ArmModel
 from planning.arm.calibration import PositionCorrection
-from planning.interfaces import CyclePlan, MotionPlanner, MugPose, TraySlot
+from planning.interfaces import CyclePlan, MotionPlanner, MugPose, PlacementPlanner, TraySlot
 from planning.motion import DynamicsMoveCost, check_reachable
 from planning.motion.planner import CyclePlanner
 from planning.placement import PlanOptions, PlanResult, Problem, plan
@@ -89,6 +89,10 @@ class CounterSetup(Protocol):
 
 
 EventListener = Callable[[Mapping[str, object]], None]
+PlanPlacement = Callable[[PlacementPlanner, Problem, PlanOptions], Awaitable[PlanResult]]
+# How a backend has placement planned: given the job's planner, the problem, the options and the job's own
+# way of running a planner off the event loop.
+PlacementRunner = Callable[[PlacementPlanner, Problem, PlanOptions, PlanPlacement], Awaitable[PlanResult]]
 
 
 def device_event_payload(event: DeviceEvent, *, t: float) -> dict[str, object]:
@@ -148,6 +152,8 @@ class Backend:
     # The one clock everything of this backend and the job on it reads and waits on: the wall clock on the
     # robot, the simulated cell's clock in simulation.
     clock: SessionClock = field(default_factory=RealClock)
+    # None: the job plans placements itself (in the planning process); a replay serves the recorded plans.
+    placement: PlacementRunner | None = None
 
     def scene(self) -> dict[str, object]:
         """The initial scene for the recording's session header."""
@@ -178,21 +184,28 @@ def recorded(backend: Backend, sink: Sink) -> Backend:
     )
 
 
-def joints_payload(js: JointState, *, t: float) -> dict[str, object]:
-    """``t`` is the clock's ``now()`` when published, ``t_device`` the driver's (monotonic) time."""
+def joints_payload(js: JointState, *, t: float, exact: bool = False) -> dict[str, object]:
+    """``t`` is the clock's ``now()`` when published, ``t_device`` the driver's (monotonic) time;
+    ``exact``: unrounded (a recorded input, which a replay hands the job again as it was)."""
+
+    def r(v: float, digits: int) -> float:
+        return v if exact else round(v, digits)
+
     return {
         "t": t,
         "t_device": js.t,
         "names": list(js.names),
-        "position_rad": [round(v, 6) for v in js.position_rad],
-        "velocity_rad_s": [round(v, 6) for v in js.velocity_rad_s],
-        "load": [round(v, 4) for v in js.load],
+        "position_rad": [r(v, 6) for v in js.position_rad],
+        "velocity_rad_s": [r(v, 6) for v in js.velocity_rad_s],
+        "load": [r(v, 4) for v in js.load],
     }
 
 
-def observation_payload(obs: Observation, *, t: float) -> dict[str, object]:
-    """``t`` is the clock's ``now()`` when published, ``t_device`` the observation's (monotonic) time."""
-    return {"t": t, "t_device": obs.t, "mugs": [d.to_json() for d in obs.detections], "meta": dict(obs.meta)}
+def observation_payload(obs: Observation, *, t: float, exact: bool = False) -> dict[str, object]:
+    """``t`` is the clock's ``now()`` when published, ``t_device`` the observation's (monotonic) time;
+    ``exact``: the detections unrounded (a recorded input)."""
+    mugs = [d.to_json(exact=exact) for d in obs.detections]
+    return {"t": t, "t_device": obs.t, "mugs": mugs, "meta": dict(obs.meta)}
 
 
 def depth_preview_payload(depth_m: npt.NDArray[np.float32]) -> dict[str, object]:
@@ -225,7 +238,8 @@ class _RecordedArm:
     async def read_joints(self) -> JointState:
         js = await self._inner.read_joints()
         self._sink(
-            "input/joints", {**joints_payload(js, t=self._clock.now()), "t_read": self._clock.monotonic()}
+            "input/joints",
+            {**joints_payload(js, t=self._clock.now(), exact=True), "t_read": self._clock.monotonic()},
         )
         return js
 
@@ -382,7 +396,7 @@ class _RecordedObserver:
         self._sink(
             "input/observation",
             {
-                **observation_payload(obs, t=self._clock.now()),
+                **observation_payload(obs, t=self._clock.now(), exact=True),
                 "t_start": started,
                 "t_end": self._clock.monotonic(),
             },

@@ -27,6 +27,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "daemon.commands.record",
     "daemon.commands.plan",
     "daemon.commands.run",
+    "daemon.commands.replay",
     "daemon.commands.client",
     "daemon.commands.monitor",
     "daemon.commands.security",

@@ -45,6 +45,7 @@ from planning.arm import ArmModel
 from planning.interfaces import MotionPlanner
 from sim.counter import Counter, dataset_counter, listed_counter, require_cell_tray
 from sim.kinematic import KinematicCell, MugGeometry, SimMug, open_kinematic_cell
+from sim.kinematic.faults import KinematicHealth
 from sim.mujoco.cell import SimCell, start_sim_cell
 from sim.truth import FaultyObserver, TruthObserver
 
@@ -122,6 +123,7 @@ def open_kinematic_backend(
         motion_for=motion_for,
         on_event=on_event,
         clock=clock,
+        health=KinematicHealth(counter.cell.world.faults, poll_period_s=config.hardware.health.poll_period_s),
     )
 
 

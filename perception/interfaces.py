@@ -26,16 +26,22 @@ class Detection:
     # pointing away from the camera, and the arm cannot tell where the handle will land on the tray.
     handle_seen: bool = True
 
-    def to_json(self) -> dict[str, object]:
+    def to_json(self, *, exact: bool = False) -> dict[str, object]:
+        """For publishing, rounded to what a monitor needs; ``exact`` for a recording's inputs, which a
+        replay hands the job again as they were."""
+
+        def r(v: float, digits: int) -> float:
+            return v if exact else round(v, digits)
+
         return {
             "id": self.mug_id,
             "type": self.type,
-            "x_m": round(self.x_m, 5),
-            "y_m": round(self.y_m, 5),
+            "x_m": r(self.x_m, 5),
+            "y_m": r(self.y_m, 5),
             "upside_down": self.upside_down,
-            "handle_yaw_rad": round(self.handle_yaw_rad, 5),
+            "handle_yaw_rad": r(self.handle_yaw_rad, 5),
             "handle_seen": self.handle_seen,
-            "confidence": round(self.confidence, 4),
+            "confidence": r(self.confidence, 4),
         }
 
 

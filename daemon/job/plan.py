@@ -49,6 +49,7 @@ class Plan(Unit):
             }
             for s, _ in ctx.queue
         ]
+        payload["t_plan_s"] = payload["t"]  # the plan's time estimate; ``t`` is the time of publication
         payload["t"] = services.wall_time()
         services.publish("plan", payload)
         return Outcome("planned", {"has_next_mug": await take_next_cycle(services, ctx)})

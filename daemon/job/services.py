@@ -40,12 +40,29 @@ class Services:
 
     def event(self, kind: str, **detail: Any) -> None:
         """Publish one job event on ``events``: its kind, the chart's state, the wall clock and the detail."""
-        self.publish("events", {"kind": kind, "state": self.state(), "t": self.wall_time(), **detail})
+        self.publish(
+            "events",
+            {
+                "kind": kind,
+                "state": self.state(),
+                "t": self.wall_time(),
+                "t_device": self.monotonic(),
+                **detail,
+            },
+        )
 
     async def plan_placement(
         self, planner: PlacementPlanner, problem: Problem, options: PlanOptions
     ) -> PlanResult:
-        """Run placement planning off the event loop: in the planning process when there is one."""
+        """Run placement planning off the event loop: in the planning process when there is one, or as the
+        backend says (a replay serves the recorded plans)."""
+        if self.backend.placement is not None:
+            return await self.backend.placement(planner, problem, options, self._plan_off_loop)
+        return await self._plan_off_loop(planner, problem, options)
+
+    async def _plan_off_loop(
+        self, planner: PlacementPlanner, problem: Problem, options: PlanOptions
+    ) -> PlanResult:
         if self.executor is None:
             return await asyncio.to_thread(planner, problem, options)
         return await asyncio.get_running_loop().run_in_executor(self.executor, planner, problem, options)

@@ -125,6 +125,62 @@ class PlanResult:
             "notes": list(self.notes),
         }
 
+    @classmethod
+    def from_json(cls, doc: Mapping[str, object]) -> PlanResult:
+        """The plan ``to_json`` wrote (a recording's ``plan`` message); ``ValueError`` naming the field that
+        is missing or of the wrong type."""
+        placed = []
+        for i, item in enumerate(_field(doc, "placed", list)):
+            if not isinstance(item, Mapping):
+                raise ValueError(f"plan.placed.{i} is {item!r}, not an object")
+            placed.append(
+                PlacedMug(
+                    _field(item, "id", str),
+                    _field(item, "type", str),
+                    _field(item, "x_mm", int),
+                    _field(item, "y_mm", int),
+                    _field(item, "rotated", bool),
+                    _field(item, "order", int),
+                )
+            )
+        optimal = doc.get("optimal")
+        bound = doc.get("upper_bound")
+        return cls(
+            method=_field(doc, "method", str),
+            heuristic=_field(doc, "heuristic", str),
+            sort=None if doc.get("sort") is None else _field(doc, "sort", str),
+            fitness=_field(doc, "fitness", str),
+            cost_function=_field(doc, "cost_function", str),
+            seed=_field(doc, "seed", int),
+            wall_time_s=_field(doc, "wall_time_s", float),
+            placed=tuple(placed),
+            unplaced=tuple(str(u) for u in _field(doc, "unplaced", list)),
+            n=_field(doc, "n", int),
+            A_mm2=_field(doc, "A", float),
+            E_j=_field(doc, "E", float),
+            t_s=_field(doc, "t_plan_s" if "t_plan_s" in doc else "t", float),
+            s=_field(doc, "s", int),
+            cost=_field(doc, "cost", float),
+            optimal=optimal if isinstance(optimal, bool) else None,
+            upper_bound=bound if isinstance(bound, int) and not isinstance(bound, bool) else None,
+            status=str(doc.get("status", "feasible")),
+            evaluations=_field(doc, "evaluations", int) if "evaluations" in doc else 0,
+            notes=tuple(str(n) for n in _field(doc, "notes", list)) if "notes" in doc else (),
+        )
+
+
+F = TypeVar("F", str, int, float, bool, list)  # type: ignore[type-arg]
+
+
+def _field(doc: Mapping[str, object], key: str, kind: type[F]) -> F:
+    """``doc[key]`` as ``kind`` (an int will do for a float; a bool is never a number)."""
+    value = doc.get(key)
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)  # type: ignore[return-value]
+    if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
+        raise ValueError(f"plan.{key} is {value!r}, not {kind.__name__}")
+    return value
+
 
 # (mug index, x, y, rotated) in the order the method packed them
 Layout = tuple[tuple[int, int, int, bool], ...]

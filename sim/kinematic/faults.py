@@ -210,3 +210,45 @@ class KinematicFaults:
             self._fsr_down = None
             self.emit("fsr_restored", "fsr", port=FSR_PORT)
         return False
+
+
+class KinematicHealth:
+    """The kinematic cell's ``drivers.interfaces.DeviceHealth``: what its injected faults leave standing,
+    asked before a start and cleared on reset as the servos allow (a latched bit whose cause is gone is
+    cleared; a cause that lasts, a silent servo or an unplugged bus stands). Polling asks every servo once,
+    as the chain's health check does, so a fault met while idle is found."""
+
+    def __init__(self, faults: KinematicFaults, *, poll_period_s: float = 1.0) -> None:
+        self._faults = faults
+        self._period = poll_period_s
+
+    @property
+    def poll_period_s(self) -> float:
+        return self._period
+
+    async def poll(self) -> None:
+        self._faults.check_servos(self._faults.servos)
+
+    def problems(self) -> tuple[str, ...]:
+        f = self._faults
+        out = []
+        if f.bus_unplugged:
+            out.append(f"servo bus {PORT} is gone (the adapter was unplugged)")
+        for servo_id, s in sorted(f.servos.items()):
+            if s.silent:
+                out.append(f"servo {servo_id} does not answer")
+            for name in sorted(s.latched):
+                out.append(f"servo {servo_id} reports {name}; reset to clear it")
+        return tuple(out)
+
+    async def clear(self) -> tuple[str, ...]:
+        f = self._faults
+        for servo_id, s in f.servos.items():
+            for name in sorted(s.latched):
+                if f.clear(servo_id, name):
+                    f.mark_clear(servo_id)
+        return tuple(p for p in self.problems() if "reset to clear" not in p) + tuple(
+            f"servo {i} still has the cause of its {n} (it lasts)"
+            for i, s in sorted(f.servos.items())
+            for n in sorted(s.latched)
+        )

@@ -345,22 +345,28 @@ def test_stop_mid_move_exits_0_with_the_recording_finished(
     print(f"systemctl stop in {seen[-1]}: exit 0 after {took:.2f} s, job file {jobs[-1].name} finished")
 
 
-# For ``dishbot run --faults FILE``, which is being built alongside (issue 13); its final shape may differ.
+# The kinematic cell's camera hangs at the first look (``dishbot run --faults``, docs/recording.md).
 FAULTS: Final = """[[fault]]
 kind = "camera_hang"
+at_state = "detect"
 """
+STUCK_CONFIG: Final = "/etc/dishbot/stuck.toml"
+DETECT_BOUND_S: Final = 5.0  # a shorter bound than the default 60 s, so the test does not wait a minute
 
 
-@pytest.mark.xfail(strict=False, reason="needs the progress watchdog (daemonfix) and --faults (faults)")
 def test_a_stuck_state_ends_in_fault_and_not_in_silent_pings(container: Container) -> None:
     """A hung camera leaves the job in detect; the progress watchdog faults it past the state's time bound,
     naming the bound, and the service itself lives on (no watchdog kill, no restart)."""
     faults = container.path("/etc/dishbot/faults.toml")
     faults.write_text(FAULTS)
+    stuck = container.path(STUCK_CONFIG)
+    stuck.write_text(CONFIG + f"\n[daemon.state_bounds_s]\ndetect = {DETECT_BOUND_S}\n")
+    container.run("chgrp", "dishbot", STUCK_CONFIG, "/etc/dishbot/faults.toml")
+    container.run("chmod", "0640", STUCK_CONFIG, "/etc/dishbot/faults.toml")
     drop_in = container.path("/etc/systemd/system/dishbot.service.d/20-faults.conf")
     drop_in.write_text(
         f"[Service]\nExecStart=\nExecStart={dishbot_command()} run --sim --faults /etc/dishbot/faults.toml "
-        f"--config {CONFIG_FILE}\n"
+        f"--config {STUCK_CONFIG}\n"
     )
     container.systemctl("daemon-reload")
     began = time.monotonic()
@@ -379,8 +385,7 @@ def test_a_stuck_state_ends_in_fault_and_not_in_silent_pings(container: Containe
         events = [m.payload for m in read_messages(jobs[-1]) if m.topic == f"dishbot/{ROBOT}/events"]
         reasons = [str(e.get("reason", "")) for e in events if e.get("kind") == "fault"]
         assert len(reasons) == 1, events
-        assert "detect" in reasons[0]
-        assert re.search(r"\d+(\.\d+)? ?s\b", reasons[0]), reasons[0]  # the bound it exceeded
+        assert reasons[0] == f"state detect exceeded its {DETECT_BOUND_S:g} s bound"
         # Still the same process a whole watchdog interval after the camera hung: not killed for silence.
         time.sleep(max(0.0, job_started + WATCHDOG_S + 2.0 - time.monotonic()))
         after = service(container)
@@ -390,6 +395,7 @@ def test_a_stuck_state_ends_in_fault_and_not_in_silent_pings(container: Containe
     finally:
         drop_in.unlink()
         faults.unlink()
+        stuck.unlink()
         container.systemctl("daemon-reload")
         container.systemctl("stop", SERVICE, check=False)
         container.systemctl("reset-failed", SERVICE, check=False)
