@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final
 
-from daemon.config import Config, parse_config
+from daemon.config import Config, load_config
 from daemon.errors import ConfigError, RecordingError, ReplayError
 from daemon.recording import HEADER_TOPIC, read_messages
 from daemon.recording.reader import RecordedMessage, RecordingRead
@@ -393,7 +393,9 @@ class RecordedSession:
                 f"({', '.join(SIM_BACKENDS)}) and cannot stand in for that one"
             )
         try:
-            config = parse_config(config_doc)
+            # Over today's defaults, so that a recording made before a setting existed still loads; the
+            # robot's own Zenoh settings (endpoints, credentials on its disk) are the replay's business.
+            config = load_config(overrides={**config_doc, "zenoh": {}})
         except ConfigError as e:
             raise ReplayError(f"{path}: the recorded config does not load: {e}") from e
         start = job_start(messages)

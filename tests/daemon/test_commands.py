@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
@@ -56,7 +57,8 @@ def _with_daemon(tmp_path: Path, scenario: Callable[[str, Client], Awaitable[Non
                 replies = list(session.get(f"dishbot/{ROBOT}/cmd/{verb}", payload=payload, timeout=5.0))
                 assert len(replies) == 1
                 ok = replies[0].ok
-                assert ok is not None
+                err = replies[0].err
+                assert ok is not None, err.payload.to_string() if err is not None else "no reply"
                 result: dict[str, Any] = json.loads(ok.payload.to_bytes())
                 return result
 
@@ -347,3 +349,49 @@ _nested = st.recursive(
 @given(body=_nested, levels=st.integers(0, 6))
 def test_the_nesting_check_agrees_with_the_parsed_depth(body: object, levels: int) -> None:
     assert nested_deeper_than(json.dumps(body), levels) == (_depth(body) > levels)
+
+
+def test_a_command_flood_with_a_slow_subscriber_is_answered_in_full_and_changes_nothing(
+    tmp_path: Path,
+) -> None:
+    """Row 14 of the fault matrix: four clients, each with its own session, send 300 commands as fast as
+    they get answers (status, and pause/resume/stop refused in idle) while a subscriber to every topic takes
+    50 ms per message. Every command gets its answer, the refused ones change nothing, and the daemon's
+    telemetry goes on being published."""
+
+    async def scenario(endpoint: str, send: Client) -> None:
+        seen: list[str] = []
+
+        def slow(sample: zenoh.Sample) -> None:
+            seen.append(str(sample.key_expr))
+            time.sleep(0.05)  # a slow subscriber: Zenoh's thread, never the daemon's loop
+
+        def client(verbs: list[str]) -> list[tuple[str, dict[str, Any]]]:
+            out = []
+            with zenoh.open(session_config(listen=[], connect=[endpoint])) as session:
+                for verb in verbs:
+                    replies = list(session.get(f"dishbot/{ROBOT}/cmd/{verb}", payload=b"", timeout=5.0))
+                    ok = replies[0].ok
+                    assert ok is not None, f"{verb}: no answer"
+                    out.append((verb, json.loads(ok.payload.to_bytes())))
+            return out
+
+        with zenoh.open(session_config(listen=[], connect=[endpoint])) as watcher:
+            subscriber = watcher.declare_subscriber(f"dishbot/{ROBOT}/**", slow)
+            verbs = ["status", "pause", "resume", "stop"] * 19
+            answered = await asyncio.gather(*(asyncio.to_thread(client, verbs[i:]) for i in range(4)))
+            await asyncio.sleep(0.5)
+            subscriber.undeclare()  # type: ignore[no-untyped-call]
+        replies = [r for batch in answered for r in batch]
+        assert len(replies) == sum(len(verbs[i:]) for i in range(4)) == 298
+        for verb, reply in replies:
+            if verb == "status":
+                assert reply["ok"] is True
+                assert reply["state"] == "idle"
+            else:
+                assert reply == {"robot_id": ROBOT, "ok": False, "error": f"cannot {verb} in state idle"}
+        assert any(k.endswith("/state") for k in seen)  # telemetry kept coming meanwhile
+        after = await send("status", b"")
+        assert after["state"] == "idle"
+
+    _with_daemon(tmp_path, scenario)

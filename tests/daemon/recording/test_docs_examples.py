@@ -13,7 +13,7 @@ DOC = Path(__file__).resolve().parents[3] / "docs" / "recording.md"
 
 
 def replay_example() -> str:
-    section = DOC.read_text().split("### Replaying a session with injected faults", 1)[1]
+    section = DOC.read_text().split("### Rewriting input streams (`daemon.replay.streams`)", 1)[1]
     blocks = re.findall(r"```python\n(.*?)```", section, flags=re.DOTALL)
     assert blocks, "docs/recording.md lost its replay example"
     return str(blocks[0])

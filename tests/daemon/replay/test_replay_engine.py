@@ -211,3 +211,42 @@ def test_the_recording_keeps_what_a_replay_needs(kinematic_job: Path) -> None:
     assert job["planner"]["seed"] == 0
     follow = next(m.payload for m in read.messages if m.topic.endswith("output/follow"))
     assert {"label", "end_rad", "t_start", "t_end", "duration_s"} <= set(follow)
+
+
+def test_with_listen_the_replay_publishes_on_zenoh_as_the_daemon_does(kinematic_job: Path) -> None:
+    """A monitor connected to ``--listen`` sees the replayed job's state, joints and events, as from a
+    daemon (the replay runs at 20x real time so that the subscriber is there before the job ends)."""
+    import threading
+    import time
+
+    import zenoh
+
+    from daemon.zenoh_session import session_config
+    from tests.daemon.conftest import free_port
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    seen: dict[str, int] = {}
+    stop = threading.Event()
+
+    def monitor() -> None:
+        deadline = time.monotonic() + 10.0
+        while not stop.is_set() and time.monotonic() < deadline:
+            try:
+                with zenoh.open(session_config(listen=[], connect=[endpoint])) as z:
+                    z.declare_subscriber(
+                        "dishbot/*/**", lambda s: seen.__setitem__(str(s.key_expr).rsplit("/", 1)[-1], 1)
+                    )
+                    stop.wait(10.0)
+                    return
+            except zenoh.ZError:
+                time.sleep(0.1)  # the replay's daemon is not listening yet
+
+    watcher = threading.Thread(target=monitor)
+    watcher.start()
+    try:
+        report = replay(RecordedSession.load(kinematic_job), ReplayOptions(speed=20.0, listen=(endpoint,)))
+    finally:
+        stop.set()
+        watcher.join()
+    assert report.match
+    assert {"state", "joints", "events"} <= set(seen)
