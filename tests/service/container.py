@@ -23,6 +23,7 @@ import re
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 import time
 import uuid
@@ -96,6 +97,8 @@ DROPPED_CAPABILITIES: Final = (
 _SETUP: Final = r"""
 set -eu
 B=$1
+BOUNDING=$2
+shift 2
 mount -t tmpfs -o mode=0755,size=2g tmpfs "$B/fs"
 mkdir "$B/fs/upper" "$B/fs/work" "$B/fs/root"
 R="$B/fs/root"
@@ -121,6 +124,13 @@ ln -s /proc/self/fd/2 "$R/dev/stderr"
 mount -t tmpfs -o mode=1777,nosuid,nodev tmpfs "$R/dev/shm"
 mount -t tmpfs -o mode=0755,nosuid,nodev,size=64m tmpfs "$R/run"
 mount -t tmpfs -o mode=1777,nosuid,nodev,size=256m tmpfs "$R/tmp"
+# The checkout and its Python when they live under the host's /tmp or /run (a CI checkout may): the same
+# paths inside, read-only, over the fresh tmpfs.
+for d in "$@"; do
+    mkdir -p "$R$d"
+    mount --bind "$d" "$R$d"
+    mount -o remount,bind,ro "$R$d"
+done
 cp -a "$B/seed/." "$R/"
 ip link set lo up
 [ "$(stat -f -c %T "$R")" = overlayfs ] || { echo "refusing to boot: $R is not an overlay" >&2; exit 97; }
@@ -129,7 +139,7 @@ for d in tmp run; do
 done
 echo "READY_TO_BOOT"
 exec env -i container=dishbot-test PATH=/usr/sbin:/usr/bin:/sbin:/bin \
-    setpriv --bounding-set "$2" chroot "$R" /lib/systemd/systemd --unit=basic.target
+    setpriv --bounding-set "$BOUNDING" chroot "$R" /lib/systemd/systemd --unit=basic.target
 """
 
 
@@ -257,6 +267,19 @@ class Container:
         raise AssertionError(f"no process {inner_pid} in {unit}")
 
 
+def _hidden_by_fresh_mounts() -> list[Path]:
+    """The checkout and the Python running it, where the container's fresh /tmp or /run would hide them."""
+    found: list[Path] = []
+    for path in (
+        Path(__file__).resolve().parents[2],
+        Path(sys.prefix).resolve(),
+        Path(sys.base_prefix).resolve(),
+    ):
+        if path.parts[1:2] in (("tmp",), ("run",)) and not any(path.is_relative_to(f) for f in found):
+            found.append(path)
+    return found
+
+
 @contextlib.contextmanager
 def booted(*, masked: Sequence[str] = MASKED, timeout_s: float = BOOT_TIMEOUT_S) -> Iterator[Container]:
     """A container with systemd booted to ``basic.target`` (running or degraded), powered off and removed
@@ -300,6 +323,7 @@ def booted(*, masked: Sequence[str] = MASKED, timeout_s: float = BOOT_TIMEOUT_S)
             str(base / "setup.sh"),
             str(base),
             bounding,
+            *(str(p) for p in _hidden_by_fresh_mounts()),
         ]
         with (base / "boot.log").open("wb") as log:
             proc = subprocess.Popen(
