@@ -83,6 +83,11 @@ def paths_drop_in() -> str:
     in_homes = sorted(p for p in needed if any(p.is_relative_to(home) for home in HOMES))
     if in_homes:
         lines += ["ProtectHome=tmpfs", *(f"BindReadOnlyPaths={p}" for p in in_homes)]
+    # A checkout under /tmp (a CI run's may be): PrivateTmp=yes gives the service a /tmp of its own.
+    in_tmp = sorted(
+        p for p in needed if p.is_relative_to("/tmp") and not any(p.is_relative_to(h) for h in in_homes)
+    )
+    lines += [f"BindReadOnlyPaths={p}" for p in in_tmp]
     return "\n".join(lines) + "\n"
 
 
