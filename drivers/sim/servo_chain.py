@@ -544,7 +544,12 @@ class ServoChainSimulator(SimulatedDevice):
         reboot)."""
         bit = faults.bits_for(self.protocol, (name,))
         servo.hardware_error |= bit
-        if not servo.get("shutdown") & bit:
+        self._shut_down_for(servo, bit)
+
+    def _shut_down_for(self, servo: SimServo, bits: int) -> None:
+        """Cut the torque when the Shutdown register names one of ``bits`` (1.0: the torque limit drops to 0
+        until it is rewritten; 2.0: Torque Enable clears and stays refused until a reboot)."""
+        if not servo.get("shutdown") & bits:
             return
         if self.protocol == 1:
             servo.set("torque_limit", 0)
@@ -577,13 +582,7 @@ class ServoChainSimulator(SimulatedDevice):
         if self.protocol == 2:
             servo.hardware_error |= live
             servo.set("hardware_error_status", servo.hardware_error)
-        if not live & servo.get("shutdown"):
-            return
-        if self.protocol == 1:
-            servo.set("torque_limit", 0)
-        else:
-            servo.set("torque_enable", 0)
-        self.plant.set_torque(servo.servo_id, False)
+        self._shut_down_for(servo, live)
 
     def _sync_from_plant(self, servo: SimServo) -> None:
         spec = servo.spec
