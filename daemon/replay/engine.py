@@ -44,6 +44,8 @@ log = structlog.get_logger("daemon.replay")
 
 # How long a replay may run on after the recorded job's duration before it is given up (simulated s).
 _OVERRUN_S = 600.0
+# How far past a cut recording's end the replay goes on before it stops (simulated s).
+_PAST_CUT_S = 1.0
 # A recorded job that began longer than this after its daemon started is started at once in the replay
 # rather than after as long an idle spell.
 _MAX_IDLE_WAIT_S = 3600.0
@@ -323,10 +325,11 @@ async def _drive(session: RecordedSession, replayer: Replayer, ctx: ServeContext
             )
     limit = session.trace.duration_s + _OVERRUN_S
     if session.cut is not None:
-        # The recorded daemon ended at the cut: so does the replay (if the job is not over before).
-        await clock.wait(
-            asyncio.ensure_future(ctx.job.finished.wait()), max(0.0, session.end_s - replayer.t_s())
-        )
+        # The recorded daemon ended at the cut: so does the replay (if the job is not over before), a moment
+        # after it, so that what happened at the very instant of the cut is in the replay too (only the
+        # recording's part is compared).
+        left = max(0.0, session.end_s - replayer.t_s()) + _PAST_CUT_S
+        await clock.wait(asyncio.ensure_future(ctx.job.finished.wait()), left)
     else:
         finished = await clock.wait(asyncio.ensure_future(ctx.job.finished.wait()), limit)
         if not finished:

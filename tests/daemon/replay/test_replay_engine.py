@@ -65,21 +65,24 @@ def test_a_different_observation_diverges_at_the_plan_and_the_simulated_cell_fin
     assert len(placed) == 3
 
 
+@pytest.mark.parametrize("fraction", [0.3, 0.5, 0.8])
 def test_a_recording_cut_by_a_crash_replays_up_to_the_cut_and_says_so(
-    kinematic_job: Path, tmp_path: Path
+    fraction: float, kinematic_job: Path, tmp_path: Path
 ) -> None:
     whole = RecordedSession.load(kinematic_job)
     data = kinematic_job.read_bytes()
     cut = tmp_path / "cut-job.mcap"
-    cut.write_bytes(data[: len(data) // 2])
+    cut.write_bytes(data[: int(len(data) * fraction)])
     session = RecordedSession.load(cut)
     assert session.cut is not None
     report = replay(session)
     assert report.cut == session.cut
     assert report.match, report.first_divergence
-    # The replay stopped where the recording does, in the state the job was in then.
+    # The replay stopped just after the recording does (a second later), in the state the whole job was in
+    # then.
     assert 0 < len(report.replayed.states) < len(whole.trace.states)
-    assert report.replayed.final_state == whole.trace.state_at(session.end_s)
+    assert len(report.replayed.states) >= len(session.trace.states)
+    assert report.replayed.final_state == whole.trace.state_at(report.replayed.state_times_s[-1])
     assert report.replayed.states == whole.trace.states[: len(report.replayed.states)]
 
 
