@@ -19,7 +19,7 @@ import functools
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -68,6 +68,7 @@ if TYPE_CHECKING:
     from perception.observer import FrameLimits
 
 log = structlog.get_logger("daemon.backend")
+T = TypeVar("T")
 
 
 @dataclass(frozen=True, slots=True)
@@ -225,6 +226,21 @@ def _failure(e: BaseException) -> str:
     return f"{type(e).__name__}: {e}"
 
 
+async def _failing_recorded(
+    call: Awaitable[T], sink: Sink, clock: SessionClock, topic: str, record: Mapping[str, object]
+) -> T:
+    """``await call``; when it is cancelled or raises, ``record`` goes to ``topic`` first, with the call's
+    end and ``cancelled`` or the ``error``."""
+    try:
+        return await call
+    except asyncio.CancelledError:
+        sink(topic, {**record, "t_end": clock.monotonic(), "cancelled": True})
+        raise
+    except BaseException as e:
+        sink(topic, {**record, "t_end": clock.monotonic(), "error": _failure(e)})
+        raise
+
+
 class _RecordedArm:
     def __init__(self, inner: ArmDriver, sink: Sink, clock: SessionClock) -> None:
         self._inner = inner
@@ -256,14 +272,9 @@ class _RecordedArm:
             else [],
             "t_start": started,
         }
-        try:
-            await self._inner.follow(trajectory)
-        except asyncio.CancelledError:
-            self._sink("output/follow", {**record, "t_end": self._clock.monotonic(), "cancelled": True})
-            raise
-        except BaseException as e:
-            self._sink("output/follow", {**record, "t_end": self._clock.monotonic(), "error": _failure(e)})
-            raise
+        await _failing_recorded(
+            self._inner.follow(trajectory), self._sink, self._clock, "output/follow", record
+        )
         self._sink("output/follow", {**record, "t_end": self._clock.monotonic()})
 
     async def stop(self) -> None:
@@ -290,31 +301,16 @@ class _RecordedGripper:
             "aperture_m": aperture_m,
             "t_start": self._clock.monotonic(),
         }
-        try:
-            await self._inner.open(aperture_m)
-        except asyncio.CancelledError:
-            self._sink("output/gripper", {**record, "t_end": self._clock.monotonic(), "cancelled": True})
-            raise
-        except BaseException as e:
-            self._sink("output/gripper", {**record, "t_end": self._clock.monotonic(), "error": _failure(e)})
-            raise
+        await _failing_recorded(
+            self._inner.open(aperture_m), self._sink, self._clock, "output/gripper", record
+        )
         self._sink("output/gripper", {**record, "t_end": self._clock.monotonic()})
 
     async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
         started = self._clock.monotonic()
         asked = {"force_threshold_n": force_threshold_n, "min_aperture_m": min_aperture_m, "t_start": started}
-        try:
-            result = await self._inner.close_on_mug(
-                force_threshold_n=force_threshold_n, min_aperture_m=min_aperture_m
-            )
-        except asyncio.CancelledError:
-            self._sink("input/grasp_failed", {**asked, "t_end": self._clock.monotonic(), "cancelled": True})
-            raise
-        except BaseException as e:
-            self._sink(
-                "input/grasp_failed", {**asked, "t_end": self._clock.monotonic(), "error": _failure(e)}
-            )
-            raise
+        closing = self._inner.close_on_mug(force_threshold_n=force_threshold_n, min_aperture_m=min_aperture_m)
+        result = await _failing_recorded(closing, self._sink, self._clock, "input/grasp_failed", asked)
         self._sink(
             "input/grasp",
             {
