@@ -20,7 +20,7 @@ import sys
 import time
 from collections.abc import Iterator, Sequence
 
-from daemon.commands.output import add_json_flag, emit
+from cli.commands.output import add_json_flag, emit
 from drivers.dynamixel import BusConfig, thesis_joints
 from drivers.dynamixel import protocol as p
 
@@ -49,7 +49,7 @@ def simulated_bus(servos: Sequence[tuple[int, str]], protocol: int) -> Iterator[
     """Start ``dishbot sim bus`` in a child process; yield its device path."""
     listing = ",".join(f"{i}:{m}" for i, m in servos)
     child = subprocess.Popen(
-        [sys.executable, "-m", "daemon.cli", "sim", "bus", "--servos", listing, "--protocol", str(protocol)],
+        [sys.executable, "-m", "cli.main", "sim", "bus", "--servos", listing, "--protocol", str(protocol)],
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         text=True,

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Final
 
-from daemon.commands.output import add_json_flag, emit
-from daemon.commands.run import association, planning_pool
+from cli.commands.output import add_json_flag, emit
+from cli.commands.run import association, planning_pool
 from daemon.config import load_config
 from daemon.errors import UsageError
 
@@ -172,8 +172,8 @@ async def _live(tmp: Path, variant: _Variant, commands: int, seconds: float, log
     from daemon.app import RunOptions, serve
     from daemon.backend import ProcessMotionPlanner, SimOptions, open_backend
     from daemon.clock import RealClock
-    from daemon.recording.files import is_job_file
     from daemon.sdnotify import SdNotifier
+    from recorder.files import is_job_file
 
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     foxglove = ("127.0.0.1", _free_port()) if variant.live_server else None
@@ -236,7 +236,7 @@ async def _live(tmp: Path, variant: _Variant, commands: int, seconds: float, log
 
 def _kb_per_minute(files: list[Path]) -> float:
     """The size of job files per minute of the time they cover."""
-    from daemon.recording import read_messages
+    from recorder import read_messages
 
     size = sum(p.stat().st_size for p in files)
     spans = [read_messages(p, keep=lambda topic: False) for p in files]
@@ -399,9 +399,9 @@ def _query(session: zenoh.Session, verb: str, request: StartRequest | None) -> N
 def _recording_throughput(path: Path, messages: int, *, foxglove: bool) -> tuple[float, float, int]:
     """Messages per second and MB/s the recorder takes, from the first write until the file is finished;
     with ``foxglove``, each joint sample also gives its transforms (``/tf``), as in the daemon."""
-    from daemon.foxglove_scene import SceneView
-    from daemon.recording import Recorder
+    from daemon.backend import scene_view
     from daemon.zenoh_session import key
+    from recorder import Recorder
 
     payload = {
         "t": 0.0,
@@ -411,7 +411,7 @@ def _recording_throughput(path: Path, messages: int, *, foxglove: bool) -> tuple
         "load": [0.01] * 5,
     }
     topic = key(ROBOT, "joints")
-    deriver = SceneView(load_config()) if foxglove else None
+    deriver = scene_view(load_config()) if foxglove else None
     start = time.perf_counter()
     full = 0
     with Recorder(path, chunk_size=65536, deriver=deriver) as recorder:

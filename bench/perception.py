@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from daemon.commands.output import add_json_flag, emit
+from cli.commands.output import add_json_flag, emit
 from daemon.config import load_config
 from daemon.errors import UsageError
 

@@ -12,7 +12,7 @@ import argparse
 import statistics
 import time
 
-from daemon.commands.output import add_json_flag, emit, format_table
+from cli.commands.output import add_json_flag, emit, format_table
 from daemon.config import load_config
 from daemon.errors import UsageError
 from description import thesis

@@ -155,7 +155,7 @@ class NamespacePair:
         return proc
 
     def dishbot(self, side: str, name: str, *args: str) -> Proc:
-        return self.start(side, name, [sys.executable, "-m", "daemon.cli", *args])
+        return self.start(side, name, [sys.executable, "-m", "cli.main", *args])
 
     def cut(self) -> None:
         """Take the robot's end of the link down: nothing passes until ``restore``."""
@@ -277,8 +277,8 @@ class _AgentState:
             session.close()
 
     def do(self, request: dict[str, Any]) -> dict[str, Any]:
-        from daemon.cli import main
-        from daemon.commands.client import Target, Unreachable, ask, client_session
+        from cli.commands.client import Target, Unreachable, ask, client_session
+        from cli.main import main
         from daemon.security import load_profile
         from daemon.zenoh_session import session_config
 
@@ -344,7 +344,7 @@ def _no_logs(text: str) -> str:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from daemon.commands.output import emit
+    from cli.commands.output import emit
     from daemon.errors import UsageError
 
     if not 10 <= args.commands <= 100_000:
@@ -379,7 +379,7 @@ def _bench(args: argparse.Namespace) -> int:
 
 def measure(tmp: Path, *, commands: int, cut_s: float) -> dict[str, Any]:
     """Set the two hosts up and take every number of the table."""
-    from daemon import credentials
+    from cli import credentials
 
     keys = tmp / "keys"
     plan = credentials.plan(
@@ -443,7 +443,7 @@ def measure(tmp: Path, *, commands: int, cut_s: float) -> dict[str, Any]:
 
 
 def _rtt_here(endpoint: str, n: int) -> list[float]:
-    from daemon.commands.client import Target, ask, client_session
+    from cli.commands.client import Target, ask, client_session
 
     t = Target(endpoint, "dishbot")
     deadline = time.monotonic() + 60

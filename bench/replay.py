@@ -18,7 +18,7 @@ from pathlib import Path
 
 import structlog
 
-from daemon.commands.output import add_json_flag, emit
+from cli.commands.output import add_json_flag, emit
 from daemon.errors import UsageError
 
 log = structlog.get_logger("bench.replay")
@@ -71,9 +71,9 @@ def sessions(text: str) -> list[Session]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from daemon.replay.engine import replay
-    from daemon.replay.record import record_job
-    from daemon.replay.session import RecordedSession
+    from replay.engine import replay
+    from replay.record import record_job
+    from replay.session import RecordedSession
 
     planned = sessions(args.sessions)
     rows = []

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from daemon.commands.output import add_json_flag, emit
-from daemon.commands.run import association, planning_pool
+from cli.commands.output import add_json_flag, emit
+from cli.commands.run import association, planning_pool
 from daemon.config import Config, load_config
 from daemon.errors import UsageError
 from description import thesis

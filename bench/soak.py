@@ -22,7 +22,7 @@ from typing import Any
 
 import structlog
 
-from daemon.commands.output import add_json_flag, emit
+from cli.commands.output import add_json_flag, emit
 from daemon.errors import UsageError
 
 log = structlog.get_logger("bench.soak")
@@ -157,11 +157,11 @@ def soak(jobs: int, seed: int, record_dir: Path) -> Soak:
     from daemon.backend import SimOptions, open_backend
     from daemon.clock import SimulatedClock
     from daemon.config import load_config
-    from daemon.recording import read_messages
-    from daemon.replay.engine import fault_text
-    from daemon.replay.faults import FaultInjector, parse_faults
     from daemon.sdnotify import SdNotifier
     from perception import associate
+    from recorder import read_messages
+    from replay.engine import fault_text
+    from replay.faults import FaultInjector, parse_faults
     from sim.counter import dataset_counter
 
     config = load_config(overrides={"backend": "sim", "sim": {"world": "kinematic", "seed": seed}})

@@ -1,8 +1,8 @@
 """The daemon process: one event loop running the job, the telemetry, the command server and the recording.
 
 ``serve`` opens the Zenoh session (and the live Foxglove server when asked), then the recording: a file per
-job and rotating idle files (``daemon.recording.files``), with the Foxglove channels derived from what is
-recorded (``daemon.foxglove_scene``). It wires the backend's driver-boundary inputs into the recording,
+job and rotating idle files (``recorder.files``), with the Foxglove channels derived from what is
+recorded (``recorder.foxglove_scene``). It wires the backend's driver-boundary inputs into the recording,
 publishes every log record on ``log`` (the planning worker's too, through ``daemon.log_relay``), starts the
 job's control task and the telemetry loops (state, joints, gripper), answers commands, pings the systemd
 watchdog from the loop, and on SIGTERM/SIGINT (or, with ``once``, when the job ends) stops motion, finishes
@@ -40,8 +40,6 @@ from daemon.config import Config
 from daemon.errors import ConfigError, UsageError
 from daemon.job import Job, JobSummary, StartRequest
 from daemon.log_relay import LogRelay, RecordQueue, plain_record
-from daemon.recording.files import SessionRecording, is_job_file
-from daemon.recording.outcome import JobOutcome
 from daemon.sdnotify import SdNotifier
 from daemon.security import exposure_error
 from daemon.zenoh_session import ZenohSession, error_text
@@ -49,9 +47,11 @@ from drivers.dynamixel import BusTimeout
 from drivers.dynamixel.health import ServoHealthFault
 from drivers.errors import BusLost, DriverError, ServoFault
 from perception.interfaces import Associate
+from recorder.files import SessionRecording, is_job_file
+from recorder.outcome import JobOutcome
 
 if TYPE_CHECKING:
-    from daemon.foxglove_server import LiveServer
+    from recorder.foxglove_server import LiveServer
 
 log = structlog.get_logger("daemon")
 
@@ -194,16 +194,20 @@ async def serve(
     live: LiveServer | None = None
     try:
         if options.foxglove is not None:
-            from daemon.foxglove_server import LiveServer
-
-            live = LiveServer(*options.foxglove, name=f"dishbot {config.robot_id}")
-        view = None
-        if config.foxglove.channels:
-            from daemon.foxglove_arm import UrdfError
-            from daemon.foxglove_scene import SceneView
+            from recorder.errors import LiveServerError
+            from recorder.foxglove_server import LiveServer
 
             try:
-                view = SceneView(config, depth_hz=config.foxglove.depth_hz)
+                live = LiveServer(*options.foxglove, name=f"dishbot {config.robot_id}")
+            except LiveServerError as e:
+                raise UsageError(str(e)) from e
+        view = None
+        if config.foxglove.channels:
+            from daemon.backend import scene_view
+            from recorder.foxglove_arm import UrdfError
+
+            try:
+                view = scene_view(config, depth_hz=config.foxglove.depth_hz)
             except UrdfError as e:
                 raise UsageError(str(e)) from e
     except BaseException:

@@ -66,6 +66,7 @@ from planning.placement import PlanOptions, PlanResult, Problem, plan
 if TYPE_CHECKING:
     from perception.calibration import CameraModel
     from perception.observer import FrameLimits
+    from recorder.foxglove_scene import SceneView
 
 log = structlog.get_logger("daemon.backend")
 T = TypeVar("T")
@@ -749,6 +750,20 @@ def configured_camera_model(config: Config) -> CameraModel:
         pitch_rad=c.pitch_rad,
         calibration_file=config.camera.calibration_file,
     )
+
+
+def scene_view(config: Config, *, depth_hz: float = 1.0) -> SceneView:
+    """The Foxglove scene of the configured cell; without the camera (logged) when its model is unknown."""
+    from perception.errors import CalibrationError
+    from recorder.foxglove_scene import SceneView
+
+    camera: CameraModel | None
+    try:
+        camera = configured_camera_model(config)
+    except (CalibrationError, ValueError) as e:
+        log.warning("foxglove_camera_unknown", error=str(e))
+        camera = None
+    return SceneView(config.mug_types, config.cell, camera=camera, depth_hz=depth_hz)
 
 
 async def _hardware_observer(

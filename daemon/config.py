@@ -29,6 +29,7 @@ from description.errors import InvalidCell
 from description.thesis import JOINT_SERVOS, MugSpec, mug_catalogue
 from drivers.dynamixel.tables import BAUD_CODES_1, BAUD_CODES_2, MODELS
 from planning.placement import METHODS
+from recorder.settings import RecordingConfig
 from statechart.chart import JOB_LEAVES, JOB_STATES, top_level
 
 _ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
@@ -41,22 +42,6 @@ _ENERGY_MODELS = ("thesis", "dynamics")
 _CAMERAS = ("realsense", "none")
 RECORDING_COMPRESSIONS = ("zstd", "lz4", "none")
 _LISTEN = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
-
-
-@dataclass(frozen=True, slots=True)
-class RecordingConfig:
-    """MCAP files in ``dir``: one per job, idle time in rotating files, old files deleted past the limits.
-
-    Small chunks bound what a crash loses. ``max_total_mb`` and ``max_age_days`` of 0 mean no limit."""
-
-    dir: Path
-    chunk_size_bytes: int
-    compression: str | None
-    idle_telemetry_hz: float
-    idle_file_s: float
-    job_tail_s: float
-    max_total_mb: int
-    max_age_days: float
 
 
 @dataclass(frozen=True, slots=True)

@@ -9,11 +9,3 @@ class UsageError(ValueError):
 
 class ConfigError(ValueError):
     """A configuration value is missing or out of range; the message names the field and the allowed range."""
-
-
-class RecordingError(ValueError):
-    """A recording cannot be written or read (not MCAP, empty, unknown compression, closed recorder)."""
-
-
-class ReplayError(ValueError):
-    """A replay timeline or fault plan is inconsistent (unknown stream, empty window, time out of range)."""

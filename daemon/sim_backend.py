@@ -9,7 +9,7 @@ cell observes through the world's truth with noise and takes any dataset, switch
 depth detector, and its tray is built into the scene, so a dataset planned on another tray is refused
 (``sim.counter.require_cell_tray``: one message, whether at start-up or on a ``start`` command).
 
-Both cells can fail as the robot does, for fault files (``daemon.replay.faults``): the kinematic cell's
+Both cells can fail as the robot does, for fault files (``replay.faults``): the kinematic cell's
 devices carry their faults (``sim.kinematic.faults``) and its observer the camera's (``FaultyObserver``); the
 MuJoCo cell's device simulators have their own fault hooks and its camera is a ``FaultyCamera``. Each
 counter keeps what a fault acts on (``KinematicCounter.observer``, ``MujocoCounter.camera``).

@@ -42,7 +42,7 @@ _RETRY = {"period_init_ms": 500, "period_max_ms": 4000, "period_increase_factor"
 
 
 class RecordSink(Protocol):
-    """What the session records to: ``daemon.recording.Recorder`` fits."""
+    """What the session records to: ``recorder.Recorder`` fits."""
 
     def write(self, topic: str, payload: Mapping[str, object], *, log_time_ns: int) -> bool: ...
 

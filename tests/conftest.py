@@ -14,7 +14,7 @@ import structlog
 # it by name.
 pytest_plugins = ["pytester"]
 if not any(e.name == "dishbot" for e in entry_points(group="pytest11")):
-    pytest_plugins.append("daemon.replay.pytest_plugin")
+    pytest_plugins.append("replay.pytest_plugin")
 
 # MuJoCo renders offscreen without a GPU through EGL (Mesa llvmpipe); set before any mujoco import.
 os.environ.setdefault("MUJOCO_GL", "egl")

@@ -19,7 +19,19 @@ from typing import Final
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES: Final = ("description", "drivers", "perception", "planning", "statechart", "sim", "daemon")
+PACKAGES: Final = (
+    "description",
+    "drivers",
+    "perception",
+    "planning",
+    "statechart",
+    "sim",
+    "wire",
+    "recorder",
+    "daemon",
+    "replay",
+    "cli",
+)
 
 WALL_CLOCK: Final = {
     "time": {
@@ -62,21 +74,21 @@ ALLOWED: Final[dict[tuple[str, str], str]] = {
     ("sim/mujoco/world.py", "SimWorld._step_to_clock"): (
         "measures how long stepping took on this machine (wall_stepping_s), nothing else"
     ),
-    ("daemon/recording/writer.py", "Recorder._run"): (
+    ("recorder/writer.py", "Recorder._run"): (
         "how often the writer thread flushes to disk: the disk's time, whatever clock the session runs on"
     ),
-    ("daemon/recording/files.py", "Retention.apply"): (
+    ("recorder/files.py", "Retention.apply"): (
         "file ages are the files' modification times, facts of the file system, against the wall clock"
     ),
-    ("daemon/commands/record.py", "run_plot"): "says how long drawing took on this machine, nothing else",
-    ("daemon/commands/monitor.py", "*"): (
+    ("cli/commands/record.py", "run_plot"): "says how long drawing took on this machine, nothing else",
+    ("cli/commands/monitor.py", "*"): (
         "a remote client: its redraws, its reconnection and when it last heard a daemon, in wall time"
     ),
-    ("daemon/replay/faults.py", "_stall"): (
+    ("replay/faults.py", "_stall"): (
         "the loop_stall fault blocks the event loop for wall-clock time on purpose: a stall is the wall "
         "time the loop does not run, whatever clock the session is on"
     ),
-    ("daemon/credentials.py", "write"): "a certificate is valid from now on the wall clock, as TLS checks it",
+    ("cli/credentials.py", "write"): "a certificate is valid from now on the wall clock, as TLS checks it",
     ("perception/observer.py", "CameraObserver._look"): (
         "measures how long detection took (the observation's detect_ms), nothing else"
     ),

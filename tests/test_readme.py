@@ -42,7 +42,7 @@ def test_readme_example_prints_what_the_readme_says(command: str, expected: list
     argv = shlex.split(command)
     assert argv[0] == "dishbot"
     out = subprocess.run(
-        [sys.executable, "-m", "daemon.cli", "--log-level", "error", *argv[1:]],
+        [sys.executable, "-m", "cli.main", "--log-level", "error", *argv[1:]],
         capture_output=True,
         text=True,
         timeout=120,

@@ -46,7 +46,7 @@ _FORCE_GRACE_S = 0.3
 
 
 class RecordingHealth(Protocol):
-    """What the job asks of the session's recording (``daemon.recording.SessionRecording``)."""
+    """What the job asks of the session's recording (``recorder.SessionRecording``)."""
 
     def dropped(self) -> int: ...
 

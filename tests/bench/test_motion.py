@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from daemon.cli import main
+from cli.main import main
 
 
 def test_bench_motion_json_reports_ik_trajectories_and_the_dataset_cycle(

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from daemon.cli import main
+from cli.main import main
 
 
 def test_bench_perception_scores_one_frame_per_dataset(capsys: pytest.CaptureFixture[str]) -> None:

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from daemon.cli import main
+from cli.main import main
 
 
 def test_bench_reports_each_method_with_the_thesis_figures(capsys: pytest.CaptureFixture[str]) -> None:

@@ -13,9 +13,9 @@ from typing import Any
 import pytest
 import zenoh
 
+from cli.commands.client import request
+from cli.main import main
 from daemon.app import RunOptions, serve
-from daemon.cli import main
-from daemon.commands.client import request
 from daemon.config import Config, load_config
 from daemon.sdnotify import SdNotifier
 from daemon.security import Profile, ZenohConfig, node_settings

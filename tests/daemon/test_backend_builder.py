@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 import daemon.backend
+from cli.main import main
 from daemon.backend import Backend, SimOptions, open_backend
-from daemon.cli import main
 from daemon.clock import SimulatedClock
 from daemon.config import Config, load_config
 from daemon.errors import UsageError

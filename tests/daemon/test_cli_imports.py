@@ -16,9 +16,9 @@ from typing import Any
 
 import pytest
 
+from cli.commands.arm import SIDE_GRASPS
+from cli.main import build_parser
 from daemon.app import RunOptions, serve
-from daemon.cli import build_parser
-from daemon.commands.arm import SIDE_GRASPS
 from daemon.config import load_config
 from daemon.sdnotify import SdNotifier
 from perception import associate
@@ -29,13 +29,13 @@ from tests.fakes.job import make_backend, make_world
 HEAVY = frozenset({"mujoco", "scipy", "pinocchio", "cv2", "ortools", "numpy"})
 ROBOT = "importtest"
 
-# Runs daemon.cli.main on each argv of the JSON list argv[1], in order, and writes to the file argv[2] the
-# exit code of each and the top-level packages it was the first to load (importing daemon.cli counts for the
+# Runs cli.main.main on each argv of the JSON list argv[1], in order, and writes to the file argv[2] the
+# exit code of each and the top-level packages it was the first to load (importing cli.main counts for the
 # first argv).
 _PROBE = """
 import json, sys
 loaded = {m.partition(".")[0] for m in sys.modules}
-from daemon.cli import main
+from cli.main import main
 cases, out = json.loads(sys.argv[1]), sys.argv[2]
 done = []
 for argv in cases:

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
+from cli.commands.run import _print_summary, time_ratio_line
+from cli.main import main
 from daemon.app import RunResult
-from daemon.cli import main
 from daemon.clock import RealClock, SimulatedClock, parse_speed
-from daemon.commands.run import _print_summary, time_ratio_line
 from daemon.job import JobSummary
 from drivers.interfaces import Clock, SteppedClock
 

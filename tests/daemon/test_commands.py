@@ -14,9 +14,9 @@ import zenoh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from cli.commands.client import Unreachable, request
+from cli.main import main
 from daemon.app import RunOptions, serve
-from daemon.cli import main
-from daemon.commands.client import Unreachable, request
 from daemon.commands_handler import BadCommand, nested_deeper_than, parse
 from daemon.config import load_config
 from daemon.sdnotify import SdNotifier
@@ -303,7 +303,7 @@ def test_monitor_prints_state_changes_and_events_of_a_running_job(
 
 
 def test_the_monitor_panel_shows_state_joints_and_force() -> None:
-    from daemon.commands.monitor import panel
+    from cli.commands.monitor import panel
 
     text = panel(
         {

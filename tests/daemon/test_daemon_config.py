@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from daemon.cli import main
+from cli.main import main
 from daemon.config import load_config, parse_config, to_toml
 from daemon.errors import ConfigError
 from description import thesis

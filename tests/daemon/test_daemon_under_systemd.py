@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from daemon.recording import HEADER_TOPIC, read_messages
+from recorder import HEADER_TOPIC, read_messages
 
 ROBOT = "svc"
 
@@ -48,7 +48,7 @@ def start_daemon(tmp_path: Path, notify: socket.socket) -> subprocess.Popen[byte
     command = [
         sys.executable,
         "-m",
-        "daemon.cli",
+        "cli.main",
         "run",
         "--sim",
         "--world",

@@ -18,10 +18,10 @@ from daemon.backend import Backend, CounterMug, SimOptions, open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import StartRequest
-from daemon.recording import HEADER_TOPIC, read_messages
 from daemon.sdnotify import SdNotifier
 from perception import associate
 from planning.placement import cell_dataset_problem
+from recorder import HEADER_TOPIC, read_messages
 from tests.daemon.conftest import free_port
 
 WALL_START = 1_795_000_000.0

@@ -14,10 +14,10 @@ import zenoh
 
 from daemon.app import RunOptions, ServeContext, ServeHooks, serve
 from daemon.config import load_config
-from daemon.recording import HEADER_TOPIC, read_messages, writer
 from daemon.sdnotify import SdNotifier
 from daemon.zenoh_session import session_config
 from perception import associate
+from recorder import HEADER_TOPIC, read_messages, writer
 from tests.daemon.conftest import free_port
 from tests.fakes.disk import SmallDisk
 from tests.fakes.job import make_backend, make_world
@@ -99,7 +99,7 @@ def test_a_disk_full_mid_job_is_published_shown_in_status_and_counted_and_the_jo
 
 
 def test_the_status_verb_prints_a_failed_recording() -> None:
-    from daemon.commands.client import _readable
+    from cli.commands.client import _readable
 
     reply = {
         "robot_id": "r1",

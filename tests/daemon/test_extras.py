@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from cli.extras import missing_extra
 from daemon.config import to_toml
-from daemon.extras import missing_extra
 from tests.daemon.conftest import free_port
 from tests.fakes.hw_rig import rig
 
@@ -23,7 +23,7 @@ def run_without(module: str, *argv: str) -> subprocess.CompletedProcess[str]:
     """``dishbot ARGV`` in a fresh interpreter where importing ``module`` fails as if it was not installed."""
     code = (
         f"import sys; sys.modules[{module!r}] = None\n"
-        "from daemon.cli import main\n"
+        "from cli.main import main\n"
         "sys.exit(main(sys.argv[1:]))\n"
     )
     return subprocess.run(

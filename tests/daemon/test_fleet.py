@@ -15,12 +15,12 @@ import zenoh
 from hypothesis import given
 from hypothesis import strategies as st
 
-from daemon.cli import main
-from daemon.commands.client import Target
-from daemon.commands.monitor import RobotView, Watch, panel, screen
+from cli.commands.client import Target
+from cli.commands.monitor import RobotView, Watch, panel, screen
+from cli.main import main
 from daemon.commands_handler import VERBS
-from daemon.recording import read_messages
 from daemon.zenoh_session import addressed, session_config
+from recorder import read_messages
 from tests.daemon.conftest import free_port
 from tests.daemon.daemons import ask, cli, daemon, robot_config, router, until_state
 

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from cli.main import main
 from daemon.backend import (
     SimOptions,
     check_cell_reachable,
@@ -19,7 +20,6 @@ from daemon.backend import (
     open_backend,
     open_hardware_backend,
 )
-from daemon.cli import main
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.errors import ConfigError, UsageError

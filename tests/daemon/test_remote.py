@@ -26,9 +26,9 @@ from bench.remote import (
     namespace_pair,
     netns_refused,
 )
-from daemon import credentials
-from daemon.recording import read_messages
-from daemon.recording.files import is_job_file
+from cli import credentials
+from recorder import read_messages
+from recorder.files import is_job_file
 
 pytestmark = pytest.mark.slow
 

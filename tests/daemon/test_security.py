@@ -17,8 +17,8 @@ from cryptography import x509
 from cryptography.x509.oid import NameOID
 
 from bench.remote import python_env
+from cli.main import main
 from daemon.app import RunOptions, tolerated_exposure
-from daemon.cli import main
 from daemon.config import load_config
 from daemon.errors import ConfigError, UsageError
 from daemon.security import exposure_error, load_profile, parse_zenoh
@@ -538,7 +538,7 @@ def test_the_router_routes_over_tls_with_roles(keys: Path, tmp_path: Path) -> No
     robot_toml = home / "robot.toml"
     robot_toml.write_text(robot_toml.read_text().replace(f'listen = ["tls/127.0.0.1:{port}"]', "listen = []"))
     router = subprocess.Popen(
-        [sys.executable, "-m", "daemon.cli", "router", "--config", str(home / "router.toml")],
+        [sys.executable, "-m", "cli.main", "router", "--config", str(home / "router.toml")],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,

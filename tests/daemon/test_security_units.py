@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from daemon.cli import build_parser
+from cli.main import build_parser
 from tests.daemon.test_service_unit import parse_unit, seconds
 
 ROUTER_UNIT = Path(__file__).resolve().parents[2] / "systemd" / "dishbot-router.service"

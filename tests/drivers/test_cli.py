@@ -10,7 +10,7 @@ import threading
 
 import pytest
 
-from daemon.cli import main
+from cli.main import main
 from drivers.sim import FsrSimulator, ServoChainSimulator, default_chain
 
 
@@ -25,7 +25,7 @@ def test_sim_bus_prints_its_device_path_on_the_first_line_and_serves_the_thesis_
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     child = subprocess.Popen(
-        [sys.executable, "-m", "daemon.cli", "sim", "bus"],
+        [sys.executable, "-m", "cli.main", "sim", "bus"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -11,7 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from daemon.recording import read_messages
+from recorder import read_messages
 from tests.daemon.conftest import free_port
 
 LIMIT_BYTES = 60_000
@@ -24,7 +24,7 @@ def _limited() -> None:
 
 
 def test_a_once_job_on_a_full_disk_ends_done_and_counts_the_lost_messages(tmp_path: Path) -> None:
-    cmd = [sys.executable, "-B", "-m", "daemon.cli", "run", "--sim", "--world", "kinematic", "--once"]
+    cmd = [sys.executable, "-B", "-m", "cli.main", "run", "--sim", "--world", "kinematic", "--once"]
     cmd += ["--dataset", "1", "--record-dir", str(tmp_path), "--listen", f"tcp/127.0.0.1:{free_port()}"]
     result = subprocess.run(
         cmd, capture_output=True, text=True, timeout=300, preexec_fn=_limited, check=False

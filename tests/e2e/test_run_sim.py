@@ -21,9 +21,9 @@ import pytest
 import zenoh
 
 from daemon.config import load_config
-from daemon.recording import read_messages
 from daemon.zenoh_session import session_config
 from planning.placement import cell_dataset_problem
+from recorder import read_messages
 from tests.daemon.conftest import free_port
 
 ROBOT = "e2e"
@@ -57,7 +57,7 @@ def test_run_sim_places_the_planned_mugs_and_records_what_it_published(tmp_path:
     config = tmp_path / "robot.toml"
     config.write_text(f'robot_id = "{ROBOT}"\n[planner]\nmethod = "bh"\n')
     record_dir = tmp_path / "recordings"
-    cmd = [sys.executable, "-m", "daemon.cli", "run", "--sim", "--world", "kinematic", "--dataset", "1"]
+    cmd = [sys.executable, "-m", "cli.main", "run", "--sim", "--world", "kinematic", "--dataset", "1"]
     cmd += [
         "--speed",
         str(SPEED),

@@ -11,7 +11,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from daemon.commands.client import request
+from cli.commands.client import request
 from tests.daemon.conftest import free_port
 
 
@@ -52,7 +52,7 @@ def test_sigkill_mid_job_leaves_no_helper_process_alive(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     run = ["run", "--sim", "--world", "kinematic", "--listen", endpoint, "--record-dir", str(tmp_path)]
     daemon = subprocess.Popen(
-        [sys.executable, "-m", "daemon.cli", *run, "--speed", "1"],
+        [sys.executable, "-m", "cli.main", *run, "--speed", "1"],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,

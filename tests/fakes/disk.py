@@ -1,4 +1,4 @@
-"""A disk that fills up, for the recorder: patch it in as ``daemon.recording.writer.open``."""
+"""A disk that fills up, for the recorder: patch it in as ``recorder.writer.open``."""
 
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from daemon.cli import main
+from cli.main import main
 from description.cell import CellLayout
 from perception.calibration import (
     CharucoBoard,

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from daemon.cli import main
+from cli.main import main
 from description.cell import CellLayout, SceneMug
 from description.thesis import BIG_MUG, SMALL_MUG
 from perception.calibration import CameraModel

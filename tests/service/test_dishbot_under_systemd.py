@@ -31,8 +31,8 @@ from typing import Any, Final
 
 import pytest
 
-from daemon.recording import read_messages
-from daemon.recording.files import is_job_file
+from recorder import read_messages
+from recorder.files import is_job_file
 from tests.service.container import Container, Refused, booted, monotonic_stamp
 
 pytestmark = pytest.mark.slow
@@ -68,7 +68,7 @@ WATCHDOG_S: Final = 10.0  # the unit's WatchdogSec
 def dishbot_command() -> str:
     """This virtual environment's ``dishbot``, as the unit's ``ExecStart`` names the robot's."""
     script = Path(sys.prefix) / "bin" / "dishbot"
-    return str(script) if script.exists() else f"{sys.executable} -m daemon.cli"
+    return str(script) if script.exists() else f"{sys.executable} -m cli.main"
 
 
 def paths_drop_in() -> str:
@@ -164,7 +164,7 @@ def fresh_start(c: Container) -> dict[str, str]:
 
 def client(c: Container, *argv: str, timeout: float = 30.0) -> subprocess.CompletedProcess[str]:
     """``dishbot VERB ...`` (the client verbs) from the container's network, to the daemon under test."""
-    command = [sys.executable, "-m", "daemon.cli", *argv, "--connect", ENDPOINT, "--robot", ROBOT]
+    command = [sys.executable, "-m", "cli.main", *argv, "--connect", ENDPOINT, "--robot", ROBOT]
     env = {**os.environ, "PYTHONPATH": str(PROJECT)}
     return c.run_in_network(command, timeout=timeout, cwd=PROJECT, env=env)
 

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from daemon.cli import main
+from cli.main import main
 
 
 def _run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:

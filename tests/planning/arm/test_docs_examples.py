@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon.cli import main
+from cli.main import main
 
 DOC = Path(__file__).parents[3] / "docs" / "arm.md"
 BLOCK = re.compile(r"```console\n(.*?)```", re.DOTALL)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from daemon.cli import main
+from cli.main import main
 from daemon.config import load_config
 from planning.placement import PlanOptions, plan
 from planning.placement.datasets import cell_dataset_problem

@@ -1,0 +1,1 @@
+"""The ``dishbot`` command line: the verbs (``cli.commands``), the client, credentials writing."""

@@ -1,0 +1,286 @@
+"""Reading recordings, finished or not: record by record, up to the first byte that cannot be used.
+
+A file whose writer never called ``finish()`` (crash, ``kill -9``, a partial copy, a file still being
+written) cannot be opened by MCAP's indexed reader. ``read_messages`` walks the records instead and stops
+cleanly where the file ends (or turns corrupt), reporting the byte and the time of the cut. Finished files
+are read the same way, so there is one code path for both. Whether an unfinished file is still being written
+is told by the writer's ``flock`` on it: a live writer holds it, a crashed one released it with its process.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import io
+import json
+import mmap
+import os
+import struct
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Final
+
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.records import Channel, Chunk, Footer, Header, Schema
+from mcap.stream_reader import get_chunk_data_stream
+
+from recorder.errors import RecordingError
+from recorder.writer import MESSAGE_ENCODING
+from wire.schemas import HEADER_TOPIC
+
+MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
+
+_RECORD_PREFIX = struct.Struct("<BQ")  # opcode, record length
+_MESSAGE_PREFIX = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time; then the data
+
+
+@dataclass(frozen=True, slots=True)
+class RecordedMessage:
+    """One message as recorded: its topic (key expression), log time and decoded JSON payload."""
+
+    topic: str
+    log_time_ns: int
+    payload: dict[str, object]
+
+
+@dataclass(frozen=True, slots=True)
+class RecordingRead:
+    """Everything recovered from a recording, in file order, and whether (and where) the file was cut.
+
+    ``truncated`` is True when the file does not end with a footer and the closing magic (the writer was
+    killed, the disk filled, the file was copied partway, or it is still being written) or a record turned
+    out corrupt. ``being_written`` tells the last case: a live recorder holds the file's lock.
+    ``cut_at_byte`` is the offset of the first byte that could not be used; ``cut_after_ns`` the log time of
+    the last message recovered before it (None when nothing was). ``cut_reason`` says why reading stopped.
+    ``topic_counts``, ``start_ns`` and ``end_ns`` cover every recovered message, also those not kept (and
+    those of non-JSON channels, which are counted but never decoded). ``schemas`` has the JSON Schema of
+    each JSON channel, ``schema_names`` the schema name of every channel (``foxglove.FrameTransforms``).
+    """
+
+    path: Path
+    messages: tuple[RecordedMessage, ...]
+    topic_counts: Mapping[str, int]
+    start_ns: int | None
+    end_ns: int | None
+    size_bytes: int
+    truncated: bool
+    cut_at_byte: int | None
+    cut_after_ns: int | None
+    cut_reason: str = ""
+    library: str = ""
+    schemas: Mapping[str, object] = field(default_factory=dict)
+    schema_names: Mapping[str, str] = field(default_factory=dict)
+    being_written: bool = False
+
+    def __iter__(self) -> Iterator[RecordedMessage]:
+        return iter(self.messages)
+
+    def __len__(self) -> int:
+        return len(self.messages)
+
+    @property
+    def message_count(self) -> int:
+        return sum(self.topic_counts.values())
+
+    @property
+    def header(self) -> dict[str, object] | None:
+        """The session header payload (``config`` and ``scene``, for a job file ``job``), or None when none
+        was kept or recorded."""
+        return next((m.payload for m in self.messages if m.topic == HEADER_TOPIC), None)
+
+
+def read_messages(path: Path, *, keep: Callable[[str], bool] | None = None) -> RecordingRead:
+    """Read a recording, finished or not, up to the first byte that cannot be used.
+
+    ``keep(topic)`` selects the topics whose payloads are decoded and returned (default: all JSON topics);
+    the others are only counted, which keeps summaries of long sessions cheap. Raises ``RecordingError``
+    (one line, naming the file) when the file is missing, empty or not MCAP, or a message in an intact chunk
+    is not a JSON object.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            if size == 0:
+                raise RecordingError(f"{path}: empty file, not a recording")
+            with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+                head = data[: len(MCAP_MAGIC)]
+                if head != MCAP_MAGIC:
+                    if MCAP_MAGIC.startswith(head):
+                        raise RecordingError(
+                            f"{path}: cut inside the MCAP magic after {size} bytes, nothing recorded"
+                        )
+                    raise RecordingError(f"{path}: not an MCAP file (bad magic)")
+                read = _Scan(path, data, keep).run()
+            if read.truncated and _locked(f.fileno()):
+                read = _with_writer(read)
+            return read
+    except FileNotFoundError as e:
+        raise RecordingError(f"{path}: no such file") from e
+    except IsADirectoryError as e:
+        raise RecordingError(f"{path}: is a directory, not a recording file") from e
+    except PermissionError as e:
+        raise RecordingError(f"{path}: permission denied") from e
+
+
+def being_written(path: Path) -> bool:
+    """Whether a live recorder holds ``path`` open for writing (its ``flock``); False when it cannot tell."""
+    try:
+        with open(path, "rb") as f:
+            return _locked(f.fileno())
+    except OSError:
+        return False
+
+
+def _locked(fd: int) -> bool:
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:  # a file system without locks: nobody can be seen writing
+        return False
+    fcntl.flock(fd, fcntl.LOCK_UN)
+    return False
+
+
+def _with_writer(read: RecordingRead) -> RecordingRead:
+    return RecordingRead(
+        **{name: getattr(read, name) for name in read.__dataclass_fields__ if name != "being_written"},
+        being_written=True,
+    )
+
+
+class _Scan:
+    """One pass over the records of a mapped file, tolerant of a missing end."""
+
+    def __init__(self, path: Path, data: mmap.mmap, keep: Callable[[str], bool] | None) -> None:
+        self.path = path
+        self.data = data
+        self.keep = keep
+        self.topics: dict[int, str] = {}
+        self.kept: dict[int, bool] = {}
+        self.schemas: dict[int, Schema] = {}
+        self.schema_docs: dict[str, object] = {}
+        self.schema_names: dict[str, str] = {}
+        self.counts: dict[str, int] = {}
+        self.start_ns: int | None = None
+        self.end_ns: int | None = None
+        self.messages: list[RecordedMessage] = []
+        self.library = ""
+
+    def run(self) -> RecordingRead:
+        pos = len(MCAP_MAGIC)
+        end = len(self.data)
+        while True:
+            if pos + _RECORD_PREFIX.size > end:
+                return self._done(
+                    pos, "file ends before the footer" if pos == end else "file ends mid-record"
+                )
+            opcode, length = _RECORD_PREFIX.unpack_from(self.data, pos)
+            body_start = pos + _RECORD_PREFIX.size
+            if length > end - body_start:
+                return self._done(pos, "file ends mid-record")
+            try:
+                self._record(opcode, self.data[body_start : body_start + length], pos)
+            except RecordingError:
+                raise
+            except Exception as e:  # any decoding failure of an intact-length record: corrupt from here on
+                return self._done(pos, f"corrupt {_opcode_name(opcode)} record ({e})")
+            pos = body_start + length
+            if opcode == Opcode.FOOTER:
+                if self.data[pos:] == MCAP_MAGIC:
+                    return self._done(None, "")
+                return self._done(pos, "file ends inside the closing magic")
+
+    def _record(self, opcode: int, body: bytes, offset: int) -> None:
+        stream = ReadDataStream(io.BytesIO(body))
+        if opcode == Opcode.HEADER:
+            self.library = Header.read(stream).library
+        elif opcode == Opcode.SCHEMA:
+            self._schema(Schema.read(stream))
+        elif opcode == Opcode.CHANNEL:
+            self._channel(Channel.read(stream))
+        elif opcode == Opcode.MESSAGE:
+            self._message(body, 0, len(body), offset)
+        elif opcode == Opcode.CHUNK:
+            chunk_stream, size = get_chunk_data_stream(Chunk.read(stream), validate_crc=True)
+            self._chunk_records(chunk_stream.read(size), offset)
+        elif opcode == Opcode.FOOTER:
+            Footer.read(stream)
+        # Indexes, statistics, metadata and attachments are not needed to recover messages.
+
+    def _schema(self, schema: Schema) -> None:
+        self.schemas[schema.id] = schema
+
+    def _channel(self, channel: Channel) -> None:
+        self.topics[channel.id] = channel.topic
+        wanted = self.keep is None or self.keep(channel.topic)
+        self.kept[channel.id] = wanted and channel.message_encoding == MESSAGE_ENCODING
+        schema = self.schemas.get(channel.schema_id)
+        if schema is None:
+            return
+        self.schema_names[channel.topic] = schema.name
+        if schema.encoding == "jsonschema":
+            with contextlib.suppress(ValueError):
+                self.schema_docs[channel.topic] = json.loads(schema.data)
+
+    def _chunk_records(self, data: bytes, offset: int) -> None:
+        """The schemas, channels and messages inside one (decompressed, CRC-checked) chunk, in order."""
+        pos = 0
+        while pos < len(data):
+            opcode, length = _RECORD_PREFIX.unpack_from(data, pos)
+            start = pos + _RECORD_PREFIX.size
+            pos = start + length
+            if pos > len(data):
+                raise ValueError("a record runs past the end of its chunk")
+            if opcode == Opcode.MESSAGE:
+                self._message(data, start, pos, offset)
+            elif opcode == Opcode.SCHEMA:
+                self._schema(Schema.read(ReadDataStream(io.BytesIO(data[start:pos]))))
+            elif opcode == Opcode.CHANNEL:
+                self._channel(Channel.read(ReadDataStream(io.BytesIO(data[start:pos]))))
+
+    def _message(self, data: bytes, start: int, end: int, offset: int) -> None:
+        """One message record's fields from ``data[start:end]``; the payload is decoded only when kept."""
+        channel_id, _sequence, t, _publish_time = _MESSAGE_PREFIX.unpack_from(data, start)
+        topic = self.topics.get(channel_id)
+        if topic is None:
+            raise RecordingError(f"{self.path}: message at byte {offset} names unknown channel {channel_id}")
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+        self.start_ns = t if self.start_ns is None else min(self.start_ns, t)
+        self.end_ns = t if self.end_ns is None else max(self.end_ns, t)
+        if not self.kept[channel_id]:
+            return
+        try:
+            payload = json.loads(data[start + _MESSAGE_PREFIX.size : end])
+        except ValueError as e:
+            raise RecordingError(f"{self.path}: message on {topic} at byte {offset} is not JSON ({e})") from e
+        if not isinstance(payload, dict):
+            raise RecordingError(f"{self.path}: message on {topic} at byte {offset} is not a JSON object")
+        self.messages.append(RecordedMessage(topic, t, payload))
+
+    def _done(self, cut_at: int | None, reason: str) -> RecordingRead:
+        return RecordingRead(
+            path=self.path,
+            messages=tuple(self.messages),
+            topic_counts=dict(self.counts),
+            start_ns=self.start_ns,
+            end_ns=self.end_ns,
+            size_bytes=len(self.data),
+            truncated=cut_at is not None,
+            cut_at_byte=cut_at,
+            cut_after_ns=self.end_ns if cut_at is not None else None,
+            cut_reason=reason,
+            library=self.library,
+            schemas=dict(self.schema_docs),
+            schema_names=dict(self.schema_names),
+        )
+
+
+def _opcode_name(opcode: int) -> str:
+    try:
+        return Opcode(opcode).name.lower()
+    except ValueError:
+        return f"opcode {opcode:#04x}"

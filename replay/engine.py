@@ -1,0 +1,388 @@
+"""``replay``: one recorded job run again through the daemon, on simulated time, and compared.
+
+The session header rebuilds the config and the simulated cell (the same world, dataset and seeds, the
+simulated clock from the same wall-clock start); the daemon itself runs unchanged (``daemon.app.serve``:
+the job, the statechart, the planners, the telemetry, the recorder, Zenoh with ``listen``). Its devices are
+the replay's (``replay.drivers``): the recorded inputs for as long as the daemon does what it did,
+the simulated cell after. The operator's recorded commands are sent again at their times while the replay
+follows the recording. Faults (``replay.faults``) act on the simulated cell; the first one to fire
+ends replaying, as any divergence does.
+
+The replay writes its own recording (kept only when asked, ``record``), and the trace read back from it is
+compared with the recorded one: the states entered, the events, the device commands
+(``replay.session.compare``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import json
+import shutil
+import tempfile
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import structlog
+
+from daemon.app import RunOptions, ServeContext, ServeHooks, serve
+from daemon.backend import SimOptions, open_backend
+from daemon.clock import SimulatedClock, wall_seconds
+from daemon.config import Config
+from daemon.sdnotify import SdNotifier
+from daemon.security import ZenohConfig
+from recorder import read_messages
+from recorder.files import is_job_file
+from replay.drivers import Replayer, replay_backend
+from replay.errors import ReplayError
+from replay.session import Divergence, RecordedSession, Trace, compare, trace_of
+
+log = structlog.get_logger("replay")
+
+# How long a replay may run on after the recorded job's duration before it is given up (simulated s).
+_OVERRUN_S = 600.0
+# How far past a cut recording's end the replay goes on before it stops (simulated s).
+_PAST_CUT_S = 1.0
+# A recorded job that began longer than this after its daemon started is started at once in the replay
+# rather than after as long an idle spell.
+_MAX_IDLE_WAIT_S = 3600.0
+
+
+class FaultSource(Protocol):
+    """What the replay needs of a fault plan (``replay.faults.FaultInjector``)."""
+
+    on_fire: Callable[[Any], None] | None
+
+    def prepare(self, options: RunOptions) -> RunOptions: ...
+
+    def attach(self, ctx: ServeContext) -> None: ...
+
+    def on_publish(self, topic: str, payload: Mapping[str, object]) -> None: ...
+
+    def close(self) -> None: ...
+
+    @property
+    def fired(self) -> Sequence[Mapping[str, object]]: ...
+
+
+@dataclass(frozen=True, slots=True)
+class ReplayOptions:
+    speed: float | None = None  # simulated seconds per wall second; None: as fast as the machine allows
+    record: Path | None = None  # keep the replay's recording here
+    listen: tuple[str, ...] = ()  # Zenoh endpoints to publish on while replaying
+    insecure: bool = False  # plain endpoints beyond loopback allowed (as ``dishbot run --insecure``)
+
+
+@dataclass(frozen=True, slots=True)
+class ReplayReport:
+    """What a replay did, against what was recorded."""
+
+    session: Path
+    recorded: Trace
+    replayed: Trace
+    first_divergence: Divergence | None
+    faults: tuple[Mapping[str, object], ...]
+    recorded_duration_s: float
+    replay_duration_s: float  # simulated
+    wall_s: float
+    cut: str | None  # why the recording ends early, when it does
+    recording: Path | None  # the replay's own recording, when kept
+    served: Mapping[str, int] = field(default_factory=dict)
+    world: str = ""
+
+    @property
+    def match(self) -> bool:
+        """The replay did what the recording says, up to its end (a recording cut short: up to the cut)."""
+        return self.first_divergence is None
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "session": str(self.session),
+            "world": self.world,
+            "match": self.match,
+            "first_divergence": None if self.first_divergence is None else self.first_divergence.to_json(),
+            "final_state": self.replayed.final_state,
+            "recorded_final_state": self.recorded.final_state,
+            "states": list(self.replayed.states),
+            "recorded_states": list(self.recorded.states),
+            "events": [e.to_json() for e in self.replayed.events],
+            "faults": [dict(f) for f in self.faults],
+            "recorded_duration_s": round(self.recorded_duration_s, 6),
+            "replay_duration_s": round(self.replay_duration_s, 6),
+            "wall_s": round(self.wall_s, 3),
+            "speedup": round(self.replay_duration_s / self.wall_s, 2) if self.wall_s > 0 else None,
+            "cut": self.cut,
+            "recording": None if self.recording is None else str(self.recording),
+            "served": dict(self.served),
+        }
+
+    def lines(self) -> list[str]:
+        """The report as a person reads it."""
+        out = [f"replayed {self.session.name} ({self.world}, recorded {self.recorded_duration_s:.1f} s)"]
+        if self.cut is not None:
+            out.append(f"the recording ends early at {self.recorded.duration_s:.1f} s: {self.cut}")
+        if self.first_divergence is None:
+            out.append(
+                f"trace matched: {len(self.replayed.states)} states, {len(self.replayed.events)} events"
+            )
+        else:
+            out.append(f"trace {self.first_divergence.line()}")
+        for f in self.faults:
+            target = f" servo {f['servo']}" if f.get("servo") is not None else ""
+            out.append(f"fault fired: {f.get('kind')}{target} at {float(f.get('fired_at_s', 0.0)):.3f} s")  # type: ignore[arg-type]
+        out.append(f"final state {self.replayed.final_state} (recorded: {self.recorded.final_state})")
+        counts: dict[str, int] = {}
+        for e in self.replayed.events:
+            counts[e.kind] = counts.get(e.kind, 0) + 1
+        out.append("events " + ", ".join(f"{k} {n}" for k, n in sorted(counts.items())))
+        ratio = f"{self.replay_duration_s / self.wall_s:.1f}x" if self.wall_s > 0 else "-"
+        out.append(f"replayed {self.replay_duration_s:.1f} s in {self.wall_s:.1f} s wall ({ratio} real time)")
+        if self.recording is not None:
+            out.append(f"recording {self.recording}")
+        return out
+
+
+def replay(
+    session: RecordedSession, options: ReplayOptions = ReplayOptions(), *, faults: FaultSource | None = None
+) -> ReplayReport:
+    """Replay ``session`` (blocking: it runs its own simulated event loop)."""
+    if options.record is not None and options.record.exists():
+        raise ReplayError(f"--record {options.record}: the file exists; choose a new name")
+    wall_start = _wall_start(session)
+    clock = SimulatedClock(speed=options.speed, wall_start=wall_start)
+    started = wall_seconds()
+    with tempfile.TemporaryDirectory(prefix="dishbot-replay-") as tmp:
+        replayer, result_files = clock.run(_replay(session, options, clock, Path(tmp), faults))
+        wall_s = wall_seconds() - started
+        jobs = [p for p in result_files if is_job_file(p)]
+        if not jobs:
+            raise ReplayError(f"{session.path}: the replay started no job (the daemon refused the start)")
+        read = read_messages(jobs[0])
+        replayed = trace_of(read)
+        kept: Path | None = None
+        if options.record is not None:
+            options.record.parent.mkdir(parents=True, exist_ok=True)
+            shutil.move(jobs[0], options.record)
+            kept = options.record
+    recorded = session.trace
+    divergence = replayer.divergence
+    compared = compare(recorded, replayed, prefix=session.cut is not None)
+    if compared is not None and (divergence is None or compared.t_s < divergence.t_s):
+        divergence = compared
+    return ReplayReport(
+        session=session.path,
+        recorded=recorded,
+        replayed=replayed,
+        first_divergence=divergence,
+        faults=tuple(faults.fired) if faults is not None else (),
+        recorded_duration_s=recorded.duration_s,
+        replay_duration_s=replayed.duration_s,
+        wall_s=wall_s,
+        cut=session.cut,
+        recording=kept,
+        served=dict(replayer.served),
+        world=session.world,
+    )
+
+
+def _wall_start(session: RecordedSession) -> float:
+    """The replay's clock starts where the recording's did: the simulated clock's wall start, or the
+    recording's first message on the wall clock."""
+    start = session.clock.get("wall_start")
+    if session.simulated and isinstance(start, int | float):
+        return float(start)
+    return (session.read.start_ns or session.start_ns) / 1e9
+
+
+def replay_config(session: RecordedSession, options: ReplayOptions, record_dir: Path) -> Config:
+    """The recorded config, with what belongs to the machine it ran on taken out: the recording goes to
+    the replay's directory, Zenoh has no peers to reach and no credentials of the robot's."""
+    config = session.config
+    zenoh = ZenohConfig(listen=options.listen, connect=(), insecure=options.insecure)
+    recording = dataclasses.replace(config.recording, dir=record_dir, max_total_mb=0, max_age_days=0)
+    return dataclasses.replace(config, zenoh=zenoh, recording=recording)
+
+
+async def _replay(
+    session: RecordedSession,
+    options: ReplayOptions,
+    clock: SimulatedClock,
+    record_dir: Path,
+    faults: FaultSource | None,
+) -> tuple[Replayer, tuple[Path, ...]]:
+    config = replay_config(session, options, record_dir)
+    dataset = session.scene.get("dataset") if session.job.get("mugs") is None else None
+    seed = session.job.get("sim_seed")
+    backend = await open_backend(
+        config,
+        sim=SimOptions(
+            world=session.world,
+            dataset=dataset if isinstance(dataset, int) else 1,
+            transport="inprocess",
+            seed=seed if isinstance(seed, int) else None,
+        ),
+        clock=clock,
+    )
+    replayer = Replayer(session, clock)
+    backend = replay_backend(backend, replayer)
+    recorded_states = session.trace.states
+    entered = 0
+
+    def on_publish(topic: str, payload: Mapping[str, object]) -> None:
+        nonlocal entered
+        if topic != "events":
+            return
+        kind = payload.get("kind")
+        if kind == "transition":
+            dest = str(payload.get("dest", ""))
+            if not replayer.started and payload.get("trigger") == "start":
+                replayer.job_started()
+            if replayer.started:
+                if replayer.replaying:
+                    if entered >= len(recorded_states):
+                        if session.cut is None:
+                            replayer.diverge("state", f"stay in {session.trace.final_state}", f"enter {dest}")
+                    elif recorded_states[entered] != dest:
+                        replayer.diverge("state", f"enter {recorded_states[entered]}", f"enter {dest}")
+                entered += 1
+            replayer.state = dest
+        elif kind == "fault_injected" and replayer.started:
+            replayer.diverge(
+                "fault", "no fault", f"{payload.get('fault', payload.get('fault_kind', 'a fault'))}"
+            )
+
+    stop = asyncio.Event()
+    drive: list[asyncio.Task[None]] = []
+    if faults is not None:
+
+        def fired(spec: Any) -> None:  # just before the fault acts: the simulated cell takes over
+            replayer.diverge("fault", "no fault", f"{spec.kind} {spec.trigger}")
+
+        faults.on_fire = fired
+
+    def on_ready(ctx: ServeContext) -> None:
+        if faults is not None:
+            faults.attach(ctx)
+        drive.append(asyncio.create_task(_drive(session, replayer, ctx), name="replay"))
+
+    hooks = ServeHooks(
+        on_publish=(on_publish,) if faults is None else (on_publish, faults.on_publish), on_ready=on_ready
+    )
+    run_options = RunOptions(
+        listen=options.listen, connect=(), record_dir=record_dir, insecure=options.insecure
+    )
+    if faults is not None:
+        run_options = faults.prepare(run_options)
+    from perception import associate
+
+    try:
+        result = await serve(
+            config, backend, associate, run_options, notifier=SdNotifier(None), stop=stop, hooks=hooks
+        )
+    finally:
+        for task in drive:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        if faults is not None:
+            faults.close()
+    return replayer, result.files
+
+
+async def _drive(session: RecordedSession, replayer: Replayer, ctx: ServeContext) -> None:
+    """The operator's side: the recorded commands at their times (the first starts the job), then, once
+    the job has ended and its file's tail is recorded, the end of the daemon."""
+    clock = ctx.clock
+    if session.simulated:
+        # Start when the recorded daemon did (the same simulated time after the start of its clock): the
+        # simulated cell then is exactly as it was.
+        start_at = session.start_monotonic
+        if 0.0 < start_at - clock.monotonic() <= _MAX_IDLE_WAIT_S:
+            await clock.sleep_until(start_at)
+    reply = await ctx.handle("start", session.start_payload(), False)
+    if not reply.get("ok"):
+        log.error("replay_start_refused", error=reply.get("error"))
+        ctx.stop.set()
+        return
+    for command in session.commands():
+        if command.t_ns <= session.start_ns:
+            continue
+        verb = str(command.payload.get("verb"))
+        await clock.sleep_until(
+            clock.monotonic() + max(0.0, (command.t_ns / 1e9 - _recorded_now(session, replayer)))
+        )
+        if not replayer.replaying:
+            break
+        payload = str(command.payload.get("payload", "")).encode()
+        reply = await ctx.handle(verb, payload, bool(command.payload.get("many")))
+        recorded = command.payload.get("reply")
+        if isinstance(recorded, Mapping) and bool(recorded.get("ok")) != bool(reply.get("ok")):
+            replayer.diverge(
+                "command", f"{verb} answered {_answer(recorded)}", f"{verb} answered {_answer(reply)}"
+            )
+    limit = session.trace.duration_s + _OVERRUN_S
+    if session.cut is not None:
+        # The recorded daemon ended at the cut: so does the replay (if the job is not over before), a moment
+        # after it, so that what happened at the very instant of the cut is in the replay too (only the
+        # recording's part is compared).
+        left = max(0.0, session.end_s - replayer.t_s()) + _PAST_CUT_S
+        await clock.wait(asyncio.ensure_future(ctx.job.finished.wait()), left)
+    else:
+        finished = await clock.wait(asyncio.ensure_future(ctx.job.finished.wait()), limit)
+        if not finished:
+            log.error("replay_overran", limit_s=limit)
+        await clock.sleep(ctx.config.recording.job_tail_s)
+    ctx.stop.set()
+
+
+def _recorded_now(session: RecordedSession, replayer: Replayer) -> float:
+    return session.start_ns / 1e9 + replayer.t_s()
+
+
+def _answer(reply: Mapping[str, object]) -> str:
+    return "ok" if reply.get("ok") else f"refused ({reply.get('error', '')})"
+
+
+def load_and_replay(path: Path, options: ReplayOptions = ReplayOptions()) -> ReplayReport:
+    """``RecordedSession.load`` then ``replay``: one call for scripts."""
+    return replay(RecordedSession.load(path), options)
+
+
+Faults = str | Path | Sequence[Mapping[str, object]]
+
+
+def fault_text(faults: Faults) -> str:
+    """TOML text for ``faults``: a file's text, the text itself, or ``[[fault]]`` tables of scalars."""
+    if isinstance(faults, Path):
+        return faults.read_text(encoding="utf-8")
+    if isinstance(faults, str):
+        return faults
+    lines = []
+    for table in faults:
+        lines.append("[[fault]]")
+        lines.extend(f"{key} = {_toml_value(value)}" for key, value in table.items())
+    return "\n".join(lines) + "\n"
+
+
+def _toml_value(value: object) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)
+    raise TypeError(f"a fault's values are strings, numbers or booleans, not {value!r}")
+
+
+__all__ = [
+    "FaultSource",
+    "Faults",
+    "ReplayOptions",
+    "ReplayReport",
+    "fault_text",
+    "load_and_replay",
+    "replay",
+]

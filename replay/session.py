@@ -1,0 +1,454 @@
+"""A recorded job, read back for a replay: what it ran on, the inputs the daemon consumed, and its trace.
+
+``RecordedSession.load`` reads one job file (``<robot>-<start>-job.mcap``) and checks that it is one: an
+MCAP file that is not a recording, a recording of another program, an idle file or a header without what a
+replay needs is a ``ReplayError`` with one line naming the file and what is wrong. A file cut by a crash is
+read up to the cut (``cut``).
+
+Times. Every recorded message carries its log time, the session clock's ``now()``: on a simulated clock the
+session's wall-clock start plus simulated time, on the robot the wall clock. Inputs also carry the
+driver's monotonic time of the call (``t_read``, ``t_start``, ``t_end``). A trace's times (``Trace``) are
+seconds from the job's ``start`` transition, so a recorded trace and its replay can be laid side by side
+whatever clock either ran on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import statistics
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Final
+
+from daemon.config import Config, load_config
+from daemon.errors import ConfigError
+from recorder import HEADER_TOPIC, read_messages
+from recorder.errors import RecordingError
+from recorder.reader import RecordedMessage, RecordingRead
+from replay.errors import ReplayError
+from wire.schemas import topic_suffix
+
+# The backends a replay can rebuild, by the name the session header's scene gives.
+SIM_BACKENDS: Final = {"sim-kinematic": "kinematic", "sim-mujoco": "mujoco"}
+# Events that say something about this run of the program rather than about the job, left out of a trace
+# comparison: links to other machines, the recording itself, faults a replay injected.
+UNCOMPARED_EVENTS: Final = frozenset(
+    {"connection_lost", "connection_restored", "fault_injected", "recording_failed", "zenoh_insecure"}
+)
+# Commands that change nothing are not recorded (``status``); these are sent again by a replay.
+REPLAYED_VERBS: Final = ("start", "pause", "resume", "stop", "estop", "reset")
+
+
+@dataclass(frozen=True, slots=True)
+class TraceEvent:
+    kind: str
+    t_s: float  # from the job's start
+    state: str
+    detail: Mapping[str, object] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, object]:
+        return {**self.detail, "kind": self.kind, "t_s": round(self.t_s, 6), "state": self.state}
+
+
+@dataclass(frozen=True, slots=True)
+class Trace:
+    """What a job did, as its recording tells: every state entered (in order, with its time from the
+    job's start), every event, and the state it ended in."""
+
+    states: tuple[str, ...]
+    state_times_s: tuple[float, ...]
+    events: tuple[TraceEvent, ...]
+    final_state: str
+    duration_s: float  # from the start transition to the last transition
+    outputs: tuple[DeviceCommand, ...]  # the device commands the daemon gave, in order
+
+    def compared_events(self) -> list[TraceEvent]:
+        return [e for e in self.events if e.kind not in UNCOMPARED_EVENTS]
+
+    def events_by_kind(self) -> dict[str, list[TraceEvent]]:
+        out: dict[str, list[TraceEvent]] = {}
+        for e in self.events:
+            out.setdefault(e.kind, []).append(e)
+        return out
+
+    def state_at(self, t_s: float) -> str:
+        """The state the job was in at ``t_s`` (idle before it started)."""
+        state = "idle"
+        for name, t in zip(self.states, self.state_times_s, strict=True):
+            if t > t_s:
+                break
+            state = name
+        return state
+
+    def cut(self, t_s: float) -> Trace:
+        """The trace up to ``t_s``: what a recording cut there holds."""
+        n = sum(1 for t in self.state_times_s if t <= t_s)
+        return Trace(
+            self.states[:n],
+            self.state_times_s[:n],
+            tuple(e for e in self.events if e.t_s <= t_s),
+            self.states[n - 1] if n else "idle",
+            self.state_times_s[n - 1] if n else 0.0,
+            tuple(c for c in self.outputs if c.t_s <= t_s),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Divergence:
+    """Where a replay first did something else than the recording: at ``t_s`` from the job's start, in
+    ``state``, ``what`` differed (``state``, ``event``, ``follow``, ``gripper``, ``grasp``, ``plan``,
+    ``observation``, ``command``, ``fault``, ``recording_end``)."""
+
+    t_s: float
+    state: str
+    what: str
+    expected: str
+    got: str
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "t_s": round(self.t_s, 6),
+            "state": self.state,
+            "what": self.what,
+            "expected": self.expected,
+            "got": self.got,
+        }
+
+    def line(self) -> str:
+        return (
+            f"diverged at {self.t_s:.3f} s in {self.state} ({self.what}): expected {self.expected}, "
+            f"got {self.got}"
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceCommand:
+    """One command the daemon gave a device, as compared between a recording and its replay: what was asked
+    (a move's label and goal, an opening, a close's force threshold), not how long it took or how it ended."""
+
+    what: str  # follow, open, close
+    label: str
+    values: tuple[float, ...]
+    t_s: float  # from the job's start
+
+    def same(self, other: DeviceCommand, *, tolerance: float = 1e-4) -> bool:
+        return (
+            self.what == other.what
+            and self.label == other.label
+            and len(self.values) == len(other.values)
+            and all(abs(a - b) <= tolerance for a, b in zip(self.values, other.values, strict=True))
+        )
+
+    def describe(self) -> str:
+        values = ", ".join(f"{v:.4f}" for v in self.values)
+        if self.what == "follow":
+            return f"follow {self.label} to [{values}]"
+        if self.what == "open":
+            return f"open the gripper to {values} m" if self.values else "open the gripper fully"
+        return f"close the gripper until {values} N"
+
+
+def device_command(suffix: str, payload: Mapping[str, object], t_s: float) -> DeviceCommand | None:
+    """The device command a recorded ``output/*`` (or grasp) message stands for; None for the others."""
+    if suffix == "output/follow":
+        end = payload.get("end_rad")
+        values = tuple(float(v) for v in end if isinstance(v, int | float)) if isinstance(end, list) else ()
+        return DeviceCommand("follow", str(payload.get("label", "")), values, t_s)
+    if suffix == "output/gripper" and payload.get("action") == "open":
+        aperture = payload.get("aperture_m")
+        return DeviceCommand("open", "", (float(aperture),) if isinstance(aperture, int | float) else (), t_s)
+    if suffix in ("input/grasp", "input/grasp_failed"):
+        threshold = payload.get("force_threshold_n")
+        values = (float(threshold),) if isinstance(threshold, int | float) else ()
+        return DeviceCommand("close", "", values, t_s)
+    return None
+
+
+def trace_of(read: RecordingRead, *, start_ns: int | None = None) -> Trace:
+    """The trace in a recording, its times from ``start_ns`` (default: the job's ``start`` transition)."""
+    messages = list(read.messages)
+    if start_ns is None:
+        start_ns = job_start_ns(messages)
+    if start_ns is None:
+        start_ns = read.start_ns or 0
+    states: list[str] = []
+    times: list[float] = []
+    events: list[TraceEvent] = []
+    outputs: list[DeviceCommand] = []
+    final = ""
+    started = False
+    for m in messages:
+        suffix = topic_suffix(m.topic)
+        t_s = (m.log_time_ns - start_ns) / 1e9
+        if not started:  # the trace begins with the start transition (what came before it, such as the
+            # scene being set up, may be in the file before or not, as the file was opened)
+            started = (
+                suffix == "events"
+                and m.payload.get("kind") == "transition"
+                and m.payload.get("trigger") == "start"
+            )
+            if not started:
+                continue
+        if suffix == "events":
+            kind = str(m.payload.get("kind", ""))
+            detail = {k: v for k, v in m.payload.items() if k not in ("kind", "t", "state", "t_device")}
+            events.append(TraceEvent(kind, t_s, str(m.payload.get("state", "")), detail))
+            if kind == "transition":
+                dest = str(m.payload.get("dest", ""))
+                states.append(dest)
+                times.append(t_s)
+                final = dest
+        elif suffix == "state" and not final:
+            final = str(m.payload.get("state", ""))
+        else:
+            command = device_command(suffix, m.payload, t_s)
+            if command is not None:
+                outputs.append(command)
+    return Trace(
+        tuple(states),
+        tuple(times),
+        tuple(events),
+        final or "idle",
+        times[-1] if times else 0.0,
+        tuple(outputs),
+    )
+
+
+def job_start(messages: Sequence[RecordedMessage]) -> RecordedMessage | None:
+    """The job's ``start`` transition."""
+    for m in messages:
+        if (
+            topic_suffix(m.topic) == "events"
+            and m.payload.get("kind") == "transition"
+            and m.payload.get("trigger") == "start"
+        ):
+            return m
+    return None
+
+
+def job_start_ns(messages: Sequence[RecordedMessage]) -> int | None:
+    """The log time of the job's ``start`` transition."""
+    start = job_start(messages)
+    return None if start is None else start.log_time_ns
+
+
+def compare(expected: Trace, got: Trace, *, prefix: bool = False) -> Divergence | None:
+    """The first place where ``got`` did otherwise than ``expected``: the states entered, the events (their
+    kinds, in order, those of ``UNCOMPARED_EVENTS`` left out) and the device commands; None when they agree.
+    Times are not compared (they are reported). With ``prefix`` (``expected`` is a recording cut short),
+    ``got`` may go on where ``expected`` ends."""
+    if prefix:
+        n, m, k = len(expected.states), len(expected.outputs), len(expected.compared_events())
+        got = dataclasses.replace(
+            got,
+            states=got.states[:n],
+            state_times_s=got.state_times_s[:n],
+            events=tuple(got.compared_events()[:k]),
+            outputs=got.outputs[:m],
+        )
+    found: list[Divergence] = []
+    for i, (a, b) in enumerate(zip(expected.states, got.states, strict=False)):
+        if a != b:
+            t = got.state_times_s[i]
+            found.append(Divergence(t, got.state_at(t - 1e-9), "state", f"enter {a}", f"enter {b}"))
+            break
+    else:
+        if len(expected.states) != len(got.states):
+            n = min(len(expected.states), len(got.states))
+            if len(expected.states) > n:
+                t = expected.state_times_s[n]
+                entered = f"enter {expected.states[n]}"
+                found.append(Divergence(t, got.final_state, "state", entered, f"stay in {got.final_state}"))
+            else:
+                t = got.state_times_s[n]
+                stayed = f"stay in {expected.final_state}"
+                found.append(Divergence(t, got.state_at(t - 1e-9), "state", stayed, f"enter {got.states[n]}"))
+    ea, eb = expected.compared_events(), got.compared_events()
+    for a_event, b_event in zip(ea, eb, strict=False):
+        if a_event.kind != b_event.kind:
+            found.append(
+                Divergence(
+                    b_event.t_s, b_event.state, "event", f"event {a_event.kind}", f"event {b_event.kind}"
+                )
+            )
+            break
+    else:
+        if len(ea) != len(eb):
+            longer = ea if len(ea) > len(eb) else eb
+            nxt = longer[min(len(ea), len(eb))]
+            exp = f"event {nxt.kind}" if longer is ea else "no more events"
+            gt = f"event {nxt.kind}" if longer is eb else "no more events"
+            found.append(Divergence(nxt.t_s, nxt.state, "event", exp, gt))
+    for a_cmd, b_cmd in zip(expected.outputs, got.outputs, strict=False):
+        if not a_cmd.same(b_cmd):
+            found.append(
+                Divergence(b_cmd.t_s, got.state_at(b_cmd.t_s), "device", a_cmd.describe(), b_cmd.describe())
+            )
+            break
+    else:
+        n = min(len(expected.outputs), len(got.outputs))
+        if len(expected.outputs) > n:
+            c = expected.outputs[n]
+            found.append(
+                Divergence(c.t_s, got.state_at(c.t_s), "device", c.describe(), f"no more ({got.final_state})")
+            )
+        elif len(got.outputs) > n:
+            c = got.outputs[n]
+            found.append(
+                Divergence(
+                    c.t_s, got.state_at(c.t_s), "device", f"no more ({expected.final_state})", c.describe()
+                )
+            )
+    return min(found, key=lambda d: d.t_s) if found else None
+
+
+@dataclass(frozen=True, slots=True)
+class Recorded:
+    """One recorded input or output: its topic suffix, its log time (ns) and its payload."""
+
+    kind: str
+    t_ns: int
+    payload: Mapping[str, object]
+
+
+@dataclass(frozen=True, slots=True)
+class RecordedSession:
+    """One job's recording, ready to replay."""
+
+    path: Path
+    read: RecordingRead
+    header: Mapping[str, object]
+    config: Config
+    backend: str  # the scene's backend name: sim-kinematic, sim-mujoco (or hardware, not replayable)
+    scene: Mapping[str, object]
+    job: Mapping[str, object]
+    clock: Mapping[str, object]
+    start_ns: int  # the job's start transition
+    start_monotonic: float  # the same moment on the recorded session's monotonic clock
+    streams: Mapping[str, tuple[Recorded, ...]]  # by topic suffix: input/joints, output/follow, ...
+    trace: Trace
+    mono_offset_s: float  # recorded now() minus recorded monotonic time (the clocks' fixed difference)
+
+    @property
+    def simulated(self) -> bool:
+        return self.clock.get("source") == "simulated"
+
+    @property
+    def world(self) -> str:
+        return SIM_BACKENDS[self.backend]
+
+    @property
+    def cut(self) -> str | None:
+        """Why the recording ends early (a crash, a full disk), or None when it was finished."""
+        if not self.read.truncated:
+            return None
+        return self.read.cut_reason or "the file ends early"
+
+    @property
+    def end_s(self) -> float:
+        """The last recorded moment, from the job's start."""
+        end = self.read.end_ns if self.read.end_ns is not None else self.start_ns
+        return (end - self.start_ns) / 1e9
+
+    def commands(self) -> list[Recorded]:
+        """The operator's commands that changed something, in the order received."""
+        return [r for r in self.streams.get("input/command", ()) if r.payload.get("verb") in REPLAYED_VERBS]
+
+    def start_payload(self) -> bytes:
+        """The ``start`` command that began the job: as received when it came over Zenoh, else rebuilt from
+        the header (a ``dishbot run --once`` job)."""
+        for r in self.commands():
+            if r.payload.get("verb") == "start" and r.t_ns <= self.start_ns:
+                return str(r.payload.get("payload", "")).encode()
+        body: dict[str, object] = {}
+        if self.job.get("mugs") is not None:
+            body["mugs"] = self.job["mugs"]
+        overrides = self.job.get("planner_overrides")
+        if isinstance(overrides, Mapping) and overrides:
+            body["planner"] = dict(overrides)
+        return json.dumps(body).encode()
+
+    @classmethod
+    def load(cls, path: Path) -> RecordedSession:
+        """Read ``path``; ``ReplayError`` (one line) when it is not a job recording dishbot can replay."""
+        try:
+            read = read_messages(path)
+        except RecordingError as e:
+            raise ReplayError(str(e)) from e
+        messages = list(read.messages)
+        if not messages or messages[0].topic != HEADER_TOPIC:
+            raise ReplayError(f"{path}: not a dishbot recording (no {HEADER_TOPIC} message first)")
+        header = messages[0].payload
+        scene, job, clock, file = (header.get(k) for k in ("scene", "job", "clock", "file"))
+        config_doc = header.get("config")
+        if not isinstance(config_doc, Mapping) or not isinstance(scene, Mapping):
+            raise ReplayError(f"{path}: the session header has no config or scene")
+        if (isinstance(file, Mapping) and file.get("kind") != "job") or not isinstance(job, Mapping):
+            raise ReplayError(f"{path}: an idle recording holds no job to replay; give a -job.mcap file")
+        backend = str(scene.get("backend", ""))
+        if backend not in SIM_BACKENDS:
+            raise ReplayError(
+                f"{path}: recorded on the {backend or 'unknown'} backend; a replay rebuilds a simulated cell "
+                f"({', '.join(SIM_BACKENDS)}) and cannot stand in for that one"
+            )
+        try:
+            # Over today's defaults, so that a recording made before a setting existed still loads; the
+            # robot's own Zenoh settings (endpoints, credentials on its disk) are the replay's business.
+            config = load_config(overrides={**config_doc, "zenoh": {}})
+        except ConfigError as e:
+            raise ReplayError(f"{path}: the recorded config does not load: {e}") from e
+        start = job_start(messages)
+        if start is None:
+            raise ReplayError(f"{path}: the job never started (no start transition recorded)")
+        start_ns = start.log_time_ns
+        streams: dict[str, list[Recorded]] = {}
+        for m in messages[1:]:
+            suffix = topic_suffix(m.topic)
+            if suffix.startswith(("input/", "output/")) or suffix == "plan":
+                streams.setdefault(suffix, []).append(Recorded(suffix, m.log_time_ns, m.payload))
+        if "output/follow" not in streams and "input/joints" in streams:
+            raise ReplayError(
+                f"{path}: recorded by an older dishbot that did not keep the device commands; record it again"
+            )
+        return cls(
+            path=path,
+            read=read,
+            header=header,
+            config=config,
+            backend=backend,
+            scene=scene,
+            job=job,
+            clock=clock if isinstance(clock, Mapping) else {},
+            start_ns=start_ns,
+            start_monotonic=_start_monotonic(start, streams.get("input/joints", []), clock),
+            streams={k: tuple(v) for k, v in streams.items()},
+            trace=trace_of(read, start_ns=start_ns),
+            mono_offset_s=_mono_offset(streams.get("input/joints", []), clock),
+        )
+
+
+def _start_monotonic(start: RecordedMessage, joints: Sequence[Recorded], clock: object) -> float:
+    """The monotonic time of the job's start: as the transition says (``t_device``), else from its log time
+    and the clocks' difference."""
+    t = start.payload.get("t_device")
+    if isinstance(t, int | float):
+        return float(t)
+    return start.log_time_ns / 1e9 - _mono_offset(joints, clock)
+
+
+def _mono_offset(joints: Sequence[Recorded], clock: object) -> float:
+    """How far the session's ``now()`` is ahead of its monotonic clock: the simulated clock's wall start,
+    or on the wall clock the median over the joint reads (each carries both)."""
+    if isinstance(clock, Mapping) and clock.get("source") == "simulated":
+        start = clock.get("wall_start")
+        if isinstance(start, int | float):
+            return float(start)
+    diffs = [
+        r.t_ns / 1e9 - float(r.payload["t_read"])  # type: ignore[arg-type]
+        for r in joints
+        if isinstance(r.payload.get("t_read"), int | float)
+    ]
+    return statistics.median(diffs) if diffs else math.nan

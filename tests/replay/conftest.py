@@ -1,0 +1,52 @@
+"""Fixtures for the replay tests: small simulated jobs recorded once per test session, and a way to copy a
+recording with some messages changed (a recording of what did not happen, to see the replay notice)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+import pytest
+
+from recorder import HEADER_TOPIC, Recorder, read_messages
+from replay.record import record_job
+
+# Three mugs on the counter: a short job with a flip each (about 70 s of simulated time).
+THREE_MUGS = (("m1", "small", 0.22, 0.415), ("m2", "big", 0.064, 0.415), ("m3", "small", -0.092, 0.529))
+
+Change = Callable[[str, dict[str, object]], dict[str, object] | None]
+
+
+@pytest.fixture(scope="session")
+def kinematic_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A finished job on the kinematic cell: three mugs, seed 0."""
+    return record_job(tmp_path_factory.mktemp("kinematic"), world="kinematic", mugs=THREE_MUGS).path
+
+
+def copy_recording(source: Path, target: Path, change: Change) -> Path:
+    """``source`` written again to ``target`` with the real Recorder, each message's payload passed through
+    ``change(topic_suffix, payload)`` (None leaves the message out)."""
+    read = read_messages(source)
+    messages = list(read.messages)
+    header = messages[0].payload
+    assert messages[0].topic == HEADER_TOPIC
+    with Recorder(target, chunk_size=64 * 1024) as rec:
+        rec.write_header(
+            _mapping(header["config"]),
+            _mapping(header["scene"]),
+            log_time_ns=messages[0].log_time_ns,
+            job=_mapping(header.get("job")),
+            file=_mapping(header.get("file")),
+            clock=_mapping(header.get("clock")),
+        )
+        for m in messages[1:]:
+            suffix = m.topic.split("/", 2)[2]
+            payload = change(suffix, dict(m.payload))
+            if payload is not None:
+                rec.write(m.topic, payload, log_time_ns=m.log_time_ns)
+    return target
+
+
+def _mapping(value: object) -> Mapping[str, object]:
+    assert isinstance(value, Mapping)
+    return value

@@ -1,0 +1,427 @@
+"""Every fault kind on the kinematic cell, through a real daemon (``serve`` on a simulated clock, two
+dataset-1 mugs, ``--once``): the fault happens at the device boundary or in the world, the injector reports it
+(``fired``, a ``fault_injected`` event in the recording), and the daemon meets it as it would on the robot:
+the end state and the events it publishes say how."""
+
+from __future__ import annotations
+
+import errno
+import time
+from collections.abc import Mapping
+from pathlib import Path
+
+import pytest
+
+from daemon.app import RunOptions, ServeContext, serve
+from daemon.clock import SimulatedClock
+from daemon.errors import UsageError
+from daemon.sdnotify import SdNotifier
+from daemon.sim_backend import KinematicCounter
+from perception import associate
+from replay.faults import FaultInjector, FaultSpec, parse_faults
+from sim.kinematic import KinematicWorld
+from sim.truth import FaultyObserver
+from tests.daemon.conftest import free_port
+from tests.fakes.job import make_backend, make_world
+from tests.replay.faulty import FaultRun, robot_config, run_with_faults
+
+FULL_JOB = [
+    "detect",
+    "plan",
+    "side_grasp.approach",
+    "side_grasp.close",
+    "side_grasp.verify",
+    "side_grasp.lift",
+    "flip.transit",
+    "flip.turn",
+]
+
+
+def world(run: FaultRun) -> KinematicWorld:
+    counter = run.backend.counter
+    assert isinstance(counter, KinematicCounter)
+    return counter.cell.world
+
+
+def observer(run: FaultRun) -> FaultyObserver:
+    counter = run.backend.counter
+    assert isinstance(counter, KinematicCounter)
+    assert counter.observer is not None
+    return counter.observer
+
+
+def injected(run: FaultRun, kind: str, state: str) -> Mapping[str, object]:
+    """The fault fired once, and the recording says so where it fired."""
+    assert [f["kind"] for f in run.injector.fired] == [kind]
+    event = run.event("fault_injected")
+    assert (event["fault"], event["state"], event["index"]) == (kind, state, 1)
+    return run.injector.fired[0]
+
+
+def test_an_arm_servo_overload_in_the_turn_faults_the_job_naming_the_servo(tmp_path: Path) -> None:
+    run = run_with_faults(tmp_path, '[[fault]]\nkind = "servo_overload"\nservo = 3\nat_state = "flip.turn"\n')
+    assert injected(run, "servo_overload", "flip.turn")["servo"] == 3
+    assert run.result.end_state == "fault"
+    assert run.states == [*FULL_JOB, "fault"]
+    trip = run.event("servo_fault")
+    assert (trip["device"], trip["servo_id"], trip["faults"], trip["state"]) == (
+        "servo/3",
+        3,
+        "['overload']",
+        "flip.turn",
+    )
+    assert run.event("fault")["reason"] == (
+        "ServoFault: servo 3 on sim reports overload; its torque is off until the fault is cleared"
+    )
+
+
+def test_a_gripper_overload_while_closing_is_recovered_and_the_job_goes_on(tmp_path: Path) -> None:
+    run = run_with_faults(
+        tmp_path, '[[fault]]\nkind = "servo_overload"\nservo = 6\nat_state = "side_grasp.close"\n'
+    )
+    injected(run, "servo_overload", "side_grasp.close")
+    assert run.result.end_state == "done"
+    assert run.kinds().count("gripper_overload_recovered") == 1
+    assert run.kinds().count("mug_placed") == 2
+
+
+def test_a_lasting_gripper_overload_defeats_the_recoveries_and_faults(tmp_path: Path) -> None:
+    run = run_with_faults(
+        tmp_path,
+        '[[fault]]\nkind = "servo_overload"\nservo = 6\nat_state = "side_grasp.close"\nduration_s = 5\n',
+    )
+    assert run.result.end_state == "fault"
+    assert run.kinds().count("gripper_overload_recovered") == 3
+    assert str(run.event("fault")["reason"]).startswith("ServoFault: gripper servo 6 overloaded 4 times")
+
+
+def test_an_overheated_servo_faults_the_job_at_its_next_move(tmp_path: Path) -> None:
+    run = run_with_faults(tmp_path, '[[fault]]\nkind = "servo_overheat"\nservo = 2\nat_state = "plan"\n')
+    injected(run, "servo_overheat", "plan")
+    assert run.states == ["detect", "plan", "fault"]
+    assert run.event("servo_fault")["faults"] == "['overheating']"
+    assert "servo 2 on sim reports overheating" in str(run.event("fault")["reason"])
+    servo = world(run).faults.servo(2)
+    assert servo.latched == {"overheating"}  # cooled at once (no duration_s), still latched
+
+
+def test_a_low_servo_voltage_is_a_warning_the_daemon_does_not_act_on(tmp_path: Path) -> None:
+    seen: list[float] = []
+
+    def during(ctx: ServeContext) -> None:
+        async def look() -> None:
+            await ctx.clock.sleep(2.0)
+            seen.append(world_of(ctx).faults.servo(4).voltage_v)
+
+        import asyncio
+
+        asyncio.get_running_loop().create_task(look())
+
+    run = run_with_faults(
+        tmp_path, '[[fault]]\nkind = "servo_voltage"\nservo = 4\nat_s = 1\n', on_ready=during
+    )
+    assert injected(run, "servo_voltage", "side_grasp.approach")["fired_at_s"] == 1.0
+    assert seen == [5.0]
+    # As on the robot today: the Dynamixel driver reports input_voltage only in the reading, so the job runs.
+    assert run.result.end_state == "done"
+    assert "servo_fault" not in run.kinds()
+
+
+def world_of(ctx: ServeContext) -> KinematicWorld:
+    counter = ctx.backend.counter
+    assert isinstance(counter, KinematicCounter)
+    return counter.cell.world
+
+
+def test_a_silent_servo_is_a_bus_timeout_naming_it(tmp_path: Path) -> None:
+    run = run_with_faults(
+        tmp_path, '[[fault]]\nkind = "servo_silent"\nservo = 3\nat_state = "side_grasp.approach"\n'
+    )
+    assert run.states == ["detect", "plan", "side_grasp.approach", "fault"]
+    assert run.event("servo_fault")["faults"] == "['no_status']"
+    assert run.event("fault")["reason"] == (
+        "BusTimeout: servo(s) 3 did not answer on sim after 3 tries; check the cable and power of the chain"
+    )
+
+
+def test_a_little_line_noise_is_retried_and_the_job_finishes(tmp_path: Path) -> None:
+    run = run_with_faults(
+        tmp_path, '[[fault]]\nkind = "bus_corrupt"\nrate = 0.01\nseed = 3\nat_s = 0\nduration_s = 30\n'
+    )
+    fired = injected(run, "bus_corrupt", "detect")
+    assert (fired["rate"], fired["ended_at_s"]) == (0.01, 30.0)
+    assert run.result.end_state == "done"
+    faults = world(run).faults
+    assert faults.corrupt_packets > 0
+    assert faults.retried == faults.corrupt_packets  # never three in a row
+    assert faults.corrupt_rate == 0.0  # ended
+
+
+def test_a_bus_where_every_packet_is_corrupt_faults_the_job(tmp_path: Path) -> None:
+    run = run_with_faults(
+        tmp_path, '[[fault]]\nkind = "bus_corrupt"\nrate = 1.0\nat_state = "side_grasp.approach"\n'
+    )
+    assert run.states == ["detect", "plan", "side_grasp.approach", "fault"]
+    reason = str(run.event("fault")["reason"])
+    assert reason.startswith("BusTimeout: servo(s) ")  # whichever device the daemon asked first
+    assert reason.endswith(" did not answer on sim after 3 tries; check the cable and power of the chain")
+
+
+def test_an_unplugged_servo_bus_faults_the_idle_daemon_and_is_back_once_replugged(tmp_path: Path) -> None:
+    run = run_with_faults(
+        tmp_path,
+        '[[fault]]\nkind = "bus_unplug"\nat_s = 1\nduration_s = 1\n',
+        once=False,
+        stop_after_s=5,
+    )
+    fired = injected(run, "bus_unplug", "idle")
+    assert (fired["device"], fired["fired_at_s"], fired["ended_at_s"]) == ("servo", 1.0, 2.0)
+    kinds = run.kinds()
+    assert kinds.index("bus_lost") < kinds.index("fault") < kinds.index("bus_restored")
+    assert run.event("fault")["reason"] == (
+        "BusLost: servo bus sim is gone (the adapter was unplugged); plug the USB adapter back in to "
+        "reconnect"
+    )
+    assert run.result.end_state == "fault"  # only reset leaves fault
+
+
+def test_a_briefly_unplugged_force_sensor_while_carrying_is_forgiven(tmp_path: Path) -> None:
+    run = run_with_faults(
+        tmp_path,
+        '[[fault]]\nkind = "bus_unplug"\ndevice = "fsr"\nat_state = "flip.transit"\nduration_s = 0.1\n',
+    )
+    kinds = run.kinds()
+    assert kinds.index("fsr_lost") < kinds.index("fsr_restored")
+    assert run.result.end_state == "done"  # back within the job's grace
+
+
+def test_the_force_dropping_while_carrying_recovers_the_lost_mug(tmp_path: Path) -> None:
+    run = run_with_faults(
+        tmp_path,
+        '[[fault]]\nkind = "fsr_drop"\nat_state = "flip.transit"\nafter_s = 0.5\nduration_s = 1\n',
+    )
+    fired = injected(run, "fsr_drop", "flip.transit")
+    assert fired["ended_at_s"] == pytest.approx(float(fired["fired_at_s"]) + 1.0)  # type: ignore[arg-type]
+    assert run.states[:8] == [*FULL_JOB[:7], "recover_lost_mug"]
+    assert run.event("mug_dropped")["state"] == "flip.transit"
+    assert run.result.end_state == "done"
+
+
+def test_a_force_spike_is_one_raw_sample_the_filter_keeps_out(tmp_path: Path) -> None:
+    run = run_with_faults(
+        tmp_path, '[[fault]]\nkind = "fsr_spike"\nvalue_n = 30\nat_state = "side_grasp.close"\n'
+    )
+    assert injected(run, "fsr_spike", "side_grasp.close")["value_n"] == 30.0
+    assert world(run).faults.fsr_spikes_seen == 1
+    raws = [p["raw"] for t, p in run.recorded if t.endswith("/input/force")]
+    assert 1023 in raws  # 30 N saturates the ADC
+    assert run.result.end_state == "done"
+
+
+def test_a_silent_force_sensor_while_carrying_faults_the_job(tmp_path: Path) -> None:
+    run = run_with_faults(tmp_path, '[[fault]]\nkind = "fsr_silent"\nat_state = "flip.transit"\n')
+    assert run.states == [*FULL_JOB[:7], "fault"]
+    assert run.event("fsr_stale")["device"] == "fsr"
+    assert run.event("fault")["reason"] == "fsr_stale on sim-fsr"
+
+
+def test_a_camera_sending_no_frame_at_the_first_look_faults_the_job(tmp_path: Path) -> None:
+    run = run_with_faults(
+        tmp_path, '[[fault]]\nkind = "camera_no_frame"\nat_state = "detect"\nduration_s = 0.5\n'
+    )
+    assert run.states == ["detect", "fault"]
+    assert run.event("fault")["reason"] == (
+        "CameraUnavailable: the RealSense camera sent no frame within 1.0 s: Frame didn't arrive within 1000"
+    )
+    assert run.event("fault")["t"] == pytest.approx(float(run.event("fault_injected")["t"]) + 1.0)  # type: ignore[arg-type]
+
+
+def test_a_stale_camera_shows_placed_mugs_still_on_the_counter(tmp_path: Path) -> None:
+    run = run_with_faults(tmp_path, '[[fault]]\nkind = "camera_stale"\nat_s = 0\n')
+    injected(run, "camera_stale", "detect")
+    assert observer(run).faulty_captures > 0
+    # The old frame still shows the mug placed first: the job goes back for it and gives it up.
+    assert "mug_given_up" in run.kinds()
+    observations = [p for t, p in run.recorded if t.endswith("/input/observation")]
+    assert len({o["t_device"] for o in observations}) == 1  # one frame, over and over
+    assert run.result.end_state == "done"
+
+
+def test_a_bad_frame_is_refused_by_the_detector_and_faults_the_job(tmp_path: Path) -> None:
+    run = run_with_faults(tmp_path, '[[fault]]\nkind = "camera_bad_frame"\nat_state = "detect"\n')
+    assert run.states == ["detect", "fault"]
+    assert run.event("fault")["reason"] == (
+        "internal error in detect: FrameError('the depth image has only 0 valid pixels; is the camera "
+        "covered?')"
+    )
+
+
+def test_a_camera_hang_that_ends_lets_the_job_finish(tmp_path: Path) -> None:
+    run = run_with_faults(tmp_path, '[[fault]]\nkind = "camera_hang"\nat_state = "detect"\nduration_s = 3\n')
+    assert run.injector.fired[0]["ended_at_s"] == 3.0
+    assert run.result.end_state == "done"
+    assert run.result.summary.duration_s > 3.0
+
+
+def test_a_camera_hang_for_good_leaves_the_job_in_detect_and_the_daemon_still_stops(tmp_path: Path) -> None:
+    run = run_with_faults(tmp_path, '[[fault]]\nkind = "camera_hang"\nat_state = "detect"\n', stop_after_s=30)
+    injected(run, "camera_hang", "detect")
+    assert observer(run).faulty_captures == 1  # the one capture that never returned
+    # What the daemon does today: it waits in detect (no capture timeout of its own).
+    assert run.states == ["detect"]
+    assert run.result.end_state == "detect"
+
+
+def test_a_slipping_mug_really_falls_and_is_recovered(tmp_path: Path) -> None:
+    run = run_with_faults(
+        tmp_path, '[[fault]]\nkind = "mug_slip"\nat_state = "flip.transit"\nafter_s = 0.5\n'
+    )
+    fired = injected(run, "mug_slip", "flip.transit")
+    assert fired["mug"] == "m2"  # the world's mug that was carried
+    assert run.event("mug_dropped")["state"] == "flip.transit"
+    assert "recover_lost_mug" in run.states
+    assert "mug_found" in run.kinds()
+    assert run.result.end_state == "done"
+    assert run.result.summary.drops == 1
+
+
+def test_a_mug_moved_while_the_arm_works_elsewhere_is_moved_in_the_world(tmp_path: Path) -> None:
+    run = run_with_faults(
+        tmp_path, '[[fault]]\nkind = "mug_moved"\nat_state = "side_grasp.lift"\ndx_m = 0.05\ndy_m = -0.01\n'
+    )
+    fired = injected(run, "mug_moved", "side_grasp.lift")
+    assert (fired["mug"], fired["dx_m"], fired["dy_m"]) == ("m1", 0.05, -0.01)
+    moved = next(p for t, p in run.recorded if t.endswith("/log") and p.get("event") == "sim_mug_moved")
+    assert moved["mug_id"] == "m1"
+    assert run.result.end_state == "done"  # the next look finds it where it now is
+    assert run.kinds().count("mug_placed") == 2
+
+
+def test_a_lost_zenoh_peer_is_reported_once_and_once_more_when_it_is_back(tmp_path: Path) -> None:
+    def kinds(events: list[dict[str, object]]) -> list[object]:
+        return [e["kind"] for e in events]
+
+    run = run_with_faults(
+        tmp_path,
+        '[[fault]]\nkind = "zenoh_peer_loss"\nat_s = 5\nduration_s = 3\n',
+        once=False,
+        stop_when=lambda events: "connection_restored" in kinds(events),
+    )
+    fired = injected(run, "zenoh_peer_loss", "idle")
+    assert str(fired["peer"]).startswith("tcp/127.0.0.1:")
+    kinds_seen = run.kinds()
+    assert kinds_seen.index("fault_injected") < kinds_seen.index("connection_lost")
+    assert kinds_seen.index("fault_ended") < kinds_seen.index("connection_restored")
+    assert run.event("connection_lost")["peers"] == 0
+
+
+def test_a_full_disk_cuts_the_recording_and_the_job_carries_on(tmp_path: Path) -> None:
+    contexts: list[ServeContext] = []
+    run = run_with_faults(
+        tmp_path, '[[fault]]\nkind = "disk_full"\nat_s = 1\nduration_s = 2\n', on_ready=contexts.append
+    )
+    assert run.result.end_state == "done"
+    recorder = contexts[0].recording.recorder
+    assert recorder is not None
+    assert isinstance(recorder.failure, OSError)
+    assert recorder.failure.errno == errno.ENOSPC
+    assert recorder.stats().dropped > 0
+    # Nothing logged from the fault on reached the file: its last chunk was lost with the disk.
+    last = max(float(p.get("t", 0.0)) for _, p in run.recorded if isinstance(p.get("t"), float))  # type: ignore[arg-type]
+    started = min(float(p["t"]) for p in run.events("transition"))  # type: ignore[arg-type]
+    assert last < started + 1.0
+
+
+def test_a_loop_stall_blocks_the_loop_for_its_wall_time(tmp_path: Path) -> None:
+    gaps: list[float] = []
+    last = [time.perf_counter()]
+
+    def during(ctx: ServeContext) -> None:
+        async def tick() -> None:
+            while True:
+                await ctx.clock.sleep(0.05)
+                now = time.perf_counter()
+                gaps.append(now - last[0])
+                last[0] = now
+
+        import asyncio
+
+        asyncio.get_running_loop().create_task(tick())
+
+    run = run_with_faults(
+        tmp_path, '[[fault]]\nkind = "loop_stall"\nat_s = 1\nduration_s = 0.3\n', on_ready=during
+    )
+    assert injected(run, "loop_stall", "side_grasp.approach")["stalled_s"] == 0.3
+    assert max(gaps) >= 0.3
+    assert run.result.end_state == "done"
+
+
+def test_sigterm_stops_the_daemon_mid_job_and_finishes_the_recording(tmp_path: Path) -> None:
+    run = run_with_faults(tmp_path, '[[fault]]\nkind = "sigterm"\nat_state = "flip.turn"\n')
+    injected(run, "sigterm", "flip.turn")
+    assert run.result.end_state == "flip.turn"
+    assert run.states == FULL_JOB
+    assert run.logs("daemon_stopping")
+
+
+def test_two_faults_in_one_file_fire_in_their_order(tmp_path: Path) -> None:
+    run = run_with_faults(
+        tmp_path,
+        '[[fault]]\nkind = "fsr_spike"\nat_state = "side_grasp.close"\noccurrence = 2\n\n'
+        '[[fault]]\nkind = "mug_slip"\nat_state = "flip"\noccurrence = 2\nafter_s = 0.5\n',
+    )
+    assert [(f["kind"], f["index"]) for f in run.injector.fired] == [("fsr_spike", 1), ("mug_slip", 2)]
+    injections = run.events("fault_injected")
+    assert [e["state"] for e in injections] == ["side_grasp.close", "flip.transit"]
+    # the second entry of flip is the second mug's (flip.* leaves in between are not new entries)
+    flips = [i for i, s in enumerate(run.states) if s == "flip.transit"]
+    assert len(flips) >= 2
+
+
+def test_servo_faults_on_a_servo_the_cell_lacks_are_refused_at_attach(tmp_path: Path) -> None:
+    faults = parse_faults('[[fault]]\nkind = "servo_silent"\nservo = 9\nat_s = 1\n', source="f.toml")
+    with pytest.raises(
+        UsageError, match=r"^fault 1 \(servo_silent\): servo: no servo 9 in the kinematic cell's"
+    ):
+        run_with_faults(tmp_path, faults)
+
+
+def test_a_peer_loss_without_a_prepared_peer_is_refused_at_attach(tmp_path: Path) -> None:
+    faults = parse_faults('[[fault]]\nkind = "zenoh_peer_loss"\nat_s = 1\n', source="f.toml")
+    with pytest.raises(UsageError, match=r"^fault 1 \(zenoh_peer_loss\): the daemon has no peer to lose; "):
+        run_with_faults(tmp_path, faults, prepare=False)
+
+
+def test_the_on_fire_callback_runs_just_before_the_fault_takes_effect(tmp_path: Path) -> None:
+    latched_when_called: list[set[str]] = []
+    contexts: list[ServeContext] = []
+    faults = parse_faults(
+        '[[fault]]\nkind = "servo_overload"\nservo = 3\nat_state = "flip.turn"\n', source="f"
+    )
+
+    def on_fire(spec: FaultSpec) -> None:
+        assert spec is faults[0]
+        latched_when_called.append(set(world_of(contexts[0]).faults.servo(3).latched))
+
+    run = run_with_faults(tmp_path, faults, on_ready=contexts.append, on_fire=on_fire)
+    assert latched_when_called == [set()]  # not yet
+    assert world(run).faults.servo(3).latched == {"overload"}
+
+
+def test_device_faults_on_a_backend_without_a_simulated_cell_are_refused_at_attach(tmp_path: Path) -> None:
+    faults = parse_faults('[[fault]]\nkind = "fsr_drop"\nat_s = 1\n', source="f.toml")
+    injector = FaultInjector(faults)
+    options = RunOptions(listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path / "rec")
+
+    async def run() -> None:
+        await serve(
+            robot_config(), make_backend(make_world(1)), associate, options, notifier=SdNotifier(None),
+            hooks=injector.hooks(),
+        )  # fmt: skip
+
+    with pytest.raises(UsageError) as refused:
+        SimulatedClock().run(run())
+    assert str(refused.value) == (
+        "fault 1 (fsr_drop): the fake backend has no simulated devices or world to fail; fault files run on "
+        "the simulated cell (--sim)"
+    )
