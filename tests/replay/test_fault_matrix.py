@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from replay.pytest_plugin import DishbotReplay, ReplayTrace
+from replay.harness import DishbotReplay, ReplayTrace
 from tests.replay.conftest import THREE_MUGS
 
 

@@ -3,7 +3,10 @@ runs as written."""
 
 from __future__ import annotations
 
+import json
 import re
+import subprocess
+import sys
 from importlib.metadata import entry_points
 from pathlib import Path
 
@@ -23,6 +26,18 @@ def readme_example() -> str:
 def test_the_plugin_is_an_entry_point_of_the_installed_package() -> None:
     plugins = {e.name: e.value for e in entry_points(group="pytest11")}
     assert plugins.get("dishbot") == "replay.pytest_plugin"
+
+
+def test_loading_the_plugin_imports_nothing_heavy() -> None:
+    # pytest loads the entry point in every environment where dishbot is installed: it must cost nothing
+    # until a test uses the fixture.
+    heavy = ["zenoh", "numpy", "scipy", "pinocchio", "mujoco", "cv2", "mcap", "daemon", "recorder"]
+    code = (
+        "import json, sys; import replay.pytest_plugin; "
+        f"print(json.dumps([m for m in {heavy!r} if m in sys.modules]))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert json.loads(out) == []
 
 
 def test_the_readme_example_is_ten_lines_and_passes(pytester: pytest.Pytester) -> None:

@@ -1,0 +1,111 @@
+"""What the ``dishbot`` pytest fixture hands a test (``replay.pytest_plugin``): record a simulated session,
+replay it with faults, look at what happened. Imported when a test first uses the fixture, not when pytest
+loads the plugin.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from recorder import RecordingRead, read_messages
+from replay.engine import Faults, ReplayOptions, ReplayReport, fault_text, replay
+from replay.session import Divergence, RecordedSession, TraceEvent
+
+
+@dataclass(frozen=True)
+class ReplayTrace:
+    """What a replay did: the report and the replay's own recording."""
+
+    report: ReplayReport
+    recording: RecordingRead
+
+    @property
+    def match(self) -> bool:
+        return self.report.match
+
+    @property
+    def states(self) -> list[str]:
+        """Every state entered, in order."""
+        return list(self.report.replayed.states)
+
+    @property
+    def final_state(self) -> str:
+        return self.report.replayed.final_state
+
+    @property
+    def first_divergence(self) -> Divergence | None:
+        return self.report.first_divergence
+
+    @property
+    def faults(self) -> list[dict[str, object]]:
+        """The faults fired: ``kind``, ``fired_at_s`` and the target."""
+        return [dict(f) for f in self.report.faults]
+
+    @property
+    def events_by_kind(self) -> dict[str, list[TraceEvent]]:
+        return self.report.replayed.events_by_kind()
+
+    def events(self, kind: str | None = None) -> list[TraceEvent]:
+        return [e for e in self.report.replayed.events if kind is None or e.kind == kind]
+
+    def topics(self) -> dict[str, int]:
+        """Messages per topic in the replay's recording."""
+        return dict(self.recording.topic_counts)
+
+
+class DishbotReplay:
+    """The ``dishbot`` fixture: see the module's docstring."""
+
+    def __init__(self, directory: Path, cache: dict[str, Path]) -> None:
+        self._dir = directory
+        self._cache = cache
+        self._n = 0
+
+    def record(
+        self,
+        *,
+        world: str = "kinematic",
+        dataset: int = 1,
+        seed: int = 0,
+        mugs: Sequence[tuple[str, str, float, float]] | None = None,
+        overrides: Mapping[str, Any] | None = None,
+    ) -> Path:
+        """A recording of one simulated job (kept for the test session: the same arguments, the same file)."""
+        from replay.record import record_job
+
+        key = json.dumps([world, dataset, seed, mugs, overrides], sort_keys=True, default=str)
+        if key not in self._cache:
+            directory = self._dir / f"recorded-{len(self._cache)}"
+            job = record_job(
+                directory, world=world, dataset=dataset, seed=seed, mugs=mugs, overrides=overrides
+            )
+            self._cache[key] = job.path
+        return self._cache[key]
+
+    def load(self, path: Path | str) -> RecordedSession:
+        return RecordedSession.load(Path(path))
+
+    def replay(
+        self,
+        session: Path | str | RecordedSession,
+        *,
+        faults: Faults | None = None,
+        speed: float | None = None,
+    ) -> ReplayTrace:
+        """Replay ``session`` with ``faults`` (a fault file, TOML text or a list of ``[[fault]]`` tables)."""
+        recorded = session if isinstance(session, RecordedSession) else self.load(session)
+        self._n += 1
+        out = self._dir / f"replay-{self._n}.mcap"
+        injector = None
+        if faults is not None:
+            from replay.faults import FaultInjector, parse_faults
+
+            injector = FaultInjector(
+                parse_faults(fault_text(faults), source="faults", config=recorded.config)
+            )
+        report = replay(recorded, ReplayOptions(speed=speed, record=out), faults=injector)
+        return ReplayTrace(report, read_messages(out))
