@@ -170,7 +170,8 @@ def _bench(args: argparse.Namespace) -> int:
 
 async def _live(tmp: Path, variant: _Variant, commands: int, seconds: float, log_level: str) -> _Live:
     from daemon.app import RunOptions, serve
-    from daemon.backend import ProcessMotionPlanner, SimOptions, open_backend
+    from daemon.backend import ProcessMotionPlanner, SimOptions
+    from daemon.cell import open_backend
     from daemon.clock import RealClock
     from daemon.sdnotify import SdNotifier
     from recorder.files import is_job_file

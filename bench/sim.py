@@ -1,6 +1,6 @@
 """``dishbot bench sim``: datasets 1-3 loaded end to end in the MuJoCo cell by the daemon's own job runner.
 
-Each dataset gets a fresh simulated cell from the daemon's own builder (``daemon.backend.open_backend``,
+Each dataset gets a fresh simulated cell from the daemon's own builder (``daemon.cell.open_backend``,
 the cell ``dishbot run --sim --world mujoco --dataset N`` runs: the same start pose, arm calibration, mug
 catalogue and detector) with its mugs on the counter where ``sim.counter`` puts them. The daemon's ``Job``
 runs one loading job on it exactly as ``dishbot run --once`` does — perception on rendered depth frames, the
@@ -218,8 +218,9 @@ async def run_dataset(
 ) -> SimRun:
     """One loading job of ``dataset`` in a fresh MuJoCo cell on ``clock`` (run it with ``clock.run``),
     measured: the cell ``dishbot run --sim --world mujoco --dataset N --once`` runs
-    (``daemon.backend.open_backend``), and the same job."""
-    from daemon.backend import SimOptions, open_backend
+    (``daemon.cell.open_backend``), and the same job."""
+    from daemon.backend import SimOptions
+    from daemon.cell import open_backend
     from daemon.job import Job, StartRequest
     from daemon.sim_backend import mujoco_cell
 

@@ -154,7 +154,8 @@ def rss_mb() -> float:
 
 def soak(jobs: int, seed: int, record_dir: Path) -> Soak:
     from daemon.app import RunOptions, ServeContext, ServeHooks, serve
-    from daemon.backend import SimOptions, open_backend
+    from daemon.backend import SimOptions
+    from daemon.cell import open_backend
     from daemon.clock import SimulatedClock
     from daemon.config import load_config
     from daemon.sdnotify import SdNotifier

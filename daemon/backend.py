@@ -1,11 +1,11 @@
 """What a loading job runs on: the devices, the observer and the motion planner, bundled as a ``Backend``.
 
 The job runner only sees the protocols of ``drivers.interfaces``, ``perception.interfaces`` and
-``planning.interfaces``. ``open_backend`` is the one builder: ``dishbot run`` and every bench get their cell
-from it, the robot (here) or a simulated cell (``daemon.sim_backend``, imported only for one, so the
-hardware backend loads neither the simulated worlds nor MuJoCo). ``recorded`` wraps a backend so that every
-input crossing the driver boundary (joint feedback, force readings, grasp results, observations) is also
-handed to the recording, which is what a replay needs.
+``planning.interfaces``. ``daemon.cell.open_backend`` is the one builder: ``dishbot run`` and every bench get
+their cell from it, the robot (assembled here) or a simulated cell (``daemon.sim_backend``, imported only for
+one, so the hardware backend loads neither the simulated worlds nor MuJoCo). ``recorded`` wraps a backend so
+that every input crossing the driver boundary (joint feedback, force readings, grasp results, observations) is
+also handed to the recording, which is what a replay needs.
 """
 
 from __future__ import annotations
@@ -58,10 +58,10 @@ from drivers.stack import (
 from perception.interfaces import MugObserver, Observation
 from planning.arm import ArmModel
 from planning.arm.calibration import PositionCorrection
-from planning.interfaces import CyclePlan, MotionPlanner, MugPose, PlacementPlanner, TraySlot
+from planning.interfaces import CyclePlan, MotionPlanner, MugPose, TraySlot
 from planning.motion import DynamicsMoveCost, check_reachable
 from planning.motion.planner import CyclePlanner
-from planning.placement import PlanOptions, PlanResult, Problem, plan
+from planning.placement import PlacementPlanner, PlanOptions, PlanResult, Problem, plan
 
 if TYPE_CHECKING:
     from perception.calibration import CameraModel
@@ -565,37 +565,6 @@ class SimOptions:
     transport: str | None = None
     seed: int | None = None
     fsr_debounce_s: float = 0.03
-
-
-async def open_backend(
-    config: Config,
-    *,
-    sim: SimOptions | None = None,
-    clock: SessionClock | None = None,
-    executor: concurrent.futures.Executor | None = None,
-) -> Backend:
-    """The cell a job runs on, for ``dishbot run`` and every bench alike: the robot on the ``[hardware]``
-    ports, or with ``sim`` the simulated cell (``daemon.sim_backend``, imported only then: the hardware
-    backend loads no simulator), moving on ``clock`` (default the wall clock, ``RealClock``).
-
-    Every cell gets the same parts from the config: the cell is refused first when the arm cannot serve it
-    (``UsageError``, before any device moves or any simulator starts); the cycle planner plans in the
-    configured cell with the configured catalogue and the arm's position correction; the detector looks for
-    the configured mug types; a simulated arm starts at ``sim.start_q_rad``. With ``executor`` (a process
-    pool) motion planning runs there and the planner starts building in it at once. Call it on the event
-    loop that will use the devices."""
-    arm = ArmModel.load()
-    check_cell_reachable(config, arm)
-    clock = clock or RealClock()
-    if sim is None:
-        backend = await open_hardware_backend(config, arm=arm, executor=executor, clock=clock)
-    else:
-        from daemon.sim_backend import open_sim_backend
-
-        backend = await open_sim_backend(config, sim, arm=arm, clock=clock, executor=executor)
-    if isinstance(backend.motion, ProcessMotionPlanner):
-        backend.motion.warm_up()
-    return backend
 
 
 def health_limits(config: Config) -> HealthLimits:

@@ -1,8 +1,8 @@
 """The seams between planning and the rest: placement problems go in, cycle plans of joint motions come out.
 
 The placement planner itself lives in ``planning.placement`` (problem and result formats are the JSON
-contract of ``dishbot plan``), the cycle planner in ``planning.motion``; the daemon's job depends only on the
-protocols below (``PlacementPlanner``, ``MotionPlanner``).
+contract of ``dishbot plan``; its seam is ``planning.placement.PlacementPlanner``), the cycle planner in
+``planning.motion``; the daemon's job depends only on the protocols below (``MotionPlanner``) and that seam.
 """
 
 from __future__ import annotations
@@ -14,9 +14,6 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 if TYPE_CHECKING:  # only annotations here: the placement planner's users need not load numpy
     from drivers.interfaces import JointTrajectory
-
-if TYPE_CHECKING:  # planning.placement imports this module
-    from planning.placement import PlanOptions, PlanResult, Problem
 
 
 @dataclass(frozen=True, slots=True)
@@ -132,10 +129,3 @@ class MotionPlanner(Protocol):
     def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
         """A joint-space move within the servo limits (used for parking and recovery)."""
         ...
-
-
-class PlacementPlanner(Protocol):
-    """Plans where each counter mug goes on the tray and in which order (``planning.placement.plan``).
-    The daemon may run it in another process: an implementation must pickle."""
-
-    def __call__(self, problem: Problem, options: PlanOptions, /) -> PlanResult: ...

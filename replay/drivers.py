@@ -42,8 +42,7 @@ from drivers.interfaces import (
     JointTrajectory,
 )
 from perception.interfaces import Detection, MugObserver, Observation
-from planning.interfaces import PlacementPlanner
-from planning.placement import PlanOptions, PlanResult, Problem
+from planning.placement import PlacementPlanner, PlanOptions, PlanResult, Problem
 from replay.session import DeviceCommand, Divergence, Recorded, RecordedSession, device_command
 
 log = structlog.get_logger("replay")

@@ -29,7 +29,8 @@ from typing import Any, Protocol
 import structlog
 
 from daemon.app import RunOptions, ServeContext, ServeHooks, serve
-from daemon.backend import SimOptions, open_backend
+from daemon.backend import SimOptions
+from daemon.cell import open_backend
 from daemon.clock import SimulatedClock, wall_seconds
 from daemon.config import Config
 from daemon.sdnotify import SdNotifier

@@ -13,7 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from daemon.app import RunOptions, RunResult, ServeHooks, serve
-from daemon.backend import CounterMug, SimOptions, open_backend
+from daemon.backend import CounterMug, SimOptions
+from daemon.cell import open_backend
 from daemon.clock import RealClock, SessionClock, SimulatedClock
 from daemon.config import Config, load_config
 from daemon.errors import UsageError

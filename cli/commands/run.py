@@ -286,7 +286,8 @@ async def _backend(
 ) -> Backend:
     import structlog
 
-    from daemon.backend import ProcessMotionPlanner, SimOptions, open_backend
+    from daemon.backend import ProcessMotionPlanner, SimOptions
+    from daemon.cell import open_backend
     from daemon.clock import SimulatedClock, describe_speed
 
     sim: SimOptions | None = None

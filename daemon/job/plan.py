@@ -1,5 +1,5 @@
 """``plan``: placement planning of the counter's mugs around those already on the tray (a
-``planning.interfaces.PlacementPlanner``), published on ``plan``; then the first cycle is taken
+``planning.placement.PlacementPlanner``), published on ``plan``; then the first cycle is taken
 (``cycles.take_next_cycle``)."""
 
 from __future__ import annotations
@@ -13,8 +13,17 @@ from daemon.job.cycles import NEXT_CYCLE_READS, NEXT_CYCLE_WRITES, take_next_cyc
 from daemon.job.services import Services
 from daemon.job.unit import Unit
 from description.cell import Tray
-from planning.interfaces import PlacementPlanner, TraySlot
-from planning.placement import CounterMug, InvalidProblem, MugType, PlanResult, Problem, TrayMug, plan
+from planning.interfaces import TraySlot
+from planning.placement import (
+    CounterMug,
+    InvalidProblem,
+    MugType,
+    PlacementPlanner,
+    PlanResult,
+    Problem,
+    TrayMug,
+    plan,
+)
 
 
 class Plan(Unit):

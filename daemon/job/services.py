@@ -16,8 +16,7 @@ from daemon.backend import Backend
 from daemon.config import Config
 from drivers.interfaces import Clock
 from perception.interfaces import Associate
-from planning.interfaces import PlacementPlanner
-from planning.placement import PlanOptions, PlanResult, Problem
+from planning.placement import PlacementPlanner, PlanOptions, PlanResult, Problem
 
 Publish = Callable[[str, Mapping[str, object]], None]
 

@@ -4,12 +4,12 @@ Every method of the thesis (§4.2: packing heuristics, SA, GA, PSOp, PSOk, best 
 model that proves the largest number of mugs that fit, and ``auto``, which combines them within a time budget.
 """
 
-from planning.interfaces import PlacementPlanner
 from planning.placement.cost import MoveCost, ThesisMoveCost
 from planning.placement.datasets import cell_dataset_problem, dataset_problem
 from planning.placement.errors import InvalidProblem
 from planning.placement.planner import METHODS, PlacedMug, PlanOptions, PlanResult, plan
 from planning.placement.problem import CounterMug, MugType, Problem, TrayMug
+from planning.placement.seam import PlacementPlanner
 
 __all__ = [
     "METHODS",

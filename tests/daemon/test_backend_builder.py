@@ -1,4 +1,4 @@
-"""The one backend builder (``daemon.backend.open_backend``): ``dishbot run`` and ``dishbot bench sim`` ask it
+"""The one backend builder (``daemon.cell.open_backend``): ``dishbot run`` and ``dishbot bench sim`` ask it
 for the same cell, every cell it builds takes the configured start pose, arm calibration and mug catalogue,
 a full-size-tray dataset gets the one refusal on every path, and the hardware backend loads no simulator."""
 
@@ -14,9 +14,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-import daemon.backend
+import daemon.cell
 from cli.main import main
-from daemon.backend import Backend, SimOptions, open_backend
+from daemon.backend import Backend, SimOptions
+from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import Config, load_config
 from daemon.errors import UsageError
@@ -62,7 +63,7 @@ def test_run_and_bench_sim_ask_the_one_builder_for_the_same_cell(
         raise UsageError("stop here")
 
     # Both verbs import the builder when they run, so the one spy on its home module sees both.
-    monkeypatch.setattr(daemon.backend, "open_backend", spy)
+    monkeypatch.setattr(daemon.cell, "open_backend", spy)
     path = tmp_path / "robot.toml"
     path.write_text(
         "[sim]\nstart_q_rad = [0.3, -1.4, 2.0, 1.0, -1.5708]\n[mug_types.medium]\n"
@@ -148,7 +149,7 @@ def test_the_kinematic_cell_sets_a_full_size_tray_dataset_out_on_its_own_tray() 
 
 _HARDWARE_ONLY = """
 import asyncio, json, sys
-from daemon.backend import open_backend
+from daemon.cell import open_backend
 from tests.fakes.hw_rig import rig
 
 async def main():

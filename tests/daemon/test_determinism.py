@@ -14,7 +14,8 @@ from typing import Any
 import pytest
 
 from daemon.app import RunOptions, RunResult, serve
-from daemon.backend import Backend, CounterMug, SimOptions, open_backend
+from daemon.backend import Backend, CounterMug, SimOptions
+from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import StartRequest

@@ -17,9 +17,9 @@ from daemon.backend import (
     SimOptions,
     check_cell_reachable,
     load_correction,
-    open_backend,
     open_hardware_backend,
 )
+from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.errors import ConfigError, UsageError

@@ -9,7 +9,8 @@ from typing import Any
 
 import pytest
 
-from daemon.backend import Backend, SimOptions, open_backend
+from daemon.backend import Backend, SimOptions
+from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import CommandRefused, Job, StartRequest

@@ -9,7 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from daemon.app import RunOptions, RunResult, ServeContext, ServeHooks, serve
-from daemon.backend import Backend, CounterMug, SimOptions, open_backend
+from daemon.backend import Backend, CounterMug, SimOptions
+from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import Config, load_config
 from daemon.job import StartRequest
