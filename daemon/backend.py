@@ -748,6 +748,22 @@ async def _hardware_observer(
         model = configured_camera_model(config)
     except ValueError as e:
         raise UsageError(f"camera: {e}") from e
+    if camera is None and config.hardware.camera == "zenoh":
+        from daemon.zenoh_camera import CameraUnreachable, ZenohCamera
+
+        source = config.hardware.zenoh_camera
+        try:
+            camera = await stack.enter_async_context(
+                ZenohCamera(
+                    connect=source.connect,
+                    key=source.key,
+                    intrinsics=model.intrinsics,
+                    world_from_camera=model.world_from_camera,
+                    clock=clock,
+                )
+            )
+        except CameraUnreachable as e:
+            raise UsageError(str(e)) from e
     if camera is None:
         camera = await stack.enter_async_context(
             RealSenseCamera(

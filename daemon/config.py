@@ -39,7 +39,7 @@ _TRANSPORTS = ("inprocess", "pty")
 PLANNER_FITNESS = ("rf", "ws")
 PLANNER_COSTS = ("bpc", "upc", "ec")
 _ENERGY_MODELS = ("thesis", "dynamics")
-_CAMERAS = ("realsense", "none")
+_CAMERAS = ("realsense", "zenoh", "none")
 RECORDING_COMPRESSIONS = ("zstd", "lz4", "none")
 _LISTEN = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 
@@ -186,6 +186,15 @@ class HealthConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class ZenohCameraConfig:
+    """A depth camera whose node publishes frames on Zenoh (``camera = "zenoh"``, ``daemon.zenoh_camera``):
+    the node's endpoint and the key its frames come on."""
+
+    connect: str
+    key: str
+
+
+@dataclass(frozen=True, slots=True)
 class HardwareConfig:
     """The robot's devices, used when ``backend = "hardware"``: the servo bus, each joint's servo, the
     gripper, the FSR and the depth camera."""
@@ -200,6 +209,7 @@ class HardwareConfig:
     fsr: FsrConfig
     camera: str
     camera_serial: str
+    zenoh_camera: ZenohCameraConfig
     health: HealthConfig
 
     def servo(self, joint: str) -> ServoConfig:
@@ -546,6 +556,7 @@ def _hardware(s: _Section) -> HardwareConfig:
         fsr=_fsr(s.section("fsr")),
         camera=s.choice("camera", _CAMERAS),
         camera_serial=s.string("camera_serial"),
+        zenoh_camera=_zenoh_camera(s.section("zenoh_camera")),
         health=_health(s.section("health")),
     )
     s.finish()
@@ -622,6 +633,16 @@ def _hardware_gripper(s: _Section) -> HardwareGripperConfig:
         grip_limit_backoff=s.number("grip_limit_backoff", 0.1, 0.95),
         overload_retries=s.integer("overload_retries", 0, 10),
     )
+    s.finish()
+    return cfg
+
+
+def _zenoh_camera(s: _Section) -> ZenohCameraConfig:
+    key = s.text("key")
+    if any(c in key for c in "*$?#") or key.startswith("/") or key.endswith("/") or "//" in key:
+        raise ConfigError(f"hardware.zenoh_camera.key: {_show(key)} is not a plain Zenoh key (no wildcards)")
+    connect = check_endpoint(s._get("connect"), "hardware.zenoh_camera.connect")
+    cfg = ZenohCameraConfig(connect=connect, key=key)
     s.finish()
     return cfg
 

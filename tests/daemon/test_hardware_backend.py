@@ -238,7 +238,7 @@ BAD_HARDWARE: list[tuple[dict[str, Any], str]] = [
         {"gripper": {"aperture_map": [[0.5]]}},
         "hardware.gripper.aperture_map[0]: expected [servo angle rad, aperture m], got a list",
     ),
-    ({"camera": "kinect"}, "hardware.camera: 'kinect' is not one of realsense, none"),
+    ({"camera": "kinect"}, "hardware.camera: 'kinect' is not one of realsense, zenoh, none"),
     ({"read_timeout_s": 0}, "hardware.read_timeout_s: 0 is out of range; allowed [0.001, 1]"),
 ]
 
