@@ -65,6 +65,9 @@ class StackSpec:
     # in-process simulator's opener carries the same bytes without a tty.
     open_bus: OpenSerial | None = None
     open_fsr: OpenSerial | None = None
+    # Bus transactions on the event loop's thread: only for an in-process cable on a simulated clock
+    # (``drivers.dynamixel.chain``).
+    inline_bus: bool = False
 
     @property
     def chain(self) -> tuple[tuple[int, str], ...]:
@@ -156,6 +159,7 @@ async def open_device_stack(
             corrupt_window=spec.corrupt_window,
             on_event=on_event,
             open_serial=spec.open_bus,
+            inline=spec.inline_bus,
         )
     )
     arm = await stack.enter_async_context(DynamixelArm(chain, spec.joints))

@@ -5,6 +5,12 @@ the serial port and the SDK's state is touched by one thread only. Fault events 
 transaction reach the listener on the event loop when the transaction returns, before its result: in the
 order they happened and at the same point of the job however the threads were scheduled (which keeps a
 simulated run deterministic).
+
+``inline=True`` runs each transaction on the event loop's own thread instead. That is for an in-process
+cable on a simulated clock only (the simulated cell): the simulator has answered before the driver starts
+reading, so a transaction never waits on a device, and no simulated time passes while one runs either way.
+It saves the thread hop of every transaction (tens of thousands a job), with the same events in the same
+order.
 """
 
 from __future__ import annotations
@@ -77,8 +83,11 @@ class ServoChain:
         corrupt_window: int = 50,
         on_event: EventListener | None = None,
         open_serial: OpenSerial | None = None,
+        inline: bool = False,
     ) -> None:
         self.config = config
+        self.inline = inline
+        self._open = False
         self.expected = tuple(expected)
         self.clock = clock
         self._on_event = on_event
@@ -104,9 +113,16 @@ class ServoChain:
     async def call(self, fn: Callable[[DynamixelBus], T]) -> T:
         """Run ``fn(bus)`` on the bus thread and return its result (exceptions propagate); the events it
         raised reach the listener first."""
-        if self._executor is None or self._loop is None:
+        if not self._open or self._loop is None:
             raise RuntimeError("the servo chain is not open; use `async with ServoChain(...)`")
         events = _Events(self._loop, self._on_event)
+        if self._executor is None:  # inline: on the loop's thread
+            self._events = events
+            try:
+                return fn(self.bus)
+            finally:
+                self._events = None
+                events.deliver()
 
         def transaction(bus: DynamixelBus) -> T:
             self._events = events
@@ -130,7 +146,9 @@ class ServoChain:
 
     async def open(self) -> None:
         self._loop = asyncio.get_running_loop()
-        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynamixel-bus")
+        if not self.inline:
+            self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynamixel-bus")
+        self._open = True
         try:
             await self.call(lambda bus: bus.open())
             await self.call(lambda bus: bus.verify(self.expected))
@@ -139,13 +157,15 @@ class ServoChain:
             raise
 
     async def close(self) -> None:
-        if self._executor is None:
+        if not self._open:
             return
         try:
             await self.call(lambda bus: bus.close())
         finally:
-            self._executor.shutdown(wait=True)
-            self._executor = None
+            self._open = False
+            executor, self._executor = self._executor, None
+            if executor is not None:
+                executor.shutdown(wait=True)
 
     async def __aenter__(self) -> ServoChain:
         await self.open()

@@ -313,6 +313,7 @@ async def start_sim_cell(
             read_timeout_s=0.05,
             open_bus=servo_sim.open_serial,
             open_fsr=fsr_sim.open_serial,
+            inline_bus=transport == "inprocess" and clock.simulated,
             health=health or HealthLimits(),
         )
         devices = await open_device_stack(spec, stack, clock=clock, on_event=device_event)
