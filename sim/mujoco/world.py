@@ -192,6 +192,10 @@ class SimWorld:
         self._goal = np.zeros(len(ordered))
         self._speed = np.zeros(len(ordered))
         self._setpoint = np.zeros(len(ordered))
+        # Bumped by every new goal; the physics skips the set-point walk while it has reached the goals of the
+        # latest bump (a generation rather than a flag: a goal written mid-step is never lost).
+        self._goal_gen = 0
+        self._settled_gen = -1
         self._present = (np.zeros(len(ordered)), np.zeros(len(ordered)), np.zeros(len(ordered)))
         self._mug_body = {m: self._id(mujoco.mjtObj.mjOBJ_BODY, MUG_BODY_PREFIX + m) for m in self.mug_ids}
         self._weld = {m: self._id(mujoco.mjtObj.mjOBJ_EQUALITY, WELD_PREFIX + m) for m in self.mug_ids}
@@ -328,6 +332,7 @@ class SimWorld:
         s = self._servo(servo_id)
         self._speed[s.index] = s.max_speed if speed_rad_s <= 0.0 else min(speed_rad_s, s.max_speed)
         self._goal[s.index] = min(max(position_rad, s.lower), s.upper)
+        self._goal_gen += 1
 
     def present(self, servo_id: int) -> tuple[float, float, float]:
         """Present position (rad), velocity (rad/s) and load (signed fraction of the stall torque), as of
@@ -342,6 +347,7 @@ class SimWorld:
         with self.lock:
             if on and not s.torque_on:
                 self._setpoint[s.index] = self._goal[s.index] = float(self.data.qpos[s.qpos_adr])
+                self._goal_gen += 1
                 self.model.actuator_gainprm[s.actuator] = s.gainprm
                 self.model.actuator_biasprm[s.actuator] = s.biasprm
             elif not on and s.torque_on:
@@ -560,10 +566,12 @@ class SimWorld:
             self._drive_servos(dt)
             mujoco.mj_step(self.model, self.data)
             self._steps += 1
-            self._publish_present()
             if self.data.time >= self._next_monitor:
                 self._next_monitor = self.data.time + self.physics.monitor_period_s
                 self._monitor()
+        # Once per batch: stepped by a clock, nobody reads between the steps of a batch (they run on the
+        # reader's thread); in the world's own thread a batch is at most ``max_batch_s`` of real time.
+        self._publish_present()
         if not np.all(np.isfinite(self.data.qpos)):
             raise SimModelError(f"the simulation diverged at t={self.time():.3f} s (non-finite positions)")
 
@@ -575,9 +583,16 @@ class SimWorld:
 
     def _drive_servos(self, dt: float) -> None:
         """Walk each set-point towards its goal at the commanded speed, as the servo firmware does."""
+        gen = self._goal_gen
+        if self._settled_gen == gen:
+            return  # every set-point is at its goal: the controls stay as they are
         step = self._speed * dt
-        self._setpoint += np.clip(self._goal - self._setpoint, -step, step)
+        delta = self._goal - self._setpoint
+        np.minimum(np.maximum(delta, -step, out=delta), step, out=delta)
+        self._setpoint += delta
         self.data.ctrl[self._actuators] = self._setpoint
+        if not delta.any():
+            self._settled_gen = gen
 
     # ------------------------------------------------------------------------- grasp and contact monitor
 
@@ -668,10 +683,13 @@ class SimWorld:
         if self._held is not None:
             candidates.append(self._mug_index[self._held])
         if candidates:
-            mine = (
-                np.isin(m1, candidates) & ~self.geom_gripper[g2]
-                | np.isin(m2, candidates) & ~self.geom_gripper[g1]
-            )
+            # One or two mugs: comparisons beat np.isin, whose set machinery dominated this scan.
+            in1 = m1 == candidates[0]
+            in2 = m2 == candidates[0]
+            for c in candidates[1:]:
+                in1 |= m1 == c
+                in2 |= m2 == c
+            mine = in1 & ~self.geom_gripper[g2] | in2 & ~self.geom_gripper[g1]
             for i in np.flatnonzero(mine):
                 mujoco.mj_contactForce(self.model, self.data, int(i), wrench)
                 grip.support_force_n += float(wrench[0])
