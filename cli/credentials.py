@@ -5,7 +5,8 @@ In ``DIR``: a certificate authority (``ca.pem``, ``ca.key``), a certificate and 
 dictionary (``passwords.txt``), the robot's config (``robot.toml``, for ``dishbot run --config``), one client
 profile per operator and monitor (``NAME.profile.toml``) and, with a router, its config (``router.toml``).
 Keys, passwords and profiles are written mode 0600. Nothing is written when any of the files exists, unless
-asked to replace them all.
+asked to replace them all. Each certificate may be used only as its role needs (the router's only serves its
+listener; see ``_USES``), and ``passwords.txt`` lists those who open links: the robot and the people.
 """
 
 from __future__ import annotations
@@ -33,6 +34,15 @@ IDENTITY_DAYS = 3 * 365
 DICTIONARY = "passwords.txt"
 ROUTER_NAME = "router"
 _RESERVED = ("ca", ROUTER_NAME)  # ca.pem and ca.key are the CA's; the router's files are router.*
+# What each identity's certificate may be used for (TLS checks the extended key usage): the router's only
+# serves its listener, so a stolen router key opens no link to a robot (where the router role is granted by
+# certificate alone); a person's only opens links; a robot listens and connects out to its router.
+_USES = {
+    "robot": [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH],
+    "router": [ExtendedKeyUsageOID.SERVER_AUTH],
+    "operator": [ExtendedKeyUsageOID.CLIENT_AUTH],
+    "monitor": [ExtendedKeyUsageOID.CLIENT_AUTH],
+}
 _HOST = re.compile(
     r"^(?=.{1,253}$)[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*$"
 )
@@ -131,7 +141,8 @@ def write(plan: SecurityPlan, directory: Path, *, force: bool = False) -> list[P
             cert = _identity_certificate(identity, key, ca_key, ca_cert, now)
             _write(directory / f"{identity.name}.pem", _pem(cert), private=False)
             _write(directory / f"{identity.name}.key", _key_pem(key), private=True)
-        passwords = {i.name: secrets.token_urlsafe(24) for i in plan.identities}
+        # The router opens no link (its certificate only serves its listener), so it needs no password.
+        passwords = {i.name: secrets.token_urlsafe(24) for i in plan.identities if i.role != "router"}
         _write(
             directory / DICTIONARY, "".join(f"{n}:{p}\n" for n, p in passwords.items()).encode(), private=True
         )
@@ -320,10 +331,7 @@ def _identity_certificate(
         .not_valid_before(now - datetime.timedelta(minutes=5))
         .not_valid_after(now + datetime.timedelta(days=IDENTITY_DAYS))
         .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-        .add_extension(
-            x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
-            critical=False,
-        )
+        .add_extension(x509.ExtendedKeyUsage(_USES[identity.role]), critical=False)
         .add_extension(
             x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), critical=False
         )

@@ -8,7 +8,9 @@ Three layers, each enforced by Zenoh itself:
   in the listening side's dictionary file (``user:password`` lines).
 - **Roles** (``[zenoh.access]``): Zenoh access control, default deny. An *operator* may call every
   ``cmd/<verb>``; a *monitor* may subscribe and call ``cmd/status`` only; a *router* (on a robot) forwards for
-  operators; a *robot* (on a router) serves its own ``dishbot/<id>/**``. Nobody else may do anything.
+  operators, matched by certificate alone on the link the robot opens to it (the router's certificate is
+  for serving only, so it opens no link to a robot); a *robot* (on a router) serves its own
+  ``dishbot/<id>/**``. Nobody else may do anything.
 
 Loopback without security stays the default for local work; an endpoint reachable from other machines
 without TLS is refused at start unless ``insecure`` is set (``exposure_error``). Client verbs read a *profile*

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import zenoh
 from cryptography import x509
-from cryptography.x509.oid import NameOID
+from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from bench.remote import python_env
 from cli.main import main
@@ -560,3 +560,56 @@ def test_the_router_routes_over_tls_with_roles(keys: Path, tmp_path: Path) -> No
     finally:
         router.terminate()
         assert router.wait(20) == 0
+
+
+def test_a_stolen_router_key_with_a_monitors_password_is_refused_at_the_robots_listener(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 23 item 1: the router's certificate and key, with any password from the dictionary, at the
+    robot's own TLS listener. The router's certificate only serves its own listener: it opens no link."""
+    home = tmp_path / "k"
+    port = str(free_port())
+    argv = ["security", "init", str(home), "--robot", ROBOT, "--address", "127.0.0.1", "--operator", "alice"]
+    assert main([*argv, "--monitor", "bob", "--router", "127.0.0.2", "--port", port]) == 0
+    config = load_config(home / "robot.toml")
+    endpoint = config.zenoh.listen[0]
+    bob = load_profile(home / "bob.profile.toml")
+    assert [line.split(":")[0] for line in (home / "passwords.txt").read_text().splitlines()] == [
+        ROBOT,
+        "alice",
+        "bob",
+    ]  # the router opens no link, so it has no password
+    uses = {
+        name: x509.load_pem_x509_certificate((home / f"{name}.pem").read_bytes())
+        .extensions.get_extension_for_class(x509.ExtendedKeyUsage)
+        .value
+        for name in ("router", ROBOT, "alice", "bob")
+    }
+    serve, connect = ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH
+    assert {name: list(use) for name, use in uses.items()} == {
+        "router": [serve],
+        ROBOT: [serve, connect],
+        "alice": [connect],
+        "bob": [connect],
+    }
+    stolen = home / "thief.profile.toml"
+    stolen.write_text(
+        f'endpoint = "{endpoint}"\nrobot = "{ROBOT}"\n\n[tls]\nroot_ca_certificate = "ca.pem"\n'
+        'certificate = "router.pem"\nprivate_key = "router.key"\n\n'
+        f'[auth]\nuser = "bob"\npassword = "{bob.password}"\n'
+    )
+    stolen.chmod(0o600)
+
+    async def scenario() -> None:
+        async with daemon(tmp_path, config, listen=config.zenoh.listen):
+            for verb in ("start", "estop"):
+                code, out, err = await cli(capsys, verb, "--profile", str(stolen), "--timeout", "2")
+                assert (code, out, err) == (
+                    1,
+                    "",
+                    f"dishbot {verb}: {endpoint} refused this client: the TLS handshake or the password "
+                    "failed (check the profile's certificate, key, CA and password)\n",
+                )
+            await until_state(endpoint, "idle", profile=load_profile(home / "alice.profile.toml"))
+
+    asyncio.run(scenario())
