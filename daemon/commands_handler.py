@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import sys
 from collections.abc import Mapping
 from typing import Any
 
@@ -29,6 +30,7 @@ from planning.placement import METHODS
 VERBS = ("status", "start", "pause", "resume", "stop", "estop", "reset")
 _ID = re.compile(r"^[A-Za-z0-9_-]{1,32}$")
 _MAX_MUGS = 64
+_LONGEST_SHOWN = 20  # digits of an integer quoted in an error; a longer one is named by its length
 # The deepest command is three levels (start -> mugs -> a mug); anything much deeper is not a command.
 MAX_NESTING = 8
 _STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"?', re.DOTALL)
@@ -102,6 +104,10 @@ def _body(payload: bytes) -> dict[str, Any]:
         raise BadCommand(f"command payload nested deeper than {MAX_NESTING} levels") from e
     except json.JSONDecodeError as e:
         raise BadCommand(f"payload is not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from e
+    except ValueError as e:  # an integer longer than Python converts (only with a raised size limit)
+        raise BadCommand(
+            f"payload has an integer of more than {sys.get_int_max_str_digits()} digits; no field takes one"
+        ) from e
     if not isinstance(body, dict):
         raise BadCommand(f"payload must be a JSON object, got {_kind(body)}")
     return body
@@ -187,15 +193,16 @@ def _integer(value: object, name: str, lo: int, hi: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise BadCommand(f"{name}: expected an integer {lo}-{hi}, got {_kind(value)}")
     if not lo <= value <= hi:
-        raise BadCommand(f"{name}: {value} is out of range {lo}-{hi}")
+        raise BadCommand(f"{name}: {_kind(value)} is out of range {lo}-{hi}")
     return value
 
 
 def _number(value: object, name: str, lo: float, hi: float) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise BadCommand(f"{name}: expected a number in [{lo:g}, {hi:g}], got {_kind(value)}")
-    if not math.isfinite(value) or not lo <= value <= hi:
-        raise BadCommand(f"{name}: {value!r} is out of range [{lo:g}, {hi:g}]")
+    # Compared as given: an integer too large for a float is out of range, not an OverflowError.
+    if (isinstance(value, float) and not math.isfinite(value)) or not lo <= value <= hi:
+        raise BadCommand(f"{name}: {_kind(value)} is out of range [{lo:g}, {hi:g}]")
     return float(value)
 
 
@@ -208,4 +215,6 @@ def _kind(value: object) -> str:
         return "null"
     if isinstance(value, bool):
         return "true" if value else "false"
+    if isinstance(value, int) and abs(value) >= 10**_LONGEST_SHOWN:
+        return f"an integer of {len(str(abs(value)))} digits"
     return repr(value)

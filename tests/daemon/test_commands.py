@@ -122,6 +122,17 @@ BAD = [
         "dataset and mugs set up a simulated counter; this backend is real hardware",
     ),
     ("start", b"x" * 5000, "payload of 5000 bytes is larger than the limit of 4096 bytes"),
+    ("start", b'{"dataset": 1' + b"0" * 399 + b"}", "dataset: an integer of 400 digits is out of range 1-6"),
+    (
+        "start",
+        b'{"mugs": [{"id": "a", "type": "big", "x_m": -1' + b"0" * 399 + b', "y_m": 0.3}]}',
+        "mugs[0].x_m: an integer of 400 digits is out of range [-2, 2]",
+    ),
+    (
+        "start",
+        b'{"planner": {"time_limit_s": 1' + b"0" * 399 + b"}}",
+        "planner.time_limit_s: an integer of 400 digits is out of range [0.01, 600]",
+    ),
 ]
 
 
@@ -282,6 +293,33 @@ def test_the_parser_accepts_or_refuses_any_json_with_a_bad_command_error(verb: s
         message = str(e)
     assert message
     assert "\n" not in message
+
+
+_NUMERIC_FIELDS: dict[str, Callable[[int], dict[str, object]]] = {
+    "dataset": lambda n: {"dataset": n},
+    "planner.seed": lambda n: {"planner": {"seed": n}},
+    "planner.time_limit_s": lambda n: {"planner": {"time_limit_s": n}},
+    "mugs[0].x_m": lambda n: {"mugs": [{"id": "a", "type": "big", "x_m": n, "y_m": 0.3}]},
+    "mugs[0].y_m": lambda n: {"mugs": [{"id": "a", "type": "big", "x_m": 0.3, "y_m": n}]},
+}
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    field=st.sampled_from(sorted(_NUMERIC_FIELDS)),
+    number=st.integers() | st.integers(10**300, 10**1200) | st.integers(-(10**1200), -(10**300)),
+)
+def test_any_integer_in_a_numeric_field_is_accepted_or_refused_in_one_line_naming_it(
+    field: str, number: int
+) -> None:
+    body = json.dumps(_NUMERIC_FIELDS[field](number)).encode()
+    try:
+        parse("start", body, _CONFIG)
+    except BadCommand as e:
+        message = str(e)
+        assert message.startswith(f"{field}: ")
+        assert "out of range" in message
+        assert len(message) < 100
 
 
 def test_monitor_prints_state_changes_and_events_of_a_running_job(
