@@ -226,7 +226,11 @@ async def serve(
         deriver=view,
         tee=live,
     )
-    relay = LogRelay(options.worker_logs, _publish_log(session)) if options.worker_logs is not None else None
+    relay = (
+        LogRelay(options.worker_logs, _publish_log(session, clock))
+        if options.worker_logs is not None
+        else None
+    )
     try:
         with _logs_published(session, clock):
             session.attach_recorder(recording, lambda: round(clock.now() * 1e9))
@@ -578,9 +582,11 @@ class _LogForwarder:
         return event
 
 
-def _publish_log(session: ZenohSession) -> Callable[[Mapping[str, object]], None]:
+def _publish_log(session: ZenohSession, clock: SessionClock) -> Callable[[Mapping[str, object]], None]:
+    """Publishes a relayed worker record with ``t`` on the session's clock (when it reached the daemon)."""
+
     def publish(record: Mapping[str, object]) -> None:
-        session.publish("log", record)
+        session.publish("log", {**record, "t": record.get("t", clock.now())})
 
     return publish
 

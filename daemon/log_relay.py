@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import contextlib
 import queue
+import sys
 import threading
+import traceback
 from collections.abc import Callable, Mapping, MutableMapping
 from typing import Any, Protocol
 
@@ -30,12 +32,30 @@ class RecordQueue(Protocol):
 
 
 def plain_record(event: Mapping[str, object], method: str) -> dict[str, object]:
-    """A log record with JSON values only (anything else as its ``str``) and its level."""
+    """A log record with JSON values only (anything else as its ``str``) and its level. A record logged with
+    an exception (``log.exception(...)``, ``exc_info``) carries it as text: ``exception`` (type and message)
+    and ``traceback``, so a reader far from the process can tell why."""
     record: dict[str, object] = {
-        k: v if isinstance(v, str | int | float | bool | None) else str(v) for k, v in event.items()
+        k: v if isinstance(v, str | int | float | bool | None) else str(v)
+        for k, v in event.items()
+        if k != "exc_info"
     }
+    error = _exception(event.get("exc_info"))
+    if error is not None:
+        record["exception"] = "".join(traceback.format_exception_only(error)).strip()
+        record["traceback"] = "".join(traceback.format_exception(error))
     record.setdefault("level", method)
     return record
+
+
+def _exception(exc_info: object) -> BaseException | None:
+    """The exception structlog's ``exc_info`` names: True (the one being handled), an exception or a
+    ``sys.exc_info()`` tuple."""
+    if exc_info is True:
+        exc_info = sys.exc_info()
+    if isinstance(exc_info, tuple) and len(exc_info) == 3:
+        exc_info = exc_info[1]
+    return exc_info if isinstance(exc_info, BaseException) else None
 
 
 class _Forward:
