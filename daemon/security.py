@@ -41,13 +41,15 @@ NAME_RULE = "1-64 letters, digits, '_' or '-'"
 # The commands a query may address to many robots at once (dishbot/*/cmd/<verb>): looking at every robot and
 # stopping every robot are safe in one go; starting or resetting robots nobody named is not.
 FLEET_VERBS = ("status", "estop")
+# The commands a monitor may send (access control lets nothing else through); an operator may send all.
+MONITOR_VERBS = ("status",)
 
 # Who may do what, seen from the node that enforces it (a robot's daemon or a router). Zenoh allows a message
 # when one of the subject's rules *includes* its key expression, so wildcard queries such as
 # dishbot/*/cmd/status are allowed by the patterns below and nothing broader is.
 _EVERY_KEY = f"{NAMESPACE}/**"
 _EVERY_COMMAND = f"{NAMESPACE}/*/cmd/**"
-_STATUS = f"{NAMESPACE}/*/cmd/status"
+_STATUS = [f"{NAMESPACE}/*/cmd/{verb}" for verb in MONITOR_VERBS]
 _WATCH_IN = ("declare_subscriber", "liveliness_query", "declare_liveliness_subscriber")
 _WATCH_OUT = ("put", "liveliness_token", "declare_queryable")
 
@@ -305,8 +307,8 @@ def access_control(access: Access, *, by_certificate: bool, by_user: bool) -> di
         _rule("watch_out", _WATCH_OUT, "egress", [_EVERY_KEY]),
         _rule("command_in", ("query",), "ingress", [_EVERY_COMMAND]),
         _rule("command_out", ("reply",), "egress", [_EVERY_COMMAND]),
-        _rule("status_in", ("query",), "ingress", [_STATUS]),
-        _rule("status_out", ("reply",), "egress", [_STATUS]),
+        _rule("status_in", ("query",), "ingress", _STATUS),
+        _rule("status_out", ("reply",), "egress", _STATUS),
         _rule("robot_out", ("query",), "egress", [_EVERY_COMMAND]),
         _rule("robot_watch_out", _WATCH_IN, "egress", [_EVERY_KEY]),
     ]
@@ -349,6 +351,12 @@ def access_control(access: Access, *, by_certificate: bool, by_user: bool) -> di
         "subjects": subjects,
         "policies": policies,
     }
+
+
+def role_may(role: str, verb: str) -> bool:
+    """Whether an identity of ``role`` (a profile's ``role``; "" when unknown) may send ``verb``: a monitor
+    only its few, anyone else whatever the robot's access control lets through."""
+    return verb in MONITOR_VERBS if role == "monitor" else True
 
 
 @dataclass(frozen=True, slots=True)

@@ -18,6 +18,7 @@ import json
 import os
 import socket
 import sys
+import time
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -25,7 +26,16 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from daemon.errors import ConfigError, UsageError
-from daemon.security import FLEET_VERBS, Profile, check_endpoint, check_robot, endpoint_host, load_profile
+from daemon.security import (
+    FLEET_VERBS,
+    MONITOR_VERBS,
+    Profile,
+    check_endpoint,
+    check_robot,
+    endpoint_host,
+    load_profile,
+    role_may,
+)
 from description import thesis
 
 # Zenoh is imported when a verb runs: `dishbot --help` and the verbs' --help load none of it.
@@ -264,8 +274,12 @@ def _send(args: argparse.Namespace) -> int:
     body = _start_body(args) if verb == "start" else {}
     try:
         with client_session(t) as session:
+            began = time.monotonic()
             replies = ask(session, t, verb, body, timeout_s=args.timeout)
-            silent = _silence(session, t, verb, args.timeout) if not replies else ""
+            # Access control drops a query it refuses at once, and Zenoh then ends it with no reply; a
+            # daemon that is merely slow leaves it open until the timeout.
+            refused = time.monotonic() - began < 0.9 * args.timeout
+            silent = _silence(session, t, verb, args.timeout, refused=refused) if not replies else ""
     except Unreachable as e:
         print(f"dishbot {verb}: {e}", file=sys.stderr)
         return 1
@@ -277,6 +291,8 @@ def _send(args: argparse.Namespace) -> int:
             silent += f" (the command is {size} bytes: more than a daemon accepts by default)"
         print(f"dishbot {verb}: {silent}", file=sys.stderr)
         return 1
+    for reply in replies:
+        _narrow_to_role(reply, t)
     if t.many:
         return _print_fleet(verb, replies, as_json=args.json)
     reply = replies[0]
@@ -293,24 +309,46 @@ def _send(args: argparse.Namespace) -> int:
     return 0 if reply.get("ok") else 1
 
 
-def _silence(session: zenoh.Session, t: Target, verb: str, timeout_s: float) -> str:
-    """Why no robot answered, from the liveliness tokens still visible."""
+def _silence(session: zenoh.Session, t: Target, verb: str, timeout_s: float, *, refused: bool) -> str:
+    """Why no robot answered, from the liveliness tokens still visible and whether the query was ended at
+    once (``refused``: access control dropped it) or only by the timeout."""
     alive = alive_robots(session, timeout_s=min(timeout_s, 2.0))
+    if alive and (t.robot in alive or t.many) and refused:
+        where = f"robot {t.robot!r}" if not t.many else f"the robots ({', '.join(alive)})"
+        return f"{where} at {t.endpoint} refused {verb}: access control does not let it through {_who(t)}"
     if t.many and alive:
         return (
             f"robots alive at {t.endpoint} ({', '.join(alive)}) did not answer {verb} within "
-            f"{timeout_s:g} s: this identity may not be allowed to (a monitor may only ask for status)"
+            f"{timeout_s:g} s: the daemons may be busy, or the link slow"
         )
     if t.many:
         return f"no robot answered at {t.endpoint} within {timeout_s:g} s"
     if t.robot in alive:
         return (
             f"robot {t.robot!r} is alive at {t.endpoint} but did not answer {verb} within {timeout_s:g} s: "
-            "this identity may not be allowed to (a monitor may only ask for status), or the daemon is busy"
+            "the daemon may be busy, or the link slow"
         )
     if alive:
         return f"no robot {t.robot!r} at {t.endpoint}; robots alive there: {', '.join(alive)}"
     return f"no daemon answered for robot {t.robot!r} at {t.endpoint} within {timeout_s:g} s"
+
+
+def _who(t: Target) -> str:
+    """Whose command was refused, and what that identity may do, as far as the profile says."""
+    profile = t.profile
+    if profile is None or not profile.user:
+        return "for this client (a robot with roles takes commands only from a profile's identity)"
+    if profile.role == "monitor":
+        return f"for monitor {profile.user} (a monitor may only watch and ask for {', '.join(MONITOR_VERBS)})"
+    role = f"{profile.role} " if profile.role else ""
+    return f"for {role}{profile.user} (check the identity's role in the robot's zenoh.access)"
+
+
+def _narrow_to_role(reply: dict[str, Any], t: Target) -> None:
+    """``allowed`` is what the robot's state allows; shown to a monitor, only what a monitor may send."""
+    allowed = reply.get("allowed")
+    if t.profile is not None and isinstance(allowed, list):
+        reply["allowed"] = [v for v in allowed if role_may(t.profile.role, str(v))]
 
 
 def _stranger(reply: Mapping[str, Any], robot: str) -> str:

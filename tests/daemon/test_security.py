@@ -4,6 +4,7 @@ class of bad input to ``dishbot security init``, the ``[zenoh]`` config and the 
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 import shutil
 import stat
@@ -407,15 +408,22 @@ def test_operator_commands_monitor_watches_and_intruders_are_refused(
         async with daemon(tmp_path, config, listen=config.zenoh.listen):
             code, out, _ = await cli(capsys, "--profile", alice, "status")
             assert (code, out.splitlines()[:2]) == (0, ["robot: r1", "state: idle"])
-            code, out, err = await cli(capsys, "start", "--profile", bob, "--timeout", "1")
-            assert code == 1
+            # Refused at once by access control, and said so (not "did not answer within 30 s").
+            code, out, err = await cli(capsys, "start", "--profile", bob, "--timeout", "30")
+            assert (code, out) == (1, "")
             assert err == (
-                f"dishbot start: robot 'r1' is alive at {endpoint} but did not answer start within 1 s: this "
-                "identity may not be allowed to (a monitor may only ask for status), or the daemon is busy\n"
+                f"dishbot start: robot 'r1' at {endpoint} refused start: access control does not let it "
+                "through for monitor bob (a monitor may only watch and ask for status)\n"
             )
             code, out, _ = await cli(capsys, "--profile", bob, "status", "--json")
             assert code == 0
-            assert '"state": "idle"' in out  # the monitor's start changed nothing
+            shown = json.loads(out)
+            assert shown["state"] == "idle"  # the monitor's start changed nothing
+            assert shown["allowed"] == ["status"]  # what bob may send, not what the state allows
+            code, out, _ = await cli(capsys, "--profile", bob, "status")
+            assert "allowed: status" in out.splitlines()
+            code, out, _ = await cli(capsys, "--profile", alice, "status")
+            assert "allowed: status, start, estop" in out.splitlines()
             refused = (
                 f"{endpoint} refused this client: the TLS handshake or the password failed (check the "
                 "profile's certificate, key, CA and password)"
