@@ -32,9 +32,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from daemon.security import DEFAULT_PORT
+
 ROBOT_ADDRESS = "10.200.0.1"  # only inside the robot's namespace
 OPERATOR_ADDRESS = "10.200.0.2"  # only inside the operator's namespace
-PORT = 7447
+PORT = DEFAULT_PORT
 ROBOT = "r1"
 
 

@@ -27,7 +27,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from daemon.errors import UsageError
-from daemon.security import Profile, TlsFiles, check_name, profile_text
+from daemon.security import DEFAULT_PORT, Profile, TlsFiles, check_name, profile_text
 
 CA_DAYS = 3650
 IDENTITY_DAYS = 3 * 365
@@ -93,7 +93,7 @@ def plan(
     operators: Sequence[str] = (),
     monitors: Sequence[str] = (),
     router: str | None = None,
-    port: int = 7447,
+    port: int = DEFAULT_PORT,
 ) -> SecurityPlan:
     """Check names and addresses; the robot's default addresses are this host's name and loopback."""
     if not (operators or monitors):

@@ -35,6 +35,9 @@ from typing import Any
 from daemon.errors import ConfigError
 
 NAMESPACE = "dishbot"
+# dishbot's own port ("DISH" on a phone keypad): not Zenoh's 7447 (zenohd, ROS 2's rmw_zenoh router, the
+# Zenoh bridges) nor its scouting port 7446, and below the ports DDS (ROS 2) takes from 7400 up.
+DEFAULT_PORT = 3474
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 _NAME = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 NAME_RULE = "1-64 letters, digits, '_' or '-'"
@@ -59,7 +62,7 @@ def check_endpoint(value: object, name: str) -> str:
     match = _ENDPOINT.match(value) if isinstance(value, str) else None
     if match is None or not 1 <= int(match.group(3)) <= 65535:
         raise ConfigError(
-            f"{name}: {_show(value)} is not a Zenoh endpoint like tcp/127.0.0.1:7447 "
+            f"{name}: {_show(value)} is not a Zenoh endpoint like tcp/127.0.0.1:{DEFAULT_PORT} "
             "(protocol tcp, udp, tls, quic or ws; port 1-65535)"
         )
     return str(value)

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 from daemon.errors import ConfigError, UsageError
 from daemon.security import (
+    DEFAULT_PORT,
     FLEET_VERBS,
     MONITOR_VERBS,
     Profile,
@@ -42,7 +43,7 @@ from description import thesis
 if TYPE_CHECKING:
     import zenoh
 
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"  # where `dishbot run` listens by default
 DEFAULT_ROBOT = "dishbot"
 PROFILE_ENV = "DISHBOT_PROFILE"
 

@@ -49,7 +49,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--listen",
         action="append",
         metavar="ENDPOINT",
-        help="publish on Zenoh while replaying, e.g. tcp/127.0.0.1:7447 (repeatable; default: no endpoint)",
+        help="publish on Zenoh while replaying, e.g. tcp/127.0.0.1:3474 (repeatable; default: no endpoint)",
     )
     parser.add_argument(
         "--insecure",

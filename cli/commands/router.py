@@ -32,7 +32,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--listen",
         action="append",
         metavar="ENDPOINT",
-        help="endpoint to listen on, e.g. tls/10.0.0.5:7447 (repeatable; default: config)",
+        help="endpoint to listen on, e.g. tls/10.0.0.5:3474 (repeatable; default: config)",
     )
     parser.add_argument(
         "--connect", action="append", metavar="ENDPOINT", help="another router to connect to (repeatable)"

@@ -89,13 +89,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--listen",
         action="append",
         metavar="ENDPOINT",
-        help="Zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable; default: config)",
+        help="Zenoh endpoint to listen on, e.g. tcp/127.0.0.1:3474 (repeatable; default: config)",
     )
     parser.add_argument(
         "--connect",
         action="append",
         metavar="ENDPOINT",
-        help="Zenoh endpoint of a peer to connect to (repeatable; default: config)",
+        help="Zenoh endpoint of a peer or router to connect to, e.g. tcp/127.0.0.1:7447 for a zenohd already "
+        "running (repeatable; default: config)",
     )
     parser.add_argument(
         "--foxglove",

@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from daemon.security import DEFAULT_PORT
+
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = sub.add_parser(
@@ -50,7 +52,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     init.add_argument(
         "--router", metavar="HOST_OR_IP", help="a `dishbot router` at this address that everyone connects to"
     )
-    init.add_argument("--port", type=int, default=7447, metavar="PORT", help="the TLS port (default 7447)")
+    init.add_argument(
+        "--port",
+        type=int,
+        default=DEFAULT_PORT,
+        metavar="PORT",
+        help=f"the TLS port (default {DEFAULT_PORT})",
+    )
     init.add_argument("--force", action="store_true", help="replace the files if DIR already has them")
     init.set_defaults(handler=_init)
 

@@ -14,12 +14,14 @@ import zenoh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cli.commands.client import Unreachable, request
+from cli import credentials
+from cli.commands.client import DEFAULT_ENDPOINT, Unreachable, request
 from cli.main import main
 from daemon.app import RunOptions, serve
 from daemon.commands_handler import BadCommand, nested_deeper_than, parse
 from daemon.config import load_config
 from daemon.sdnotify import SdNotifier
+from daemon.security import DEFAULT_PORT
 from daemon.zenoh_session import session_config
 from perception import associate
 from tests.daemon.conftest import free_port
@@ -262,11 +264,22 @@ def test_a_client_with_no_daemon_says_so_and_exits_1(capsys: pytest.CaptureFixtu
 
 
 def test_a_bad_client_endpoint_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["status", "--connect", "127.0.0.1:7447"]) == 2
+    assert main(["status", "--connect", "127.0.0.1:3474"]) == 2
     assert capsys.readouterr().err == (
-        "dishbot status: error: --connect: '127.0.0.1:7447' is not a Zenoh endpoint like tcp/127.0.0.1:7447 "
+        "dishbot status: error: --connect: '127.0.0.1:3474' is not a Zenoh endpoint like tcp/127.0.0.1:3474 "
         "(protocol tcp, udp, tls, quic or ws; port 1-65535)\n"
     )
+
+
+def test_the_default_port_is_dishbots_own_not_one_a_common_zenoh_or_dds_deployment_holds() -> None:
+    """Issue 23 item 8: on Zenoh's 7447 the quick start failed beside a zenohd or ROS 2 rmw_zenoh router,
+    and the client verbs talked to that router."""
+    listen = load_config().zenoh.listen
+    assert listen == (f"tcp/127.0.0.1:{DEFAULT_PORT}",)
+    assert listen[0] == DEFAULT_ENDPOINT  # the client verbs reach the quick start's daemon
+    assert credentials.plan("r1", operators=["alice"]).endpoint().endswith(f":{DEFAULT_PORT}")
+    assert DEFAULT_PORT not in (7446, 7447)  # Zenoh's scouting and default ports (zenohd, rmw_zenoh, bridges)
+    assert DEFAULT_PORT < 7400  # RTPS (DDS, ROS 2) takes 7400 + 250 * domain + offsets, from 7400 up
 
 
 def test_request_raises_unreachable_when_nothing_listens() -> None:
@@ -357,10 +370,10 @@ def test_the_monitor_panel_shows_state_joints_and_force() -> None:
             "gripper": {"aperture_m": 0.0725, "force_n": 3.0, "holding": True},
         },
         "r1",
-        "tcp/127.0.0.1:7447",
+        "tcp/127.0.0.1:3474",
     )
     assert text.splitlines() == [
-        "dishbot r1 @ tcp/127.0.0.1:7447",
+        "dishbot r1 @ tcp/127.0.0.1:3474",
         "state   flip.turn   mug m3   placed 1/4  seen 5  failed 0",
         "joints  a +0.100  b -1.250",
         "gripper aperture 72.5 mm  force 3.00 N  holding",

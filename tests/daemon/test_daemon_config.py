@@ -20,7 +20,7 @@ from description.cell import CellLayout, Tray
 def test_the_embedded_defaults_load() -> None:
     config = load_config()
     assert config.robot_id == "dishbot"
-    assert config.zenoh.listen == ("tcp/127.0.0.1:7447",)
+    assert config.zenoh.listen == ("tcp/127.0.0.1:3474",)
     assert [m.name for m in config.mug_types] == ["big", "small"]
     assert config.mug_type("big").diameter_mm == 91
 
@@ -59,16 +59,16 @@ BAD: list[tuple[dict[str, Any], str]] = [
         "robot_id: 'a/b' is not allowed; use 1-64 letters, digits, '_' or '-' (a Zenoh key chunk)",
     ),
     (
-        {"zenoh": {"listen": ["127.0.0.1:7447"]}},
-        "zenoh.listen[0]: '127.0.0.1:7447' is not a Zenoh endpoint like tcp/127.0.0.1:7447 "
+        {"zenoh": {"listen": ["127.0.0.1:3474"]}},
+        "zenoh.listen[0]: '127.0.0.1:3474' is not a Zenoh endpoint like tcp/127.0.0.1:3474 "
         "(protocol tcp, udp, tls, quic or ws; port 1-65535)",
     ),
     (
         {"zenoh": {"connect": ["tcp/127.0.0.1:70000"]}},
-        "zenoh.connect[0]: 'tcp/127.0.0.1:70000' is not a Zenoh endpoint like tcp/127.0.0.1:7447 "
+        "zenoh.connect[0]: 'tcp/127.0.0.1:70000' is not a Zenoh endpoint like tcp/127.0.0.1:3474 "
         "(protocol tcp, udp, tls, quic or ws; port 1-65535)",
     ),
-    ({"zenoh": {"listen": "tcp/127.0.0.1:7447"}}, "zenoh.listen: expected a list, got 'tcp/127.0.0.1:7447'"),
+    ({"zenoh": {"listen": "tcp/127.0.0.1:3474"}}, "zenoh.listen: expected a list, got 'tcp/127.0.0.1:3474'"),
     ({"cell": {"tray_size_mm": [332]}}, "cell.tray_size_mm: expected 2 values, got 1"),
     ({"cell": {"tray_size_mm": [332, 10]}}, "cell.tray_size_mm[1]: 10 is out of range; allowed [50, 2000]"),
     (

@@ -237,7 +237,7 @@ def test_the_monitor_screen_keeps_the_last_events_and_fits_80_columns() -> None:
         watch.add_line(
             "r1", f"event mug_placed {json.dumps({'mug_id': f'm{i}', 'x_m': 0.123456789} | long_state)}", True
         )
-    target = Target("tls/robot.example.org:7447", "r1")
+    target = Target("tls/robot.example.org:3474", "r1")
     first = screen(watch, target, linked=True).splitlines()
     again = screen(watch, target, linked=True).splitlines()
     assert first == again  # events stay on screen, frame after frame
@@ -252,7 +252,7 @@ def test_the_monitor_screen_keeps_the_last_events_and_fits_80_columns() -> None:
 
 def test_a_gone_daemon_is_shown_as_gone_not_as_its_last_state() -> None:
     view = RobotView(values={"state": {"state": "flip.turn"}}, alive=False, changed_at=0.0)
-    text = panel(view.values, "r1", "tcp/127.0.0.1:7447", alive=view.alive, since=view.changed_at)
+    text = panel(view.values, "r1", "tcp/127.0.0.1:3474", alive=view.alive, since=view.changed_at)
     lines = text.splitlines()
     assert lines[1].startswith("daemon GONE at ")
     assert lines[1].endswith(": its liveliness token dropped")
@@ -290,8 +290,8 @@ def test_a_bad_robot_id_is_a_one_line_usage_error(
         ),
         (["status", "--timeout", "0"], "--timeout 0: choose 0-600 seconds"),
         (
-            ["list", "--connect", "robot:7447"],
-            "--connect: 'robot:7447' is not a Zenoh endpoint like tcp/127.0.0.1:7447 (protocol tcp, "
+            ["list", "--connect", "robot:3474"],
+            "--connect: 'robot:3474' is not a Zenoh endpoint like tcp/127.0.0.1:3474 (protocol tcp, "
             "udp, tls, quic or ws; port 1-65535)",
         ),
     ],

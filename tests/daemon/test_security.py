@@ -176,8 +176,8 @@ def test_init_bad_input_is_one_line_and_writes_nothing(
     ("zenoh_table", "error"),
     [
         (
-            {"listen": ["tls/127.0.0.1:7447"]},
-            "zenoh.listen[0]: tls/127.0.0.1:7447 needs zenoh.tls (root_ca_certificate, certificate, "
+            {"listen": ["tls/127.0.0.1:3474"]},
+            "zenoh.listen[0]: tls/127.0.0.1:3474 needs zenoh.tls (root_ca_certificate, certificate, "
             "private_key); `dishbot security init` writes them",
         ),
         (
@@ -213,7 +213,7 @@ def test_init_bad_input_is_one_line_and_writes_nothing(
         ({"lease_s": 0.1}, "zenoh.lease_s: 0.1 is out of range; allowed [1, 60]"),
         (
             {"connect": ["tcp/robot:99999"]},
-            "zenoh.connect[0]: 'tcp/robot:99999' is not a Zenoh endpoint like tcp/127.0.0.1:7447 "
+            "zenoh.connect[0]: 'tcp/robot:99999' is not a Zenoh endpoint like tcp/127.0.0.1:3474 "
             "(protocol tcp, udp, tls, quic or ws; port 1-65535)",
         ),
     ],
@@ -246,19 +246,19 @@ def test_security_files_must_exist_and_keys_must_not_be_world_readable(keys: Pat
     [
         ('robot = "r1"\n', "endpoint: missing"),
         (
-            'endpoint = "tls/127.0.0.1:7447"\nrobot = "r1"\n',
-            "endpoint tls/127.0.0.1:7447 needs the [tls] files",
+            'endpoint = "tls/127.0.0.1:3474"\nrobot = "r1"\n',
+            "endpoint tls/127.0.0.1:3474 needs the [tls] files",
         ),
         (
-            'endpoint = "tcp/127.0.0.1:7447"\nrobot = "a#b"\n',
+            'endpoint = "tcp/127.0.0.1:3474"\nrobot = "a#b"\n',
             "robot: 'a#b' is not a robot id; use 1-64 letters, digits, '_' or '-'",
         ),
         (
-            'endpoint = "tcp/127.0.0.1:7447"\nrobot = "r1"\n[auth]\nuser = "alice"\n',
+            'endpoint = "tcp/127.0.0.1:3474"\nrobot = "r1"\n[auth]\nuser = "alice"\n',
             "[auth] needs both user and password",
         ),
         (
-            'endpoint = "tcp/127.0.0.1:7447"\nrobot = "r1"\ncolour = "red"\n',
+            'endpoint = "tcp/127.0.0.1:3474"\nrobot = "r1"\ncolour = "red"\n',
             "colour: unknown key (known keys: auth, endpoint, robot, role, tls)",
         ),
         ("endpoint = \n", "is not valid TOML: Invalid value (at line 1, column 12)"),
@@ -299,11 +299,11 @@ def test_a_profile_readable_by_everyone_or_missing_is_refused(
 @pytest.mark.parametrize(
     ("listen", "connect", "exposed"),
     [
-        (["tcp/127.0.0.1:7447"], [], None),
-        (["tcp/[::1]:7447", "tcp/localhost:7447"], [], None),
-        (["tcp/0.0.0.0:7447"], [], "listen tcp/0.0.0.0:7447"),
-        (["tcp/127.0.0.1:7447"], ["tcp/10.1.2.3:7447"], "connect tcp/10.1.2.3:7447"),
-        (["udp/192.168.1.4:7447"], [], "listen udp/192.168.1.4:7447"),
+        (["tcp/127.0.0.1:3474"], [], None),
+        (["tcp/[::1]:3474", "tcp/localhost:3474"], [], None),
+        (["tcp/0.0.0.0:3474"], [], "listen tcp/0.0.0.0:3474"),
+        (["tcp/127.0.0.1:3474"], ["tcp/10.1.2.3:3474"], "connect tcp/10.1.2.3:3474"),
+        (["udp/192.168.1.4:3474"], [], "listen udp/192.168.1.4:3474"),
     ],
 )
 def test_endpoints_beyond_loopback_without_tls_are_exposed(
@@ -322,7 +322,7 @@ def test_endpoints_beyond_loopback_without_tls_are_exposed(
 
 def test_a_tls_endpoint_on_every_interface_is_not_exposed(keys: Path) -> None:
     config = load_config(keys / "site" / "robot.toml")
-    assert exposure_error(["tls/0.0.0.0:7447"], [], config.zenoh) is None
+    assert exposure_error(["tls/0.0.0.0:3474"], [], config.zenoh) is None
 
 
 def test_run_refuses_an_exposed_endpoint_before_starting_anything(
@@ -336,12 +336,12 @@ def test_run_refuses_an_exposed_endpoint_before_starting_anything(
         "--record-dir",
         str(tmp_path),
         "--listen",
-        "tcp/0.0.0.0:7447",
+        "tcp/0.0.0.0:3474",
     ]
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith(
-        "dishbot run: error: zenoh listen tcp/0.0.0.0:7447 is reachable from other machines"
+        "dishbot run: error: zenoh listen tcp/0.0.0.0:3474 is reachable from other machines"
     )
     assert err.count("\n") == 1
     assert not any(tmp_path.iterdir())  # no recording: nothing started
@@ -349,12 +349,12 @@ def test_run_refuses_an_exposed_endpoint_before_starting_anything(
 
 def test_insecure_tolerates_the_exposure_and_names_it_for_the_warning() -> None:
     config = load_config()
-    options = RunOptions(listen=("tcp/0.0.0.0:7447",), connect=(), record_dir=Path("."), insecure=True)
-    assert "tcp/0.0.0.0:7447 is reachable" in str(tolerated_exposure(config, options))
+    options = RunOptions(listen=("tcp/0.0.0.0:3474",), connect=(), record_dir=Path("."), insecure=True)
+    assert "tcp/0.0.0.0:3474 is reachable" in str(tolerated_exposure(config, options))
     insecure_config = load_config(overrides={"zenoh": {"insecure": True}})
-    assert tolerated_exposure(insecure_config, RunOptions(("tcp/0.0.0.0:7447",), (), Path("."))) is not None
+    assert tolerated_exposure(insecure_config, RunOptions(("tcp/0.0.0.0:3474",), (), Path("."))) is not None
     with pytest.raises(UsageError):
-        tolerated_exposure(config, RunOptions(("tcp/0.0.0.0:7447",), (), Path(".")))
+        tolerated_exposure(config, RunOptions(("tcp/0.0.0.0:3474",), (), Path(".")))
 
 
 def test_the_password_stays_out_of_the_shown_and_recorded_config() -> None:
@@ -506,11 +506,11 @@ def test_a_tls_endpoint_without_tls_files_is_refused_before_starting(
         "--record-dir",
         str(tmp_path),
         "--listen",
-        "tls/127.0.0.1:7447",
+        "tls/127.0.0.1:3474",
     ]
     assert main(argv) == 2
     assert capsys.readouterr().err == (
-        "dishbot run: error: listen tls/127.0.0.1:7447 needs zenoh.tls (root_ca_certificate, certificate, "
+        "dishbot run: error: listen tls/127.0.0.1:3474 needs zenoh.tls (root_ca_certificate, certificate, "
         "private_key); `dishbot security init` writes them\n"
     )
 
@@ -518,9 +518,9 @@ def test_a_tls_endpoint_without_tls_files_is_refused_before_starting(
 @pytest.mark.parametrize(
     ("argv", "error"),
     [
-        (["--listen", "tcp/0.0.0.0:7447"], "zenoh listen tcp/0.0.0.0:7447 is reachable from other machines"),
-        (["--listen", "7447"], "--listen: '7447' is not a Zenoh endpoint like tcp/127.0.0.1:7447"),
-        (["--listen", "tls/127.0.0.1:7447"], "listen tls/127.0.0.1:7447 needs zenoh.tls"),
+        (["--listen", "tcp/0.0.0.0:3474"], "zenoh listen tcp/0.0.0.0:3474 is reachable from other machines"),
+        (["--listen", "3474"], "--listen: '3474' is not a Zenoh endpoint like tcp/127.0.0.1:3474"),
+        (["--listen", "tls/127.0.0.1:3474"], "listen tls/127.0.0.1:3474 needs zenoh.tls"),
         (
             ["--config", "/nonexistent.toml"],
             "cannot read config file /nonexistent.toml: No such file or directory",
