@@ -136,6 +136,28 @@ def test_no_certificate_a_wrong_password_and_a_foreign_ca_are_refused(site: Site
         assert err.startswith(f"dishbot status: {plain} accepts TCP but opened no Zenoh session")
 
 
+def test_the_routers_key_with_the_monitors_password_is_refused_at_the_robot(
+    site: Site, tmp_path: Path
+) -> None:
+    """Issue 23 item 1: the robot grants the router role by certificate; the router's certificate only
+    serves, so with it (and any password) no link to the robot opens, from either host's side."""
+    stolen = tmp_path / "stolen"
+    shutil.copytree(site.keys, stolen)
+    profile = stolen / "mon.profile.toml"  # the monitor's user and password, the router's identity
+    profile.write_text(
+        profile.read_text().replace('"mon.pem"', '"router.pem"').replace('"mon.key"', '"router.key"')
+    )
+    for verb in ("start", "estop"):
+        code, out, err = site.agent.cli(verb, "--profile", str(profile), "--connect", DIRECT)
+        assert (code, out) == (1, ""), verb
+        assert err == (
+            f"dishbot {verb}: {DIRECT} refused this client: the TLS handshake or the password failed "
+            "(check the profile's certificate, key, CA and password)\n"
+        )
+    code, out, _ = site.status("op")
+    assert out.splitlines()[1] == "state: idle"  # nothing started, nothing stopped
+
+
 def test_after_a_router_restart_both_sides_resume(site: Site) -> None:
     site.agent.call("watch", name="router", profile=site.profile("mon"))
     mark = len(site.daemon.lines)
