@@ -130,10 +130,15 @@ class JobContext:
     summary: JobSummary = field(default_factory=JobSummary)
 
     def next_job(self, planner: PlanOptions) -> JobContext:
-        """The context of a job that follows this one on the same scene: the mugs on the tray stay, and
-        new mugs keep getting new ids."""
+        """The context of a job that follows this one on the same scene (after a stop, or an estop and a
+        reset): the mugs on the tray stay, the mugs known on the counter keep their ids (its first look
+        finds them where they were), and only mugs new to the counter get new ids."""
         return JobContext(
-            planner=planner, on_tray=list(self.on_tray), tray_mugs=list(self.tray_mugs), next_id=self.next_id
+            planner=planner,
+            counter=dict(self.counter),
+            on_tray=list(self.on_tray),
+            tray_mugs=list(self.tray_mugs),
+            next_id=self.next_id,
         )
 
 

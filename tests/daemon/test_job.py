@@ -4,18 +4,26 @@ simulated clock, so the stand-ins' moves take simulated time, not the test's."""
 from __future__ import annotations
 
 import asyncio
+import random
 from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import replace
 from typing import Any
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from daemon.backend import Backend, SimOptions
 from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import CommandRefused, Job, StartRequest
+from daemon.job.counter import reading_order
+from description import thesis
 from perception import associate
+from perception.interfaces import Detection
 from planning.interfaces import MotionPlanner
+from planning.placement.datasets import cell_dataset_problem
 from tests.fakes.job import FakeMotion, FakeWorld, make_backend, make_world
 
 Published = list[tuple[str, dict[str, Any]]]
@@ -351,3 +359,49 @@ def test_starting_on_a_new_dataset_sets_the_simulated_counter_up_and_records_the
     assert scene["tray"]["size_m"] == [0.475, 0.52]  # the full-size tray
     assert backend.tray.size_mm == (475, 520)
     assert backend.motion is not first_planner  # planned for the new tray
+
+
+def test_after_estop_and_reset_the_next_job_keeps_the_names_of_the_mugs_it_knows() -> None:
+    """Issue 23 item 5: the ids went on at m17 on a 12-mug counter after an estop and a reset."""
+    world = make_world(4)
+    world.hold_in_phase = "place"
+
+    async def scenario(job: Job) -> None:
+        await job.command("start", StartRequest())
+        await world.holding_still.wait()
+        await job.command("estop")
+        await job.command("reset")
+        await job.command("start", StartRequest())
+        await job.finished.wait()
+
+    job, published = _run(world, scenario)
+    looks = [[m["id"] for m in p["mugs"]] for t, p in published if t == "detections"]
+    first, *later = looks
+    assert sorted(first) == ["m1", "m2", "m3", "m4"]
+    assert all(set(ids) <= set(first) for ids in later), looks
+    placed = [p["mug_id"] for t, p in published if t == "events" and p["kind"] == "mug_placed"]
+    assert len(placed) == 3  # the mug in the gripper at the estop is not on the counter any more
+    assert set(placed) <= set(first)
+    assert job.chart.state == "done"
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    dataset=st.sampled_from(sorted(thesis.DATASETS)),
+    noise=st.lists(st.tuples(st.floats(-0.01, 0.01), st.floats(-0.01, 0.01)), min_size=30, max_size=30),
+    order=st.randoms(use_true_random=False),
+)
+def test_new_mugs_are_named_as_the_simulated_dataset_names_them(
+    dataset: int, noise: list[tuple[float, float]], order: random.Random
+) -> None:
+    """Issue 23 item 5: the world called a small mug m1 while the detector called a big one m1. Seen with
+    up to 1 cm of noise, in any order, each dataset mug gets the id the dataset gives it."""
+    truth = cell_dataset_problem(load_config().cell, dataset).mugs
+    seen = [
+        Detection(m.type, m.x_mm / 1000 + dx, m.y_mm / 1000 + dy, False, 0.0, 0.9, m.id)  # id: for the check
+        for m, (dx, dy) in zip(truth, noise, strict=False)
+    ]
+    order.shuffle(seen)
+    named = reading_order([replace(d, mug_id="") for d in seen])
+    by_position = {(d.x_m, d.y_m): d.mug_id for d in seen}
+    assert [by_position[(d.x_m, d.y_m)] for d in named] == [f"m{k}" for k in range(1, len(truth) + 1)]
