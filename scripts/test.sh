@@ -8,4 +8,4 @@ export MUJOCO_GL="${MUJOCO_GL:-egl}"
 .venv/bin/ruff format --check .
 .venv/bin/mypy
 .venv/bin/lint-imports --no-cache
-.venv/bin/pytest "$@"
+.venv/bin/pytest --durations=15 "$@"
