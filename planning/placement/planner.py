@@ -6,6 +6,7 @@ own context) and so never writes to stdout, which ``dishbot plan --json`` reserv
 from __future__ import annotations
 
 import importlib
+import math
 import random
 import time
 from collections.abc import Callable, Mapping
@@ -20,6 +21,7 @@ from planning.placement.heuristics import Heuristic, parse_heuristic
 from planning.placement.order import execution_order
 from planning.placement.packing import Packer, Packing
 from planning.placement.problem import Problem
+from planning.placement.shapes import handle_yaw_on_tray, relative_yaw
 from planning.placement.sorts import Sort, parse_sort, sorted_order
 
 METHODS = ("auto", "exact", "bh", "sa", "ga", "psop-n", "psop-i", "psok-n", "psok-i")
@@ -44,7 +46,9 @@ class PlanOptions:
 
 @dataclass(frozen=True, slots=True)
 class PlacedMug:
-    """A planned spot: footprint corner in tray coordinates; ``order`` is the 1-based placing order."""
+    """A planned spot: footprint corner in tray coordinates; ``order`` is the 1-based placing order;
+    ``brim_mm`` the brim centre (tray coordinates) and ``handle_yaw_rad`` where the handle will point (tray
+    frame, 0 = +x), None only in plans recorded before they were reported."""
 
     id: str
     type: str
@@ -52,6 +56,8 @@ class PlacedMug:
     y_mm: int
     rotated: bool
     order: int
+    brim_mm: tuple[float, float] | None = None
+    handle_yaw_rad: float | None = None
 
 
 @dataclass(frozen=True)
@@ -107,6 +113,8 @@ class PlanResult:
                     "y_mm": p.y_mm,
                     "rotated": p.rotated,
                     "order": p.order,
+                    "brim_mm": None if p.brim_mm is None else [round(v, 3) for v in p.brim_mm],
+                    "handle_yaw_rad": None if p.handle_yaw_rad is None else round(p.handle_yaw_rad, 6),
                 }
                 for p in self.placed
             ],
@@ -141,6 +149,8 @@ class PlanResult:
                     _field(item, "y_mm", int),
                     _field(item, "rotated", bool),
                     _field(item, "order", int),
+                    _brim(item, i),
+                    None if item.get("handle_yaw_rad") is None else _field(item, "handle_yaw_rad", float),
                 )
             )
         optimal = doc.get("optimal")
@@ -170,6 +180,19 @@ class PlanResult:
 
 
 F = TypeVar("F", str, int, float, bool, list)  # type: ignore[type-arg]
+
+
+def _brim(item: Mapping[str, object], i: int) -> tuple[float, float] | None:
+    value = item.get("brim_mm")
+    if value is None:
+        return None
+    if (
+        not isinstance(value, list)
+        or len(value) != 2
+        or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+    ):
+        raise ValueError(f"plan.placed.{i}.brim_mm is {value!r}, not [x, y]")
+    return float(value[0]), float(value[1])
 
 
 def _field(doc: Mapping[str, object], key: str, kind: type[F]) -> F:
@@ -255,6 +278,10 @@ def plan(problem: Problem, options: PlanOptions = PlanOptions()) -> PlanResult:
     if not options.time_limit_s > 0:
         raise InvalidProblem(f"time_limit_s: must be positive, got {options.time_limit_s}")
     method = _method(options.method)  # imported before the clock starts: a one-off cost per process
+    if problem.footprint_kind == "mug":
+        shaped = importlib.import_module("planning.placement.mugshaped")
+        ctx = Context(problem, options)
+        return _result(ctx, shaped.run(ctx, method))
     ctx = Context(problem, options)
     candidate = method(ctx)
     return _result(ctx, candidate)
@@ -306,7 +333,16 @@ def _result(ctx: Context, c: Candidate) -> PlanResult:
     order = {m: k + 1 for k, m in enumerate(execution_order(footprints))}
     by_mug = {m: (x, y, r) for m, x, y, r in c.layout}
     placed = tuple(
-        PlacedMug(p.mugs[m].id, p.mugs[m].type, by_mug[m][0], by_mug[m][1], by_mug[m][2], order[m])
+        PlacedMug(
+            p.mugs[m].id,
+            p.mugs[m].type,
+            by_mug[m][0],
+            by_mug[m][1],
+            by_mug[m][2],
+            order[m],
+            brim := p.brim_centre_on_tray(p.mugs[m].type, by_mug[m][0], by_mug[m][1]),
+            _handle_yaw(p, m, brim, by_mug[m][2]),
+        )
         for m in sorted(by_mug, key=order.__getitem__)
     )
     unplaced = tuple(mug.id for i, mug in enumerate(p.mugs) if i not in by_mug)
@@ -334,6 +370,14 @@ def _result(ctx: Context, c: Candidate) -> PlanResult:
         evaluations=ctx.evaluations,
         notes=c.notes,
     )
+
+
+def _handle_yaw(problem: Problem, mug: int, brim: tuple[float, float], rotated: bool) -> float:
+    """Where the arm will leave the handle (tray frame): the slot's bearing turned by the mug's handle angle
+    (``shapes``); a rotated rectangle (which the arm cannot realise) as the rectangle model has it, +y."""
+    if rotated:
+        return math.pi / 2
+    return handle_yaw_on_tray(problem, *brim, relative_yaw(problem, mug))
 
 
 def _check_preferences(options: PlanOptions) -> None:

@@ -11,9 +11,15 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from description import thesis
+from planning.placement import shapes
 from planning.placement.errors import InvalidProblem
 
+# "rect": the thesis's rectangle around brim and handle; "mug": the brim disc plus the handle at the yaw the
+# arm gives it (``planning.placement.shapes``).
+FOOTPRINTS = ("rect", "mug")
 # Not from the thesis (it leaves V_a open): a conservative mean end-effector speed for the low-cost arm.
 DEFAULT_ARM_SPEED_M_S = 0.1
 
@@ -31,23 +37,32 @@ class MugType:
 
 @dataclass(frozen=True, slots=True)
 class CounterMug:
-    """A mug waiting on the counter; ``x_mm``/``y_mm`` is its brim centre in the world frame."""
+    """A mug waiting on the counter; ``x_mm``/``y_mm`` is its brim centre in the world frame, and
+    ``handle_yaw_rad`` where its handle points (world yaw), None when unknown."""
 
     id: str
     type: str
     x_mm: float
     y_mm: float
+    handle_yaw_rad: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
 class TrayMug:
-    """A mug already on the tray (replanning): footprint corner in tray coordinates."""
+    """A mug already on the tray (replanning): footprint corner in tray coordinates, and where its handle
+    points (tray frame, 0 = +x) when known; None: along +x, or +y when rotated."""
 
     id: str
     type: str
     x_mm: int
     y_mm: int
     rotated: bool = False
+    handle_yaw_rad: float | None = None
+
+    def handle_yaw(self) -> float:
+        if self.handle_yaw_rad is not None:
+            return self.handle_yaw_rad
+        return math.pi / 2 if self.rotated else 0.0
 
 
 def default_mug_types() -> dict[str, MugType]:
@@ -71,6 +86,7 @@ class Problem:
     allow_rotation: bool = False
     arm_base_mm: tuple[float, float] = (0.0, 0.0)
     arm_speed_m_s: float = DEFAULT_ARM_SPEED_M_S
+    footprint_kind: str = "rect"  # one of FOOTPRINTS; "footprint" in the problem format
 
     def __post_init__(self) -> None:
         _check_consistency(self)
@@ -103,6 +119,7 @@ class Problem:
             "tray": {"size_mm": list(self.tray_size_mm), "origin_mm": list(self.tray_origin_mm)},
             "tolerance_mm": self.tolerance_mm,
             "allow_rotation": self.allow_rotation,
+            "footprint": self.footprint_kind,
             "arm": {"base_mm": list(self.arm_base_mm), "speed_m_s": self.arm_speed_m_s},
             "mug_types": {
                 t.name: {
@@ -113,9 +130,14 @@ class Problem:
                 }
                 for t in self.mug_types.values()
             },
-            "mugs": [{"id": m.id, "type": m.type, "x_mm": m.x_mm, "y_mm": m.y_mm} for m in self.mugs],
+            "mugs": [
+                {"id": m.id, "type": m.type, "x_mm": m.x_mm, "y_mm": m.y_mm}
+                | ({} if m.handle_yaw_rad is None else {"handle_yaw_rad": m.handle_yaw_rad})
+                for m in self.mugs
+            ],
             "placed": [
                 {"id": p.id, "type": p.type, "x_mm": p.x_mm, "y_mm": p.y_mm, "rotated": p.rotated}
+                | ({} if p.handle_yaw_rad is None else {"handle_yaw_rad": p.handle_yaw_rad})
                 for p in self.placed
             ],
         }
@@ -124,7 +146,7 @@ class Problem:
 def _parse(obj: Mapping[str, object]) -> Problem:
     if not isinstance(obj, Mapping):
         raise InvalidProblem(f"problem: expected a JSON object, got {_kind(obj)}")
-    known = {"tray", "tolerance_mm", "allow_rotation", "mug_types", "mugs", "placed", "arm"}
+    known = {"tray", "tolerance_mm", "allow_rotation", "footprint", "mug_types", "mugs", "placed", "arm"}
     for key in obj:
         if key not in known:
             raise InvalidProblem(f"{key}: unknown field (known: {', '.join(sorted(known))})")
@@ -138,6 +160,9 @@ def _parse(obj: Mapping[str, object]) -> Problem:
     rotation = obj.get("allow_rotation", False)
     if not isinstance(rotation, bool):
         raise InvalidProblem(f"allow_rotation: expected true or false, got {_kind(rotation)}")
+    footprint = obj.get("footprint", "rect")
+    if footprint not in FOOTPRINTS:
+        raise InvalidProblem(f"footprint: expected one of {', '.join(FOOTPRINTS)}, got {_kind(footprint)}")
     types = _parse_types(obj)
     arm = _mapping(obj, "arm", required=False)
     base = _pair(arm, "base_mm", "arm.base_mm", integer=False, positive=False, required=False)
@@ -164,6 +189,7 @@ def _parse(obj: Mapping[str, object]) -> Problem:
         allow_rotation=rotation,
         arm_base_mm=(float(base[0]), float(base[1])) if base else (0.0, 0.0),
         arm_speed_m_s=float(speed),
+        footprint_kind=str(footprint),
     )
 
 
@@ -200,7 +226,7 @@ def _parse_counter_mug(raw: object, where: str, types: Mapping[str, MugType]) ->
     mug_id, type_name = _id_and_type(raw, where, types)
     x = _number(raw, "x_mm", f"{where}.x_mm", integer=False, minimum=None, default=None)
     y = _number(raw, "y_mm", f"{where}.y_mm", integer=False, minimum=None, default=None)
-    return CounterMug(mug_id, type_name, float(x), float(y))
+    return CounterMug(mug_id, type_name, float(x), float(y), _yaw(raw, where))
 
 
 def _parse_tray_mug(raw: object, where: str, types: Mapping[str, MugType]) -> TrayMug:
@@ -212,7 +238,13 @@ def _parse_tray_mug(raw: object, where: str, types: Mapping[str, MugType]) -> Tr
     rotated = raw.get("rotated", False)
     if not isinstance(rotated, bool):
         raise InvalidProblem(f"{where}.rotated: expected true or false, got {_kind(rotated)}")
-    return TrayMug(mug_id, type_name, int(x), int(y), rotated)
+    return TrayMug(mug_id, type_name, int(x), int(y), rotated, _yaw(raw, where))
+
+
+def _yaw(raw: Mapping[str, object], where: str) -> float | None:
+    if "handle_yaw_rad" not in raw:
+        return None
+    return _check_number(raw["handle_yaw_rad"], f"{where}.handle_yaw_rad", integer=False, minimum=None)
 
 
 def _id_and_type(raw: Mapping[str, object], where: str, types: Mapping[str, MugType]) -> tuple[str, str]:
@@ -236,6 +268,13 @@ def _check_consistency(p: Problem) -> None:
         raise InvalidProblem(f"tray.size_mm: both extents must be positive, got [{tx}, {ty}]")
     if p.tolerance_mm < 0:
         raise InvalidProblem(f"tolerance_mm: must be 0 or more, got {p.tolerance_mm}")
+    if p.footprint_kind not in FOOTPRINTS:
+        raise InvalidProblem(f"footprint: expected one of {', '.join(FOOTPRINTS)}, got {p.footprint_kind!r}")
+    if p.footprint_kind == "mug" and p.allow_rotation:
+        raise InvalidProblem(
+            "allow_rotation: mug-shaped footprints turn each handle as the arm does;"
+            " rotation needs footprint rect"
+        )
     ids: set[str] = set()
     entries = [("mugs", i, m.id, m.type) for i, m in enumerate(p.mugs)]
     entries += [("placed", i, q.id, q.type) for i, q in enumerate(p.placed)]
@@ -256,6 +295,9 @@ def _check_consistency(p: Problem) -> None:
                 f"mugs[{i}].type: a {m.type!r} mug ({fx} x {fy} mm with tolerance) is larger than the tray"
                 f" ({tx} x {ty} mm)"
             )
+    if p.footprint_kind == "mug":
+        _check_placed_outlines(p)
+        return
     rects: list[tuple[int, int, int, int]] = []
     for i, q in enumerate(p.placed):
         fx, fy = p.footprint(q.type, q.rotated)
@@ -268,6 +310,34 @@ def _check_consistency(p: Problem) -> None:
             if q.x_mm < x1 and x0 < q.x_mm + fx and q.y_mm < y1 and y0 < q.y_mm + fy:
                 raise InvalidProblem(f"placed[{i}]: overlaps placed[{j}] (footprints with tolerance)")
         rects.append((q.x_mm, q.y_mm, q.x_mm + fx, q.y_mm + fy))
+
+
+def _check_placed_outlines(p: Problem) -> None:
+    """Mugs on the tray as outlines (brim and handle where it points): inside the walls by half the
+    tolerance, the tolerance apart."""
+    tx, ty = p.tray_size_mm
+    bodies: list[shapes.Bodies] = []
+    for i, q in enumerate(p.placed):
+        if q.rotated:
+            raise InvalidProblem(f"placed[{i}].rotated: mug-shaped footprints are never rotated")
+        cx, cy = p.brim_centre_on_tray(q.type, q.x_mm, q.y_mm)
+        b = shapes.Bodies.build(
+            shapes.MugOutline.of(p.mug_types[q.type]),
+            np.array([cx]),
+            np.array([cy]),
+            np.array([q.handle_yaw()]),
+        )
+        if not shapes.keeps_clear(b.wall_gap((tx, ty)), p.tolerance_mm / 2.0)[0]:
+            raise InvalidProblem(
+                f"placed[{i}]: brim centre ({cx:g}, {cy:g}) mm: the mug and its handle leave the tray"
+                f" ({tx} x {ty} mm, {p.tolerance_mm / 2:g} mm from the walls)"
+            )
+        for j, other in enumerate(bodies):
+            if not shapes.keeps_clear(b.gap_to(other, 0), float(p.tolerance_mm))[0]:
+                raise InvalidProblem(
+                    f"placed[{i}]: closer than {p.tolerance_mm} mm to placed[{j}] (mug outlines)"
+                )
+        bodies.append(b)
 
 
 def _mapping(obj: Mapping[str, object], key: str, *, required: bool) -> Mapping[str, object]:

@@ -119,7 +119,7 @@ def test_result_json_holds_the_documented_fields() -> None:
     assert doc["optimal"] is True
     assert doc["upper_bound"] == doc["n"] == 10
     first = doc["placed"][0]  # type: ignore[index]
-    assert set(first) == {"id", "type", "x_mm", "y_mm", "rotated", "order"}
+    assert set(first) == {"id", "type", "x_mm", "y_mm", "rotated", "order", "brim_mm", "handle_yaw_rad"}
 
 
 def test_slots_give_brim_centres_in_the_world_frame_in_placing_order() -> None:

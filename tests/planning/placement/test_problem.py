@@ -84,7 +84,7 @@ _DELETE = object()
         (
             "colour",
             "red",
-            "colour: unknown field (known: allow_rotation, arm, mug_types, mugs, placed, tolerance_mm, tray)",
+            "colour: unknown field (known: allow_rotation, arm, footprint, mug_types, mugs, placed, tolerance_mm, tray)",
         ),
     ],
 )

@@ -1,0 +1,197 @@
+"""Packing mug-shaped footprints (``shapes``): fill heuristics on a fine grid of brim positions.
+
+Every mug class (type and handle angle to the slot's bearing) has a grid of candidate footprint corners,
+``GRID_MM`` apart plus the tray's far edges, and a mask of the corners where such a mug would fit: inside the
+walls and clear of the mugs already on the tray. Placing a mug clears, in every class's mask, the corners
+whose mug would come closer than the clearance to it; only a window of the grid around the new mug can be
+affected, so one placement costs a few thousand exact distance tests per class. A fill heuristic takes the
+first free corner in its scan (as §4.2.2's do on the 1 mm matrix): rows along one tray axis from one side,
+each from one end.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from planning.placement.problem import Problem
+from planning.placement.shapes import (
+    Bodies,
+    MugOutline,
+    clear_of,
+    handle_yaw_on_tray,
+    keeps_clear,
+    relative_yaw,
+)
+
+GRID_MM = 2
+# A scan: (primary axis, slant, secondary direction). Corners are taken by the primary coordinate plus
+# slant times the secondary one, low first (rows from the arm's side, or from the right), then by the
+# secondary coordinate in the given direction. Slant 0 is the thesis's bottom-left / left-bottom fill; a
+# slanted row lets a row of brims step along the handles of the row before it.
+Scan = tuple[int, float, int]
+# (With a slant the secondary direction hardly ever breaks a tie, so only the unslanted scans take both.)
+SLANTS = (0.15, -0.15, 0.3, -0.3, 0.6, -0.6, 1.0, -1.0)
+SCANS: tuple[Scan, ...] = tuple(
+    [(a, 0.0, d) for a in (0, 1) for d in (1, -1)] + [(a, k, 1) for k in SLANTS for a in (0, 1)]
+)
+# (class, corner x, corner y) of a placed mug, tray coordinates
+Spot = tuple[int, int, int]
+
+BoolArray = npt.NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class MugClass:
+    """Mugs that share an outline and a handle angle to the slot's bearing, so also their fitting corners."""
+
+    type: str
+    relative_rad: float
+    xs: npt.NDArray[np.int64]
+    ys: npt.NDArray[np.int64]
+    bodies: Bodies  # arrays of shape (len(xs), len(ys))
+    stacked: npt.NDArray[np.float64]  # the same arrays stacked, shape (fields, len(xs), len(ys))
+    free: BoolArray  # the corners where the mug fits on the tray as the problem gives it
+    ranks: dict[Scan, npt.NDArray[np.int64]]
+
+
+class MugPacker:
+    """Packs sequences of mug classes with a scan; see the module doc."""
+
+    def __init__(self, problem: Problem, *, grid_mm: int = GRID_MM) -> None:
+        self.problem = problem
+        self.clearance = float(problem.tolerance_mm)
+        half = self.clearance / 2.0
+        keys: dict[tuple[str, float], int] = {}
+        self.class_of: list[int] = []
+        for i, m in enumerate(problem.mugs):
+            key = (m.type, round(relative_yaw(problem, i), 4))
+            self.class_of.append(keys.setdefault(key, len(keys)))
+        tx, ty = problem.tray_size_mm
+        fixed = fixed_bodies(problem)
+        self.classes: list[MugClass] = []
+        for (type_name, rel), _ in sorted(keys.items(), key=lambda kv: kv[1]):
+            side = problem.mug_types[type_name].diameter_mm + problem.tolerance_mm
+            xs = _axis(tx - side, grid_mm)
+            ys = _axis(ty - side, grid_mm)
+            bodies = self._grid_bodies(type_name, rel, xs, ys)
+            free = (
+                keeps_clear(bodies.wall_gap((tx, ty)), half)
+                if len(xs) and len(ys)
+                else np.zeros((0, 0), bool)
+            )
+            for k in range(len(fixed.cx)):
+                free &= keeps_clear(bodies.gap_to(fixed, k), self.clearance)
+            gx, gy = np.meshgrid(xs, ys, indexing="ij")
+            ranks = {s: _ranks(gx, gy, s) for s in SCANS}
+            stacked = np.stack([getattr(bodies, f) for f in Bodies.__dataclass_fields__])
+            self.classes.append(MugClass(type_name, rel, xs, ys, bodies, stacked, free, ranks))
+
+    def _grid_bodies(
+        self, type_name: str, rel: float, xs: npt.NDArray[np.int64], ys: npt.NDArray[np.int64]
+    ) -> Bodies:
+        p = self.problem
+        t = p.mug_types[type_name]
+        r = (t.diameter_mm + p.tolerance_mm) / 2.0
+        cx, cy = np.meshgrid(xs + r, ys + r, indexing="ij")
+        wx, wy = cx + p.tray_origin_mm[0] - p.arm_base_mm[0], cy + p.tray_origin_mm[1] - p.arm_base_mm[1]
+        yaw = np.arctan2(wy, wx) + rel
+        return Bodies.build(MugOutline.of(t), cx.astype(float), cy.astype(float), yaw)
+
+    def pack(self, sequence: Sequence[int], scan: Scan) -> list[Spot]:
+        """Places the classes of ``sequence`` one after the other at the first free corner of ``scan``;
+        a mug that fits nowhere is skipped."""
+        free = [c.free.copy() for c in self.classes]
+        spots: list[Spot] = []
+        for k in sequence:
+            c = self.classes[k]
+            if not free[k].any():
+                continue
+            flat = int(np.argmin(np.where(free[k], c.ranks[scan], np.iinfo(np.int64).max)))
+            i, j = divmod(flat, len(c.ys))
+            spots.append((k, int(c.xs[i]), int(c.ys[j])))
+            self._block(free, k, i, j)
+        return spots
+
+    def _block(self, free: list[BoolArray], k: int, i: int, j: int) -> None:
+        """Clears, in every class's mask, the corners too close to mug ``k`` placed at grid corner (i, j).
+
+        Only still-free corners within reach are tested: brims closer than both radii and the clearance
+        block at once, and only those between that and both outlines' extents need the exact test."""
+        placed = self.classes[k].bodies
+        px, py = float(placed.cx[i, j]), float(placed.cy[i, j])
+        one = _one(placed, i, j)
+        for q, c in enumerate(self.classes):
+            if not len(c.xs) or not len(c.ys):
+                continue
+            offset = float(c.bodies.cx[0, 0] - c.xs[0])  # corner to brim centre
+            near = float(c.bodies.r[0, 0]) + float(placed.r[i, j]) + self.clearance
+            reach = float(c.bodies.extent[0, 0]) + float(placed.extent[i, j]) + self.clearance
+            i0 = int(np.searchsorted(c.xs, px - reach - offset, side="left"))
+            i1 = int(np.searchsorted(c.xs, px + reach - offset, side="right"))
+            j0 = int(np.searchsorted(c.ys, py - reach - offset, side="left"))
+            j1 = int(np.searchsorted(c.ys, py + reach - offset, side="right"))
+            if i0 >= i1 or j0 >= j1:
+                continue
+            window = free[q][i0:i1, j0:j1]
+            wi, wj = np.nonzero(window)
+            if not wi.size:
+                continue
+            d = np.hypot(c.bodies.cx[i0 + wi, j0 + wj] - px, c.bodies.cy[i0 + wi, j0 + wj] - py)
+            window[wi[d < near - 1e-6], wj[d < near - 1e-6]] = False
+            ring = (d >= near - 1e-6) & (d < reach)
+            ri, rj = i0 + wi[ring], j0 + wj[ring]
+            if ri.size:
+                candidates = Bodies(*c.stacked[:, ri, rj])
+                blocked = ~clear_of(candidates, one, 0, self.clearance)
+                free[q][ri[blocked], rj[blocked]] = False
+
+    def yaw_at(self, k: int, x: int, y: int) -> float:
+        c = self.classes[k]
+        r = (self.problem.mug_types[c.type].diameter_mm + self.problem.tolerance_mm) / 2.0
+        return handle_yaw_on_tray(self.problem, x + r, y + r, c.relative_rad)
+
+
+def fixed_bodies(problem: Problem) -> Bodies:
+    """The mugs already on the tray as outlines (their handles where the problem says they point)."""
+    parts = []
+    for q in problem.placed:
+        t = problem.mug_types[q.type]
+        cx, cy = problem.brim_centre_on_tray(q.type, q.x_mm, q.y_mm)
+        parts.append(
+            Bodies.build(MugOutline.of(t), np.array([cx]), np.array([cy]), np.array([q.handle_yaw()]))
+        )
+    if not parts:
+        empty = np.zeros(0)
+        return Bodies(*(empty for _ in Bodies.__dataclass_fields__))
+    return Bodies(*(np.concatenate([getattr(b, f) for b in parts]) for f in Bodies.__dataclass_fields__))
+
+
+def _axis(limit: int, step: int) -> npt.NDArray[np.int64]:
+    """Corners 0, step, 2 step, ... up to ``limit``, and ``limit`` itself (a mug may touch the far wall)."""
+    if limit < 0:
+        return np.zeros(0, np.int64)
+    values = np.arange(0, limit + 1, step, dtype=np.int64)
+    if values[-1] != limit:
+        values = np.append(values, np.int64(limit))
+    return values
+
+
+def _ranks(gx: npt.NDArray[np.int64], gy: npt.NDArray[np.int64], scan: Scan) -> npt.NDArray[np.int64]:
+    axis, slant, direction = scan
+    primary, secondary = (gx, gy) if axis == 0 else (gy, gx)
+    order = np.lexsort(((direction * secondary).ravel(), (primary + slant * secondary).ravel()))
+    ranks = np.empty(order.size, np.int64)
+    ranks[order] = np.arange(order.size)
+    return ranks.reshape(gx.shape)
+
+
+def _window(b: Bodies, i0: int, i1: int, j0: int, j1: int) -> Bodies:
+    return Bodies(*(getattr(b, f)[i0:i1, j0:j1] for f in Bodies.__dataclass_fields__))
+
+
+def _one(b: Bodies, i: int, j: int) -> Bodies:
+    return Bodies(*(np.array([getattr(b, f)[i, j]]) for f in Bodies.__dataclass_fields__))

@@ -1,0 +1,192 @@
+"""Planning with mug-shaped footprints (``Problem.footprint_kind == "mug"``).
+
+1. The chosen rectangle method runs on the same problem with rectangle footprints (``auto``: the proven
+   rectangle optimum). Its layout, each mug's handle turned to the yaw the arm will give it, is checked as
+   mug outlines; it is the start, so the result never holds fewer mugs than it (unless a handle the arm
+   turns leaves its rectangle, which the counter mugs of ``dataset_problem`` never do).
+2. The mug packer (``mugpack``) fills the tray with outlines for a fixed list of class sequences (largest
+   mugs first, smallest first, alternating, then seeded shuffles) under every scan, so a seed repeats a
+   run exactly; ``SAFETY_FACTOR`` times the time limit stops it early on a machine too busy (said in the
+   notes).
+3. Each packing's spots go to counter mugs of their class with the least move energy (Hungarian method),
+   and the layouts are compared: more mugs first, then the run's fitness (the thesis's costs).
+
+The upper bound is the area bound: no more mugs than the smallest outlines, grown by half the clearance,
+whose areas fit in the tray's free area.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import defaultdict
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from planning.placement.cost import Metrics
+from planning.placement.errors import InvalidProblem
+from planning.placement.mugpack import SCANS, MugPacker, Scan, Spot, fixed_bodies
+from planning.placement.planner import Candidate, Context, Layout
+from planning.placement.problem import Problem
+from planning.placement.shapes import Bodies, MugOutline, handle_yaw_on_tray, keeps_clear, relative_yaw
+
+# The three sorted class sequences are packed under every scan, then this many seeded shuffles under the
+# scans that fill rows from the arm's side (``mugpack.SCANS`` with axis 0 and a slant), which found the
+# fullest trays on datasets 1-6.
+SHUFFLES = 12
+# The search stops after this many times ``time_limit_s`` however much of its list is left.
+SAFETY_FACTOR = 8.0
+
+
+def run(ctx: Context, rect_method: Callable[[Context], Candidate]) -> Candidate:
+    problem = ctx.problem
+    notes: list[str] = []
+    best: tuple[Layout, Metrics] | None = None
+
+    def offer(layout: Layout) -> None:
+        nonlocal best
+        m = ctx.evaluator.metrics_of_layout(layout)
+        ctx.fitness.norm.observe(m)
+        ctx.evaluations += 1
+        if best is None or m.n > best[1].n or (m.n == best[1].n and ctx.fitness.better(m, best[1])):
+            best = (layout, m)
+
+    start = _rectangle_start(ctx, rect_method, notes)
+    offer(start)
+    rect_n = len(start)
+    packer = MugPacker(problem)
+    deadline = ctx.started + SAFETY_FACTOR * ctx.options.time_limit_s
+    packed = 0
+    for sequence, scan in _work(packer, ctx):
+        if time.perf_counter() > deadline:
+            notes.append(f"mug packing stopped at the time limit after {packed} packings")
+            break
+        spots = packer.pack(sequence, scan)
+        packed += 1
+        assert best is not None
+        if len(spots) >= best[1].n:
+            offer(_assigned(ctx, packer, spots))
+    assert best is not None
+    layout, metrics = best
+    bound = area_bound(problem)
+    notes.insert(0, f"mug-shaped: {rect_n} from the rectangle layout, {metrics.n} after {packed} packings")
+    return Candidate(
+        layout,
+        optimal=metrics.n == bound,
+        upper_bound=bound,
+        status="optimal" if metrics.n == bound else "feasible",
+        notes=tuple(notes),
+    )
+
+
+def _rectangle_start(ctx: Context, method: Callable[[Context], Candidate], notes: list[str]) -> Layout:
+    """The rectangle method's layout, less any mug whose outline (handle turned as the arm turns it) would
+    leave the tray or come too close to another."""
+    try:
+        rect_problem = replace(ctx.problem, footprint_kind="rect")
+    except InvalidProblem as e:  # mugs on the tray nested closer than their rectangles
+        notes.append(f"no rectangle start: {e}")
+        return ()
+    layout = method(Context(rect_problem, ctx.options)).layout
+    kept = valid_subset(ctx.problem, layout)
+    if len(kept) < len(layout):
+        notes.append(
+            f"{len(layout) - len(kept)} mugs of the rectangle layout dropped: their handles would turn"
+        )
+    return kept
+
+
+def valid_subset(problem: Problem, layout: Layout) -> Layout:
+    """The mugs of ``layout``, in order, that fit as outlines beside those kept before them."""
+    fixed = fixed_bodies(problem)
+    kept: list[tuple[int, int, int, bool]] = []
+    bodies: list[Bodies] = []
+    for entry in layout:
+        mug, x, y, rotated = entry
+        if rotated:
+            continue
+        b = mug_body(problem, mug, x, y)
+        if not keeps_clear(b.wall_gap(problem.tray_size_mm), problem.tolerance_mm / 2.0)[0]:
+            continue
+        others = [fixed, *bodies]
+        if all(
+            keeps_clear(b.gap_to(o, k), float(problem.tolerance_mm))[0]
+            for o in others
+            for k in range(len(o.cx))
+        ):
+            kept.append(entry)
+            bodies.append(b)
+    return tuple(kept)
+
+
+def mug_body(problem: Problem, mug: int, x: float, y: float) -> Bodies:
+    """Counter mug ``mug`` placed with its footprint corner at (x, y), its handle as the arm turns it."""
+    m = problem.mugs[mug]
+    bx, by = problem.brim_centre_on_tray(m.type, x, y)
+    yaw = handle_yaw_on_tray(problem, bx, by, relative_yaw(problem, mug))
+    return Bodies.build(
+        MugOutline.of(problem.mug_types[m.type]), np.array([bx]), np.array([by]), np.array([yaw])
+    )
+
+
+def area_bound(problem: Problem) -> int:
+    """How many counter mugs the tray's free area could hold at most: outlines grown by half the clearance
+    (the area each mug keeps to itself), smallest first."""
+    half = problem.tolerance_mm / 2.0
+    free = float(problem.tray_size_mm[0] * problem.tray_size_mm[1])
+    free -= sum(MugOutline.of(problem.mug_types[q.type]).area(half) for q in problem.placed)
+    areas = sorted(MugOutline.of(problem.mug_types[m.type]).area(half) for m in problem.mugs)
+    n = 0
+    for a in areas:
+        if a > free + 1e-6:
+            break
+        free -= a
+        n += 1
+    return n
+
+
+def _work(packer: MugPacker, ctx: Context) -> list[tuple[list[int], Scan]]:
+    """(class sequence, scan) pairs to pack: largest outline first, smallest first, alternating, each under
+    every scan, then seeded shuffles under the slanted row scans."""
+    counts: dict[int, int] = defaultdict(int)
+    for k in packer.class_of:
+        counts[k] += 1
+    size = {k: MugOutline.of(ctx.problem.mug_types[c.type]).area() for k, c in enumerate(packer.classes)}
+    by_size = sorted(counts, key=lambda k: (-size[k], k))
+    large_first = [k for k in by_size for _ in range(counts[k])]
+    alternating: list[int] = []
+    left = dict(counts)
+    while any(left.values()):
+        for k in by_size:
+            if left[k]:
+                alternating.append(k)
+                left[k] -= 1
+    work = [(s, scan) for s in (large_first, large_first[::-1], alternating) for scan in SCANS]
+    rows = [scan for scan in SCANS if scan[0] == 0 and scan[1] != 0]
+    for _ in range(SHUFFLES):
+        s = list(large_first)
+        ctx.rng.shuffle(s)
+        work += [(s, scan) for scan in rows]
+    return work
+
+
+def _assigned(ctx: Context, packer: MugPacker, spots: Sequence[Spot]) -> Layout:
+    """Counter mugs matched to the spots of their class with the least move energy (then time)."""
+    by_class: dict[int, list[tuple[int, int]]] = defaultdict(list)
+    for k, x, y in spots:
+        by_class[k].append((x, y))
+    layout: list[tuple[int, int, int, bool]] = []
+    ev = ctx.evaluator
+    for k, places in sorted(by_class.items()):
+        mugs = [i for i, c in enumerate(packer.class_of) if c == k]
+        cost = np.array(
+            [
+                [ev.move(i, x, y, False)[1] + 1e-6 * ev.move(i, x, y, False)[0] for x, y in places]
+                for i in mugs
+            ]
+        )
+        rows, cols = linear_sum_assignment(cost)
+        layout += [(mugs[r], *places[c], False) for r, c in zip(rows, cols, strict=True)]
+    return tuple(layout)

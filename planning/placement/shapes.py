@@ -1,0 +1,234 @@
+"""Mug-shaped footprints: the brim disc plus the handle, at the yaw the arm gives it.
+
+Seen from above an upside-down mug is its brim disc (radius l / 2) and its handle, a bar from the wall out to
+the mug's width w, ``HANDLE_HALF_THICKNESS_MM`` either side of its centre line: a capsule whose centre line
+runs from l / 2 to w - l / 2 - t from the mug's axis. Two mugs keep ``clearance`` (the problem's tolerance)
+between their shapes; every shape keeps half of it from the tray's walls, as the rectangle model does (its
+footprint is the mug grown by half the tolerance on every side).
+
+The handle's yaw is not free: the arm has no wrist yaw, so a side grasp keeps the handle's angle to the
+gripper, the flip mirrors it, and the handle lands at slot bearing + pick bearing - counter yaw (bearings
+from the arm base), the model ``planning.motion.CyclePlanner`` predicts ``CyclePlan.handle_yaw_rad`` with.
+A mug standing with its handle away from the arm (the simulated counters) lands with it along the slot's
+bearing.
+
+Distances are exact (disc to disc, disc to segment, segment to segment) and vectorised with numpy, so a
+placer can test thousands of candidate spots against a placed mug at once.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+
+if TYPE_CHECKING:  # problem.py checks mugs already on the tray with these shapes
+    from planning.placement.problem import MugType, Problem
+
+FloatArray = npt.NDArray[np.float64]
+
+# Half the handle's thickness seen from above: the simulated mugs' handle capsules (sim/mujoco/scene.py,
+# HANDLE_RADIUS_M) and the motion planner's handle check (HANDLE_HALF_THICKNESS_M) use the same 5 mm.
+HANDLE_HALF_THICKNESS_MM = 5.0
+# Distances within this of the clearance count as keeping it (float rounding of exact contacts).
+_EPS_MM = 1e-6
+
+
+@dataclass(frozen=True, slots=True)
+class MugOutline:
+    """One mug type seen from above, around its axis: brim radius, and the handle's centre line from
+    ``handle_from`` to ``handle_to`` (mm from the axis) with half thickness ``half_thickness``."""
+
+    radius: float
+    handle_from: float
+    handle_to: float
+    half_thickness: float
+
+    @staticmethod
+    def of(t: MugType) -> MugOutline:
+        r = t.diameter_mm / 2.0
+        tip = max(r, t.width_mm - r - HANDLE_HALF_THICKNESS_MM)
+        return MugOutline(r, r, tip, HANDLE_HALF_THICKNESS_MM)
+
+    @property
+    def extent(self) -> float:
+        """The farthest point of the outline from the mug's axis."""
+        return max(self.radius, self.handle_to + self.half_thickness)
+
+    @functools.lru_cache(maxsize=64)  # noqa: B019 (a few outlines per process, each a few hundred bytes)
+    def area(self, grow: float = 0.0) -> float:
+        """The area of the outline grown by ``grow`` mm (disc and handle overlap counted once).
+
+        Both parts are symmetric about the handle's axis, so every cross-section across it is one interval
+        centred on the axis: the area is the integral of twice the larger half-width."""
+        big_r = self.radius + grow
+        t = self.half_thickness + grow
+        s = np.linspace(-big_r, self.handle_to + t, 20_001)
+        disc = np.sqrt(np.clip(big_r * big_r - s * s, 0.0, None))
+        along = np.clip(s, self.handle_from, self.handle_to)
+        bar = np.sqrt(np.clip(t * t - (s - along) ** 2, 0.0, None))
+        return float(np.trapezoid(2.0 * np.maximum(disc, bar), s))
+
+
+def handle_yaw_on_tray(problem: Problem, brim_x_mm: float, brim_y_mm: float, relative_rad: float) -> float:
+    """The handle's yaw (tray frame, 0 = +x; the tray's axes are the world's) of a mug placed with its brim
+    centre at (x, y) in tray coordinates, given its handle angle ``relative_rad`` (``relative_yaw``)."""
+    wx, wy = problem.to_world_mm(brim_x_mm, brim_y_mm)
+    bx, by = problem.arm_base_mm
+    return math.remainder(math.atan2(wy - by, wx - bx) + relative_rad, math.tau)
+
+
+def relative_yaw(problem: Problem, mug_index: int) -> float:
+    """What a counter mug's handle adds to the slot's bearing once placed: pick bearing - counter yaw (the
+    flip mirrors the angle to the gripper). 0 for a mug whose handle yaw is unknown: the simulated counters
+    set every mug out with its handle pointing away from the arm."""
+    m = problem.mugs[mug_index]
+    if m.handle_yaw_rad is None:
+        return 0.0
+    bx, by = problem.arm_base_mm
+    return math.remainder(math.atan2(m.y_mm - by, m.x_mm - bx) - m.handle_yaw_rad, math.tau)
+
+
+@dataclass(frozen=True)
+class Bodies:
+    """Mugs as arrays (n,): brim centres, brim radii, handle segments (start and end points), handle half
+    thickness, and farthest extent from the axis."""
+
+    cx: FloatArray
+    cy: FloatArray
+    r: FloatArray
+    ax: FloatArray
+    ay: FloatArray
+    bx: FloatArray
+    by: FloatArray
+    t: FloatArray
+    extent: FloatArray
+
+    @staticmethod
+    def build(outline: MugOutline, cx: FloatArray, cy: FloatArray, yaw: FloatArray) -> Bodies:
+        c, s = np.cos(yaw), np.sin(yaw)
+        n = cx.shape
+        return Bodies(
+            cx,
+            cy,
+            np.full(n, outline.radius),
+            cx + outline.handle_from * c,
+            cy + outline.handle_from * s,
+            cx + outline.handle_to * c,
+            cy + outline.handle_to * s,
+            np.full(n, outline.half_thickness),
+            np.full(n, outline.extent),
+        )
+
+    def wall_gap(self, size_mm: tuple[int, int]) -> FloatArray:
+        """The smallest distance of each mug's outline to the tray's walls (negative: outside)."""
+        tx, ty = size_mm
+        disc = np.minimum.reduce(
+            [self.cx - self.r, tx - self.cx - self.r, self.cy - self.r, ty - self.cy - self.r]
+        )
+        bar = np.minimum.reduce(
+            [
+                np.minimum(self.ax, self.bx) - self.t,
+                tx - np.maximum(self.ax, self.bx) - self.t,
+                np.minimum(self.ay, self.by) - self.t,
+                ty - np.maximum(self.ay, self.by) - self.t,
+            ]
+        )
+        return np.asarray(np.minimum(disc, bar), dtype=np.float64)
+
+    def gap_to(self, other: Bodies, k: int) -> FloatArray:
+        """The distance between each mug's outline and mug ``k`` of ``other`` (0 where they touch)."""
+        ox, oy, orad = other.cx[k], other.cy[k], other.r[k]
+        oax, oay, obx, oby, ot = other.ax[k], other.ay[k], other.bx[k], other.by[k], other.t[k]
+        discs = np.hypot(self.cx - ox, self.cy - oy) - self.r - orad
+        mine_to_disc = _point_segment(ox, oy, self.ax, self.ay, self.bx, self.by) - self.t - orad
+        disc_to_theirs = _point_segment(self.cx, self.cy, oax, oay, obx, oby) - self.r - ot
+        bars = _segment_segment(self.ax, self.ay, self.bx, self.by, oax, oay, obx, oby) - self.t - ot
+        gap = np.maximum(np.minimum.reduce([discs, mine_to_disc, disc_to_theirs, bars]), 0.0)
+        return np.asarray(gap, dtype=np.float64)
+
+
+def clear_of(mine: Bodies, other: Bodies, k: int, clearance: float) -> npt.NDArray[np.bool_]:
+    """``keeps_clear(mine.gap_to(other, k), clearance)``, testing each part only where the parts before it
+    kept clear (a placer's inner loop)."""
+    ox, oy = float(other.cx[k]), float(other.cy[k])
+    limit = clearance - _EPS_MM
+    ok = np.hypot(mine.cx - ox, mine.cy - oy) - mine.r - other.r[k] >= limit
+    idx = np.nonzero(ok)[0]
+    if idx.size:
+        ax, ay, bx, by = mine.ax[idx], mine.ay[idx], mine.bx[idx], mine.by[idx]
+        d = _point_segment(ox, oy, ax, ay, bx, by) - mine.t[idx] - other.r[k]
+        keep = d >= limit
+        oax, oay, obx, oby = (float(v[k]) for v in (other.ax, other.ay, other.bx, other.by))
+        d = _point_segment(mine.cx[idx], mine.cy[idx], oax, oay, obx, oby) - mine.r[idx] - other.t[k]
+        keep &= d >= limit
+        sub = np.nonzero(keep)[0]
+        if sub.size:
+            bars = _segment_segment(ax[sub], ay[sub], bx[sub], by[sub], oax, oay, obx, oby)
+            keep[sub] = bars - mine.t[idx][sub] - other.t[k] >= limit
+        ok[idx] = keep
+    return np.asarray(ok, dtype=np.bool_)
+
+
+def keeps_clear(gap: FloatArray, clearance: float) -> npt.NDArray[np.bool_]:
+    return gap >= clearance - _EPS_MM
+
+
+def _point_segment(
+    px: FloatArray | float,
+    py: FloatArray | float,
+    ax: FloatArray | float,
+    ay: FloatArray | float,
+    bx: FloatArray | float,
+    by: FloatArray | float,
+) -> FloatArray:
+    dx, dy = np.subtract(bx, ax), np.subtract(by, ay)
+    rx, ry = np.subtract(px, ax), np.subtract(py, ay)
+    u = np.clip((rx * dx + ry * dy) / np.maximum(dx * dx + dy * dy, 1e-12), 0.0, 1.0)
+    return np.asarray(np.hypot(rx - u * dx, ry - u * dy), dtype=np.float64)
+
+
+def _segment_segment(
+    ax: FloatArray,
+    ay: FloatArray,
+    bx: FloatArray,
+    by: FloatArray,
+    cx: float,
+    cy: float,
+    dx: float,
+    dy: float,
+) -> FloatArray:
+    """Distance between segments AB (arrays) and CD (one segment): 0 where they cross, else the least
+    endpoint-to-segment distance."""
+    ends = np.minimum.reduce(
+        [
+            _point_segment(ax, ay, cx, cy, dx, dy),
+            _point_segment(bx, by, cx, cy, dx, dy),
+            _point_segment(cx, cy, ax, ay, bx, by),
+            _point_segment(dx, dy, ax, ay, bx, by),
+        ]
+    )
+    d1 = _cross(cx, cy, dx, dy, ax, ay)
+    d2 = _cross(cx, cy, dx, dy, bx, by)
+    d3 = _cross(ax, ay, bx, by, cx, cy)
+    d4 = _cross(ax, ay, bx, by, dx, dy)
+    crossing = (d1 * d2 < 0) & (d3 * d4 < 0)
+    return np.where(crossing, 0.0, ends)
+
+
+def _cross(
+    ox: FloatArray | float,
+    oy: FloatArray | float,
+    px: FloatArray | float,
+    py: FloatArray | float,
+    qx: FloatArray | float,
+    qy: FloatArray | float,
+) -> FloatArray:
+    return np.asarray(
+        np.subtract(px, ox) * np.subtract(qy, oy) - np.subtract(py, oy) * np.subtract(qx, ox),
+        dtype=np.float64,
+    )
