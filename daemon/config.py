@@ -28,7 +28,7 @@ from description.cell import CellLayout, Tray
 from description.errors import InvalidCell
 from description.thesis import JOINT_SERVOS, MugSpec, mug_catalogue
 from drivers.dynamixel.tables import BAUD_CODES_1, BAUD_CODES_2, MODELS
-from planning.placement import METHODS
+from planning.placement import FOOTPRINTS, METHODS
 from recorder.settings import RecordingConfig
 from statechart.chart import JOB_LEAVES, JOB_STATES, top_level
 
@@ -84,6 +84,7 @@ class PlannerConfig:
     tolerance_mm: int
     allow_rotation: bool
     energy_model: str
+    footprint: str = "rect"  # "rect" (the thesis's rectangles) or "mug" (brim disc plus handle)
 
 
 @dataclass(frozen=True, slots=True)
@@ -466,6 +467,7 @@ def _planner(s: _Section) -> PlannerConfig:
         tolerance_mm=s.integer("tolerance_mm", 0, 100),
         allow_rotation=s.flag("allow_rotation"),
         energy_model=s.choice("energy_model", _ENERGY_MODELS),
+        footprint=s.choice("footprint", FOOTPRINTS),
     )
     s.finish()
     return cfg

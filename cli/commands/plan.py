@@ -1,4 +1,7 @@
-"""``dishbot plan``: plan where each mug goes on the tray, from a problem file or a built-in dataset."""
+"""``dishbot plan``: plan where each mug goes on the tray, from a problem file or a built-in dataset.
+
+It imports what the run needs when it needs it: the config only for a dataset or a footprint the problem
+leaves open, the renderer (and OpenCV) only for pictures."""
 
 from __future__ import annotations
 
@@ -7,12 +10,13 @@ import json
 import os
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
-from daemon.config import load_config
 from daemon.errors import UsageError
 from description import thesis
 from planning.placement import (
+    FOOTPRINTS,
     METHODS,
     InvalidProblem,
     PlanOptions,
@@ -20,7 +24,6 @@ from planning.placement import (
     Problem,
     plan,
 )
-from planning.placement.datasets import cell_dataset_problem
 from planning.placement.heuristics import Heuristic
 from planning.placement.sorts import Sort
 
@@ -70,6 +73,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="P,P,...",
         help="your own ranking of n, E, t, s for --fitness rf (default n,E,t,s; area always follows n)",
     )
+    parser.add_argument(
+        "--footprint",
+        choices=FOOTPRINTS,
+        help="mug model: rect (the thesis's rectangles) or mug (brim disc plus handle as the arm turns it);"
+        " default: the problem file's, else the config's [planner] footprint",
+    )
     parser.add_argument("--seed", default="0", help="random seed, a whole number (default 0)")
     parser.add_argument(
         "--time-limit",
@@ -90,13 +99,20 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def load_problem(args: argparse.Namespace) -> Problem:
+    """The problem to plan, with the footprint ``--footprint``, the file or the config asks for."""
+    from daemon.config import load_config  # only when a dataset or the config's footprint is needed
+
     if args.dataset is not None:
         if args.problem is not None:
             raise UsageError("give either PROBLEM.json or --dataset N, not both")
         known = {str(n): n for n in thesis.DATASETS}
         if args.dataset not in known:
             raise UsageError(f"--dataset: unknown dataset {args.dataset!r} (known: 1-{len(thesis.DATASETS)})")
-        return cell_dataset_problem(load_config(args.config).cell, known[args.dataset])
+        from planning.placement.datasets import cell_dataset_problem
+
+        config = load_config(args.config)
+        problem = cell_dataset_problem(config.cell, known[args.dataset])
+        return _with_footprint(problem, args.footprint or config.planner.footprint)
     if args.problem is None:
         raise UsageError("give a PROBLEM.json (or - for stdin) or --dataset N")
     name = args.problem
@@ -111,14 +127,24 @@ def load_problem(args: argparse.Namespace) -> Problem:
     except json.JSONDecodeError as e:
         raise UsageError(f"{name}: not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from e
     try:
-        return Problem.from_json(doc)
+        problem = Problem.from_json(doc)
     except InvalidProblem as e:
         raise UsageError(f"{name}: {e}") from e
+    if args.footprint is not None:
+        return _with_footprint(problem, args.footprint, name)
+    if isinstance(doc, dict) and "footprint" in doc:
+        return problem
+    return _with_footprint(problem, load_config(args.config).planner.footprint, name)
+
+
+def _with_footprint(problem: Problem, footprint: str, where: str = "--footprint") -> Problem:
+    try:
+        return replace(problem, footprint_kind=footprint)
+    except InvalidProblem as e:
+        raise UsageError(f"{where}: {e}") from e
 
 
 def run(args: argparse.Namespace) -> int:
-    from planning.placement.render import to_png, to_svg  # OpenCV draws the PNG
-
     time_limit = _number("--time-limit", args.time_limit, float)
     if not 0 < time_limit < float("inf"):
         raise UsageError(f"--time-limit: must be a positive number of seconds, got {args.time_limit!r}")
@@ -148,6 +174,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(message) from e
     # Render everything before writing anything, so a failure leaves no half-written output.
     outputs: list[tuple[Path, bytes]] = []
+    if args.svg is not None or args.png is not None:
+        from planning.placement.render import to_png, to_svg
     if args.svg is not None:
         outputs.append((args.svg, to_svg(problem, result).encode()))
     if args.png is not None:

@@ -80,7 +80,9 @@ def problem_of(services: Services, ctx: JobContext) -> Problem:
         m.name: MugType(m.name, m.diameter_mm, m.width_mm, m.height_mm, m.mass_kg) for m in config.mug_types
     }
     mugs = tuple(
-        CounterMug(m.mug_id, m.type, m.x_m * 1000.0, m.y_m * 1000.0)
+        CounterMug(
+            m.mug_id, m.type, m.x_m * 1000.0, m.y_m * 1000.0, m.handle_yaw_rad if m.handle_seen else None
+        )
         for m in ctx.counter.values()
         if m.mug_id not in ctx.given_up
     )
@@ -92,6 +94,7 @@ def problem_of(services: Services, ctx: JobContext) -> Problem:
         placed=tuple(ctx.tray_mugs),
         tolerance_mm=config.planner.tolerance_mm,
         allow_rotation=config.planner.allow_rotation,
+        footprint_kind=config.planner.footprint,
     )
 
 
@@ -104,5 +107,8 @@ def _slots(result: PlanResult, problem: Problem, ctx: JobContext) -> list[tuple[
         bx, by = problem.brim_centre_on_tray(placed.type, placed.x_mm, placed.y_mm)
         wx, wy = problem.to_world_mm(bx, by)
         slot = TraySlot(placed.id, placed.type, wx / 1000.0, wy / 1000.0, placed.rotated)
-        queue.append((slot, TrayMug(placed.id, placed.type, placed.x_mm, placed.y_mm, placed.rotated)))
+        tray_mug = TrayMug(
+            placed.id, placed.type, placed.x_mm, placed.y_mm, placed.rotated, placed.handle_yaw_rad
+        )
+        queue.append((slot, tray_mug))
     return queue

@@ -8,10 +8,11 @@ from planning.placement.cost import MoveCost, ThesisMoveCost
 from planning.placement.datasets import cell_dataset_problem, dataset_problem
 from planning.placement.errors import InvalidProblem
 from planning.placement.planner import METHODS, PlacedMug, PlanOptions, PlanResult, plan
-from planning.placement.problem import CounterMug, MugType, Problem, TrayMug
+from planning.placement.problem import FOOTPRINTS, CounterMug, MugType, Problem, TrayMug
 from planning.placement.seam import PlacementPlanner
 
 __all__ = [
+    "FOOTPRINTS",
     "METHODS",
     "CounterMug",
     "InvalidProblem",

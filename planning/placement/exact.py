@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from ortools.sat.python import cp_model
-from scipy.optimize import linear_sum_assignment
 
+from planning.placement.assignment import least_cost_assignment
 from planning.placement.order import execution_order
 from planning.placement.planner import Candidate, Context, Layout
 from planning.placement.problem import Problem
@@ -307,8 +307,8 @@ def _least_energy_assignment(
     ev = ctx.evaluator
     for t, places in sorted(by_type.items()):
         mugs = [i for i, m in enumerate(ctx.problem.mugs) if m.type == t]
-        cost = np.array([[ev.move(i, *pl)[1] + 1e-6 * ev.move(i, *pl)[0] for pl in places] for i in mugs])
-        rows, cols = linear_sum_assignment(cost)
-        total += float(cost[rows, cols].sum())
-        layout += [(mugs[r], *places[c]) for r, c in zip(rows, cols, strict=True)]
+        cost = [[ev.move(i, *pl)[1] + 1e-6 * ev.move(i, *pl)[0] for pl in places] for i in mugs]
+        pairs = least_cost_assignment(cost)
+        total += sum(cost[r][c] for r, c in pairs)
+        layout += [(mugs[r], *places[c]) for r, c in pairs]
     return total, layout

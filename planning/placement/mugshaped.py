@@ -23,8 +23,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
+from planning.placement.assignment import least_cost_assignment
 from planning.placement.cost import Metrics
 from planning.placement.errors import InvalidProblem
 from planning.placement.mugpack import SCANS, MugPacker, Scan, Spot, fixed_bodies
@@ -181,12 +181,8 @@ def _assigned(ctx: Context, packer: MugPacker, spots: Sequence[Spot]) -> Layout:
     ev = ctx.evaluator
     for k, places in sorted(by_class.items()):
         mugs = [i for i, c in enumerate(packer.class_of) if c == k]
-        cost = np.array(
-            [
-                [ev.move(i, x, y, False)[1] + 1e-6 * ev.move(i, x, y, False)[0] for x, y in places]
-                for i in mugs
-            ]
-        )
-        rows, cols = linear_sum_assignment(cost)
-        layout += [(mugs[r], *places[c], False) for r, c in zip(rows, cols, strict=True)]
+        cost = [
+            [ev.move(i, x, y, False)[1] + 1e-6 * ev.move(i, x, y, False)[0] for x, y in places] for i in mugs
+        ]
+        layout += [(mugs[r], *places[c], False) for r, c in least_cost_assignment(cost)]
     return tuple(layout)

@@ -1,49 +1,99 @@
 """Pictures of a plan: the tray seen from above (x, away from the arm, points up; y, the robot's left, points
-left), each footprint with its tolerance, the brim and handle, the placing order, mug types in colour, and the
-mugs that were already on the tray in grey. SVG as text, PNG drawn with OpenCV."""
+left), each mug as it will stand there: its brim, its handle where the arm will turn it, the placing order and
+its id, the mug types in colour and the mugs that were already on the tray in grey; rectangle plans also show
+each footprint with its tolerance. The tray's size in mm is written along its edges. SVG as text, PNG drawn
+with OpenCV (imported only when a PNG is drawn)."""
 
 from __future__ import annotations
 
-import cv2
+import math
+from dataclasses import dataclass
+
 import numpy as np
 
 from planning.placement.planner import PlanResult
 from planning.placement.problem import Problem
+from planning.placement.shapes import MugOutline
 
-_MARGIN_MM = 20
+_MARGIN_MM = 48
+_CAPTION_PX = 30
 _PALETTE = ("#d9534f", "#337ab7", "#5cb85c", "#f0ad4e", "#9b59b6", "#16a085")
 _FIXED = "#9e9e9e"
+
+
+@dataclass(frozen=True, slots=True)
+class _Mug:
+    """One mug to draw, in tray millimetres: label inside the brim, id under it."""
+
+    label: str
+    mug_id: str
+    type: str
+    brim: tuple[float, float]
+    radius: float
+    handle: tuple[tuple[float, float], tuple[float, float]]
+    handle_half_thickness: float
+    footprint: tuple[float, float, float, float] | None
+    colour: str
 
 
 def _type_colours(problem: Problem) -> dict[str, str]:
     return {name: _PALETTE[i % len(_PALETTE)] for i, name in enumerate(sorted(problem.mug_types))}
 
 
-def _items(problem: Problem, result: PlanResult) -> list[tuple[str, str, int, int, bool, str]]:
-    """(label, type, x, y, rotated, colour) for every mug drawn, fixed ones first."""
+def _mug(
+    problem: Problem,
+    label: str,
+    mug_id: str,
+    type_name: str,
+    corner: tuple[int, int],
+    rotated: bool,
+    brim: tuple[float, float] | None,
+    yaw: float,
+    colour: str,
+) -> _Mug:
+    outline = MugOutline.of(problem.mug_types[type_name])
+    bx, by = brim or problem.brim_centre_on_tray(type_name, *corner)
+    c, s = math.cos(yaw), math.sin(yaw)
+    handle = (
+        (bx + outline.handle_from * c, by + outline.handle_from * s),
+        (bx + outline.handle_to * c, by + outline.handle_to * s),
+    )
+    footprint = None
+    if problem.footprint_kind == "rect":
+        footprint = (corner[0], corner[1], *problem.footprint(type_name, rotated))
+    return _Mug(
+        label, mug_id, type_name, (bx, by), outline.radius, handle, outline.half_thickness, footprint, colour
+    )
+
+
+def _items(problem: Problem, result: PlanResult) -> list[_Mug]:
+    """Every mug drawn, the fixed ones first."""
     colours = _type_colours(problem)
-    items = [(q.id, q.type, q.x_mm, q.y_mm, q.rotated, _FIXED) for q in problem.placed]
-    items += [(str(p.order), p.type, p.x_mm, p.y_mm, p.rotated, colours[p.type]) for p in result.placed]
+    items = [
+        _mug(problem, "", q.id, q.type, (q.x_mm, q.y_mm), q.rotated, None, q.handle_yaw(), _FIXED)
+        for q in problem.placed
+    ]
+    for p in result.placed:
+        yaw = p.handle_yaw_rad if p.handle_yaw_rad is not None else (math.pi / 2 if p.rotated else 0.0)
+        items.append(
+            _mug(
+                problem,
+                str(p.order),
+                p.id,
+                p.type,
+                (p.x_mm, p.y_mm),
+                p.rotated,
+                p.brim_mm,
+                yaw,
+                colours[p.type],
+            )
+        )
     return items
-
-
-def _shapes(
-    problem: Problem, type_name: str, x: int, y: int, rotated: bool
-) -> dict[str, tuple[float, float, float, float]]:
-    """Footprint, brim circle and handle rectangle in tray millimetres."""
-    t = problem.mug_types[type_name]
-    fx, fy = problem.footprint(type_name, rotated)
-    cx, cy = problem.brim_centre_on_tray(type_name, x, y)
-    r = t.diameter_mm / 2.0
-    reach = t.width_mm - t.diameter_mm
-    grip = max(t.diameter_mm / 4.0, 4.0)
-    handle = (cx - grip / 2, cy + r, grip, reach) if rotated else (cx + r, cy - grip / 2, reach, grip)
-    return {"footprint": (x, y, fx, fy), "brim": (cx, cy, r, r), "handle": handle}
 
 
 def to_svg(problem: Problem, result: PlanResult, *, scale: float = 1.0) -> str:
     tx, ty = problem.tray_size_mm
-    width, height = (ty + 2 * _MARGIN_MM) * scale, (tx + 2 * _MARGIN_MM + 30) * scale
+    width, height = (ty + 2 * _MARGIN_MM) * scale, (tx + 2 * _MARGIN_MM) * scale + _CAPTION_PX
 
     def pt(x: float, y: float) -> tuple[float, float]:
         return (_MARGIN_MM + ty - y) * scale, (_MARGIN_MM + tx - x) * scale
@@ -60,23 +110,41 @@ def to_svg(problem: Problem, result: PlanResult, *, scale: float = 1.0) -> str:
         f'<rect width="{width:.0f}" height="{height:.0f}" fill="white"/>',
         rect(0, 0, tx, ty, 'fill="#f4f1ea" stroke="black" stroke-width="2"'),
     ]
-    for label, type_name, x, y, rotated, colour in _items(problem, result):
-        s = _shapes(problem, type_name, x, y, rotated)
-        parts.append(rect(*s["footprint"], f'fill="none" stroke="{colour}" stroke-dasharray="4 3"'))
-        parts.append(rect(*s["handle"], f'fill="{colour}" fill-opacity="0.6" stroke="{colour}"'))
-        cx, cy, r, _ = s["brim"]
-        px, py = pt(cx, cy)
+    (lx, ly), (sx, sy) = pt(tx, ty / 2), pt(tx / 2, 0)
+    parts.append(
+        f'<text x="{lx:.1f}" y="{ly - 8 * scale:.1f}" font-size="{13 * scale:.0f}" text-anchor="middle">'
+        f"{ty} mm (y)</text>"
+    )
+    parts.append(
+        f'<text x="{sx + 6 * scale:.1f}" y="{sy:.1f}" font-size="{13 * scale:.0f}" '
+        f'transform="rotate(90 {sx + 6 * scale:.1f} {sy:.1f})" text-anchor="middle">{tx} mm (x)</text>'
+    )
+    for m in _items(problem, result):
+        if m.footprint is not None:
+            parts.append(rect(*m.footprint, f'fill="none" stroke="{m.colour}" stroke-dasharray="4 3"'))
+        (ax, ay), (bx, by) = (pt(*m.handle[0]), pt(*m.handle[1]))
         parts.append(
-            f'<circle cx="{px:.1f}" cy="{py:.1f}" r="{r * scale:.1f}" fill="{colour}" fill-opacity="0.35" '
-            f'stroke="{colour}" stroke-width="2"><title>{type_name} {label}</title></circle>'
+            f'<line x1="{ax:.1f}" y1="{ay:.1f}" x2="{bx:.1f}" y2="{by:.1f}" stroke="{m.colour}" '
+            f'stroke-width="{2 * m.handle_half_thickness * scale:.1f}" stroke-linecap="round"/>'
         )
+        px, py = pt(*m.brim)
         parts.append(
-            f'<text x="{px:.1f}" y="{py + 5 * scale:.1f}" font-size="{14 * scale:.0f}" text-anchor="middle">'
-            f"{label}</text>"
+            f'<circle cx="{px:.1f}" cy="{py:.1f}" r="{m.radius * scale:.1f}" fill="{m.colour}" '
+            f'fill-opacity="0.35" stroke="{m.colour}" stroke-width="2"><title>{m.type} {m.mug_id}</title>'
+            "</circle>"
+        )
+        if m.label:
+            parts.append(
+                f'<text x="{px:.1f}" y="{py:.1f}" font-size="{16 * scale:.0f}" font-weight="bold" '
+                f'text-anchor="middle">{m.label}</text>'
+            )
+        parts.append(
+            f'<text x="{px:.1f}" y="{py + 15 * scale:.1f}" font-size="{11 * scale:.0f}" '
+            f'text-anchor="middle">{m.mug_id}</text>'
         )
     caption = _caption(problem, result)
     parts.append(
-        f'<text x="{_MARGIN_MM * scale:.0f}" y="{height - 10 * scale:.0f}" font-size="{13 * scale:.0f}">'
+        f'<text x="{_MARGIN_MM * scale:.0f}" y="{height - 10:.0f}" font-size="{13 * scale:.0f}">'
         f"{caption}</text>"
     )
     parts.append("</svg>")
@@ -84,9 +152,14 @@ def to_svg(problem: Problem, result: PlanResult, *, scale: float = 1.0) -> str:
 
 
 def to_png(problem: Problem, result: PlanResult, *, px_per_mm: float = 1.5) -> bytes:
+    import cv2  # only the PNG needs OpenCV
+
     tx, ty = problem.tray_size_mm
     k = px_per_mm
-    img = np.full((int((tx + 2 * _MARGIN_MM) * k) + 30, int((ty + 2 * _MARGIN_MM) * k), 3), 255, np.uint8)
+    img = np.full(
+        (int((tx + 2 * _MARGIN_MM) * k) + _CAPTION_PX, int((ty + 2 * _MARGIN_MM) * k), 3), 255, np.uint8
+    )
+    font = cv2.FONT_HERSHEY_SIMPLEX
 
     def pt(x: float, y: float) -> tuple[int, int]:
         return round((_MARGIN_MM + ty - y) * k), round((_MARGIN_MM + tx - x) * k)
@@ -95,31 +168,38 @@ def to_png(problem: Problem, result: PlanResult, *, px_per_mm: float = 1.5) -> b
         x, y, fx, fy = r
         cv2.rectangle(img, pt(x + fx, y + fy), pt(x, y), colour, thickness, cv2.LINE_AA)
 
-    box((0, 0, tx, ty), (234, 241, 244), -1)
-    box((0, 0, tx, ty), (0, 0, 0), 2)
-    for label, type_name, x, y, rotated, colour in _items(problem, result):
-        bgr = _bgr(colour)
-        s = _shapes(problem, type_name, x, y, rotated)
-        box(s["footprint"], bgr, 1)
-        box(s["handle"], bgr, -1)
-        cx, cy, r, _ = s["brim"]
-        cv2.circle(img, pt(cx, cy), round(r * k), bgr, 2, cv2.LINE_AA)
-        size, _ = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, 0.5 * k, 1)
-        px, py = pt(cx, cy)
+    def text(label: str, centre: tuple[int, int], size: float, thickness: int) -> None:
+        (w, h), _ = cv2.getTextSize(label, font, size, thickness)
         cv2.putText(
             img,
             label,
-            (px - size[0] // 2, py + size[1] // 2),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.5 * k,
+            (centre[0] - w // 2, centre[1] + h // 2),
+            font,
+            size,
             (0, 0, 0),
-            1,
+            thickness,
             cv2.LINE_AA,
         )
+
+    box((0, 0, tx, ty), (234, 241, 244), -1)
+    box((0, 0, tx, ty), (0, 0, 0), 2)
+    lx, ly = pt(tx, ty / 2)
+    text(f"{ty} mm (y)", (lx, ly - round(12 * k)), 0.35 * k, 1)
+    sx, sy = pt(tx / 2, 0)
+    cv2.putText(img, f"{tx} mm", (sx + 4, sy), font, 0.35 * k, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(img, "(x)", (sx + 4, sy + round(12 * k)), font, 0.35 * k, (0, 0, 0), 1, cv2.LINE_AA)
+    for m in _items(problem, result):
+        bgr = _bgr(m.colour)
+        if m.footprint is not None:
+            box(m.footprint, bgr, 1)
+        cv2.line(img, pt(*m.handle[0]), pt(*m.handle[1]), bgr, max(1, round(2 * m.handle_half_thickness * k)))
+        centre = pt(*m.brim)
+        cv2.circle(img, centre, round(m.radius * k), bgr, 2, cv2.LINE_AA)
+        if m.label:
+            text(m.label, (centre[0], centre[1] - round(6 * k)), 0.5 * k, 2)
+        text(m.mug_id, (centre[0], centre[1] + round(10 * k)), 0.3 * k, 1)
     caption = _caption(problem, result)
-    cv2.putText(
-        img, caption, (10, img.shape[0] - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA
-    )
+    cv2.putText(img, caption, (10, img.shape[0] - 10), font, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     ok, encoded = cv2.imencode(".png", img)
     if not ok:
         raise RuntimeError("png: OpenCV could not encode the picture")
@@ -130,8 +210,10 @@ def _caption(problem: Problem, result: PlanResult) -> str:
     colours = {"#d9534f": "red", "#337ab7": "blue", "#5cb85c": "green", "#f0ad4e": "orange"}
     legend = ", ".join(f"{name} {colours.get(c, c)}" for name, c in _type_colours(problem).items())
     optimal = " (optimal)" if result.optimal else ""
+    tx, ty = problem.tray_size_mm
     return (
-        f"{result.method}: {result.n} of {result.n + len(result.unplaced)} mugs{optimal}; {legend}; arm below"
+        f"{result.method}, {problem.footprint_kind}: {result.n} of {result.n + len(result.unplaced)} mugs"
+        f"{optimal}; tray {tx} x {ty} mm; {legend}; arm below"
     )
 
 

@@ -84,7 +84,8 @@ _DELETE = object()
         (
             "colour",
             "red",
-            "colour: unknown field (known: allow_rotation, arm, footprint, mug_types, mugs, placed, tolerance_mm, tray)",
+            "colour: unknown field (known: allow_rotation, arm, footprint, mug_types, mugs, placed,"
+            " tolerance_mm, tray)",
         ),
     ],
 )
