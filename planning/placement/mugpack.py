@@ -11,8 +11,10 @@ each from one end.
 
 from __future__ import annotations
 
+import math
+from collections import defaultdict
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -28,6 +30,9 @@ from planning.placement.shapes import (
 )
 
 GRID_MM = 2
+# Counter mugs whose handle angles (to the slot's bearing) fall in one bin of this width share a class:
+# detected yaws differ by noise, and a class per mug would multiply the packer's work.
+CLASS_BIN_RAD = math.radians(2.0)
 # A scan: (primary axis, slant, secondary direction). Corners are taken by the primary coordinate plus
 # slant times the secondary one, low first (rows from the arm's side, or from the right), then by the
 # secondary coordinate in the given direction. Slant 0 is the thesis's bottom-left / left-bottom fill; a
@@ -65,19 +70,23 @@ class MugPacker:
         self.problem = problem
         self.clearance = float(problem.tolerance_mm)
         half = self.clearance / 2.0
-        keys: dict[tuple[str, float], int] = {}
+        keys: dict[tuple[str, int], int] = {}
         self.class_of: list[int] = []
+        spread: dict[tuple[str, int], float] = defaultdict(float)
         for i, m in enumerate(problem.mugs):
-            key = (m.type, round(relative_yaw(problem, i), 4))
+            rel = relative_yaw(problem, i)
+            key = (m.type, round(rel / CLASS_BIN_RAD))
             self.class_of.append(keys.setdefault(key, len(keys)))
+            spread[key] = max(spread[key], abs(rel - key[1] * CLASS_BIN_RAD))
         tx, ty = problem.tray_size_mm
         fixed = fixed_bodies(problem)
         self.classes: list[MugClass] = []
-        for (type_name, rel), _ in sorted(keys.items(), key=lambda kv: kv[1]):
+        for (type_name, bin_index), _ in sorted(keys.items(), key=lambda kv: kv[1]):
             side = problem.mug_types[type_name].diameter_mm + problem.tolerance_mm
             xs = _axis(tx - side, grid_mm)
             ys = _axis(ty - side, grid_mm)
-            bodies = self._grid_bodies(type_name, rel, xs, ys)
+            rel = bin_index * CLASS_BIN_RAD
+            bodies = self._grid_bodies(type_name, rel, spread[(type_name, bin_index)], xs, ys)
             free = (
                 keeps_clear(bodies.wall_gap((tx, ty)), half)
                 if len(xs) and len(ys)
@@ -91,15 +100,25 @@ class MugPacker:
             self.classes.append(MugClass(type_name, rel, xs, ys, bodies, stacked, free, ranks))
 
     def _grid_bodies(
-        self, type_name: str, rel: float, xs: npt.NDArray[np.int64], ys: npt.NDArray[np.int64]
+        self,
+        type_name: str,
+        rel: float,
+        spread: float,
+        xs: npt.NDArray[np.int64],
+        ys: npt.NDArray[np.int64],
     ) -> Bodies:
+        """The class's mug at every grid corner; a handle whose angle may be up to ``spread`` off the
+        class's is thickened by how far that turns its tip, so the outline covers every mug of the class."""
         p = self.problem
         t = p.mug_types[type_name]
         r = (t.diameter_mm + p.tolerance_mm) / 2.0
         cx, cy = np.meshgrid(xs + r, ys + r, indexing="ij")
         wx, wy = cx + p.tray_origin_mm[0] - p.arm_base_mm[0], cy + p.tray_origin_mm[1] - p.arm_base_mm[1]
         yaw = np.arctan2(wy, wx) + rel
-        return Bodies.build(MugOutline.of(t), cx.astype(float), cy.astype(float), yaw)
+        outline = MugOutline.of(t)
+        if spread > 0:
+            outline = replace(outline, half_thickness=outline.half_thickness + outline.handle_to * spread)
+        return Bodies.build(outline, cx.astype(float), cy.astype(float), yaw)
 
     def pack(self, sequence: Sequence[int], scan: Scan) -> list[Spot]:
         """Places the classes of ``sequence`` one after the other at the first free corner of ``scan``;
