@@ -3,20 +3,25 @@
 Per dataset and method: mugs placed (mean ± sd over seeded runs), the proven optimum, a comparable cost,
 wall and CPU time per run, and the thesis's run time and best count. The cost is Eq 5.2's weighted sum with
 n, E and t normalised over every run of every method on that dataset, as the thesis compared its methods in
-§5.3.2. A second table times the fast packer against the literal occupancy-matrix packer on the same orders.
+§5.3.2. A second table puts the mug-shaped planner (``footprint = "mug"``, seed 0, default budget) beside the
+rectangle optimum, its upper bound and what people placed in the thesis's observational study; a third times
+the fast packer against the literal occupancy-matrix packer on the same orders. Progress lines go to stderr
+(none with --json).
 """
 
 from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
+from dataclasses import replace
 
 from cli.commands.output import add_json_flag, emit, format_table
 from daemon.config import load_config
 from daemon.errors import UsageError
 from description import thesis
-from planning.placement import METHODS, PlanOptions, PlanResult, plan
+from planning.placement import METHODS, PlanOptions, PlanResult, Problem, plan
 from planning.placement.cost import CostFunction, Fitness, FitnessMethod, Metrics
 from planning.placement.datasets import cell_dataset_problem
 from planning.placement.heuristics import Heuristic
@@ -80,11 +85,16 @@ def run(args: argparse.Namespace) -> int:
         "metaheuristics_30_mugs_max_s": 0.0,
         "metaheuristics_30_mugs_max_cpu_s": 0.0,
     }
+    mug_rows: list[list[object]] = []
     for n in datasets:
         problem = cell_dataset_problem(load_config().cell, n)
+        _progress(args, f"dataset {n}: proving the rectangle optimum")
         optimum = plan(problem, PlanOptions(method="exact", time_limit_s=30.0))
+        _progress(args, f"dataset {n}: mug-shaped footprints")
+        mug_rows.append(mug_shaped_row(problem, n, optimum))
         runs: dict[str, list[tuple[PlanResult, float, float]]] = {}
         for method in methods:
+            _progress(args, f"dataset {n}: {method}, {n_runs} runs")
             runs[method] = []
             for seed in range(n_runs):
                 wall, cpu = time.perf_counter(), time.process_time()
@@ -144,6 +154,7 @@ def run(args: argparse.Namespace) -> int:
         "thesis_best",
         "people",
     ]
+    _progress(args, "timing the fast packer against the occupancy matrix")
     speed_columns, speed_rows = packer_speed(datasets)
     extra: dict[str, object] = {
         "runs": n_runs,
@@ -153,14 +164,42 @@ def run(args: argparse.Namespace) -> int:
         **targets,
     }
     if args.json:
+        extra["mug_shaped"] = [dict(zip(MUG_COLUMNS, r, strict=True)) for r in mug_rows]
         extra["packer_speed"] = [dict(zip(speed_columns, r, strict=True)) for r in speed_rows]
         emit("placement", columns, rows, as_json=True, extra=extra)
         return 0
     emit("placement", columns, rows, as_json=False, extra=extra)
     print()
+    print("mug-shaped footprints (brim disc + handle as the arm turns it, 10 mm clearance) beside rectangles")
+    print(format_table(MUG_COLUMNS, mug_rows))
+    print()
     print("fast packer vs literal 1 mm occupancy matrix (same orders, no caching)")
     print(format_table(speed_columns, speed_rows))
     return 0
+
+
+MUG_COLUMNS = ["ds", "rect_optimum", "mug", "upper_bound", "people", "wall_s", "cpu_s"]
+
+
+def mug_shaped_row(problem: Problem, n: int, rect_optimum: PlanResult) -> list[object]:
+    """One dataset planned with mug-shaped footprints: count, its proven bound, people's figure, time."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    result = plan(replace(problem, footprint_kind="mug"), PlanOptions())
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    return [
+        n,
+        rect_optimum.n if rect_optimum.optimal else f"<= {rect_optimum.upper_bound}",
+        result.n,
+        result.upper_bound,
+        thesis.DATASETS[n].human_placed,
+        round(wall, 2),
+        round(cpu, 2),
+    ]
+
+
+def _progress(args: argparse.Namespace, message: str) -> None:
+    if not args.json:
+        print(f"bench placement: {message}", file=sys.stderr, flush=True)
 
 
 def packer_speed(datasets: list[int], *, repeats: int = 5) -> tuple[list[str], list[list[object]]]:

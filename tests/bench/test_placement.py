@@ -13,8 +13,9 @@ def test_bench_reports_each_method_with_the_thesis_figures(capsys: pytest.Captur
     code = main(
         ["bench", "placement", "--runs", "2", "--datasets", "2", "--methods", "bh,exact,auto", "--json"]
     )
-    out, _ = capsys.readouterr()
+    out, err = capsys.readouterr()
     assert code == 0
+    assert err == ""  # no progress lines with --json
     doc = json.loads(out)
     rows = {r["method"]: r for r in doc["rows"]}
     assert set(rows) == {"bh", "exact", "auto"}
@@ -25,6 +26,28 @@ def test_bench_reports_each_method_with_the_thesis_figures(capsys: pytest.Captur
     assert doc["exact_proves_all"] is True
     (speed,) = doc["packer_speed"]
     assert speed["identical"] is True
+    (mug,) = doc["mug_shaped"]
+    assert mug["ds"] == 2
+    assert mug["rect_optimum"] == 8
+    assert mug["rect_optimum"] < mug["mug"] <= mug["upper_bound"] <= 12
+    assert mug["people"] == 12
+    assert mug["cpu_s"] > 0
+
+
+def test_bench_table_shows_progress_on_stderr_and_the_mug_shaped_table(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert main(["bench", "placement", "--runs", "1", "--datasets", "1", "--methods", "bh"]) == 0
+    out, err = capsys.readouterr()
+    assert err.splitlines() == [
+        "bench placement: dataset 1: proving the rectangle optimum",
+        "bench placement: dataset 1: mug-shaped footprints",
+        "bench placement: dataset 1: bh, 1 runs",
+        "bench placement: timing the fast packer against the occupancy matrix",
+    ]
+    table = out[out.index("mug-shaped footprints") :].splitlines()
+    assert table[1].split() == ["ds", "rect_optimum", "mug", "upper_bound", "people", "wall_s", "cpu_s"]
+    assert table[3].split()[:2] == ["1", "10"]
 
 
 def test_bench_refuses_an_unknown_method(capsys: pytest.CaptureFixture[str]) -> None:
