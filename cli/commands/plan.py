@@ -75,7 +75,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     parser.add_argument(
         "--footprint",
-        choices=FOOTPRINTS,
+        metavar="|".join(FOOTPRINTS),
         help="mug model: rect (the thesis's rectangles) or mug (brim disc plus handle as the arm turns it);"
         " default: the problem file's, else the config's [planner] footprint",
     )
@@ -102,6 +102,10 @@ def load_problem(args: argparse.Namespace) -> Problem:
     """The problem to plan, with the footprint ``--footprint``, the file or the config asks for."""
     from daemon.config import load_config  # only when a dataset or the config's footprint is needed
 
+    if args.footprint is not None and args.footprint not in FOOTPRINTS:
+        raise UsageError(
+            f"--footprint: unknown footprint {args.footprint!r} (known: {', '.join(FOOTPRINTS)})"
+        )
     if args.dataset is not None:
         if args.problem is not None:
             raise UsageError("give either PROBLEM.json or --dataset N, not both")

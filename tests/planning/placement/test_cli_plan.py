@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import math
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -194,3 +197,58 @@ def test_own_weights_and_ranking_are_taken_and_checked(capsys: pytest.CaptureFix
     assert run(capsys, "--dataset", "1", "--ranking", "n,size")[2] == (
         "dishbot plan: error: ranking: unknown parameter 'size' (known: n, A, E, t, s)\n"
     )
+
+
+def test_footprint_flag_plans_mug_shapes_with_brims_and_handles(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    svg = tmp_path / "plan.svg"
+    code, out, _ = run(capsys, "--dataset", "2", "--footprint", "mug", "--json", "--svg", str(svg))
+    assert code == 0
+    doc = json.loads(out)
+    assert doc["n"] > 8  # the rectangle optimum
+    for p in doc["placed"]:
+        assert len(p["brim_mm"]) == 2
+        assert -math.pi <= p["handle_yaw_rad"] <= math.pi
+    picture = svg.read_text()
+    assert picture.count("<circle") == doc["n"]
+    assert picture.count('stroke-linecap="round"') == doc["n"]  # one handle per mug
+    assert "stroke-dasharray" not in picture  # no rectangle footprints drawn
+    assert "tray 332 x 374 mm" in picture
+
+
+def test_an_unknown_footprint_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run(capsys, "--dataset", "1", "--footprint", "round")
+    assert (code, out) == (2, "")
+    assert err == "dishbot plan: error: --footprint: unknown footprint 'round' (known: rect, mug)\n"
+
+
+def test_the_problem_files_footprint_stands_unless_the_flag_says_otherwise(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    problem = tmp_path / "problem.json"
+    problem.write_text(json.dumps({**EXAMPLE, "footprint": "mug"}))
+    code, out, _ = run(capsys, str(problem), "--method", "bh")
+    assert code == 0
+    assert "note: mug-shaped: 1 from the rectangle layout" in out
+    code, out, _ = run(capsys, str(problem), "--method", "bh", "--footprint", "rect")
+    assert code == 0
+    assert "mug-shaped" not in out
+
+
+def test_the_plan_verb_imports_only_what_its_path_uses(tmp_path: Path) -> None:
+    """No OpenCV without a PNG, no OR-Tools or pandas when no exact model runs, no scipy.optimize at all."""
+    problem = tmp_path / "problem.json"
+    problem.write_text(json.dumps(EXAMPLE))
+    heavy = ("cv2", "ortools", "pandas", "scipy.optimize")
+    script = (
+        "import sys\nfrom cli.main import main\n"
+        f"code = main(['plan', {str(problem)!r}, '--method', 'bh', '--footprint', 'rect', '--json'])\n"
+        f"print(code, sorted(m for m in {heavy!r} if m in sys.modules))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert done.stdout.splitlines()[-1] == "0 []"
+    png = tmp_path / "plan.png"
+    script = script.replace("'--json'", f"'--json', '--png', {str(png)!r}")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert done.stdout.splitlines()[-1] == "0 ['cv2']"
