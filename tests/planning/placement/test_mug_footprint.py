@@ -279,3 +279,30 @@ def test_the_assignment_costs_what_the_best_of_all_matchings_costs(cost: list[li
             sum(cost[r][c] for c, r in enumerate(p)) for p in itertools.permutations(range(rows), cols)
         )
     assert sum(cost[r][c] for r, c in pairs) == pytest.approx(best)
+
+
+def test_the_planned_handle_yaw_is_the_one_the_motion_planner_predicts() -> None:
+    from daemon.config import load_config
+    from description.thesis import MUG_TYPES
+    from planning.arm import ArmModel
+    from planning.arm.grasp import handle_facing_away_rad
+    from planning.interfaces import MugPose
+    from planning.motion import CyclePlanner
+
+    cell = load_config().cell
+    problem = replace(dataset_problem(3, tray_origin_m=cell.tray.origin_m), footprint_kind="mug")
+    result = plan(problem, PlanOptions())
+    planner = CyclePlanner(ArmModel.load(), cell, MUG_TYPES)
+    slots = {s.mug_id: s for s in result.slots(problem)}
+    counter = {m.id: m for m in problem.mugs}
+    checked = 0
+    for p in result.placed[:: max(1, len(result.placed) // 4)]:
+        m = counter[p.id]
+        x, y = m.x_mm / 1000.0, m.y_mm / 1000.0
+        mug = MugPose(m.id, m.type, x, y, handle_yaw_rad=handle_facing_away_rad(x, y))
+        cycle = planner.plan_cycle((0.0, -1.2, 1.7, -2.0, -math.pi / 2), mug, slots[p.id], [])
+        assert cycle.handle_yaw_rad is not None
+        assert p.handle_yaw_rad is not None
+        assert abs(math.remainder(cycle.handle_yaw_rad - p.handle_yaw_rad, math.tau)) < math.radians(2)
+        checked += 1
+    assert checked >= 4
