@@ -154,6 +154,10 @@ _PLACED = _object(
         "y_mm": _number("footprint corner on the tray, tray y, mm"),
         "rotated": _boolean("footprint turned by 90 degrees"),
         "order": _integer("position in the placing order"),
+        "brim_mm": _nullable(
+            _array({"type": "number"}, "brim centre on the tray, [x, y], tray coordinates, mm")
+        ),
+        "handle_yaw_rad": _nullable(_number("where the arm leaves the handle, tray frame, rad (0 = +x)")),
     }
 )
 
