@@ -208,9 +208,5 @@ def _ranks(gx: npt.NDArray[np.int64], gy: npt.NDArray[np.int64], scan: Scan) -> 
     return ranks.reshape(gx.shape)
 
 
-def _window(b: Bodies, i0: int, i1: int, j0: int, j1: int) -> Bodies:
-    return Bodies(*(getattr(b, f)[i0:i1, j0:j1] for f in Bodies.__dataclass_fields__))
-
-
 def _one(b: Bodies, i: int, j: int) -> Bodies:
     return Bodies(*(np.array([getattr(b, f)[i, j]]) for f in Bodies.__dataclass_fields__))

@@ -278,13 +278,11 @@ def plan(problem: Problem, options: PlanOptions = PlanOptions()) -> PlanResult:
     if not options.time_limit_s > 0:
         raise InvalidProblem(f"time_limit_s: must be positive, got {options.time_limit_s}")
     method = _method(options.method)  # imported before the clock starts: a one-off cost per process
-    if problem.footprint_kind == "mug":
-        shaped = importlib.import_module("planning.placement.mugshaped")
-        ctx = Context(problem, options)
-        return _result(ctx, shaped.run(ctx, method))
     ctx = Context(problem, options)
-    candidate = method(ctx)
-    return _result(ctx, candidate)
+    if problem.footprint_kind == "mug":  # the method gives the rectangle start (see ``mugshaped``)
+        shaped = importlib.import_module("planning.placement.mugshaped")
+        return _result(ctx, shaped.run(ctx, method))
+    return _result(ctx, method(ctx))
 
 
 _METHOD_FUNCTIONS = {
