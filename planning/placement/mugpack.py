@@ -24,9 +24,7 @@ from planning.placement.shapes import (
     Bodies,
     MugOutline,
     clear_of,
-    handle_yaw_on_tray,
     keeps_clear,
-    relative_yaw,
 )
 
 GRID_MM = 2
@@ -74,7 +72,7 @@ class MugPacker:
         self.class_of: list[int] = []
         spread: dict[tuple[str, int], float] = defaultdict(float)
         for i, m in enumerate(problem.mugs):
-            rel = relative_yaw(problem, i)
+            rel = problem.relative_yaw(i)
             key = (m.type, round(rel / CLASS_BIN_RAD))
             self.class_of.append(keys.setdefault(key, len(keys)))
             spread[key] = max(spread[key], abs(rel - key[1] * CLASS_BIN_RAD))
@@ -171,7 +169,7 @@ class MugPacker:
     def yaw_at(self, k: int, x: int, y: int) -> float:
         c = self.classes[k]
         r = (self.problem.mug_types[c.type].diameter_mm + self.problem.tolerance_mm) / 2.0
-        return handle_yaw_on_tray(self.problem, x + r, y + r, c.relative_rad)
+        return self.problem.handle_yaw_on_tray(x + r, y + r, c.relative_rad)
 
 
 def fixed_bodies(problem: Problem) -> Bodies:

@@ -33,7 +33,7 @@ from planning.placement.errors import InvalidProblem
 from planning.placement.mugpack import SCANS, MugPacker, Scan, Spot, fixed_bodies
 from planning.placement.planner import Candidate, Context, Layout
 from planning.placement.problem import Problem
-from planning.placement.shapes import Bodies, MugOutline, handle_yaw_on_tray, keeps_clear, relative_yaw
+from planning.placement.shapes import Bodies, MugOutline, keeps_clear
 
 # The three sorted class sequences are packed under every scan, then seeded shuffles under the scans that
 # fill rows from the arm's side (``mugpack.SCANS`` with axis 0 and a slant; they found the fullest robot
@@ -128,7 +128,7 @@ def mug_body(problem: Problem, mug: int, x: float, y: float) -> Bodies:
     """Counter mug ``mug`` placed with its footprint corner at (x, y), its handle as the arm turns it."""
     m = problem.mugs[mug]
     bx, by = problem.brim_centre_on_tray(m.type, x, y)
-    yaw = handle_yaw_on_tray(problem, bx, by, relative_yaw(problem, mug))
+    yaw = problem.handle_yaw_on_tray(bx, by, problem.relative_yaw(mug))
     return Bodies.build(
         MugOutline.of(problem.mug_types[m.type]), np.array([bx]), np.array([by]), np.array([yaw])
     )

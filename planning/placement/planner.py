@@ -21,7 +21,6 @@ from planning.placement.heuristics import Heuristic, parse_heuristic
 from planning.placement.order import execution_order
 from planning.placement.packing import Packer, Packing
 from planning.placement.problem import Problem
-from planning.placement.shapes import handle_yaw_on_tray, relative_yaw
 from planning.placement.sorts import Sort, parse_sort, sorted_order
 
 METHODS = ("auto", "exact", "bh", "sa", "ga", "psop-n", "psop-i", "psok-n", "psok-i")
@@ -375,7 +374,7 @@ def _handle_yaw(problem: Problem, mug: int, brim: tuple[float, float], rotated: 
     (``shapes``); a rotated rectangle (which the arm cannot realise) as the rectangle model has it, +y."""
     if rotated:
         return math.pi / 2
-    return handle_yaw_on_tray(problem, *brim, relative_yaw(problem, mug))
+    return problem.handle_yaw_on_tray(*brim, problem.relative_yaw(mug))
 
 
 def _check_preferences(options: PlanOptions) -> None:

@@ -11,10 +11,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from description import thesis
-from planning.placement import shapes
 from planning.placement.errors import InvalidProblem
 
 # "rect": the thesis's rectangle around brim and handle; "mug": the brim disc plus the handle at the yaw the
@@ -108,6 +105,25 @@ class Problem:
 
     def to_world_mm(self, tray_x_mm: float, tray_y_mm: float) -> tuple[float, float]:
         return self.tray_origin_mm[0] + tray_x_mm, self.tray_origin_mm[1] + tray_y_mm
+
+    def relative_yaw(self, mug_index: int) -> float:
+        """What a counter mug's handle adds to the slot's bearing once placed: pick bearing - counter yaw
+        (no wrist yaw: the side grasp keeps the handle's angle to the gripper and the flip mirrors it; the
+        model of ``CyclePlan.handle_yaw_rad``). 0 for a mug whose handle yaw is unknown: the simulated
+        counters set every mug out with its handle pointing away from the arm."""
+        m = self.mugs[mug_index]
+        if m.handle_yaw_rad is None:
+            return 0.0
+        bx, by = self.arm_base_mm
+        return math.remainder(math.atan2(m.y_mm - by, m.x_mm - bx) - m.handle_yaw_rad, math.tau)
+
+    def handle_yaw_on_tray(self, brim_x_mm: float, brim_y_mm: float, relative_rad: float) -> float:
+        """The handle's yaw (tray frame, 0 = +x; the tray's axes are the world's) of a mug placed with its
+        brim centre at (x, y) in tray coordinates: the slot's bearing from the arm base plus
+        ``relative_rad`` (``relative_yaw``)."""
+        wx, wy = self.to_world_mm(brim_x_mm, brim_y_mm)
+        bx, by = self.arm_base_mm
+        return math.remainder(math.atan2(wy - by, wx - bx) + relative_rad, math.tau)
 
     @classmethod
     def from_json(cls, obj: Mapping[str, object]) -> Problem:
@@ -315,6 +331,10 @@ def _check_consistency(p: Problem) -> None:
 def _check_placed_outlines(p: Problem) -> None:
     """Mugs on the tray as outlines (brim and handle where it points): inside the walls by half the
     tolerance, the tolerance apart."""
+    import numpy as np  # only mug-shaped replanning needs it; problems load without numpy
+
+    from planning.placement import shapes
+
     tx, ty = p.tray_size_mm
     bodies: list[shapes.Bodies] = []
     for i, q in enumerate(p.placed):

@@ -6,11 +6,11 @@ runs from l / 2 to w - l / 2 - t from the mug's axis. Two mugs keep ``clearance`
 between their shapes; every shape keeps half of it from the tray's walls, as the rectangle model does (its
 footprint is the mug grown by half the tolerance on every side).
 
-The handle's yaw is not free: the arm has no wrist yaw, so a side grasp keeps the handle's angle to the
-gripper, the flip mirrors it, and the handle lands at slot bearing + pick bearing - counter yaw (bearings
-from the arm base), the model ``planning.motion.CyclePlanner`` predicts ``CyclePlan.handle_yaw_rad`` with.
-A mug standing with its handle away from the arm (the simulated counters) lands with it along the slot's
-bearing.
+The handle's yaw is not free (``Problem.relative_yaw``, ``Problem.handle_yaw_on_tray``): the arm has no
+wrist yaw, so a side grasp keeps the handle's angle to the gripper, the flip mirrors it, and the handle
+lands at slot bearing + pick bearing - counter yaw (bearings from the arm base), the model
+``planning.motion.CyclePlanner`` predicts ``CyclePlan.handle_yaw_rad`` with. A mug standing with its
+handle away from the arm (the simulated counters) lands with it along the slot's bearing.
 
 Distances are exact (disc to disc, disc to segment, segment to segment) and vectorised with numpy, so a
 placer can test thousands of candidate spots against a placed mug at once.
@@ -19,7 +19,6 @@ placer can test thousands of candidate spots against a placed mug at once.
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -27,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 if TYPE_CHECKING:  # problem.py checks mugs already on the tray with these shapes
-    from planning.placement.problem import MugType, Problem
+    from planning.placement.problem import MugType
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -72,25 +71,6 @@ class MugOutline:
         along = np.clip(s, self.handle_from, self.handle_to)
         bar = np.sqrt(np.clip(t * t - (s - along) ** 2, 0.0, None))
         return float(np.trapezoid(2.0 * np.maximum(disc, bar), s))
-
-
-def handle_yaw_on_tray(problem: Problem, brim_x_mm: float, brim_y_mm: float, relative_rad: float) -> float:
-    """The handle's yaw (tray frame, 0 = +x; the tray's axes are the world's) of a mug placed with its brim
-    centre at (x, y) in tray coordinates, given its handle angle ``relative_rad`` (``relative_yaw``)."""
-    wx, wy = problem.to_world_mm(brim_x_mm, brim_y_mm)
-    bx, by = problem.arm_base_mm
-    return math.remainder(math.atan2(wy - by, wx - bx) + relative_rad, math.tau)
-
-
-def relative_yaw(problem: Problem, mug_index: int) -> float:
-    """What a counter mug's handle adds to the slot's bearing once placed: pick bearing - counter yaw (the
-    flip mirrors the angle to the gripper). 0 for a mug whose handle yaw is unknown: the simulated counters
-    set every mug out with its handle pointing away from the arm."""
-    m = problem.mugs[mug_index]
-    if m.handle_yaw_rad is None:
-        return 0.0
-    bx, by = problem.arm_base_mm
-    return math.remainder(math.atan2(m.y_mm - by, m.x_mm - bx) - m.handle_yaw_rad, math.tau)
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ from planning.placement.assignment import least_cost_assignment
 from planning.placement.mugpack import SCANS, MugPacker
 from planning.placement.mugshaped import area_bound
 from planning.placement.problem import default_mug_types
-from planning.placement.shapes import MugOutline, handle_yaw_on_tray, relative_yaw
+from planning.placement.shapes import MugOutline
 
 TYPES = default_mug_types()
 
@@ -196,15 +196,15 @@ def test_rect_plans_report_the_brim_and_the_handle_the_arm_gives() -> None:
         assert p.brim_mm == problem.brim_centre_on_tray(p.type, p.x_mm, p.y_mm)
         wx, wy = problem.to_world_mm(*p.brim_mm)
         assert p.handle_yaw_rad == pytest.approx(math.atan2(wy, wx))  # counter handles face away from the arm
-        assert relative_yaw(problem, index[p.id]) == 0.0
+        assert problem.relative_yaw(index[p.id]) == 0.0
 
 
 def test_the_handle_turns_with_the_pick_bearing_less_the_counter_yaw() -> None:
     # A mug at bearing 90 deg with its handle along +x: 90 deg added to the slot's bearing (flip mirrors).
     problem = replace(dataset_problem(1), mugs=(CounterMug("m1", "big", 0.0, 500.0, 0.0),))
-    assert relative_yaw(problem, 0) == pytest.approx(math.pi / 2)
+    assert problem.relative_yaw(0) == pytest.approx(math.pi / 2)
     ox, oy = problem.tray_origin_mm
-    assert handle_yaw_on_tray(problem, 100.0 - ox, 100.0 - oy, math.pi / 2) == pytest.approx(
+    assert problem.handle_yaw_on_tray(100.0 - ox, 100.0 - oy, math.pi / 2) == pytest.approx(
         math.pi / 4 + math.pi / 2
     )
 
