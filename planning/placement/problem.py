@@ -2,7 +2,9 @@
 
 Sizes on the tray are integer millimetres, as the thesis's 1 mm occupancy grid (§4.2.2). Counter positions are
 world-frame millimetres (floats). A mug's footprint is its width with handle plus tolerance along tray x and
-its brim diameter plus tolerance along tray y; a rotated mug (handle along +y) swaps the two.
+its brim diameter plus tolerance along tray y; a rotated mug (handle along +y) swaps the two. With
+``footprint_kind == "mug"`` a mug is its brim disc plus its handle where the arm turns it (``shapes``); its
+spot is still given by that rectangle's corner, whose brim centre is the same.
 """
 
 from __future__ import annotations
