@@ -9,8 +9,15 @@ watchdog from the loop, and on SIGTERM/SIGINT (or, with ``once``, when the job e
 the recording and closes the session. A start that is refused (an endpoint or port in use, a directory that
 cannot be written) leaves no recording file behind.
 
+Shutdown runs every step even when one before it failed, each within its bound, and no thread of the
+daemon's holds the process's exit, so SIGTERM ends it well within the unit's ``TimeoutStopSec`` with the
+recording finished. A dead output (``| head``, a killed ``| tee``) changes nothing: the lines it cannot
+take are dropped and counted (``RunResult.log_lines_lost``, the ``daemon_stopped`` record on ``log``).
+
 Everything runs on the backend's clock: telemetry periods, the watchdog's, the ``t`` of every message and
-the recording's log times (simulated time in simulation, the wall clock on the robot).
+the recording's log times (simulated time in simulation, the wall clock on the robot). On simulated time
+the clock waits for the recorder's queue before it moves on, so nothing is dropped however loaded the
+machine is (``SessionClock.add_backlog``).
 
 It refuses to start on an endpoint other machines can reach without TLS unless told it is insecure on
 purpose (then it warns at every start), and it says once when it loses its last peer or router and once when
@@ -23,9 +30,10 @@ import asyncio
 import concurrent.futures
 import contextlib
 import gc
+import inspect
 import os
 import signal
-from collections.abc import Awaitable, Callable, Iterator, Mapping
+from collections.abc import Awaitable, Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -39,7 +47,7 @@ from daemon.clock import SessionClock, wall_seconds
 from daemon.config import Config
 from daemon.errors import ConfigError, UsageError
 from daemon.job import Job, JobSummary, StartRequest
-from daemon.log_relay import LogRelay, RecordQueue, plain_record
+from daemon.log_relay import LogRelay, LostLines, RecordQueue, output_guarded, plain_record
 from daemon.sdnotify import SdNotifier
 from daemon.security import exposure_error
 from daemon.zenoh_session import ZenohSession, error_text
@@ -58,6 +66,11 @@ log = structlog.get_logger("daemon")
 # How long a servo may report a fault to the telemetry before the job faults: longer than the gripper's own
 # overload recovery (relax, restore the torque limit or reboot, retry: a few hundred milliseconds).
 _SERVO_FAULT_GRACE_S = 1.0
+# How long stopping the arm may take at shutdown before the daemon goes on closing everything else.
+_SHUTDOWN_MOTION_S = 10.0
+# With ``once``: how long a job may stay past its state's bound (the fault could not end the state: a stop
+# that hangs) before the daemon gives up on it and exits, rather than run on with nothing left to do.
+_STUCK_GRACE_S = 60.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -107,6 +120,7 @@ class RunResult:
     files: tuple[Path, ...] = ()  # every recording file written
     wall_s: float = 0.0  # how long the ``once`` job took on this machine (its duration is on the clock)
     simulated: bool = False
+    log_lines_lost: int = 0  # log lines the process's output could not take (a closed pipe)
 
 
 def job_header(request: StartRequest, config: Config) -> dict[str, object]:
@@ -225,14 +239,16 @@ async def serve(
         job=job_header(options.once, config) if options.once is not None else None,
         deriver=view,
         tee=live,
+        lossless=clock.simulated,
     )
     relay = (
         LogRelay(options.worker_logs, _publish_log(session, clock))
         if options.worker_logs is not None
         else None
     )
+    caught_up = clock.add_backlog(recording.caught_up)
     try:
-        with _logs_published(session, clock):
+        with output_guarded() as lost, _logs_published(session, clock):
             session.attach_recorder(recording, lambda: round(clock.now() * 1e9))
             await asyncio.to_thread(recording.apply_retention)
             return await _run(
@@ -249,8 +265,10 @@ async def serve(
                 live,
                 relay,
                 hooks or ServeHooks(),
+                lost,
             )
     finally:
+        caught_up()
         if live is not None:
             live.close()
 
@@ -269,6 +287,7 @@ async def _run(
     live: LiveServer | None,
     relay: LogRelay | None,
     hooks: ServeHooks,
+    lost: LostLines,
 ) -> RunResult:
     loop = asyncio.get_running_loop()
     clock = backend.clock
@@ -362,39 +381,102 @@ async def _run(
         if options.once is not None:
             started = wall_seconds()
             await job.command("start", options.once)
-            finished = asyncio.create_task(job.finished.wait())
-            stopped = asyncio.create_task(stop.wait())
-            await asyncio.wait({finished, stopped}, return_when=asyncio.FIRST_COMPLETED)
-            finished.cancel()
-            stopped.cancel()
+            waits = {
+                asyncio.create_task(job.finished.wait()),
+                asyncio.create_task(stop.wait()),
+                asyncio.create_task(_stuck(job, clock)),
+            }
+            await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)
+            for waiting in waits:
+                waiting.cancel()
             wall_s = wall_seconds() - started
         else:
             await stop.wait()
     finally:
-        notifier.stopping("stopping motion and finishing the recording")
-        log.info("daemon_stopping")
-        await job.shutdown()
-        session.publish("state", job.status())
-        for task in tasks:
-            task.cancel()
-        for task in tasks:
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            loop.remove_signal_handler(sig)
-        if relay is not None:
-            await asyncio.to_thread(relay.close)
-        health.close()
-        session.attach_recorder(None)
-        session.close()
-        await asyncio.to_thread(recording.close)
-        await backend.close()
+
+        async def stop_motion() -> None:
+            async with clock.timeout(_SHUTDOWN_MOTION_S):
+                await job.shutdown()
+
+        async def stop_tasks() -> None:
+            for task in tasks:
+                task.cancel()
+            for task in tasks:
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
+
+        def remove_signal_handlers() -> None:
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                loop.remove_signal_handler(sig)
+
+        async def close_relay() -> None:
+            if relay is not None:
+                await asyncio.to_thread(relay.close)
+
+        def said_goodbye() -> None:
+            log.info("daemon_stopped", log_lines_lost=lost.count)  # on `log`, so in the recording
+
+        await _each_step(
+            [
+                ("notify", lambda: notifier.stopping("stopping motion and finishing the recording")),
+                ("log", lambda: log.info("daemon_stopping")),
+                ("stop motion", stop_motion),
+                ("state", lambda: session.publish("state", job.status())),
+                ("tasks", stop_tasks),
+                ("signals", remove_signal_handlers),
+                ("log relay", close_relay),
+                ("connections", health.close),
+                ("goodbye", said_goodbye),
+                ("detach recording", lambda: session.attach_recorder(None)),
+                ("zenoh", session.close),
+                ("recording", lambda: asyncio.to_thread(recording.close)),
+                ("backend", backend.close),
+            ]
+        )
     files = recording.files()
     jobs = [p for p in files if is_job_file(p)]
     last = jobs[-1] if jobs else (files[-1] if files else path)
     return RunResult(
-        job.summary, last, job.chart.state, outcome, files, wall_s=wall_s, simulated=clock.simulated
+        job.summary,
+        last,
+        job.chart.state,
+        outcome,
+        files,
+        wall_s=wall_s,
+        simulated=clock.simulated,
+        log_lines_lost=lost.count,
     )
+
+
+async def _each_step(steps: Sequence[tuple[str, Callable[[], object]]]) -> None:
+    """Run every step of the shutdown in turn (awaiting what it returns, when awaitable), even when a step
+    before it failed: a failure is logged and the next step runs (the recording is finished, the session
+    closed, whatever went wrong before)."""
+    for name, step in steps:
+        try:
+            result = step()
+            if inspect.isawaitable(result):
+                await result
+        except Exception as e:  # each step on its own: the next one runs whatever happened
+            with contextlib.suppress(Exception):
+                log.error("shutdown_step_failed", step=name, error=repr(e))
+
+
+async def _stuck(job: Job, clock: SessionClock, *, grace_s: float = _STUCK_GRACE_S) -> None:
+    """Return once the job has stayed past its state's bound for ``grace_s`` (the fault could not end the
+    state); logged once. Checked every second of the clock."""
+    overdue_since: float | None = None
+    while True:
+        now = clock.monotonic()
+        reason = job.overdue()
+        if reason is None:
+            overdue_since = None
+        elif overdue_since is None:
+            overdue_since = now
+        elif now - overdue_since >= grace_s:
+            log.error("job_stuck", reason=reason, past_bound_s=round(now - overdue_since, 3))
+            return
+        await clock.sleep(1.0)
 
 
 class ConnectionHealth:

@@ -16,6 +16,9 @@ enforces:
   order it was submitted, so the interleaving of tasks does not depend on which thread finished first.
 - The simulated world is stepped by the clock (``add_stepper``) as time advances, on the loop's thread, so
   every reader sees the world exactly at the clock's time.
+- Time does not advance while anything the daemon hands work to is behind (``add_backlog``: the recorder's
+  queue). On the wall clock a recorder that cannot keep up drops messages rather than stall the robot; in
+  simulation time simply waits for it, so nothing is dropped and a run does not depend on this machine's load.
 
 Only external input (a command from another process, a signal) arrives at a moment that depends on the wall
 clock. docs/architecture.md ("One clock") says why this design rather than a clock object with its own
@@ -75,9 +78,18 @@ def describe_speed(speed: float | None) -> str:
     return "max" if speed is None else f"{speed:g}"
 
 
+# Whether a helper thread has caught up with the work handed to it, waiting up to that many wall seconds.
+CaughtUp = Callable[[float], bool]
+
+
 class SessionClock(Clock, Protocol):
     """The clock a daemon session runs on: a ``Clock`` that also runs the session's event loop and says
     what it is for the recording's header."""
+
+    def add_backlog(self, caught_up: CaughtUp) -> Callable[[], None]:
+        """Hold time back while ``caught_up`` says a helper is behind (simulated time only: the wall clock
+        waits for nobody); returns the function that removes it."""
+        ...
 
     @property
     def wall_start(self) -> float:
@@ -121,6 +133,10 @@ class RealClock:
         await asyncio.wait({future}, timeout=seconds)
         return future.done()
 
+    def add_backlog(self, caught_up: CaughtUp) -> Callable[[], None]:
+        """Nothing: the wall clock waits for nobody (a recorder that cannot keep up drops and counts)."""
+        return _nothing
+
     def run(self, main: Coroutine[Any, Any, T]) -> T:
         """Run ``main`` on a fresh event loop of this clock (``asyncio.run``)."""
         return asyncio.run(main)
@@ -157,11 +173,13 @@ class SimulatedClock:
         self.wall_start = time.time() if wall_start is None else wall_start
         self._now = 0.0
         self._steppers: list[Callable[[float], None]] = []
+        self._backlogs: list[CaughtUp] = []
         self._work: list[_Work] = []
         self._loop: _SimulatedLoop | None = None
         self._pace_wall = 0.0  # wall clock and simulated time of the last pacing anchor
         self._pace_sim = 0.0
         self.advances = 0  # how many times time moved (for benchmarks)
+        self.held = 0  # how many times time waited for a helper that was behind (for benchmarks and tests)
 
     # --- Clock -------------------------------------------------------------------------------------------
 
@@ -203,6 +221,19 @@ class SimulatedClock:
         def remove() -> None:
             if step in self._steppers:
                 self._steppers.remove(step)
+
+        return remove
+
+    def add_backlog(self, caught_up: CaughtUp) -> Callable[[], None]:
+        """Before time moves on, wait until ``caught_up(wait_s)`` says the helper is no longer behind (it
+        waits up to ``wait_s`` wall seconds; input from outside is handled meanwhile). The recorder's queue
+        is one: in simulation nothing is dropped, and what is recorded does not depend on this machine's
+        speed. Returns the function that removes it."""
+        self._backlogs.append(caught_up)
+
+        def remove() -> None:
+            if caught_up in self._backlogs:
+                self._backlogs.remove(caught_up)
 
         return remove
 
@@ -276,8 +307,27 @@ class SimulatedClock:
                 ready = select(wait)
                 if ready or self._paced_wait(target) > 0:
                     return ready  # input from outside (or woken early): time stays where it is
+        outside = self._catch_up(select)
+        if outside is not None:
+            return outside
         self._advance(target)
         return select(0)
+
+    def _catch_up(
+        self, select: Callable[[float | None], list[tuple[selectors.SelectorKey, int]]]
+    ) -> list[tuple[selectors.SelectorKey, int]] | None:
+        """Wait until no helper is behind; None when none is, or what came in from outside meanwhile
+        (handled first, at the current time)."""
+        for caught_up in list(self._backlogs):
+            held = False
+            while not caught_up(_EXTERNAL_POLL_S):
+                if not held:
+                    held = True
+                    self.held += 1
+                ready = select(0)
+                if ready:
+                    return ready
+        return None
 
     def _finish_work(
         self, select: Callable[[float | None], list[tuple[selectors.SelectorKey, int]]]
@@ -321,6 +371,10 @@ class SimulatedClock:
             step(target)
 
 
+def _nothing() -> None:
+    return None
+
+
 def _wake(future: asyncio.Future[None]) -> None:
     if not future.done():
         future.set_result(None)
@@ -359,6 +413,7 @@ class _SimulatedLoop(asyncio.SelectorEventLoop):
 
 __all__ = [
     "SPEED_RANGE",
+    "CaughtUp",
     "RealClock",
     "SessionClock",
     "SimulatedClock",

@@ -1,9 +1,15 @@
-"""Log records of the planning worker process, relayed to the daemon so they reach its ``log`` topic.
+"""Where the daemon's log lines go: the process's output, guarded, and the planning worker's records relayed.
 
-The worker logs to its own stderr as before; ``forward_to(queue)`` adds a structlog processor there that also
-puts a plain copy of each record (at or above the worker's level, which is the daemon's) on a queue.
-``LogRelay`` drains that queue on a thread of the daemon and hands each record to a callback (publishing it
-on ``log``, which records it). Nothing blocks on either side: a full queue drops the record.
+A dead output (``| head`` that has exited, a ``| tee`` killed by Ctrl-C, a closed terminal) must never change
+what the daemon does: ``output_guarded`` makes structlog's output drop a line it cannot write and count it
+(``LostLines``) instead of raising into whatever was logging. The records still reach ``log`` and the
+recording, which do not go through the output.
+
+The worker logs to its own stderr as before, guarded the same way; ``forward_to(queue)`` adds a structlog
+processor there that also puts a plain copy of each record (at or above the worker's level, which is the
+daemon's) on a queue. ``LogRelay`` drains that queue on a thread of the daemon and hands each record to a
+callback (publishing it on ``log``, which records it). Nothing blocks on either side: a full queue drops the
+record, and ``close`` returns within its bound whatever the queue does.
 """
 
 from __future__ import annotations
@@ -13,7 +19,7 @@ import queue
 import sys
 import threading
 import traceback
-from collections.abc import Callable, Mapping, MutableMapping
+from collections.abc import Callable, Iterator, Mapping, MutableMapping
 from typing import Any, Protocol
 
 import structlog
@@ -29,6 +35,65 @@ class RecordQueue(Protocol):
     def get(self, block: bool = True, timeout: float | None = None) -> Any: ...
 
     def put(self, item: Any, block: bool = True, timeout: float | None = None) -> None: ...
+
+
+class LostLines:
+    """How many log lines the process's output could not take (it was closed or broken). Thread-safe."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._count = 0
+
+    @property
+    def count(self) -> int:
+        with self._lock:
+            return self._count
+
+    def add(self) -> None:
+        with self._lock:
+            self._count += 1
+
+
+class _GuardedLogger:
+    """A structlog logger (``PrintLogger`` and its kind) whose writes never raise: a line the output cannot
+    take (a closed pipe, a closed file) is dropped and counted."""
+
+    def __init__(self, inner: Any, lost: LostLines) -> None:
+        self._inner = inner
+        self._lost = lost
+
+    def __getattr__(self, name: str) -> Any:
+        method = getattr(self._inner, name)
+        if not callable(method):
+            return method
+
+        def guarded(*args: Any, **kwargs: Any) -> Any:
+            try:
+                return method(*args, **kwargs)
+            except (OSError, ValueError):  # EPIPE, EIO, ENOSPC; ValueError: I/O on a closed file
+                self._lost.add()
+                return None
+
+        return guarded
+
+
+def _guard(factory: Callable[..., Any], lost: LostLines) -> Callable[..., Any]:
+    def guarded_factory(*args: Any) -> Any:
+        return _GuardedLogger(factory(*args), lost)
+
+    return guarded_factory
+
+
+@contextlib.contextmanager
+def output_guarded() -> Iterator[LostLines]:
+    """While active, structlog's output drops and counts the lines it cannot write instead of raising."""
+    factory = structlog.get_config()["logger_factory"]
+    lost = LostLines()
+    structlog.configure(logger_factory=_guard(factory, lost))
+    try:
+        yield lost
+    finally:
+        structlog.configure(logger_factory=factory)
 
 
 def plain_record(event: Mapping[str, object], method: str) -> dict[str, object]:
@@ -72,9 +137,15 @@ class _Forward:
 
 
 def forward_to(records: RecordQueue, *, process: str = "planning") -> None:
-    """In a worker process: also put every structlog record on ``records`` (before the final renderer)."""
-    processors = list(structlog.get_config()["processors"])
-    structlog.configure(processors=[*processors[:-1], _Forward(records, process), *processors[-1:]])
+    """In a worker process: also put every structlog record on ``records`` (before the final renderer), and
+    never raise for an output that went away (the daemon's stderr is the worker's: a closed pipe there must
+    not fail a plan)."""
+    config = structlog.get_config()
+    processors = list(config["processors"])
+    structlog.configure(
+        processors=[*processors[:-1], _Forward(records, process), *processors[-1:]],
+        logger_factory=_guard(config["logger_factory"], LostLines()),
+    )
 
 
 class LogRelay:
@@ -86,10 +157,12 @@ class LogRelay:
         self._thread = threading.Thread(target=self._run, name="log-relay", daemon=True)
         self._thread.start()
 
-    def close(self) -> None:
+    def close(self, *, timeout_s: float = 2.0) -> None:
+        """Stop relaying; returns within about ``timeout_s`` even when the queue is stuck (the thread is a
+        daemon thread: it never holds the process's exit)."""
         with contextlib.suppress(Exception):
-            self._records.put(_STOP, timeout=1.0)
-        self._thread.join(timeout=5.0)
+            self._records.put(_STOP, timeout=timeout_s / 2)
+        self._thread.join(timeout=timeout_s / 2)
 
     def _run(self) -> None:
         while True:

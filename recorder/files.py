@@ -124,7 +124,11 @@ class SessionRecording:
     (``SessionClock.describe()``: its source and its wall-clock start).
 
     A disk that fails (full, gone) never stops the robot: what cannot be written is counted (``dropped``),
-    ``health`` says what failed, and the listener given to ``on_health`` hears of each failure and recovery.
+    ``health`` says what failed, the listener given to ``on_health`` hears of each failure and recovery,
+    and writing goes on as soon as there is room (``Recorder``).
+
+    ``lossless`` (simulated time): no message is dropped for a full queue; the clock holds time back while
+    ``caught_up`` says the writer is behind.
     """
 
     def __init__(
@@ -139,8 +143,10 @@ class SessionRecording:
         clock: Mapping[str, object] | None = None,
         deriver: Deriver | None = None,
         tee: Tee | None = None,
+        lossless: bool = False,
     ) -> None:
         self._settings = settings
+        self._lossless = lossless
         self._clock = dict(clock) if clock is not None else None
         self._directory = directory
         self._robot_id = robot_id
@@ -187,6 +193,12 @@ class SessionRecording:
         """Call ``listener(path, error)`` when writing a file fails, ``listener(path, None)`` when a new file
         is written again; from the recorder's thread or the caller's (it must not block)."""
         self._listener = listener
+
+    def caught_up(self, wait_s: float = 0.0) -> bool:
+        """Whether the recorder's writer has caught up with the messages handed to it, waiting up to
+        ``wait_s`` seconds (``Recorder.caught_up``; before the first file, it has)."""
+        recorder = self.recorder
+        return recorder.caught_up(wait_s) if recorder is not None else True
 
     def dropped(self) -> int:
         """Messages that could not be recorded so far (disk failed, queue full)."""
@@ -260,6 +272,7 @@ class SessionRecording:
                 tee=self._tee,
                 disk=self.disk,
                 on_health=self._health_changed,
+                lossless=self._lossless,
             )
         except RecordingError as e:  # the robot keeps running without a recording; said once
             self._unusable = True

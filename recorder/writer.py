@@ -8,10 +8,17 @@ receives everything written (the live Foxglove server).
 Writing happens on a background thread fed by a bounded queue: ``Recorder.write`` only serialises the
 payload and appends it, so the daemon's event loop never waits for the disk, for the derived messages or for
 the live server; the thread wakes every ``drain_interval_s`` and handles the batch. When the queue is full
-the message is dropped and counted (``Recorder.stats().dropped``) rather than stalling the robot. Chunks are
+the message is dropped and counted (``Recorder.stats().dropped``) rather than stalling the robot; a
+``lossless`` recorder (simulated time) keeps it instead, and its clock waits (``caught_up``) before moving
+on while the queue is behind. Chunks are
 small and the file is flushed after every chunk and at least every ``flush_interval_s``, so a crash or a
 ``kill -9`` loses only the last fraction of a second. While a file is open its writer holds an exclusive
 ``flock`` on it: a reader can tell a file being written from one cut by a crash (``reader.being_written``).
+
+A disk that fails (full, gone) costs only what could not be written: the recorder goes on as soon as
+there is room again, in the same file when the failure left it intact (a disk that refused the message
+before any of it was written), otherwise in a new file of the same stream (``-1`` added to its name, its
+header marked ``file.continues``), tried again every ``retry_s`` of log time.
 
 ``rotate`` finishes the current file and goes on in a new one at that point of the stream: the daemon starts
 a file per job and rotates idle files. Every file starts with its header and the deriver's ``opening``
@@ -49,6 +56,8 @@ MESSAGE_ENCODING: Final = "json"
 SCHEMA_ENCODING: Final = "jsonschema"
 COMPRESSIONS: Final = {None: CompressionType.NONE, "zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4}
 _MAX_NAME_TRIES = 100
+# A lossless recorder's queue counts as caught up at or below this share of ``queue_size``.
+_CAUGHT_UP_SHARE = 0.25
 
 
 @dataclass(frozen=True, slots=True)
@@ -154,19 +163,33 @@ class DiskSpace:
             return any(a <= log_time_ns and (b is None or log_time_ns < b) for a, b in self._full)
 
     def check(self, path: Path, log_time_ns: int) -> None:
-        """Raise ENOSPC for a message logged while the disk is full."""
+        """Raise ENOSPC for a message logged while the disk is full (before any of it reaches the file)."""
         if self.full_at(log_time_ns):
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+            raise _Refused(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+
+class _Refused(OSError):
+    """The disk refused a message before any byte of it reached the file: the file can be continued."""
 
 
 class _File:
-    """One open MCAP file: its writer, channel ids and sequence numbers, and the writer's lock on it."""
+    """One open MCAP file: its writer, channel ids and sequence numbers, and the writer's lock on it.
+
+    ``log_time_ns`` is when it is opened: on a disk that is full then, there is no room for a new file."""
 
     def __init__(
-        self, path: Path, *, chunk_size: int, compression: CompressionType, disk: DiskSpace | None = None
+        self,
+        path: Path,
+        *,
+        chunk_size: int,
+        compression: CompressionType,
+        disk: DiskSpace | None = None,
+        log_time_ns: int | None = None,
     ) -> None:
         self.path = path
         self.disk = disk or DiskSpace()
+        if log_time_ns is not None and self.disk.full_at(log_time_ns):
+            raise RecordingError(f"cannot create recording {path}: {os.strerror(errno.ENOSPC)}")
         try:
             self.file: IO[bytes] = open(path, "xb")  # noqa: SIM115 — owned until close()
         except FileExistsError as e:
@@ -180,7 +203,10 @@ class _File:
             self.writer.start(profile=PROFILE, library="dishbot")
             self.file.flush()
         except OSError as e:
-            self.file.close()
+            with contextlib.suppress(OSError):
+                self.file.close()
+            with contextlib.suppress(OSError):
+                path.unlink()  # nothing of it is readable: leave no empty file behind
             raise RecordingError(f"cannot write recording {path}: {e.strerror}") from e
         self.channels: dict[str, int] = {}
         self.sequence: dict[int, int] = {}
@@ -222,11 +248,15 @@ class Recorder:
 
     ``write``, ``write_header`` and ``rotate`` are thread-safe and never block: call them from the event
     loop (or a Zenoh callback). ``close`` blocks until the queue is drained and the summary is written; from
-    the event loop call it through ``asyncio.to_thread``. If the disk fails, the failure is logged once,
-    kept in ``failure``, and every later message of that file counts as dropped; the file stays readable up
-    to the failure, and the next ``rotate`` tries a new file. ``on_health(path, error)`` hears of it on the
-    recorder's thread (it must not block): once with the error when a file fails, once with None when a new
-    file is written again.
+    the event loop call it through ``asyncio.to_thread``. If the disk fails, the failure is logged once and
+    kept in ``failure``, and every message until there is room again counts as dropped; the failed file
+    stays readable up to the failure. Writing goes on as soon as there is room: in the same file when it is
+    intact, else in a new file (tried every ``retry_s`` of log time), or in the next ``rotate``'s.
+    ``on_health(path, error)`` hears of it on the recorder's thread (it must not block): once with the
+    error when writing fails, once with None (and the file written now) when it works again.
+
+    ``lossless`` (for simulated time) never drops a message for a full queue: the queue grows instead, and
+    the clock holds time back while ``caught_up`` says the writer is behind.
     """
 
     def __init__(
@@ -243,6 +273,8 @@ class Recorder:
         tee: Tee | None = None,
         disk: DiskSpace | None = None,
         on_health: HealthListener | None = None,
+        lossless: bool = False,
+        retry_s: float = 1.0,
     ) -> None:
         if compression not in COMPRESSIONS:
             raise RecordingError(
@@ -258,6 +290,8 @@ class Recorder:
             )
         if queue_size < 1:
             raise RecordingError(f"recording queue_size {queue_size} must be at least 1")
+        if not 0.0 < retry_s <= 3600.0:
+            raise RecordingError(f"recording retry_s {retry_s} is out of range (0, 3600] s")
         _check_thin(thin_hz)
         self._chunk_size = chunk_size
         self._compression = COMPRESSIONS[compression]
@@ -270,6 +304,14 @@ class Recorder:
         self._flush_interval_s = flush_interval_s
         self._drain_interval_s = drain_interval_s
         self._queue_size = queue_size
+        self._lossless = lossless
+        self._caught_up_at = max(1, int(queue_size * _CAUGHT_UP_SHARE))
+        self._retry_ns = round(retry_s * 1e9)
+        self._retry_at_ns: int | None = None  # when to try a new file next, after a failure (thread only)
+        self._broken = False  # the failed file cannot be continued (thread only)
+        self._header: bytes | None = None  # the current file's header, for a file continuing it
+        self._unopened: tuple[Path, dict[str, object]] | None = None  # a rotation's file not opened yet
+        self._drained = threading.Condition()
         self._deriver = deriver
         self._tee = tee
         self._on_health = on_health
@@ -364,6 +406,18 @@ class Recorder:
             self._pending.append(_Rotate(Path(path), dict(header), log_time_ns, thin_hz, on_open))
         self._wake.set()
 
+    def caught_up(self, wait_s: float = 0.0) -> bool:
+        """Whether the writer has caught up (its queue at or below a quarter of ``queue_size``), waiting up to
+        ``wait_s`` seconds for it; a closed recorder has. For a clock holding time back (``lossless``)."""
+        with self._drained:
+            if self._behind():
+                self._wake.set()  # no nap between batches while someone waits
+                self._drained.wait_for(lambda: not self._behind(), timeout=wait_s)
+            return not self._behind()
+
+    def _behind(self) -> bool:
+        return len(self._pending) > self._caught_up_at and self._thread.is_alive()
+
     @property
     def dropped(self) -> int:
         """Messages lost so far (``stats().dropped``, without looking at the file)."""
@@ -411,7 +465,7 @@ class Recorder:
         with self._lock:
             if self._closed:
                 raise RecordingError(f"recording {self._path} is closed; open a new Recorder")
-            full = len(self._pending) >= self._queue_size
+            full = len(self._pending) >= self._queue_size and not self._lossless
             if full:
                 self._dropped += 1
                 dropped = self._dropped
@@ -438,7 +492,11 @@ class Recorder:
             with self._lock:
                 closing = self._closed  # nothing is appended after this turns True
             flush_now = False
+            handled = 0
             while self._pending:  # only this thread takes items out; deque's popleft is atomic
+                handled += 1
+                if handled % 256 == 0:
+                    self._notify_drained()
                 item = self._pending.popleft()
                 if isinstance(item, _Rotate):
                     self._switch(item)
@@ -453,13 +511,21 @@ class Recorder:
                 self._flush()
                 dirty = False
                 last_flush = time.monotonic()
+            self._notify_drained()
             if closing:
                 break
         self._finish()
+        self._notify_drained()
+
+    def _notify_drained(self) -> None:
+        with self._drained:
+            self._drained.notify_all()
 
     def _handle(self, item: _Item) -> bool:
         """Write one message and what derives from it, tee them; True when something went to the file."""
         keep = self._kept(item)
+        if item.topic == HEADER_TOPIC:
+            self._header = item.data
         channel = json_channel(item.topic)
         wrote = keep and self._add(channel, item.data, item.log_time_ns)
         self._send(channel, item.data, item.log_time_ns)
@@ -516,22 +582,88 @@ class Recorder:
             log.warning(event, **detail)
 
     def _add(self, channel: ChannelSpec, data: bytes, log_time_ns: int) -> bool:
-        """Add one message to the current file; after a disk failure count it as dropped instead."""
-        file = self._file
-        if file is None or self.failure is not None:
+        """Add one message to the current file; while the disk has failed and there is no room yet, count
+        it as dropped instead."""
+        if (self._file is None or self.failure is not None) and not self._recover(log_time_ns):
             with self._lock:
                 self._dropped += 1
             return False
+        file = self._file
+        assert file is not None
         try:
             with self._lock:
                 self._unflushed += 1
             if file.add(channel, data, log_time_ns):  # a chunk was finished and handed to the file
                 file.file.flush()
                 self._settle()
+        except _Refused as e:  # nothing of it reached the file: the file is intact, only this one is lost
+            with self._lock:
+                self._unflushed -= 1
+                self._dropped += 1
+            if self.failure is None:
+                self._fail(e, broken=False)
+            return False
         except Exception as e:  # the disk or the encoder failed: keep the robot running, say so once
             self._fail(e)
             return False
         return True
+
+    def _recover(self, log_time_ns: int) -> bool:
+        """After a failure, whether writing can go on now: in the same file when it is intact and the disk
+        has room at ``log_time_ns``, else in a new file of the same stream (tried every ``retry_s``)."""
+        file = self._file
+        if file is not None and not self._broken:
+            if self.disk.full_at(log_time_ns):
+                return False
+            self._restored(file.path)
+            return True
+        if self._retry_at_ns is not None and log_time_ns < self._retry_at_ns:
+            return False
+        self._retry_at_ns = log_time_ns + self._retry_ns
+        return self._continue(log_time_ns)
+
+    def _continue(self, log_time_ns: int) -> bool:
+        """Go on in a new file after the one that failed: the same header (``file.continues``, ``previous``
+        naming the failed file) and the deriver's opening messages; or, when a rotation could not open its
+        file, that file now. False when there is no room yet."""
+        if self._unopened is not None:
+            path, header = self._unopened
+        elif self._header is not None:
+            path, header = self._path, json.loads(self._header)
+            if isinstance(header.get("file"), dict):
+                header["file"] = {**header["file"], "previous": path.name, "continues": True}
+        else:
+            return False
+        self._finish()  # what the failed file holds stays readable up to the failure
+        try:
+            file = _create(
+                path,
+                chunk_size=self._chunk_size,
+                compression=self._compression,
+                disk=self.disk,
+                log_time_ns=log_time_ns,
+            )
+        except RecordingError:
+            return False
+        self._unopened = None
+        previous = self._path
+        with self._lock:
+            self._file = file
+            self._path = file.path
+            self._paths.append(file.path)
+        self._restored(file.path)
+        log.info("recording_continued", path=str(file.path), previous=str(previous))
+        self._handle(_Item(HEADER_TOPIC, log_time_ns, _encode(HEADER_TOPIC, header)))
+        self._flush()
+        return True
+
+    def _restored(self, path: Path) -> None:
+        with self._lock:
+            self.failure = None
+            self._broken = False
+            self._retry_at_ns = None
+        log.info("recording_restored", path=str(path), dropped=self.dropped)
+        self._health(path, None)
 
     def _flush(self) -> None:
         if self._file is None or self.failure is not None:
@@ -549,12 +681,16 @@ class Recorder:
             self._written += self._unflushed
             self._unflushed = 0
 
-    def _fail(self, error: BaseException) -> None:
-        """Stop writing this file after a disk or encoder error; what is not in the file counts as dropped."""
+    def _fail(self, error: BaseException, *, broken: bool = True) -> None:
+        """Stop writing after a disk or encoder error until there is room again; what is not in the file
+        counts as dropped. ``broken``: the file cannot be continued (the error may have cut a record)."""
         with self._lock:
             self.failure = error
-            self._dropped += self._unflushed
-            self._unflushed = 0
+            self._broken = broken
+            self._retry_at_ns = None
+            if broken:
+                self._dropped += self._unflushed
+                self._unflushed = 0
         log.error("recording_failed", path=str(self._path), error=str(error))
         self._health(self._path, str(error))
         if self._file is not None:
@@ -563,16 +699,28 @@ class Recorder:
 
     def _switch(self, rotate: _Rotate) -> None:
         """Finish the current file and open the next one with its header and the opening messages."""
-        previous = self._file.path.name if self._file is not None else None
+        previous = self._path.name
         self._finish()
+        self._thin_hz = rotate.thin_hz
+        self._last_kept = {}
         try:
             file = _create(
-                rotate.path, chunk_size=self._chunk_size, compression=self._compression, disk=self.disk
+                rotate.path,
+                chunk_size=self._chunk_size,
+                compression=self._compression,
+                disk=self.disk,
+                log_time_ns=rotate.log_time_ns,
             )
         except RecordingError as e:
+            self._unopened = (rotate.path, _with_previous(rotate.header, previous))  # tried again later
             with self._lock:
                 self._file = None
+                self._broken = True
+                self._retry_at_ns = rotate.log_time_ns + self._retry_ns
+                already = self.failure is not None
                 self.failure = e
+            if already:  # said once per failure, however many rotations fail meanwhile
+                return
             log.error("recording_failed", path=str(rotate.path), error=str(e))
             self._health(rotate.path, str(e))
             return
@@ -580,16 +728,11 @@ class Recorder:
             self._file = file
             self._path = file.path
             self._paths.append(file.path)
-            failed, self.failure = self.failure is not None, None
+            failed = self.failure is not None
         if failed:
-            log.info("recording_restored", path=str(file.path))
-            self._health(file.path, None)
-        self._thin_hz = rotate.thin_hz
-        self._last_kept = {}
+            self._restored(file.path)
         log.info("recording_rotated", path=str(file.path), thin_hz=rotate.thin_hz)
-        header = dict(rotate.header)
-        if isinstance(header.get("file"), Mapping):
-            header["file"] = {**header["file"], "previous": previous}  # type: ignore[dict-item]
+        header = _with_previous(rotate.header, previous)
         self._handle(_Item(HEADER_TOPIC, rotate.log_time_ns, _encode(HEADER_TOPIC, header)))
         self._flush()
         if rotate.on_open is not None:
@@ -611,7 +754,7 @@ class Recorder:
         if file is None:
             return
         try:
-            if self.failure is None:
+            if self.failure is None or not self._broken:
                 file.writer.finish()  # type: ignore[no-untyped-call]  # mcap leaves it unannotated
                 self._settle()
         except Exception as e:  # a failing disk at the very end still leaves a readable, truncated file
@@ -644,8 +787,21 @@ def header_payload(
     return payload
 
 
-def _create(path: Path, *, chunk_size: int, compression: CompressionType, disk: DiskSpace) -> _File:
-    return _File(free_path(path), chunk_size=chunk_size, compression=compression, disk=disk)
+def _with_previous(header: Mapping[str, object], previous: str | None) -> dict[str, object]:
+    """A rotation's header with ``file.previous`` naming the file before it."""
+    out = dict(header)
+    file = out.get("file")
+    if isinstance(file, Mapping):
+        out["file"] = {**file, "previous": previous}
+    return out
+
+
+def _create(
+    path: Path, *, chunk_size: int, compression: CompressionType, disk: DiskSpace, log_time_ns: int
+) -> _File:
+    return _File(
+        free_path(path), chunk_size=chunk_size, compression=compression, disk=disk, log_time_ns=log_time_ns
+    )
 
 
 def free_path(path: Path) -> Path:

@@ -9,6 +9,11 @@ another transition starts: here the callbacks never await anything and the long 
 Leaving a state whose work still runs (pause, stop, fault, estop) cancels that work and waits for it; units
 leave the arm holding still when cancelled (``manipulation``). Work is resumable: the cycle's next step index
 is kept in the context, and ``resume`` asks the next move to join the interrupted trajectory.
+
+A job that can make no progress always ends in ``fault`` at its state's bound: whatever fails on the way
+(a log line that cannot be written, a bug in handling one outcome) is reported and never keeps a unit's
+outcome from reaching the control task, the deadline's fault from being sent, or the control task from
+taking the next item.
 """
 
 from __future__ import annotations
@@ -16,7 +21,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -172,13 +177,34 @@ class Job:
         """The control task: fire each outcome or command in turn. Cancel it to stop (after ``shutdown``)."""
         while True:
             item = await self._inbox.get()
-            if isinstance(item, _Command):
-                await self._handle(item)
-                continue
-            generation, outcome = item
-            if generation != self._generation:
-                continue  # the state this work belonged to was left already
-            await self._advance(outcome)
+            try:
+                await self._take(item)
+            except Exception as e:  # a bug handling one item must not leave the job with no control task
+                _say(log.error, "control_failed", error=repr(e))
+                if isinstance(item, _Command) and not item.reply.done():
+                    item.reply.set_exception(CommandRefused(f"internal error: {e!r}"))
+                await self._fault_after_failure(f"internal error: {e!r}")
+
+    async def _take(self, item: _Command | tuple[int, Outcome]) -> None:
+        if isinstance(item, _Command):
+            await self._handle(item)
+            return
+        generation, outcome = item
+        if generation != self._generation:
+            return  # the state this work belonged to was left already
+        await self._advance(outcome)
+
+    async def _fault_after_failure(self, reason: str) -> None:
+        """Enter fault after the control task failed to carry something out, unless the job is not working
+        (or is in fault already); the transition's own failure is only reported."""
+        if not self._working() or not self.chart.can("fault"):
+            return
+        try:
+            await self._safe_stop()
+            self._services.event("fault", reason=reason)
+            await self._fire(Outcome("fault", {"reason": reason}))
+        except Exception as e:  # reported; the deadline or the operator may still end it
+            _say(log.error, "control_failed", error=repr(e))
 
     async def shutdown(self) -> None:
         """Stop any motion safely (the process is exiting)."""
@@ -220,7 +246,7 @@ class Job:
             await self._fire(Outcome(verb))
         elif verb == "fault":
             if self.chart.state == "fault":  # one cause, many reporters (telemetry, events, the work)
-                log.info("fault_already", reason=cmd.reason)
+                _say(log.info, "fault_already", reason=cmd.reason)
                 return {"state": self.chart.state}
             await self._cancel_work()
             await self._advance(Outcome("fault", {"reason": cmd.reason}))
@@ -299,7 +325,7 @@ class Job:
     async def _advance(self, outcome: Outcome) -> None:
         if outcome.trigger == "fault":
             await self._safe_stop()
-            log.error("fault", reason=outcome.values.get("reason", ""))
+            _say(log.error, "fault", reason=outcome.values.get("reason", ""))
             self._services.event("fault", **dict(outcome.values))
         await self._fire(outcome)
 
@@ -342,7 +368,7 @@ class Job:
 
     async def _fault_at(self, deadline: Deadline) -> None:
         await self._services.clock.sleep_until(deadline.at)
-        log.error("state_stalled", state=deadline.state, bound_s=deadline.bound_s)
+        _say(log.error, "state_stalled", state=deadline.state, bound_s=deadline.bound_s)
         await self.fault(deadline.reason)
 
     def _working(self) -> bool:
@@ -363,17 +389,17 @@ class Job:
         except asyncio.CancelledError:
             raise
         except CameraFault as e:  # its message names the camera and why: "camera: no frame within 2.0 s"
-            bound.error("camera_failed", error=str(e))
+            _say(bound.error, "camera_failed", error=str(e))
             outcome = Outcome("fault", {"reason": str(e)})
         except (DriverError, BusLost, LimitViolation) as e:
-            bound.error("device_failed", error=str(e))
+            _say(bound.error, "device_failed", error=str(e))
             outcome = Outcome("fault", {"reason": f"{type(e).__name__}: {e}"})
         except MotionRefused as e:
             outcome = Outcome("fault", {"reason": f"motion refused: {e}"})
         except Exception as e:  # a bug must not leave the job hanging in a state with no work
-            bound.exception("work_crashed")
+            _say(bound.exception, "work_crashed")
             outcome = Outcome("fault", {"reason": f"internal error in {unit.leaf}: {e!r}"})
-        await self._inbox.put((generation, outcome))
+        self._inbox.put_nowait((generation, outcome))  # unbounded: never waits, never fails
 
     async def _cancel_work(self) -> None:
         self._generation += 1
@@ -395,3 +421,10 @@ class Job:
             await self.backend.arm.stop()
         with contextlib.suppress(DriverError, BusLost):
             await self.backend.gripper.stop()
+
+
+def _say(method: Callable[..., object], event: str, **fields: object) -> None:
+    """Log where a failing log call must not change what the job does next (an outcome not posted, a fault
+    not sent): the daemon's output is guarded already (``daemon.log_relay``), this holds for any logger."""
+    with contextlib.suppress(Exception):
+        method(event, **fields)

@@ -115,6 +115,70 @@ def test_steppers_see_every_advance_before_any_task_does_and_can_be_removed() ->
     assert stepped == [0.5, 1.0, 1.5]
 
 
+class _SlowHelper:
+    """A helper thread handed work from the loop (as the recorder is), slower than the loop: it notes the
+    simulated time at which it handled each item."""
+
+    def __init__(self, clock: SimulatedClock) -> None:
+        self.clock = clock
+        self.items: list[float] = []
+        self.handled: list[tuple[float, float]] = []  # (simulated time handed over, simulated time handled)
+        self.cond = threading.Condition()
+        self.done = False
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def hand(self, item: float) -> None:
+        with self.cond:
+            self.items.append(item)
+            self.cond.notify_all()
+
+    def caught_up(self, wait_s: float) -> bool:
+        with self.cond:
+            return self.cond.wait_for(lambda: not self.items, timeout=wait_s)
+
+    def close(self) -> None:
+        with self.cond:
+            self.done = True
+            self.cond.notify_all()
+        self.thread.join()
+
+    def _run(self) -> None:
+        while True:
+            with self.cond:
+                self.cond.wait_for(lambda: self.items or self.done)
+                if not self.items:
+                    return
+                item = self.items[0]
+            threading.Event().wait(0.01)  # slow: this machine's time, never the simulation's
+            with self.cond:
+                self.handled.append((item, self.clock.monotonic()))
+                self.items.pop(0)
+                self.cond.notify_all()
+
+
+def test_simulated_time_does_not_advance_while_a_helper_is_behind_and_then_moves_on() -> None:
+    clock = SimulatedClock()
+    helper = _SlowHelper(clock)
+    remove = clock.add_backlog(helper.caught_up)
+
+    async def body() -> None:
+        for _ in range(5):
+            for _ in range(3):
+                helper.hand(clock.monotonic())
+            await clock.sleep(1.0)
+        remove()
+
+    try:
+        clock.run(body())
+    finally:
+        helper.close()
+    assert len(helper.handled) == 15
+    assert all(handed == handled for handed, handled in helper.handled)  # time waited for every item
+    assert clock.monotonic() == 5.0
+    assert clock.held == 5  # once per step of time: it waited, and only when the helper was behind
+
+
 def test_at_a_speed_factor_the_clock_waits_for_the_wall_clock_and_never_bursts_to_catch_up(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

@@ -336,3 +336,83 @@ def test_the_health_listener_hears_once_of_a_full_disk_and_once_of_the_next_file
     assert [m.payload for m in read_messages(tmp_path / "b.mcap") if m.topic.endswith("joints")] == [
         {"i": 3000}
     ]
+
+
+def test_a_lossless_recorder_keeps_every_message_however_full_its_queue_and_says_when_it_caught_up(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "lossless.mcap"
+    with Recorder(path, queue_size=8, lossless=True) as rec:
+        assert all(rec.write("dishbot/r1/joints", {"i": i}, log_time_ns=i) for i in range(5000))
+        assert rec.caught_up(30.0)
+    stats = rec.stats()
+    assert (stats.written, stats.dropped) == (5000, 0)
+    assert [m.payload["i"] for m in read_messages(path)] == list(range(5000))
+    assert rec.caught_up(0.0)  # closed: nothing is behind
+
+
+def _wait_until(done: Callable[[], bool]) -> None:
+    deadline = time.monotonic() + 30.0
+    while not done() and time.monotonic() < deadline:  # the recorder's thread gets there in its time
+        time.sleep(0.01)
+    assert done()
+
+
+def test_a_disk_full_for_5_s_costs_only_the_messages_of_those_5_s_and_the_file_goes_on(
+    tmp_path: Path,
+) -> None:
+    heard: list[tuple[str, str | None]] = []
+    rec = Recorder(tmp_path / "a.mcap", chunk_size=1024, on_health=lambda p, e: heard.append((p.name, e)))
+    rec.disk.fill(30 * 10**9)
+    rec.disk.free(35 * 10**9)
+    for i in range(6000):  # 60 s at 100 Hz
+        rec.write("dishbot/r1/joints", {"i": i}, log_time_ns=i * 10**7)
+    stats = rec.close()
+    full = f"[Errno 28] No space left on device: '{tmp_path / 'a.mcap'}'"
+    assert heard == [("a.mcap", full), ("a.mcap", None)]
+    assert (stats.dropped, stats.written, stats.files) == (500, 5500, 1)
+    got = read_messages(tmp_path / "a.mcap")
+    assert not got.truncated
+    assert [m.payload["i"] for m in got] == [*range(3000), *range(3500, 6000)]
+
+
+def test_after_a_failed_write_the_recorder_goes_on_in_a_new_file_of_the_same_stream_once_there_is_room(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    disk = SmallDisk(free=10**9)
+    monkeypatch.setattr(writer, "open", disk.open, raising=False)
+    heard: list[tuple[str, str | None]] = []
+    rec = Recorder(tmp_path / "a.mcap", chunk_size=1024, on_health=lambda p, e: heard.append((p.name, e)))
+    file = {"kind": "job", "index": 1, "pid": 1, "previous": None}
+    rec.write_header({"k": 1}, {"tray": "robot"}, log_time_ns=0, file=file)
+    ms = 10**6
+    for i in range(1000):
+        rec.write("dishbot/r1/joints", {"i": i}, log_time_ns=i * ms)
+    _wait_until(lambda: rec.stats().queued == 0)
+    disk.free = 0
+    for i in range(1000, 2000):
+        rec.write("dishbot/r1/joints", {"i": i}, log_time_ns=i * ms)
+    _wait_until(lambda: rec.failure is not None and rec.stats().queued == 0)
+    disk.free = 10**9
+    for i in range(2000, 3000):  # room from 2 s on; tried again every 1 s of log time
+        rec.write("dishbot/r1/joints", {"i": i}, log_time_ns=i * ms)
+    stats = rec.close()
+    assert heard == [("a.mcap", "[Errno 28] No space left on device"), ("a-1.mcap", None)]
+    assert rec.paths == (tmp_path / "a.mcap", tmp_path / "a-1.mcap")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a-1.mcap", "a.mcap"]  # no empty tries left
+    cut = read_messages(tmp_path / "a.mcap")
+    assert cut.truncated
+    before = [m.payload["i"] for m in cut if m.topic.endswith("joints")]
+    assert before == list(range(len(before)))
+    after = list(read_messages(tmp_path / "a-1.mcap"))
+    assert after[0].topic == HEADER_TOPIC
+    assert after[0].payload == {
+        "config": {"k": 1},
+        "scene": {"tray": "robot"},
+        "file": {**file, "previous": "a.mcap", "continues": True},
+    }
+    resumed = [m.payload["i"] for m in after[1:]]
+    assert resumed == list(range(resumed[0], 3000))
+    assert 2000 <= resumed[0] < 2000 + 1000  # within retry_s of the room coming back
+    assert len(before) + len(resumed) + stats.dropped == 3000  # every message in a file or counted lost
+    assert stats.files == 2
