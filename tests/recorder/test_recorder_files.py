@@ -411,7 +411,7 @@ def test_after_a_failed_write_the_recorder_goes_on_in_a_new_file_of_the_same_str
         "scene": {"tray": "robot"},
         "file": {**file, "previous": "a.mcap", "continues": True},
     }
-    resumed = [m.payload["i"] for m in after[1:]]
+    resumed = [int(m.payload["i"]) for m in after[1:]]  # type: ignore[call-overload]
     assert resumed == list(range(resumed[0], 3000))
     assert 2000 <= resumed[0] < 2000 + 1000  # within retry_s of the room coming back
     assert len(before) + len(resumed) + stats.dropped == 3000  # every message in a file or counted lost
