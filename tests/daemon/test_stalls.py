@@ -7,13 +7,17 @@ systemd's."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import os
 import socket
+import threading
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+import structlog
 
 from daemon.app import RunOptions, ServeContext, ServeHooks, serve
 from daemon.clock import SimulatedClock
@@ -22,6 +26,7 @@ from daemon.job import Job, StartRequest
 from daemon.sdnotify import SdNotifier
 from drivers.interfaces import Clock, RGBDFrame
 from perception import CameraObserver, associate
+from recorder import Recorder, read_messages
 from tests.daemon.conftest import free_port
 from tests.fakes.devices import ScriptedCamera
 from tests.fakes.job import FakeArm, FakeWorld, make_backend, make_world
@@ -222,3 +227,151 @@ def test_a_stall_the_fault_cannot_end_stops_the_watchdog_pings_until_the_job_has
     assert [t for t in pings if t > times["fault"]] != []
     assert [e["reason"] for e in _events(published, "fault")] == ["state flip exceeded its 20 s bound"]
     assert "STATUS=stalled: state flip exceeded its 20 s bound" in notifier.received  # systemctl status
+
+
+class _RaisingLogger:
+    """A structlog logger whose every write fails, as a print to a closed pipe does."""
+
+    def __getattr__(self, name: str) -> Any:
+        def write(*args: Any, **kwargs: Any) -> None:
+            raise BrokenPipeError(32, "Broken pipe")
+
+        return write
+
+
+@pytest.fixture
+def structlog_restored() -> Iterator[None]:
+    saved = structlog.get_config()
+    try:
+        yield
+    finally:
+        structlog.configure(**saved)
+
+
+def test_a_state_past_its_bound_faults_even_when_every_log_line_fails(structlog_restored: None) -> None:
+    structlog.configure(logger_factory=lambda *args: _RaisingLogger())
+    clock = SimulatedClock()
+    world = make_world(2)
+    world.hold_in_phase = "flip.turn"
+    config = load_config(
+        overrides={"planner": {"method": "bh"}, "daemon": {"state_bounds_s": {"flip": 20.0}}}
+    )
+    published: Published = []
+    job = Job(
+        make_backend(world, clock=clock),
+        config,
+        lambda topic, payload: published.append((topic, dict(payload))),
+        associate,
+    )
+
+    async def go() -> None:
+        control = asyncio.create_task(job.run())
+        await job.command("start", StartRequest())
+        with contextlib.suppress(TimeoutError):
+            async with clock.timeout(600.0):
+                await job.finished.wait()
+        await job.shutdown()
+        control.cancel()
+
+    clock.run(go())
+    assert job.chart.state == "fault"
+    assert [e["reason"] for e in _events(published, "fault")] == ["state flip exceeded its 20 s bound"]
+
+
+def test_a_dead_log_output_changes_nothing_the_job_ends_done_and_the_lost_lines_are_counted(
+    tmp_path: Path, structlog_restored: None
+) -> None:
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the reader went away (`| head -n 3` has exited)
+    dead = os.fdopen(write_end, "w")
+    structlog.configure(logger_factory=structlog.PrintLoggerFactory(dead))
+    clock = SimulatedClock()
+    config = load_config(overrides={"robot_id": "deadout", "planner": {"method": "bh"}})
+    options = RunOptions(
+        listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path, once=StartRequest()
+    )
+
+    def give_up_after_an_hour(ctx: ServeContext) -> None:  # the bound of this test, not the daemon's
+        async def later() -> None:
+            await clock.sleep(3600.0)
+            ctx.stop.set()
+
+        asyncio.get_running_loop().create_task(later())
+
+    try:
+        result = clock.run(
+            serve(
+                config,
+                make_backend(make_world(2), clock=clock),
+                associate,
+                options,
+                notifier=SdNotifier(None),
+                hooks=ServeHooks(on_ready=give_up_after_an_hour),
+            )
+        )
+    finally:
+        with contextlib.suppress(OSError):
+            dead.close()
+    assert result.end_state == "done"
+    assert result.summary.placed == 2
+    assert result.log_lines_lost > 0
+    recorded = read_messages(result.recording)
+    assert not recorded.truncated
+    stopped = [
+        m.payload for m in recorded if m.topic.endswith("/log") and m.payload["event"] == "daemon_stopped"
+    ]
+    assert len(stopped) == 1
+    assert 0 < stopped[0]["log_lines_lost"] < result.log_lines_lost  # its own line and later ones too
+
+
+class _SlowRecorder(Recorder):
+    """The recorder on a machine that cannot keep up: a small queue and every message slow to write (wall
+    time, as a loaded disk or CPU)."""
+
+    def __init__(self, path: Path, **kwargs: Any) -> None:
+        super().__init__(path, **{**kwargs, "queue_size": 64})
+
+    def _handle(self, item: Any) -> bool:
+        threading.Event().wait(0.0005)
+        return super()._handle(item)
+
+
+def _stalled_job_recorded(tmp_path: Path) -> tuple[list[tuple[str, str, float]], int]:
+    """A ``once`` job whose flip never ends, on a simulated clock from a fixed start: the events of its
+    recording (kind, state, t) and the messages the recording lost."""
+    clock = SimulatedClock(wall_start=1_000_000.0)
+    world = make_world(2)
+    world.hold_in_phase = "flip.turn"
+    config = load_config(
+        overrides={
+            "robot_id": "slowrec",
+            "planner": {"method": "bh"},
+            "daemon": {"state_bounds_s": {"flip": 20.0}},
+        }
+    )
+    options = RunOptions(
+        listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path, once=StartRequest()
+    )
+    result = clock.run(
+        serve(config, make_backend(world, clock=clock), associate, options, notifier=SdNotifier(None))
+    )
+    assert result.end_state == "fault"
+    events = [
+        (str(m.payload["kind"]), str(m.payload["state"]), float(m.payload["t"]))
+        for m in read_messages(result.recording)
+        if m.topic.endswith("/events")
+    ]
+    return events, result.summary.recording_dropped
+
+
+def test_on_simulated_time_a_slow_recorder_loses_nothing_and_a_stalled_job_records_the_same_every_run(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr("recorder.files.Recorder", _SlowRecorder)
+    runs = [_stalled_job_recorded(tmp_path / f"run{i}") for i in range(2)]
+    (events, dropped), (again, dropped_again) = runs
+    assert (dropped, dropped_again) == (0, 0)
+    assert events == again
+    faults = [t for kind, _, t in events if kind == "fault"]
+    flip = next(t for _, state, t in events if state.startswith("flip"))
+    assert faults == [pytest.approx(flip + 20.0)]  # at the bound, once
