@@ -1,5 +1,6 @@
 """The disk fills mid-job: the daemon publishes ``recording_failed``, ``status`` shows it, the job carries
-on to ``done`` and its summary counts the messages the recording lost."""
+on to ``done`` and its summary counts the messages the recording lost; once there is room again the
+recording goes on (``recording_restored``) and only what came while the disk was full is lost."""
 
 from __future__ import annotations
 
@@ -13,7 +14,9 @@ import pytest
 import zenoh
 
 from daemon.app import RunOptions, ServeContext, ServeHooks, serve
+from daemon.clock import SimulatedClock
 from daemon.config import load_config
+from daemon.job import StartRequest
 from daemon.sdnotify import SdNotifier
 from daemon.zenoh_session import session_config
 from perception import associate
@@ -23,6 +26,7 @@ from tests.fakes.disk import SmallDisk
 from tests.fakes.job import make_backend, make_world
 
 ROBOT = "diskfull"
+FULL_FOR_S = 0.02  # the fake cell's whole job takes about a tenth of a simulated second
 
 
 def test_a_disk_full_mid_job_is_published_shown_in_status_and_counted_and_the_job_ends_done(
@@ -116,3 +120,63 @@ def test_the_status_verb_prints_a_failed_recording() -> None:
         "recording: failed at /rec/r1-job.mcap: [Errno 28] No space left; 7 messages lost"
     )
     assert "recording" not in _readable({**reply, "recording": {"ok": True, "path": "x", "dropped": 0}})
+
+
+def test_a_disk_full_for_a_while_mid_job_costs_only_that_while_and_the_job_file_goes_on_to_done(
+    tmp_path: Path,
+) -> None:
+    clock = SimulatedClock(wall_start=2_000_000.0)
+    config = load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}})
+    events: list[Mapping[str, object]] = []
+    full: list[int] = []  # [from, until) in log-time nanoseconds
+    contexts: list[ServeContext] = []
+
+    def now_ns() -> int:
+        return round(clock.now() * 1e9)
+
+    def tap(topic: str, payload: Mapping[str, object]) -> None:
+        if topic != "events":
+            return
+        events.append(payload)
+        if payload.get("kind") == "transition" and payload.get("dest") == "side_grasp.approach" and not full:
+            disk = contexts[0].recording.disk
+            full.append(now_ns())
+            disk.fill(full[0])
+
+            def freed() -> None:
+                full.append(now_ns())
+                disk.free(full[1])
+
+            asyncio.get_running_loop().call_later(FULL_FOR_S, freed)
+
+    options = RunOptions(
+        listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path, once=StartRequest()
+    )
+    result = clock.run(
+        serve(
+            config,
+            make_backend(make_world(2), clock=clock),
+            associate,
+            options,
+            notifier=SdNotifier(None),
+            hooks=ServeHooks(on_publish=(tap,), on_ready=contexts.append),
+        )
+    )
+    assert result.end_state == "done"
+    assert full[1] - full[0] == round(FULL_FOR_S * 1e9)
+    kinds = [e["kind"] for e in events]
+    assert kinds.count("recording_failed") == kinds.count("recording_restored") == 1
+    assert kinds.index("recording_failed") < kinds.index("recording_restored")
+    assert result.files == (result.recording,)  # the same file went on: it was intact
+    recorded = read_messages(result.recording)
+    assert not recorded.truncated
+    times = [m.log_time_ns for m in recorded]
+    assert [t for t in times if full[0] < t < full[1]] == []  # what came while full is lost, only that
+    assert [t for t in times if t >= full[1]] != []
+    lost = result.summary.recording_dropped
+    assert lost > 0
+    restored = next(e for e in events if e["kind"] == "recording_restored")
+    assert restored["path"] == str(result.recording)
+    done = [m for m in recorded if m.topic.endswith("/events") and m.payload.get("dest") == "done"]
+    assert len(done) == 1  # the job's end is in its file
+    print(f"{FULL_FOR_S} s of full disk lost {lost} messages")
