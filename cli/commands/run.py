@@ -330,6 +330,10 @@ def _print_summary(result: RunResult, fired: Sequence[Mapping[str, object]] = ()
     out.write(f"grasp failures {s.grasp_failures}, drops {s.drops}, duration {s.duration_s:.1f} s\n")
     if s.recording_dropped:
         out.write(f"recording lost {s.recording_dropped} messages (the disk failed or was too slow)\n")
+    if result.log_lines_lost:
+        out.write(
+            f"log output lost {result.log_lines_lost} lines (stderr was closed; the recording has them)\n"
+        )
     if result.simulated:
         out.write(f"{time_ratio_line(s.duration_s, result.wall_s)}\n")
     for line in result.outcome.failed_lines():

@@ -255,3 +255,16 @@ def test_the_once_summary_says_simulated_and_wall_time_and_their_ratio(
     ]
     _print_summary(RunResult(summary, Path("r.mcap"), "done", wall_s=240.9, simulated=False))
     assert "simulated" not in capsys.readouterr().out  # the robot's job is in real time
+
+
+def test_the_once_summary_says_how_many_log_lines_a_closed_output_lost(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    summary = JobSummary(detected=2, planned=2, placed=2, started_at=0.0, ended_at=10.0)
+    _print_summary(RunResult(summary, Path("r.mcap"), "done", log_lines_lost=7))
+    assert (
+        "log output lost 7 lines (stderr was closed; the recording has them)"
+        in capsys.readouterr().out.splitlines()
+    )
+    _print_summary(RunResult(summary, Path("r.mcap"), "done"))
+    assert "log output lost" not in capsys.readouterr().out
