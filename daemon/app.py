@@ -428,6 +428,7 @@ async def _run(
                 ("connections", health.close),
                 ("goodbye", said_goodbye),
                 ("detach recording", lambda: session.attach_recorder(None)),
+                ("recording health", lambda: recording.on_health(_unheard)),  # nothing to publish it on
                 ("zenoh", session.close),
                 ("recording", lambda: asyncio.to_thread(recording.close)),
                 ("backend", backend.close),
@@ -446,6 +447,10 @@ async def _run(
         simulated=clock.simulated,
         log_lines_lost=lost.count,
     )
+
+
+def _unheard(path: Path, error: str | None) -> None:
+    """The recording's health once the session is closing: ``status`` still says it, nobody is told."""
 
 
 async def _each_step(steps: Sequence[tuple[str, Callable[[], object]]]) -> None:

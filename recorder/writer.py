@@ -300,6 +300,7 @@ class Recorder:
             Path(path), chunk_size=chunk_size, compression=self._compression, disk=self.disk
         )
         self._path = Path(path)
+        self._stream = self._path  # the name asked for the current stream; a continuation is numbered from it
         self._paths = [self._path]
         self._flush_interval_s = flush_interval_s
         self._drain_interval_s = drain_interval_s
@@ -629,9 +630,9 @@ class Recorder:
         if self._unopened is not None:
             path, header = self._unopened
         elif self._header is not None:
-            path, header = self._path, json.loads(self._header)
+            path, header = self._stream, json.loads(self._header)
             if isinstance(header.get("file"), dict):
-                header["file"] = {**header["file"], "previous": path.name, "continues": True}
+                header["file"] = {**header["file"], "previous": self._path.name, "continues": True}
         else:
             return False
         self._finish()  # what the failed file holds stays readable up to the failure
@@ -713,6 +714,7 @@ class Recorder:
             )
         except RecordingError as e:
             self._unopened = (rotate.path, _with_previous(rotate.header, previous))  # tried again later
+            self._stream = rotate.path
             with self._lock:
                 self._file = None
                 self._broken = True
@@ -724,6 +726,7 @@ class Recorder:
             log.error("recording_failed", path=str(rotate.path), error=str(e))
             self._health(rotate.path, str(e))
             return
+        self._stream = rotate.path
         with self._lock:
             self._file = file
             self._path = file.path
