@@ -341,41 +341,43 @@ async def _run(
         ),
         asyncio.create_task(_health_loop(backend, job), name="health"),
     ]
-    if notifier.watchdog_interval_s is not None:
-        # On a simulated clock the pings follow simulated time, which stands still while a plan is being
-        # computed; the robot, the one systemd supervises for real, runs on the wall clock.
-        interval = notifier.watchdog_interval_s / 2.0
-        tasks.append(asyncio.create_task(_every(clock, interval, _ping(notifier, job)), name="watchdog"))
-    if backend.on_event is not None:
-        # Device events (driver faults, tray collisions) may come from other threads: the job handles them
-        # on the loop, publishes them on `events` and faults when the device can no longer be trusted.
-        def device_event(event: Mapping[str, object]) -> None:
-            loop.call_soon_threadsafe(job.device_event, event)
-
-        backend.on_event(device_event)
-    session.serve(loop, handle, verbs=commands_handler.VERBS)
     health = ConnectionHealth(session, job, clock)
-    if options.connect:  # the peers and routers it relies on; clients come and go
-        session.watch_connections(loop, health.changed)
-    session.publish("state", job.status())  # the first message: it opens the first recording file
-    path = recording.path or options.record_dir
-    # Everything allocated so far lives as long as the process: keep it out of the cyclic collector's
-    # scans, whose full passes over it stalled the loop for tens of milliseconds.
-    gc.collect()
-    gc.freeze()
-    notifier.ready(f"robot {config.robot_id} idle")
-    log.info(
-        "daemon_ready",
-        robot_id=config.robot_id,
-        listen=list(options.listen),
-        recording=str(path),
-        foxglove=live.url if live is not None else None,
-    )
-    if on_ready is not None:
-        on_ready(session, path)
+    path = options.record_dir
     wall_s = 0.0
     try:
-        # Inside the try: a hook that refuses (a fault the cell cannot have) still stops everything cleanly.
+        # Inside the try from here on: whatever fails (a hook that refuses, a fault the cell cannot have, a
+        # notify socket gone) still stops everything cleanly.
+        if notifier.watchdog_interval_s is not None:
+            # On a simulated clock the pings follow simulated time, which stands still while a plan is being
+            # computed; the robot, the one systemd supervises for real, runs on the wall clock.
+            interval = notifier.watchdog_interval_s / 2.0
+            tasks.append(asyncio.create_task(_every(clock, interval, _ping(notifier, job)), name="watchdog"))
+        if backend.on_event is not None:
+            # Device events (driver faults, tray collisions) may come from other threads: the job handles them
+            # on the loop, publishes them on `events` and faults when the device can no longer be trusted.
+            def device_event(event: Mapping[str, object]) -> None:
+                loop.call_soon_threadsafe(job.device_event, event)
+
+            backend.on_event(device_event)
+        session.serve(loop, handle, verbs=commands_handler.VERBS)
+        if options.connect:  # the peers and routers it relies on; clients come and go
+            session.watch_connections(loop, health.changed)
+        session.publish("state", job.status())  # the first message: it opens the first recording file
+        path = recording.path or options.record_dir
+        # Everything allocated so far lives as long as the process: keep it out of the cyclic collector's
+        # scans, whose full passes over it stalled the loop for tens of milliseconds.
+        gc.collect()
+        gc.freeze()
+        notifier.ready(f"robot {config.robot_id} idle")
+        log.info(
+            "daemon_ready",
+            robot_id=config.robot_id,
+            listen=list(options.listen),
+            recording=str(path),
+            foxglove=live.url if live is not None else None,
+        )
+        if on_ready is not None:
+            on_ready(session, path)
         if hooks.on_ready is not None:
             hooks.on_ready(ServeContext(config, backend, job, session, recording, stop, clock, handle))
         if options.once is not None:
