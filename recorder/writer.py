@@ -158,6 +158,11 @@ class DiskSpace:
             if self._full and self._full[-1][1] is None:
                 self._full[-1] = (self._full[-1][0], log_time_ns)
 
+    def filling(self) -> bool:
+        """Whether the disk has been filled and not freed yet."""
+        with self._lock:
+            return bool(self._full) and self._full[-1][1] is None
+
     def full_at(self, log_time_ns: int) -> bool:
         with self._lock:
             return any(a <= log_time_ns and (b is None or log_time_ns < b) for a, b in self._full)
@@ -313,6 +318,7 @@ class Recorder:
         self._header: bytes | None = None  # the current file's header, for a file continuing it
         self._unopened: tuple[Path, dict[str, object]] | None = None  # a rotation's file not opened yet
         self._drained = threading.Condition()
+        self._busy = False  # the writer is handling a batch (thread only writes it)
         self._deriver = deriver
         self._tee = tee
         self._on_health = on_health
@@ -408,8 +414,10 @@ class Recorder:
         self._wake.set()
 
     def caught_up(self, wait_s: float = 0.0) -> bool:
-        """Whether the writer has caught up (its queue at or below a quarter of ``queue_size``), waiting up to
-        ``wait_s`` seconds for it; a closed recorder has. For a clock holding time back (``lossless``)."""
+        """Whether the writer has caught up (its queue at or below a quarter of ``queue_size``; empty while
+        the disk is full or has failed, so that the failure and the recovery are seen, and published, at the
+        clock's time of the message they happened at), waiting up to ``wait_s`` seconds for it; a closed
+        recorder has. For a clock holding time back (``lossless``)."""
         with self._drained:
             if self._behind():
                 self._wake.set()  # no nap between batches while someone waits
@@ -417,7 +425,11 @@ class Recorder:
             return not self._behind()
 
     def _behind(self) -> bool:
-        return len(self._pending) > self._caught_up_at and self._thread.is_alive()
+        if not self._thread.is_alive():
+            return False
+        if self.failure is not None or self.disk.filling():
+            return bool(self._pending) or self._busy
+        return len(self._pending) > self._caught_up_at
 
     @property
     def dropped(self) -> int:
@@ -466,7 +478,8 @@ class Recorder:
         with self._lock:
             if self._closed:
                 raise RecordingError(f"recording {self._path} is closed; open a new Recorder")
-            full = len(self._pending) >= self._queue_size and not self._lossless
+            # Lossless: the queue grows, and the clock waits for the writer (unless the writer is gone).
+            full = len(self._pending) >= self._queue_size and not (self._lossless and self._thread.is_alive())
             if full:
                 self._dropped += 1
                 dropped = self._dropped
@@ -494,6 +507,7 @@ class Recorder:
                 closing = self._closed  # nothing is appended after this turns True
             flush_now = False
             handled = 0
+            self._busy = True
             while self._pending:  # only this thread takes items out; deque's popleft is atomic
                 handled += 1
                 if handled % 256 == 0:
@@ -512,6 +526,7 @@ class Recorder:
                 self._flush()
                 dirty = False
                 last_flush = time.monotonic()
+            self._busy = False
             self._notify_drained()
             if closing:
                 break
