@@ -97,6 +97,13 @@ ALLOWED: Final[dict[tuple[str, str], str]] = {
     ),
     ("planning/placement/planner.py", "Context.out_of_time"): "the same compute budget",
     ("planning/placement/planner.py", "Context.elapsed"): "the same compute budget",
+    ("planning/placement/mugshaped.py", "run"): (
+        "the mug packer's compute budget (CPU time of its thread): how long it may search on this machine"
+    ),
+    ("cli/commands/client.py", "_send"): (
+        "a remote client: whether a query ended at once (refused by access control) or ran to its timeout, "
+        "in wall time as Zenoh's query timeout"
+    ),
 }
 
 
