@@ -20,6 +20,7 @@ import asyncio
 import contextlib
 import json
 import re
+import threading
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -142,6 +143,10 @@ class ZenohSession:
         self._verbs: tuple[str, ...] = ()
         self._tasks: set[asyncio.Task[None]] = set()
         self._transports: dict[str, bool] = {}  # zid -> is a router, for peers and routers connected now
+        # Publishing may come from any thread; closing must not overlap a put (zenoh-python refuses a
+        # session borrowed twice: "Already borrowed"), and nothing is put once closed.
+        self._put_lock = threading.Lock()
+        self._closed = False
 
     @classmethod
     def open(
@@ -178,11 +183,14 @@ class ZenohSession:
         """Publish on ``dishbot/<id>/<topic>`` and record it; safe from any thread."""
         data = encode(payload)
         self._record(self.key(topic), payload)
-        publisher = self._publishers.get(topic)
-        if publisher is None:
-            self.session.put(self.key(topic), data)
-        else:
-            publisher.put(data)
+        with self._put_lock:
+            if self._closed:  # a late message (a recorder's health report at shutdown): recorded only
+                return
+            publisher = self._publishers.get(topic)
+            if publisher is None:
+                self.session.put(self.key(topic), data)
+            else:
+                publisher.put(data)
 
     def record(self, topic: str, payload: Mapping[str, object]) -> None:
         """Record without publishing (driver-boundary inputs), under ``dishbot/<id>/<topic>``."""
@@ -230,12 +238,16 @@ class ZenohSession:
         loop.call_soon_threadsafe(changed, False, "", False)
 
     def close(self) -> None:
-        """Undeclare everything and close the session."""
-        for entity in (self._listener, self._token, self._queryable, *self._publishers.values()):
-            if entity is not None:
-                entity.undeclare()
-        self._listener = self._token = self._queryable = None
-        self._publishers = {}
+        """Undeclare everything and close the session (once; later publishes are only recorded)."""
+        with self._put_lock:
+            if self._closed:
+                return
+            self._closed = True
+            for entity in (self._listener, self._token, self._queryable, *self._publishers.values()):
+                if entity is not None:
+                    entity.undeclare()
+            self._listener = self._token = self._queryable = None
+            self._publishers = {}
         self.session.close()  # type: ignore[no-untyped-call]
 
     # --- called on a Zenoh thread ---------------------------------------------------------------------------

@@ -1,4 +1,9 @@
-"""Where a fault file's faults act in each simulated cell (``replay.faults.Cell``).
+"""The devices and world of each simulated cell, as the fault dispatcher (``replay.faults``) acts on them.
+
+One protocol (``FaultCell``) for both cells: each method sets one device's condition to what the faults
+acting on it together ask (``on``/``off``, a camera's fault, a corrupt rate) or makes one thing happen once
+(a trip, a spike, a slip, a move). Which faults are acting, and so what each device's condition is, is the
+dispatcher's business; a cell only knows its devices.
 
 The MuJoCo cell runs the real Dynamixel and FSR drivers against the byte-level device simulators, so its
 device faults are the simulators' own hooks (error bits and registers set as the firmware sets them, a
@@ -10,18 +15,77 @@ themselves (``sim.kinematic.faults``, raising what the drivers raise) and its ob
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from typing import TYPE_CHECKING, Protocol
 
-from daemon.sim_backend import KinematicCounter, MujocoCounter
 from drivers.sim.camera import CameraFault
-from replay.faults import CAMERA_KINDS, FaultSpec
 
-End = Callable[[], None]
-Acted = tuple[End | None, dict[str, object]]
+if TYPE_CHECKING:
+    from daemon.app import ServeContext
+    from daemon.sim_backend import KinematicCounter, MujocoCounter
 
 
-def _camera_fault(kind: str) -> CameraFault:
-    return CAMERA_KINDS[kind]
+class FailingCamera(Protocol):
+    """A camera (or observer) whose captures can be made to fail: ``FaultyCamera``, ``FaultyObserver``."""
+
+    fault: CameraFault | None
+
+    def set_fault(self, fault: CameraFault) -> None: ...
+
+    def clear(self) -> None: ...
+
+
+class FaultCell(Protocol):
+    """Where faults act in one simulated cell."""
+
+    name: str
+
+    def servo_ids(self) -> tuple[int, ...]: ...
+
+    def servo_overloaded(self, servo: int, *, on: bool) -> None:
+        """A load the servo cannot hold, lasting: it trips whenever driven until ``on=False``."""
+
+    def servo_trip(self, servo: int) -> None:
+        """Trip the servo's overload protection once (latched until the daemon clears it)."""
+
+    def servo_hot(self, servo: int, *, on: bool) -> None: ...
+
+    def servo_low_voltage(self, servo: int, *, on: bool) -> None: ...
+
+    def servo_silent(self, servo: int, *, on: bool) -> None: ...
+
+    def bus_corrupt(self, rate: float, *, seed: int, servo: int | None) -> None:
+        """Corrupt ``rate`` of the status packets (of ``servo``, or all); rate 0 stops it."""
+
+    def unplugged(self, device: str, *, on: bool) -> None:
+        """The USB adapter of ``device`` (``servo`` or ``fsr``) pulled (``on``) or plugged back."""
+
+    def fsr_dropped(self, *, on: bool) -> None: ...
+
+    def fsr_silent(self, *, on: bool) -> None: ...
+
+    def fsr_spike(self, value_n: float) -> None: ...
+
+    def camera(self) -> FailingCamera: ...
+
+    def slip(self) -> str | None:
+        """The carried mug falls out of the gripper; its world id (None: nothing was held)."""
+
+    def counter_mugs(self) -> tuple[tuple[str, float, float], ...]:
+        """The world's mugs standing on the counter (id, x, y in metres), farthest from the gripper first."""
+
+    def move_mug(self, mug: str, dx_m: float, dy_m: float) -> None:
+        """Move a counter mug; ``ValueError`` when it cannot go there."""
+
+
+def set_camera_fault(camera: FailingCamera, fault: CameraFault | None) -> None:
+    """Make ``camera`` fail in the ``fault`` way (None: work again). A hung capture is released when the
+    hang gives way to another fault, as it is when the hang ends."""
+    if camera.fault == fault:
+        return
+    if fault is None or camera.fault == "hang":
+        camera.clear()
+    if fault is not None:
+        camera.set_fault(fault)
 
 
 class KinematicFaultCell:
@@ -31,74 +95,67 @@ class KinematicFaultCell:
 
     def __init__(self, counter: KinematicCounter) -> None:
         self._counter = counter
+        self._faults = counter.cell.world.faults
 
     def servo_ids(self) -> tuple[int, ...]:
-        return tuple(sorted(self._counter.cell.world.faults.servos))
+        return tuple(sorted(self._faults.servos))
 
-    def act(self, spec: FaultSpec) -> Acted:
-        world = self._counter.cell.world
-        faults = world.faults
-        kind, servo, lasting = spec.kind, spec.servo, spec.duration_s is not None
-        if kind in ("servo_overload", "servo_overheat"):
-            assert servo is not None
-            name = "overload" if kind == "servo_overload" else "overheating"
-            faults.trip(servo, name, lasting=lasting)
-            if not lasting:
-                faults.end(servo, name)  # the cause is gone at once; the bit stays latched until cleared
-                return None, {"servo": servo}
-            return (lambda: faults.end(servo, name)), {"servo": servo}
-        if kind == "servo_voltage":
-            assert servo is not None
-            faults.brown_out(servo)
-            return (lambda: faults.brown_out(servo, on=False)), {"servo": servo}
-        if kind == "servo_silent":
-            assert servo is not None
-            faults.silence(servo)
-            return (lambda: faults.silence(servo, on=False)), {"servo": servo}
-        if kind == "bus_corrupt":
-            assert spec.rate is not None
-            faults.corrupt_fraction(spec.rate, seed=spec.seed or 0, servo_id=servo)
-            return (lambda: faults.corrupt_fraction(0.0)), _bus_target(spec)
-        if kind == "bus_unplug":
-            if spec.device == "fsr":
-                faults.fsr_unplugged = True
-                return (lambda: setattr(faults, "fsr_unplugged", False)), {"device": "fsr"}
-            faults.unplug_bus()
-            return (lambda: faults.unplug_bus(False)), {"device": "servo"}
-        if kind == "fsr_drop":
-            faults.fsr_dropped = True
-            return (lambda: setattr(faults, "fsr_dropped", False)), {}
-        if kind == "fsr_spike":
-            faults.fsr_spikes.append(spec.value_n or 0.0)
-            return None, {"value_n": spec.value_n}
-        if kind == "fsr_silent":
-            faults.fsr_silent = True
-            return (lambda: setattr(faults, "fsr_silent", False)), {}
-        if kind in CAMERA_KINDS:
-            observer = self._counter.observer
-            assert observer is not None
-            observer.set_fault(_camera_fault(kind))
-            return observer.clear, {}
-        if kind == "mug_slip":
-            return None, {"mug": world.drop_held_mug()}
-        if kind == "mug_moved":
-            mug = spec.mug or self._farthest_counter_mug()
-            if mug is None:
-                return None, {"mug": None}
-            try:
-                world.move_mug(mug, spec.dx_m or 0.0, spec.dy_m or 0.0)
-            except ValueError as e:
-                return None, {"mug": mug, "error": str(e)}
-            return None, {"mug": mug, "dx_m": spec.dx_m, "dy_m": spec.dy_m}
-        raise AssertionError(f"no kinematic cell action for {kind}")
+    def servo_overloaded(self, servo: int, *, on: bool) -> None:
+        if on:
+            self._faults.trip(servo, "overload", lasting=True)
+        else:
+            self._faults.end(servo, "overload")
 
-    def _farthest_counter_mug(self) -> str | None:
+    def servo_trip(self, servo: int) -> None:
+        self._faults.trip(servo, "overload")
+
+    def servo_hot(self, servo: int, *, on: bool) -> None:
+        if on:
+            self._faults.trip(servo, "overheating", lasting=True)
+        else:
+            self._faults.end(servo, "overheating")
+
+    def servo_low_voltage(self, servo: int, *, on: bool) -> None:
+        self._faults.brown_out(servo, on=on)
+
+    def servo_silent(self, servo: int, *, on: bool) -> None:
+        self._faults.silence(servo, on=on)
+
+    def bus_corrupt(self, rate: float, *, seed: int, servo: int | None) -> None:
+        self._faults.corrupt_fraction(rate, seed=seed, servo_id=servo)
+
+    def unplugged(self, device: str, *, on: bool) -> None:
+        if device == "fsr":
+            self._faults.fsr_unplugged = on
+        else:
+            self._faults.unplug_bus(on)
+
+    def fsr_dropped(self, *, on: bool) -> None:
+        self._faults.fsr_dropped = on
+
+    def fsr_silent(self, *, on: bool) -> None:
+        self._faults.fsr_silent = on
+
+    def fsr_spike(self, value_n: float) -> None:
+        self._faults.fsr_spikes.append(value_n)
+
+    def camera(self) -> FailingCamera:
+        observer = self._counter.observer
+        assert observer is not None
+        return observer
+
+    def slip(self) -> str | None:
+        return self._counter.cell.world.drop_held_mug()
+
+    def counter_mugs(self) -> tuple[tuple[str, float, float], ...]:
         world = self._counter.cell.world
         p, _ = world.grasp_pose()
         on_counter = [m for m in world.mugs.values() if m.where == "counter"]
-        if not on_counter:
-            return None
-        return max(on_counter, key=lambda m: (math.hypot(m.x_m - p[0], m.y_m - p[1]), m.mug_id)).mug_id
+        ranked = sorted(on_counter, key=lambda m: (math.hypot(m.x_m - p[0], m.y_m - p[1]), m.mug_id))
+        return tuple((m.mug_id, m.x_m, m.y_m) for m in reversed(ranked))
+
+    def move_mug(self, mug: str, dx_m: float, dy_m: float) -> None:
+        self._counter.cell.world.move_mug(mug, dx_m, dy_m)
 
 
 class MujocoFaultCell:
@@ -108,71 +165,55 @@ class MujocoFaultCell:
 
     def __init__(self, counter: MujocoCounter) -> None:
         self._counter = counter
+        self._servos = counter.cell.servo_sim
+        self._fsr = counter.cell.fsr_sim
 
     def servo_ids(self) -> tuple[int, ...]:
-        return tuple(sorted(self._counter.cell.servo_sim.servo_ids))
+        return tuple(sorted(self._servos.servo_ids))
 
-    def act(self, spec: FaultSpec) -> Acted:
-        cell = self._counter.cell
-        servos, fsr = cell.servo_sim, cell.fsr_sim
-        kind, servo, lasting = spec.kind, spec.servo, spec.duration_s is not None
-        if kind == "servo_overload":
-            assert servo is not None
-            if not lasting:
-                servos.overload(servo)
-                return None, {"servo": servo}
-            servos.keep_overloaded(servo)
-            return (lambda: servos.keep_overloaded(servo, on=False)), {"servo": servo}
-        if kind == "servo_overheat":
-            assert servo is not None
-            # Hot until the fault ends (its duration, or the end of the run): the servo reports it in every
-            # status meanwhile, and a reset cannot clear it (the cause is still there).
-            servos.overheat(servo)
-            return (lambda: servos.overheat(servo, on=False)), {"servo": servo}
-        if kind == "servo_voltage":
-            assert servo is not None
-            servos.brown_out(servo)
-            return (lambda: servos.brown_out(servo, on=False)), {"servo": servo}
-        if kind == "servo_silent":
-            assert servo is not None
-            servos.silence(servo)
-            return (lambda: servos.silence(servo, on=False)), {"servo": servo}
-        if kind == "bus_corrupt":
-            assert spec.rate is not None
-            servos.corrupt_fraction(spec.rate, seed=spec.seed or 0, servo_id=servo)
-            return (lambda: servos.corrupt_fraction(0.0)), _bus_target(spec)
-        if kind == "bus_unplug":
-            device = fsr if spec.device == "fsr" else servos
-            device.unplug()
-            return device.replug, {"device": spec.device or "servo"}
-        if kind == "fsr_drop":
-            fsr.drop_force(True)
-            return (lambda: fsr.drop_force(False)), {}
-        if kind == "fsr_spike":
-            fsr.spike(spec.value_n or 0.0)
-            return None, {"value_n": spec.value_n}
-        if kind == "fsr_silent":
-            fsr.silence(True)
-            return (lambda: fsr.silence(False)), {}
-        if kind in CAMERA_KINDS:
-            camera = self._counter.camera
-            assert camera is not None
-            camera.set_fault(_camera_fault(kind))
-            return camera.clear, {}
-        if kind == "mug_slip":
-            return None, {"mug": cell.world.slip()}
-        if kind == "mug_moved":
-            mug = spec.mug or self._farthest_counter_mug()
-            if mug is None:
-                return None, {"mug": None}
-            try:
-                cell.world.move_mug(mug, spec.dx_m or 0.0, spec.dy_m or 0.0)
-            except ValueError as e:
-                return None, {"mug": mug, "error": str(e)}
-            return None, {"mug": mug, "dx_m": spec.dx_m, "dy_m": spec.dy_m}
-        raise AssertionError(f"no MuJoCo cell action for {kind}")
+    def servo_overloaded(self, servo: int, *, on: bool) -> None:
+        self._servos.keep_overloaded(servo, on=on)
 
-    def _farthest_counter_mug(self) -> str | None:
+    def servo_trip(self, servo: int) -> None:
+        self._servos.overload(servo)
+
+    def servo_hot(self, servo: int, *, on: bool) -> None:
+        self._servos.overheat(servo, on=on)
+
+    def servo_low_voltage(self, servo: int, *, on: bool) -> None:
+        self._servos.brown_out(servo, on=on)
+
+    def servo_silent(self, servo: int, *, on: bool) -> None:
+        self._servos.silence(servo, on=on)
+
+    def bus_corrupt(self, rate: float, *, seed: int, servo: int | None) -> None:
+        self._servos.corrupt_fraction(rate, seed=seed, servo_id=servo)
+
+    def unplugged(self, device: str, *, on: bool) -> None:
+        target = self._fsr if device == "fsr" else self._servos
+        if on:
+            target.unplug()
+        else:
+            target.replug()
+
+    def fsr_dropped(self, *, on: bool) -> None:
+        self._fsr.drop_force(on)
+
+    def fsr_silent(self, *, on: bool) -> None:
+        self._fsr.silence(on)
+
+    def fsr_spike(self, value_n: float) -> None:
+        self._fsr.spike(value_n)
+
+    def camera(self) -> FailingCamera:
+        camera = self._counter.camera
+        assert camera is not None
+        return camera
+
+    def slip(self) -> str | None:
+        return self._counter.cell.world.slip()
+
+    def counter_mugs(self) -> tuple[tuple[str, float, float], ...]:
         cell = self._counter.cell
         tcp = cell.world.tcp_position()
         tray = cell.layout.tray
@@ -181,16 +222,22 @@ class MujocoFaultCell:
             for t in cell.world.mug_truths().values()
             if not t.held and t.axis_z > 0.9 and not tray.contains(t.position_m[0], t.position_m[1])
         ]
-        if not standing:
-            return None
-        far = max(
+        ranked = sorted(
             standing, key=lambda t: (math.hypot(t.position_m[0] - tcp[0], t.position_m[1] - tcp[1]), t.mug_id)
         )
-        return far.mug_id
+        return tuple((t.mug_id, float(t.position_m[0]), float(t.position_m[1])) for t in reversed(ranked))
+
+    def move_mug(self, mug: str, dx_m: float, dy_m: float) -> None:
+        self._counter.cell.world.move_mug(mug, dx_m, dy_m)
 
 
-def _bus_target(spec: FaultSpec) -> dict[str, object]:
-    target: dict[str, object] = {"rate": spec.rate}
-    if spec.servo is not None:
-        target["servo"] = spec.servo
-    return target
+def cell_of(ctx: ServeContext) -> FaultCell | None:
+    """Where faults act in the daemon's backend: the kinematic or the MuJoCo cell (None: real hardware)."""
+    from daemon.sim_backend import KinematicCounter, MujocoCounter
+
+    counter = ctx.backend.counter
+    if isinstance(counter, KinematicCounter):
+        return KinematicFaultCell(counter)
+    if isinstance(counter, MujocoCounter):
+        return MujocoFaultCell(counter)
+    return None

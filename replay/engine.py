@@ -8,8 +8,9 @@ the simulated cell after. The operator's recorded commands are sent again at the
 follows the recording. Faults (``replay.faults``) act on the simulated cell; the first one to fire
 ends replaying, as any divergence does.
 
-The replay writes its own recording (kept only when asked, ``record``), and the trace read back from it is
-compared with the recorded one: the states entered, the events, the device commands
+The replay's trace is what its daemon publishes and records, taken as it happens (a tee on the session),
+not read back from the replay's own recording (kept only when asked, ``record``; a full disk cuts it); it
+is compared with the recorded one: the states entered, the events, the device commands
 (``replay.session.compare``).
 """
 
@@ -19,9 +20,12 @@ import asyncio
 import contextlib
 import dataclasses
 import json
+import os
 import shutil
+import signal
 import tempfile
-from collections.abc import Callable, Mapping, Sequence
+import threading
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -35,11 +39,12 @@ from daemon.clock import SimulatedClock, wall_seconds
 from daemon.config import Config
 from daemon.sdnotify import SdNotifier
 from daemon.security import ZenohConfig
-from recorder import read_messages
 from recorder.files import is_job_file
+from recorder.reader import RecordedMessage
 from replay.drivers import Replayer, replay_backend
 from replay.errors import ReplayError
-from replay.session import Divergence, RecordedSession, Trace, compare, trace_of
+from replay.faults import FaultOutcome
+from replay.session import Divergence, RecordedSession, Trace, compare, trace_of_messages
 
 log = structlog.get_logger("replay")
 
@@ -68,6 +73,8 @@ class FaultSource(Protocol):
     @property
     def fired(self) -> Sequence[Mapping[str, object]]: ...
 
+    def outcomes(self) -> tuple[FaultOutcome, ...]: ...
+
 
 @dataclass(frozen=True, slots=True)
 class ReplayOptions:
@@ -93,6 +100,12 @@ class ReplayReport:
     recording: Path | None  # the replay's own recording, when kept
     served: Mapping[str, int] = field(default_factory=dict)
     world: str = ""
+    fault_outcomes: tuple[FaultOutcome, ...] = ()  # every fault of the file: fired or not, and why not
+
+    @property
+    def unfired(self) -> tuple[FaultOutcome, ...]:
+        """The faults of the file that did not happen (a replay that tested less than it says)."""
+        return tuple(o for o in self.fault_outcomes if not o.fired)
 
     @property
     def match(self) -> bool:
@@ -111,6 +124,8 @@ class ReplayReport:
             "recorded_states": list(self.recorded.states),
             "events": [e.to_json() for e in self.replayed.events],
             "faults": [dict(f) for f in self.faults],
+            "fault_outcomes": [o.to_json() for o in self.fault_outcomes],
+            "unfired": len(self.unfired),
             "recorded_duration_s": round(self.recorded_duration_s, 6),
             "replay_duration_s": round(self.replay_duration_s, 6),
             "wall_s": round(self.wall_s, 3),
@@ -134,6 +149,7 @@ class ReplayReport:
         for f in self.faults:
             target = f" servo {f['servo']}" if f.get("servo") is not None else ""
             out.append(f"fault fired: {f.get('kind')}{target} at {float(f.get('fired_at_s', 0.0)):.3f} s")  # type: ignore[arg-type]
+        out.extend(o.line() for o in self.unfired)
         out.append(f"final state {self.replayed.final_state} (recorded: {self.recorded.final_state})")
         counts: dict[str, int] = {}
         for e in self.replayed.events:
@@ -150,24 +166,31 @@ def replay(
     session: RecordedSession, options: ReplayOptions = ReplayOptions(), *, faults: FaultSource | None = None
 ) -> ReplayReport:
     """Replay ``session`` (blocking: it runs its own simulated event loop)."""
-    if options.record is not None and options.record.exists():
-        raise ReplayError(f"--record {options.record}: the file exists; choose a new name")
+    if options.record is not None:
+        check_record_path(options.record)
+    sweep_stale_replay_dirs()
     wall_start = _wall_start(session)
     clock = SimulatedClock(speed=options.speed, wall_start=wall_start)
     started = wall_seconds()
-    with tempfile.TemporaryDirectory(prefix="dishbot-replay-") as tmp:
-        replayer, result_files = clock.run(_replay(session, options, clock, Path(tmp), faults))
+    tee = _Tee()
+    with _terminated_as_exit(), tempfile.TemporaryDirectory(prefix=f"{_TMP_PREFIX}{os.getpid()}-") as tmp:
+        replayer, result_files = clock.run(_replay(session, options, clock, Path(tmp), faults, tee))
         wall_s = wall_seconds() - started
-        jobs = [p for p in result_files if is_job_file(p)]
-        if not jobs:
-            raise ReplayError(f"{session.path}: the replay started no job (the daemon refused the start)")
-        read = read_messages(jobs[0])
-        replayed = trace_of(read)
+        # The trace is what the daemon published and recorded as it went, not what its recording kept
+        # (a full disk, a dropped message must not change the report).
+        replayed = trace_of_messages(tee.messages)
+        if not replayed.states:
+            raise ReplayError(
+                f"{session.path}: the replay started no job (the daemon refused the start, or was stopped "
+                "before it)"
+            )
         kept: Path | None = None
         if options.record is not None:
-            options.record.parent.mkdir(parents=True, exist_ok=True)
-            shutil.move(jobs[0], options.record)
-            kept = options.record
+            jobs = [p for p in result_files if is_job_file(p)]
+            if jobs:
+                options.record.parent.mkdir(parents=True, exist_ok=True)
+                shutil.move(jobs[0], options.record)
+                kept = options.record
     recorded = session.trace
     divergence = replayer.divergence
     compared = compare(recorded, replayed, prefix=session.cut is not None)
@@ -179,6 +202,7 @@ def replay(
         replayed=replayed,
         first_divergence=divergence,
         faults=tuple(faults.fired) if faults is not None else (),
+        fault_outcomes=faults.outcomes() if faults is not None else (),
         recorded_duration_s=recorded.duration_s,
         replay_duration_s=replayed.duration_s,
         wall_s=wall_s,
@@ -187,6 +211,81 @@ def replay(
         served=dict(replayer.served),
         world=session.world,
     )
+
+
+_TMP_PREFIX = "dishbot-replay-"
+
+
+def check_record_path(path: Path) -> None:
+    """``--record PATH`` can be written: a new file in a directory that exists (or can be made) and is
+    writable; ``ReplayError`` (one line) before anything runs otherwise."""
+    if path.exists() or path.is_symlink():
+        raise ReplayError(f"--record {path}: the file exists; choose a new name")
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ReplayError(f"--record {path}: {parent} is not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ReplayError(f"--record {path}: cannot write in {parent} (permission denied)")
+
+
+def sweep_stale_replay_dirs(base: Path | None = None) -> None:
+    """Remove the working directories of replays whose process is gone (killed: nothing ran their
+    clean-up); a replay's directory is named after its process id."""
+    base = base if base is not None else Path(tempfile.gettempdir())
+    for d in base.glob(f"{_TMP_PREFIX}*-*"):
+        pid_text = d.name.removeprefix(_TMP_PREFIX).split("-", 1)[0]
+        if not pid_text.isdigit() or not d.is_dir() or _alive(int(pid_text)):
+            continue
+        shutil.rmtree(d, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def _terminated_as_exit() -> Iterator[None]:
+    """SIGTERM ends the replay as an exception does, so that its working directory is removed (while the
+    daemon runs, its own handler stops it in order instead)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def terminated(signum: int, _frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    previous = signal.signal(signal.SIGTERM, terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # another user's
+    return True
+
+
+class _Tee:
+    """Every message the daemon hands its recorder (what it publishes, and the driver-boundary inputs and
+    device commands it records), with the log time it stamped, as it happens: the replay's trace. Taken
+    before the recorder's queue and disk, so a dropped or unwritten message is still in the trace."""
+
+    def __init__(self) -> None:
+        self.messages: list[RecordedMessage] = []
+
+    def install(self, ctx: ServeContext) -> None:
+        recording = ctx.recording
+        write = recording.write
+
+        def tee(topic: str, payload: Mapping[str, object], *, log_time_ns: int) -> bool:
+            self.messages.append(RecordedMessage(topic, log_time_ns, dict(payload)))
+            return write(topic, payload, log_time_ns=log_time_ns)
+
+        recording.write = tee  # type: ignore[method-assign]
 
 
 def _wall_start(session: RecordedSession) -> float:
@@ -213,6 +312,7 @@ async def _replay(
     clock: SimulatedClock,
     record_dir: Path,
     faults: FaultSource | None,
+    tee: _Tee,
 ) -> tuple[Replayer, tuple[Path, ...]]:
     config = replay_config(session, options, record_dir)
     dataset = session.scene.get("dataset") if session.job.get("mugs") is None else None
@@ -265,6 +365,7 @@ async def _replay(
         faults.on_fire = fired
 
     def on_ready(ctx: ServeContext) -> None:
+        tee.install(ctx)
         if faults is not None:
             faults.attach(ctx)
         drive.append(asyncio.create_task(_drive(session, replayer, ctx), name="replay"))

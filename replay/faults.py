@@ -32,9 +32,9 @@ import signal
 import time
 import tomllib
 from collections.abc import Callable, Coroutine, Mapping, Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Final, Protocol
+from typing import TYPE_CHECKING, Any, Final
 
 import structlog
 
@@ -47,6 +47,7 @@ if TYPE_CHECKING:
 
     from daemon.app import RunOptions, ServeContext, ServeHooks
     from daemon.config import Config
+    from replay.cells import FaultCell
 
 log = structlog.get_logger("replay.faults")
 
@@ -174,6 +175,46 @@ _FIELD_HELP: Final = {
 
 
 @dataclass(frozen=True, slots=True)
+class Range:
+    """The values a number of a fault file may take: ``[low, high]`` (``(low, high]`` when ``open_low``)."""
+
+    low: float
+    high: float
+    unit: str = ""
+    open_low: bool = False
+
+    def text(self) -> str:
+        unit = f" {self.unit}" if self.unit else ""
+        return f"{'(' if self.open_low else '['}{_number(self.low)}, {_number(self.high)}]{unit}"
+
+
+def _number(value: float) -> str:
+    """``86400``, ``0.5``, ``1e+300``: whole numbers in full, as a file would hold them."""
+    if math.isfinite(value) and float(value).is_integer() and abs(value) < 1e15:
+        return str(int(value))
+    return f"{value:g}"
+
+
+DAY_S: Final = 86_400.0
+# Every number a fault file can hold, with the values it may take (docs/recording.md lists them).
+RANGES: Final[Mapping[str, Range]] = {
+    "at_s": Range(0.0, DAY_S, "s"),
+    "after_s": Range(0.0, DAY_S, "s"),
+    "occurrence": Range(1, 10_000),
+    "duration_s": Range(0.0, DAY_S, "s", open_low=True),
+    "servo": Range(0, 253),
+    "rate": Range(0.0, 1.0, open_low=True),
+    "seed": Range(0, 2**32 - 1),
+    "value_n": Range(0.0, 1000.0, "N"),
+    "dx_m": Range(-1.0, 1.0, "m"),
+    "dy_m": Range(-1.0, 1.0, "m"),
+}
+# A loop_stall blocks the event loop for its duration of wall time: at most a minute (past WatchdogSec,
+# systemd has long restarted the daemon).
+LOOP_STALL_RANGE: Final = Range(0.0, 60.0, "s", open_low=True)
+
+
+@dataclass(frozen=True, slots=True)
 class FaultSpec:
     """One ``[[fault]]`` entry, validated; ``index`` is its place in the file (1-based)."""
 
@@ -298,38 +339,36 @@ class _Entry:
         kind = f" ({self.kind})" if self.kind is not None else ""
         return UsageError(f"{self.source}: fault {self.index}{kind}: {key}: {problem}")
 
-    def number(
-        self, key: str, *, minimum: float = 0.0, strict: bool = False, unit: str = "s"
-    ) -> float | None:
+    def out_of_range(self, key: str, value: float, limits: Range) -> UsageError:
+        return self.error(key, f"{_number(value)} is out of range; allowed {limits.text()}")
+
+    def number(self, key: str, limits: Range) -> float | None:
         value = self.table.get(key)
         if value is None:
             return None
+        unit = limits.unit
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise self.error(key, f"must be a number{f' ({unit})' if unit else ''}, got {_shown(value)}")
         value = float(value)
         if not math.isfinite(value):
             raise self.error(key, f"must be a finite number, got {value}")
-        if value < minimum or (strict and value == minimum):
-            bound = f"greater than {minimum:g}" if strict else f"at least {minimum:g}"
+        if value < limits.low or (limits.open_low and value == limits.low):
+            bound = f"greater than {limits.low:g}" if limits.open_low else f"at least {limits.low:g}"
             raise self.error(key, f"must be {bound}{f' {unit}' if unit else ''}, got {value:g}")
+        if value > limits.high:
+            raise self.out_of_range(key, value, limits)
         return value
 
-    def real(self, key: str) -> float | None:
-        value = self.table.get(key)
-        if value is None:
-            return None
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise self.error(key, f"must be a finite number (metres), got {_shown(value)}")
-        return float(value)
-
-    def integer(self, key: str, *, minimum: int) -> int | None:
+    def integer(self, key: str, limits: Range) -> int | None:
         value = self.table.get(key)
         if value is None:
             return None
         if isinstance(value, bool) or not isinstance(value, int):
             raise self.error(key, f"must be an integer, got {_shown(value)}")
-        if value < minimum:
-            raise self.error(key, f"must be at least {minimum}, got {value}")
+        if value < limits.low:
+            raise self.error(key, f"must be at least {limits.low:g}, got {value}")
+        if value > limits.high:
+            raise self.out_of_range(key, value, limits)
         return value
 
     def text(self, key: str) -> str | None:
@@ -338,6 +377,8 @@ class _Entry:
             return None
         if not isinstance(value, str) or not value:
             raise self.error(key, f"must be a non-empty string, got {_shown(value)}")
+        if len(value) > 64:
+            raise self.error(key, f"must be at most 64 characters, got {len(value)}")
         return value
 
 
@@ -373,7 +414,7 @@ def _entry(index: int, table: Mapping[str, Any], source: str, servos: tuple[int,
     for key in spec.required:
         if key not in table:
             raise e.error(key, f"missing ({_FIELD_HELP.get(key, key)})")
-    at_s = e.number("at_s")
+    at_s = e.number("at_s", RANGES["at_s"])
     at_state = e.text("at_state")
     if at_s is None and at_state is None:
         raise e.error("at_s", "missing: give at_s (simulated seconds from the session start) or at_state")
@@ -384,42 +425,37 @@ def _entry(index: int, table: Mapping[str, Any], source: str, servos: tuple[int,
             "at_state",
             f"{at_state!r} is not a state of the chart (e.g. detect, flip, flip.turn, place.release)",
         )
-    occurrence = e.integer("occurrence", minimum=1)
-    after_s = e.number("after_s")
+    occurrence = e.integer("occurrence", RANGES["occurrence"])
+    after_s = e.number("after_s", RANGES["after_s"])
     if at_state is None:
         for key in ("occurrence", "after_s"):
             if key in table:
                 raise e.error(key, "only with at_state (at_s already says when)")
-    duration_s = e.number("duration_s", strict=True)
+    duration_s = e.number("duration_s", LOOP_STALL_RANGE if kind == "loop_stall" else RANGES["duration_s"])
     if kind == "loop_stall" and duration_s is None:
         duration_s = LOOP_STALL_DEFAULT_S
-    servo = e.integer("servo", minimum=0)
-    if servo is not None:
-        if servo > 253:
-            raise e.error("servo", f"must be a servo ID 0-253, got {servo}")
-        if servos is not None and servo not in servos:
-            raise e.error(
-                "servo", f"no servo {servo} in the configured chain ({', '.join(map(str, servos))})"
-            )
-    rate = e.number("rate", strict=True, unit="")
-    if rate is not None and rate > 1.0:
+    servo = e.integer("servo", Range(0, math.inf))
+    if servo is not None and servo > RANGES["servo"].high:
+        raise e.error("servo", f"must be a servo ID 0-253, got {servo}")
+    if servo is not None and servos is not None and servo not in servos:
+        raise e.error("servo", f"no servo {servo} in the configured chain ({', '.join(map(str, servos))})")
+    rate = e.number("rate", replace(RANGES["rate"], high=math.inf))
+    if rate is not None and rate > RANGES["rate"].high:
         raise e.error("rate", f"must be in (0, 1], got {rate:g}")
     device = e.text("device")
     if kind == "bus_unplug":
         device = device or "servo"
         if device not in BUS_DEVICES:
             raise e.error("device", f"must be {' or '.join(map(repr, BUS_DEVICES))}, got {device!r}")
-    value_n = e.real("value_n")
-    if value_n is not None and value_n < 0:
-        raise e.error("value_n", f"must be at least 0 N, got {value_n:g}")
+    value_n = e.number("value_n", RANGES["value_n"])
     if kind == "fsr_spike" and value_n is None:
         value_n = 0.0
-    dx_m, dy_m = e.real("dx_m"), e.real("dy_m")
+    dx_m, dy_m = e.number("dx_m", RANGES["dx_m"]), e.number("dy_m", RANGES["dy_m"])
     if kind == "mug_moved" and not (dx_m or dy_m):
         raise e.error("dx_m", "missing: say how far to move the mug (dx_m, dy_m in metres, not both 0)")
     if kind == "mug_moved":
         dx_m, dy_m = dx_m or 0.0, dy_m or 0.0
-    seed = e.integer("seed", minimum=0)
+    seed = e.integer("seed", RANGES["seed"])
     if kind == "bus_corrupt" and seed is None:
         seed = 0
     return FaultSpec(
@@ -443,27 +479,85 @@ def _entry(index: int, table: Mapping[str, Any], source: str, servos: tuple[int,
 
 # --- making faults happen ---------------------------------------------------------------------------------
 
-End = Callable[[], None]
+# Which camera fault shows when several act at once: a hung capture hides everything else, a missing frame
+# hides what the frame would have been, a bad frame is bad whether or not it is new.
+_CAMERA_PRECEDENCE: Final = ("camera_hang", "camera_no_frame", "camera_bad_frame", "camera_stale")
+_ONCE_KINDS: Final = frozenset({"fsr_spike", "mug_slip", "mug_moved", "sigterm", "loop_stall"})
+
+Slot = tuple[str, ...]  # one device condition that lasting faults hold: ("servo_silent", "3"), ("camera",)
 
 
-class Cell(Protocol):
-    """Where the faults of one simulated cell act; each returns how to end a lasting fault (None: it needs no
-    ending) and what it acted on, for the report."""
+def slot_of(spec: FaultSpec) -> Slot | None:
+    """The device condition a lasting fault holds while it acts; the faults of one slot act together and
+    the condition lasts while any of them does. None for a fault that happens once (an overload without
+    ``duration_s`` trips once and stays latched in the servo, not in the injector)."""
+    kind = spec.kind
+    if kind in _ONCE_KINDS or (kind == "servo_overload" and spec.duration_s is None):
+        return None
+    if kind in SERVO_KINDS:
+        return (kind, str(spec.servo))
+    if kind in CAMERA_KINDS:
+        return ("camera",)
+    if kind == "bus_unplug":
+        return (kind, spec.device or "servo")
+    return (kind,)
 
-    name: str
 
-    def servo_ids(self) -> tuple[int, ...]: ...
+@dataclass(frozen=True, slots=True)
+class FaultOutcome:
+    """What became of one fault of the file: fired (when, ended when) or not, and why not."""
 
-    def act(self, spec: FaultSpec) -> tuple[End | None, dict[str, object]]: ...
+    index: int
+    kind: str
+    trigger: str
+    fired: bool
+    fired_at_s: float | None = None
+    ended_at_s: float | None = None  # None for a fired fault: it happens once, or lasted to the end
+    reason: str | None = None  # why it did not fire (or fired on nothing)
+    target: Mapping[str, object] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, object]:
+        out: dict[str, object] = {
+            "index": self.index,
+            "kind": self.kind,
+            "trigger": self.trigger,
+            "fired": self.fired,
+        }
+        if self.fired_at_s is not None:
+            out["fired_at_s"] = self.fired_at_s
+        if self.ended_at_s is not None:
+            out["ended_at_s"] = self.ended_at_s
+        if self.reason is not None:
+            out["reason"] = self.reason
+        out.update(self.target)
+        return out
+
+    def line(self) -> str:
+        """``fault 2 (camera_stale at detect #3): not fired: detect was entered 2 times, ...``."""
+        head = f"fault {self.index} ({self.kind} {self.trigger})"
+        target = f" servo {self.target['servo']}" if self.target.get("servo") is not None else ""
+        if not self.fired:
+            return f"{head}: NOT FIRED: {self.reason}"
+        text = f"{head}: fired{target} at {self.fired_at_s:.3f} s"
+        if self.ended_at_s is not None:
+            text += f", ended at {self.ended_at_s:.3f} s"
+        return text
 
 
 class FaultInjector:
     """Makes ``faults`` happen in a running daemon (plug ``hooks()`` into ``serve``).
 
     ``on_fire`` is called with each fault just before it takes effect. ``fired`` lists what happened:
-    ``{"kind", "fired_at_s", "index", ...target}`` and ``ended_at_s`` once a lasting fault ends. Faults are
-    timed on the daemon's clock from ``attach`` (the session's start). A fault the cell cannot have is refused
-    at ``attach`` with one line naming it (``UsageError``).
+    ``{"kind", "fired_at_s", "index", ...target}`` and ``ended_at_s`` once a lasting fault ends;
+    ``outcomes()`` says for every fault of the file whether it fired and, when not, why. Faults are timed on
+    the daemon's clock from ``attach`` (the session's start). A fault the cell cannot have is refused at
+    ``attach`` with one line naming it (``UsageError``).
+
+    Faults compose: each lasting fault holds its device condition (``slot_of``) while it acts, several on
+    one device act together, and each one's end takes away only its own part (the condition goes when the
+    last fault holding it ends). Camera faults at once show by ``_CAMERA_PRECEDENCE``; corrupt-packet faults
+    at once corrupt as independent sources do, ``1 - (1 - a)(1 - b)``, on the servo they share or else the
+    whole chain.
     """
 
     def __init__(
@@ -473,13 +567,18 @@ class FaultInjector:
         self.on_fire = on_fire
         self.fired: list[dict[str, object]] = []
         self._ctx: ServeContext | None = None
-        self._cell: Cell | None = None
+        self._cell: FaultCell | None = None
         self._t0 = 0.0
         self._entries: dict[str, int] = {}
         self._waiting = [f for f in self.faults if f.at_state is not None]
+        self._due: dict[int, float] = {}  # triggered, waiting for after_s: the time it is due
+        self._no_effect: dict[int, str] = {}  # fired on nothing: why
+        self._records: dict[int, dict[str, object]] = {}
+        self._active: dict[Slot, list[FaultSpec]] = {}
         self._tasks: set[asyncio.Task[None]] = set()
         self._peer: _LoopbackPeer | None = None
-        self._ends: list[End] = []
+        self._ended_s: float | None = None
+        self._seen_by_job: dict[str, tuple[float, float]] = {}  # the job's last look: its mug ids, where
 
     # --- wiring --------------------------------------------------------------------------------------------
 
@@ -502,6 +601,8 @@ class FaultInjector:
     def attach(self, ctx: ServeContext) -> None:
         """The daemon is ready: find what each fault acts on, refuse the ones the cell cannot have, and
         schedule the timed ones."""
+        from replay.cells import cell_of
+
         self._ctx = ctx
         self._cell = cell_of(ctx)
         for spec in self.faults:
@@ -512,8 +613,14 @@ class FaultInjector:
                 self._spawn(self._fire_at(spec, self._t0 + spec.at_s))
 
     def on_publish(self, topic: str, payload: Mapping[str, object]) -> None:
-        """Count state entries (``transition`` events on ``events``) for the ``at_state`` faults."""
+        """Count state entries (``transition`` events on ``events``) for the ``at_state`` faults: an entry
+        from outside the state; a resume after a pause goes back into a state and is not one."""
+        if topic == "detections":
+            self._seen_by_job = _job_mugs(payload)
+            return
         if topic != "events" or payload.get("kind") != "transition" or self._ctx is None:
+            return
+        if payload.get("trigger") == "resume":
             return
         dest = str(payload.get("dest", ""))
         source = str(payload.get("source", ""))
@@ -529,19 +636,73 @@ class FaultInjector:
                 if spec.after_s == 0.0:
                     self._fire(spec)
                 else:
-                    self._spawn(self._fire_at(spec, self._ctx.clock.monotonic() + spec.after_s))
+                    due = self._ctx.clock.monotonic() + spec.after_s
+                    self._due[spec.index] = due - self._t0
+                    self._spawn(self._fire_at(spec, due))
 
     def close(self) -> None:
         """End every fault still on (a replugged bus, a freed disk) and close the loopback peer."""
+        if self._ctx is not None and self._ended_s is None:
+            self._ended_s = round(self._ctx.clock.monotonic() - self._t0, 3)
         for task in self._tasks:
             task.cancel()
-        for end in self._ends:
-            with contextlib.suppress(Exception):
-                end()
-        self._ends.clear()
+        for slot, active in self._active.items():
+            if active and slot != ("zenoh_peer_loss",):
+                before = tuple(active)
+                active.clear()
+                with contextlib.suppress(Exception):
+                    self._apply(slot, before, ())
+        self._active.clear()
         if self._peer is not None:
-            self._peer.close()
+            with contextlib.suppress(Exception):
+                self._peer.close()
             self._peer = None
+
+    # --- what became of each fault -------------------------------------------------------------------------
+
+    def outcomes(self) -> tuple[FaultOutcome, ...]:
+        """Every fault of the file, fired or not, and why not (past the end of the run, the state never
+        entered, the occurrence not reached, nothing to act on)."""
+        end = self._ended_s
+        if end is None and self._ctx is not None:
+            end = round(self._ctx.clock.monotonic() - self._t0, 3)
+        return tuple(self._outcome(spec, end) for spec in self.faults)
+
+    def unfired(self) -> tuple[FaultOutcome, ...]:
+        return tuple(o for o in self.outcomes() if not o.fired)
+
+    def _outcome(self, spec: FaultSpec, end: float | None) -> FaultOutcome:
+        record = self._records.get(spec.index)
+        ran = "the run" if end is None else f"the run ended at {end:.3f} s"
+        if record is not None:
+            target = {k: v for k, v in record.items() if k not in _RECORD_KEYS}
+            fired_at = record.get("fired_at_s")
+            ended_at = record.get("ended_at_s")
+            reason = self._no_effect.get(spec.index)
+            return FaultOutcome(
+                spec.index,
+                spec.kind,
+                spec.trigger,
+                reason is None,
+                float(fired_at) if isinstance(fired_at, int | float) else None,
+                float(ended_at) if isinstance(ended_at, int | float) else None,
+                None if reason is None else f"it came at {fired_at} s with nothing to act on: {reason}",
+                target,
+            )
+        if spec.at_s is not None:
+            reason = f"past the end of the run: due at {spec.at_s:g} s, {ran}"
+        else:
+            assert spec.at_state is not None
+            entries = self._entries.get(spec.at_state, 0)
+            due = self._due.get(spec.index)
+            if due is not None:
+                reason = f"past the end of the run: due at {due:.3f} s ({spec.trigger}), {ran}"
+            elif entries == 0:
+                reason = f"the job never entered {spec.at_state}"
+            else:
+                times = "once" if entries == 1 else f"{entries} times"
+                reason = f"occurrence {spec.occurrence} not reached: the job entered {spec.at_state} {times}"
+        return FaultOutcome(spec.index, spec.kind, spec.trigger, False, reason=reason)
 
     # --- firing --------------------------------------------------------------------------------------------
 
@@ -581,19 +742,18 @@ class FaultInjector:
         entered is there before the state's work starts)."""
         ctx = self._ctx
         assert ctx is not None
+        self._due.pop(spec.index, None)
         if self.on_fire is not None:
             self.on_fire(spec)
         fired_at = round(ctx.clock.monotonic() - self._t0, 3)
         record: dict[str, object] = {"kind": spec.kind, "fired_at_s": fired_at, "index": spec.index}
-        end, target = self._act(spec)
-        record.update(target)
+        slot = slot_of(spec)
+        record.update(self._once(spec) if slot is None else self._start(slot, spec))
         self.fired.append(record)
+        self._records[spec.index] = record
         self._report(record)
-        if end is None:
-            return
-        self._ends.append(end)
-        if spec.duration_s is not None and spec.kind != "loop_stall":
-            self._spawn(self._end_after(spec, record, end))
+        if slot is not None and spec.duration_s is not None:
+            self._spawn(self._end_after(spec, slot, record))
 
     def _report(self, record: Mapping[str, object]) -> None:
         """Log the firing (``fault_injected``, also published on ``log``) and publish it on ``events``."""
@@ -611,58 +771,212 @@ class FaultInjector:
         }
         ctx.session.publish("events", event)
 
-    async def _end_after(self, spec: FaultSpec, record: dict[str, object], end: End) -> None:
+    def _start(self, slot: Slot, spec: FaultSpec) -> dict[str, object]:
+        active = self._active.setdefault(slot, [])
+        before = tuple(active)
+        active.append(spec)
+        self._apply(slot, before, tuple(active))
+        return _target(spec, self._peer)
+
+    async def _end_after(self, spec: FaultSpec, slot: Slot, record: dict[str, object]) -> None:
         ctx = self._ctx
         assert ctx is not None
         assert spec.duration_s is not None
         await ctx.clock.sleep(spec.duration_s)
-        if end in self._ends:
-            self._ends.remove(end)
-        if spec.kind == "zenoh_peer_loss" and self._peer is not None:
-            await asyncio.to_thread(self._peer.open)
+        active = self._active.get(slot, [])
+        before = tuple(active)
+        active.remove(spec)
+        if slot == ("zenoh_peer_loss",):
+            if not active and self._peer is not None:
+                await asyncio.to_thread(self._peer.open)
         else:
-            end()
+            self._apply(slot, before, tuple(active))
         record["ended_at_s"] = round(ctx.clock.monotonic() - self._t0, 3)
+        still = [s.index for s in active]
         log.info("fault_ended", fault=spec.kind, index=spec.index, ended_at_s=record["ended_at_s"])
-        ctx.session.publish(
-            "events",
-            {
-                "kind": "fault_ended",
-                "fault": spec.kind,
-                "index": spec.index,
-                "ended_at_s": record["ended_at_s"],
-                "state": ctx.job.chart.state,
-                "t": ctx.clock.now(),
-            },
-        )
+        event: dict[str, object] = {
+            "kind": "fault_ended",
+            "fault": spec.kind,
+            "index": spec.index,
+            "ended_at_s": record["ended_at_s"],
+            "state": ctx.job.chart.state,
+            "t": ctx.clock.now(),
+        }
+        if still:
+            event["still_acting"] = still  # the device stays as the other faults on it hold it
+        ctx.session.publish("events", event)
 
-    def _act(self, spec: FaultSpec) -> tuple[End | None, dict[str, object]]:
+    def _apply(self, slot: Slot, before: tuple[FaultSpec, ...], after: tuple[FaultSpec, ...]) -> None:
+        """Set the device condition ``slot`` to what the faults ``after`` hold together (was: ``before``)."""
+        from replay.cells import set_camera_fault
+
+        kind = slot[0]
         ctx = self._ctx
         assert ctx is not None
-        kind = spec.kind
-        if kind == "sigterm":
-            os.kill(os.getpid(), signal.SIGTERM)
-            return None, {}
-        if kind == "loop_stall":
-            assert spec.duration_s is not None
-            _stall(spec.duration_s)
-            return None, {"stalled_s": spec.duration_s}
+        if kind == "camera":
+            first = min(after, key=lambda s: _CAMERA_PRECEDENCE.index(s.kind), default=None)
+            assert self._cell is not None
+            set_camera_fault(self._cell.camera(), None if first is None else CAMERA_KINDS[first.kind])
+            return
+        if kind == "bus_corrupt":
+            assert self._cell is not None
+            rate, seed, servo = _combined_corruption(after)
+            self._cell.bus_corrupt(rate, seed=seed, servo=servo)
+            return
+        if bool(before) == bool(after):
+            return
+        on = bool(after)
         if kind == "disk_full":
-            disk = ctx.recording.disk
-            clock = ctx.clock
-            disk.fill(_log_time_ns(clock.now()))
-            return (lambda: disk.free(_log_time_ns(clock.now()))), {}
+            disk, clock = ctx.recording.disk, ctx.clock
+            (disk.fill if on else disk.free)(_log_time_ns(clock.now()))
+            return
         if kind == "zenoh_peer_loss":
             peer = self._peer
             assert peer is not None
-            # Closing a Zenoh session blocks until its links are down: off the loop.
-            self._spawn(asyncio.to_thread(peer.close))
-            return peer.close, {"peer": peer.endpoint}
-        assert self._cell is not None
-        return self._cell.act(spec)
+            # Closing or opening a Zenoh session blocks until its links are up or down: off the loop.
+            self._spawn(asyncio.to_thread(peer.close if on else peer.open))
+            return
+        cell = self._cell
+        assert cell is not None
+        if kind == "bus_unplug":
+            cell.unplugged(slot[1], on=on)
+        elif kind == "fsr_drop":
+            cell.fsr_dropped(on=on)
+        elif kind == "fsr_silent":
+            cell.fsr_silent(on=on)
+        else:
+            servo = int(slot[1])
+            {
+                "servo_overload": cell.servo_overloaded,
+                "servo_overheat": cell.servo_hot,
+                "servo_voltage": cell.servo_low_voltage,
+                "servo_silent": cell.servo_silent,
+            }[kind](servo, on=on)
+
+    def _once(self, spec: FaultSpec) -> dict[str, object]:
+        """Make a fault that happens once happen; what it acted on."""
+        kind = spec.kind
+        if kind == "sigterm":
+            os.kill(os.getpid(), signal.SIGTERM)
+            return {}
+        if kind == "loop_stall":
+            assert spec.duration_s is not None
+            _stall(spec.duration_s)
+            return {"stalled_s": spec.duration_s}
+        cell = self._cell
+        assert cell is not None
+        if kind == "servo_overload":
+            assert spec.servo is not None
+            cell.servo_trip(spec.servo)
+            return {"servo": spec.servo}
+        if kind == "fsr_spike":
+            cell.fsr_spike(spec.value_n or 0.0)
+            return {"value_n": spec.value_n}
+        if kind == "mug_slip":
+            carried = self._ctx.job.status().get("current_mug") if self._ctx is not None else None
+            world_mug = cell.slip()
+            if world_mug is None:
+                self._no_effect[spec.index] = "no mug was held"
+            return {"mug": carried if world_mug is not None else None, "world_mug": world_mug}
+        return self._move_mug(spec, cell)
+
+    def _move_mug(self, spec: FaultSpec, cell: FaultCell) -> dict[str, object]:
+        """Move a counter mug of the world: ``mug`` names it by the job's id (where the job last saw it;
+        a name the job does not know is taken as the world's own, as fault files before job ids did), by
+        default the one farthest from the gripper. The event names both."""
+        ctx = self._ctx
+        assert ctx is not None
+        dx, dy = spec.dx_m or 0.0, spec.dy_m or 0.0
+        standing = {m: (x, y) for m, x, y in cell.counter_mugs()}
+        if spec.mug is not None and spec.mug in self._seen_by_job:
+            world_mug = _nearest(self._seen_by_job[spec.mug], standing)
+            if world_mug is None:
+                self._no_effect[spec.index] = f"the job's mug {spec.mug} was not standing on the counter"
+                return {"mug": spec.mug, "world_mug": None}
+        else:
+            world_mug = spec.mug or next(iter(standing), None)
+        if world_mug is None:
+            self._no_effect[spec.index] = "no mug stood on the counter"
+            return {"mug": None, "world_mug": None}
+        job_mug = self._job_id_of(standing.get(world_mug))
+        named: dict[str, object] = {"mug": job_mug, "world_mug": world_mug}
+        if world_mug not in standing:
+            self._no_effect[spec.index] = f"mug {world_mug} was not standing on the counter"
+            return named
+        x0, y0, x1, y1 = ctx.config.cell.counter_region_m
+        x, y = standing[world_mug][0] + dx, standing[world_mug][1] + dy
+        if not (x0 <= x <= x1 and y0 <= y <= y1):
+            self._no_effect[spec.index] = (
+                f"moving mug {world_mug} by ({dx:g}, {dy:g}) m would put it at ({x:.3f}, {y:.3f}) m, off "
+                f"the counter region [{x0:g}, {y0:g}, {x1:g}, {y1:g}]"
+            )
+            return named
+        try:
+            cell.move_mug(world_mug, dx, dy)
+        except ValueError as e:
+            self._no_effect[spec.index] = str(e)
+            return named
+        return {**named, "dx_m": spec.dx_m, "dy_m": spec.dy_m}
+
+    def _job_id_of(self, where: tuple[float, float] | None) -> str | None:
+        """The job's id of the mug standing at ``where`` (None: the job has not seen it there)."""
+        return None if where is None else _nearest(where, self._seen_by_job)
 
 
+# How far the job's last sight of a mug may be from where the world has it, to be the same mug (m).
+_SAME_MUG_M: Final = 0.05
+
+
+def _nearest(where: tuple[float, float], candidates: Mapping[str, tuple[float, float]]) -> str | None:
+    """The key of the candidate nearest ``where``, within ``_SAME_MUG_M``; None when none is."""
+    best = min(candidates, key=lambda k: math.dist(where, candidates[k]), default=None)
+    if best is None or math.dist(where, candidates[best]) > _SAME_MUG_M:
+        return None
+    return best
+
+
+def _job_mugs(payload: Mapping[str, object]) -> dict[str, tuple[float, float]]:
+    """The mugs a ``detections`` payload names, by the job's id: where they were seen."""
+    mugs = payload.get("mugs")
+    out: dict[str, tuple[float, float]] = {}
+    if isinstance(mugs, list):
+        for m in mugs:
+            if isinstance(m, Mapping) and isinstance(m.get("id"), str):
+                x, y = m.get("x_m"), m.get("y_m")
+                if isinstance(x, int | float) and isinstance(y, int | float):
+                    out[str(m["id"])] = (float(x), float(y))
+    return out
+
+
+_RECORD_KEYS: Final = ("kind", "index", "fired_at_s", "ended_at_s")
 _CELL_KINDS: Final = frozenset(FAULT_KINDS) - {"sigterm", "loop_stall", "disk_full", "zenoh_peer_loss"}
+
+
+def _target(spec: FaultSpec, peer: _LoopbackPeer | None) -> dict[str, object]:
+    """What a lasting fault acts on, for its ``fault_injected`` event."""
+    if spec.kind in SERVO_KINDS:
+        return {"servo": spec.servo}
+    if spec.kind == "bus_corrupt":
+        target: dict[str, object] = {"rate": spec.rate}
+        if spec.servo is not None:
+            target["servo"] = spec.servo
+        return target
+    if spec.kind == "bus_unplug":
+        return {"device": spec.device or "servo"}
+    if spec.kind == "zenoh_peer_loss" and peer is not None:
+        return {"peer": peer.endpoint}
+    return {}
+
+
+def _combined_corruption(active: Sequence[FaultSpec]) -> tuple[float, int, int | None]:
+    """The rate, seed and servo of corrupt-packet faults acting together (rate 0: none)."""
+    if not active:
+        return 0.0, 0, None
+    clean = 1.0
+    for spec in active:
+        clean *= 1.0 - (spec.rate or 0.0)
+    servos = {spec.servo for spec in active}
+    return 1.0 - clean, active[0].seed or 0, servos.pop() if len(servos) == 1 else None
 
 
 def _log_time_ns(t: float) -> int:
@@ -702,31 +1016,16 @@ class _LoopbackPeer:
             session.close()  # type: ignore[no-untyped-call]
 
 
-def cell_of(ctx: ServeContext) -> Cell | None:
-    """Where faults act in the daemon's backend: the kinematic or the MuJoCo cell (None: real hardware)."""
-    from daemon.sim_backend import KinematicCounter, MujocoCounter
-
-    counter = ctx.backend.counter
-    if isinstance(counter, KinematicCounter):
-        from replay.cells import KinematicFaultCell
-
-        return KinematicFaultCell(counter)
-    if isinstance(counter, MujocoCounter):
-        from replay.cells import MujocoFaultCell
-
-        return MujocoFaultCell(counter)
-    return None
-
-
 __all__ = [
     "CAMERA_KINDS",
     "FAULT_KINDS",
     "SERVO_KINDS",
-    "Cell",
     "FaultInjector",
+    "FaultOutcome",
     "FaultSpec",
     "KindSpec",
     "dump_faults",
     "load_fault_file",
     "parse_faults",
+    "slot_of",
 ]

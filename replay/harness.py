@@ -6,13 +6,16 @@ loads the plugin.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from recorder import RecordingRead, read_messages
 from replay.engine import Faults, ReplayOptions, ReplayReport, fault_text, replay
+from replay.faults import FaultOutcome
 from replay.session import Divergence, RecordedSession, TraceEvent
 
 
@@ -44,6 +47,16 @@ class ReplayTrace:
     def faults(self) -> list[dict[str, object]]:
         """The faults fired: ``kind``, ``fired_at_s`` and the target."""
         return [dict(f) for f in self.report.faults]
+
+    @property
+    def fault_outcomes(self) -> list[FaultOutcome]:
+        """Every fault of the file: fired (when, ended when) or not, and why not."""
+        return list(self.report.fault_outcomes)
+
+    @property
+    def unfired(self) -> list[FaultOutcome]:
+        """The faults of the file that did not happen."""
+        return list(self.report.unfired)
 
     @property
     def events_by_kind(self) -> dict[str, list[TraceEvent]]:
@@ -95,8 +108,12 @@ class DishbotReplay:
         *,
         faults: Faults | None = None,
         speed: float | None = None,
+        may_not_fire: bool | Collection[int] = False,
     ) -> ReplayTrace:
-        """Replay ``session`` with ``faults`` (a fault file, TOML text or a list of ``[[fault]]`` tables)."""
+        """Replay ``session`` with ``faults`` (a fault file, TOML text or a list of ``[[fault]]`` tables).
+
+        A fault that did not fire fails the test (it would pass without testing what it says), unless the
+        test says it may not: ``may_not_fire=True`` for any, or the faults' places in the file (1-based)."""
         recorded = session if isinstance(session, RecordedSession) else self.load(session)
         self._n += 1
         out = self._dir / f"replay-{self._n}.mcap"
@@ -108,4 +125,12 @@ class DishbotReplay:
                 parse_faults(fault_text(faults), source="faults", config=recorded.config)
             )
         report = replay(recorded, ReplayOptions(speed=speed, record=out), faults=injector)
+        allowed = may_not_fire if not isinstance(may_not_fire, bool) else ()
+        missed = [o for o in report.unfired if may_not_fire is not True and o.index not in allowed]
+        if missed:
+            pytest.fail(
+                "; ".join(o.line() for o in missed)
+                + " (pass may_not_fire=True, or the faults' indices, if that is expected)",
+                pytrace=False,
+            )
         return ReplayTrace(report, read_messages(out))

@@ -169,11 +169,18 @@ def device_command(suffix: str, payload: Mapping[str, object], t_s: float) -> De
 
 def trace_of(read: RecordingRead, *, start_ns: int | None = None) -> Trace:
     """The trace in a recording, its times from ``start_ns`` (default: the job's ``start`` transition)."""
-    messages = list(read.messages)
+    return trace_of_messages(read.messages, start_ns=start_ns, first_ns=read.start_ns)
+
+
+def trace_of_messages(
+    messages: Sequence[RecordedMessage], *, start_ns: int | None = None, first_ns: int | None = None
+) -> Trace:
+    """The trace in ``messages`` (as recorded, or as the daemon published and recorded them), its times
+    from ``start_ns`` (default: the job's ``start`` transition, else ``first_ns``)."""
     if start_ns is None:
         start_ns = job_start_ns(messages)
     if start_ns is None:
-        start_ns = read.start_ns or 0
+        start_ns = first_ns or 0
     states: list[str] = []
     times: list[float] = []
     events: list[TraceEvent] = []
@@ -388,6 +395,10 @@ class RecordedSession:
             raise ReplayError(f"{path}: the session header has no config or scene")
         if (isinstance(file, Mapping) and file.get("kind") != "job") or not isinstance(job, Mapping):
             raise ReplayError(f"{path}: an idle recording holds no job to replay; give a -job.mcap file")
+        if clock is not None and not isinstance(clock, Mapping):
+            raise ReplayError(f"{path}: the session header's clock is {_shown(clock)}, not a table")
+        if isinstance(clock, Mapping) and clock.get("source") == "simulated":
+            _check_wall_start(path, clock.get("wall_start"))
         backend = str(scene.get("backend", ""))
         if backend not in SIM_BACKENDS:
             raise ReplayError(
@@ -428,6 +439,29 @@ class RecordedSession:
             trace=trace_of(read, start_ns=start_ns),
             mono_offset_s=_mono_offset(streams.get("input/joints", []), clock),
         )
+
+
+# The simulated clock's wall start a header may hold: from 2000 to 2100 (seconds since 1970). Another value
+# is a damaged or forged header, and would put every log time out of what MCAP and the clock can hold.
+WALL_START_RANGE: Final = (946_684_800.0, 4_102_444_800.0)
+
+
+def _check_wall_start(path: Path, value: object) -> None:
+    low, high = WALL_START_RANGE
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ReplayError(
+            f"{path}: the session header's clock.wall_start is {_shown(value)}; a simulated session's "
+            "clock needs its wall-clock start (seconds since 1970)"
+        )
+    if not math.isfinite(value) or not low <= value <= high:
+        raise ReplayError(
+            f"{path}: the session header's clock.wall_start {value:g} is out of range; allowed "
+            f"[{low:.0f}, {high:.0f}] (2000-2100, seconds since 1970)"
+        )
+
+
+def _shown(value: object) -> str:
+    return "missing" if value is None else repr(value)
 
 
 def _start_monotonic(start: RecordedMessage, joints: Sequence[Recorded], clock: object) -> float:

@@ -25,8 +25,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
             "results, observations, plans, the operator's commands) stand in for the cell's while the "
             "daemon does what it did then; from the first difference, or the first injected fault, the "
             "simulated cell carries on alone. Prints whether the trace matched or where it first diverged, "
-            "the faults fired, the final state and the events. Exit 0 when the replay ran (with --check: "
-            "1 when a replay without faults did not match), 2 for bad input. See docs/recording.md."
+            "the faults fired, every fault of the file that did not fire and why, the final state and the "
+            "events. Exit 0 when the replay ran (with --check: 1 when a replay without faults did not "
+            "match, or a fault of the file did not fire), 2 for bad input. See docs/recording.md."
         ),
     )
     parser.add_argument("session", type=Path, metavar="SESSION.mcap", help="a job recording")
@@ -59,7 +60,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser.add_argument(
         "--check",
         action="store_true",
-        help="exit 1 when a replay without faults does not match the recording",
+        help="exit 1 when a replay without faults does not match the recording, or a fault did not fire",
     )
     add_json_flag(parser)
     parser.set_defaults(handler=_replay)
@@ -67,7 +68,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 def _replay(args: argparse.Namespace) -> int:
     from daemon.clock import parse_speed
-    from replay.engine import ReplayOptions, replay
+    from replay.engine import ReplayOptions, check_record_path, replay
     from replay.session import RecordedSession
 
     try:
@@ -78,9 +79,9 @@ def _replay(args: argparse.Namespace) -> int:
         listen = tuple(check_endpoint(e, "--listen") for e in args.listen or ())
     except ConfigError as e:
         raise UsageError(str(e)) from e
-    if args.record is not None and args.record.exists():
-        raise UsageError(f"--record {args.record}: the file exists; choose a new name")
     try:
+        if args.record is not None:
+            check_record_path(args.record)  # before a long replay, not after it
         session = RecordedSession.load(args.session)
     except ReplayError as e:
         raise UsageError(str(e)) from e
@@ -104,6 +105,6 @@ def _replay(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
     else:
         sys.stdout.write("\n".join(report.lines()) + "\n")
-    if args.check and args.faults is None and not report.match:
+    if args.check and (report.unfired or (args.faults is None and not report.match)):
         return 1
     return 0

@@ -160,7 +160,10 @@ def _run(args: argparse.Namespace) -> int:
         if injector is not None:
             injector.close()
     if args.once:
-        _print_summary(result, injector.fired if injector is not None else ())
+        if injector is None:
+            _print_summary(result)
+        else:
+            _print_summary(result, injector.fired, [o.line() for o in injector.unfired()])
         return 0 if result.end_state == "done" else 1
     return 0
 
@@ -322,7 +325,9 @@ def _endpoints(values: list[str], flag: str) -> list[str]:
         raise UsageError(str(e)) from e
 
 
-def _print_summary(result: RunResult, fired: Sequence[Mapping[str, object]] = ()) -> None:
+def _print_summary(
+    result: RunResult, fired: Sequence[Mapping[str, object]] = (), unfired: Sequence[str] = ()
+) -> None:
     s = result.summary
     out = sys.stdout
     out.write(f"job ended in state {result.end_state}\n")
@@ -342,6 +347,8 @@ def _print_summary(result: RunResult, fired: Sequence[Mapping[str, object]] = ()
         out.write(f"fault: {reason}\n")
     for record in fired:
         out.write(f"{fault_fired_line(record)}\n")
+    for line in unfired:  # a fault of the file that did not happen: the run did not test what it says
+        out.write(f"{line}\n")
     out.write(f"recording {result.recording}\n")
 
 

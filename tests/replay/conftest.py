@@ -23,9 +23,11 @@ def kinematic_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return record_job(tmp_path_factory.mktemp("kinematic"), world="kinematic", mugs=THREE_MUGS).path
 
 
-def copy_recording(source: Path, target: Path, change: Change) -> Path:
+def copy_recording(
+    source: Path, target: Path, change: Change, *, clock: Mapping[str, object] | None = None
+) -> Path:
     """``source`` written again to ``target`` with the real Recorder, each message's payload passed through
-    ``change(topic_suffix, payload)`` (None leaves the message out)."""
+    ``change(topic_suffix, payload)`` (None leaves the message out); ``clock`` replaces the header's."""
     read = read_messages(source)
     messages = list(read.messages)
     header = messages[0].payload
@@ -37,7 +39,7 @@ def copy_recording(source: Path, target: Path, change: Change) -> Path:
             log_time_ns=messages[0].log_time_ns,
             job=_mapping(header.get("job")),
             file=_mapping(header.get("file")),
-            clock=_mapping(header.get("clock")),
+            clock=clock if clock is not None else _mapping(header.get("clock")),
         )
         for m in messages[1:]:
             suffix = m.topic.split("/", 2)[2]

@@ -158,7 +158,7 @@ def test_a_full_entry_parses_with_its_defaults() -> None:
         ),
         (
             '[[fault]]\nkind = "mug_moved"\nat_s = 2\ndx_m = "far"\n',
-            "faults.toml: fault 1 (mug_moved): dx_m: must be a finite number (metres), got 'far'",
+            "faults.toml: fault 1 (mug_moved): dx_m: must be a number (m), got 'far'",
         ),
         (
             '[[fault]]\nkind = "mug_moved"\nat_s = 2\ndx_m = 0.05\nmug = ""\n',
@@ -181,6 +181,60 @@ def test_a_full_entry_parses_with_its_defaults() -> None:
     ],
 )
 def test_a_bad_entry_is_one_line_naming_the_entry_and_the_field(text: str, message: str) -> None:
+    assert error_of(text).startswith(message)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (
+            '[[fault]]\nkind = "loop_stall"\nat_s = 1\nduration_s = 1e300\n',
+            "faults.toml: fault 1 (loop_stall): duration_s: 1e+300 is out of range; allowed (0, 60] s",
+        ),
+        (
+            '[[fault]]\nkind = "loop_stall"\nat_s = 1\nduration_s = 1e6\n',
+            "faults.toml: fault 1 (loop_stall): duration_s: 1000000 is out of range; allowed (0, 60] s",
+        ),
+        (
+            '[[fault]]\nkind = "fsr_drop"\nat_s = 1\nduration_s = 1e300\n',
+            "faults.toml: fault 1 (fsr_drop): duration_s: 1e+300 is out of range; allowed (0, 86400] s",
+        ),
+        (
+            '[[fault]]\nkind = "fsr_drop"\nat_s = 1e9\n',
+            "faults.toml: fault 1 (fsr_drop): at_s: 1000000000 is out of range; allowed [0, 86400] s",
+        ),
+        (
+            '[[fault]]\nkind = "fsr_drop"\nat_state = "detect"\nafter_s = 1e7\n',
+            "faults.toml: fault 1 (fsr_drop): after_s: 10000000 is out of range; allowed [0, 86400] s",
+        ),
+        (
+            '[[fault]]\nkind = "fsr_drop"\nat_state = "detect"\noccurrence = 1000000\n',
+            "faults.toml: fault 1 (fsr_drop): occurrence: 1000000 is out of range; allowed [1, 10000]",
+        ),
+        (
+            '[[fault]]\nkind = "mug_moved"\nat_s = 1\ndx_m = 1e6\n',
+            "faults.toml: fault 1 (mug_moved): dx_m: 1000000 is out of range; allowed [-1, 1] m",
+        ),
+        (
+            '[[fault]]\nkind = "mug_moved"\nat_s = 1\ndy_m = -3\n',
+            "faults.toml: fault 1 (mug_moved): dy_m: must be at least -1 m, got -3",
+        ),
+        (
+            '[[fault]]\nkind = "bus_corrupt"\nat_s = 1\nrate = 0.1\nseed = 1099511627776\n',
+            "faults.toml: fault 1 (bus_corrupt): seed: 1099511627776 is out of range; allowed "
+            "[0, 4294967295]",
+        ),
+        (
+            '[[fault]]\nkind = "fsr_spike"\nat_s = 1\nvalue_n = 1e5\n',
+            "faults.toml: fault 1 (fsr_spike): value_n: 100000 is out of range; allowed [0, 1000] N",
+        ),
+        (
+            '[[fault]]\nkind = "mug_moved"\nat_s = 1\ndx_m = 0.1\nmug = "' + "m" * 65 + '"\n',
+            "faults.toml: fault 1 (mug_moved): mug: must be at most 64 characters, got 65",
+        ),
+    ],
+)
+def test_every_number_has_a_range_and_a_value_outside_it_is_one_line(text: str, message: str) -> None:
     assert error_of(text).startswith(message)
 
 
@@ -210,6 +264,7 @@ def test_the_example_fault_files_parse() -> None:
 
 _times = st.floats(min_value=0.0, max_value=1e4, allow_nan=False, allow_infinity=False)
 _positive = st.floats(min_value=1e-3, max_value=1e3, allow_nan=False, allow_infinity=False)
+_stalls = st.floats(min_value=1e-3, max_value=60.0, allow_nan=False, allow_infinity=False)
 _offsets = st.floats(min_value=-1.0, max_value=1.0, allow_nan=False, allow_infinity=False).filter(bool)
 
 
@@ -225,7 +280,7 @@ def fault_specs(draw: st.DrawFn, index: int) -> FaultSpec:
         values["occurrence"] = draw(st.integers(min_value=1, max_value=5))
         values["after_s"] = draw(_times)
     if "duration_s" in spec.keys and draw(st.booleans()):
-        values["duration_s"] = draw(_positive)
+        values["duration_s"] = draw(_stalls if kind == "loop_stall" else _positive)
     elif kind == "loop_stall":
         values["duration_s"] = 2.0
     if "servo" in spec.keys and (kind != "bus_corrupt" or draw(st.booleans())):
@@ -270,3 +325,5 @@ def test_the_docs_list_every_kind_and_their_example_parses() -> None:
     shown = re.findall(r"^dishbot run: error: (faults\.toml: fault 2 .*)$", section, flags=re.MULTILINE)
     text = '[[fault]]\nkind = "fsr_drop"\nat_s = 1\n\n[[fault]]\nkind = "servo_overload"\nat_s = 2\n'
     assert shown == [error_of(text)]
+    ranged = re.findall(r"^dishbot replay: error: (faults\.toml: .*)$", section, flags=re.MULTILINE)
+    assert ranged == [error_of('[[fault]]\nkind = "loop_stall"\nat_s = 1\nduration_s = 1e300\n')]

@@ -101,7 +101,7 @@ def test_an_overheated_servo_faults_the_job_at_its_next_move(tmp_path: Path) -> 
     assert run.event("servo_fault")["faults"] == "['overheating']"
     assert "servo 2 on sim reports overheating" in str(run.event("fault")["reason"])
     servo = world(run).faults.servo(2)
-    assert servo.latched == {"overheating"}  # cooled at once (no duration_s), still latched
+    assert servo.latched == {"overheating"}  # hot until the end of the run (no duration_s), still latched
 
 
 def test_a_low_servo_voltage_is_a_warning_the_daemon_does_not_act_on(tmp_path: Path) -> None:
@@ -276,7 +276,9 @@ def test_a_slipping_mug_really_falls_and_is_recovered(tmp_path: Path) -> None:
         tmp_path, '[[fault]]\nkind = "mug_slip"\nat_state = "flip.transit"\nafter_s = 0.5\n'
     )
     fired = injected(run, "mug_slip", "flip.transit")
-    assert fired["mug"] == "m2"  # the world's mug that was carried
+    assert fired["world_mug"] == "m2"  # the world's mug that was carried
+    # ... named in the event by the job's id, as the job's own events name it
+    assert fired["mug"] == run.event("mug_dropped")["mug_id"]
     assert run.event("mug_dropped")["state"] == "flip.transit"
     assert "recover_lost_mug" in run.states
     assert "mug_found" in run.kinds()
@@ -289,7 +291,10 @@ def test_a_mug_moved_while_the_arm_works_elsewhere_is_moved_in_the_world(tmp_pat
         tmp_path, '[[fault]]\nkind = "mug_moved"\nat_state = "side_grasp.lift"\ndx_m = 0.05\ndy_m = -0.01\n'
     )
     fired = injected(run, "mug_moved", "side_grasp.lift")
-    assert (fired["mug"], fired["dx_m"], fired["dy_m"]) == ("m1", 0.05, -0.01)
+    assert (fired["world_mug"], fired["dx_m"], fired["dy_m"]) == ("m1", 0.05, -0.01)
+    # The job's id of that mug: the one its last look saw there.
+    seen = [p for t, p in run.recorded if t.endswith("/detections")]
+    assert fired["mug"] in {str(m["id"]) for p in seen for m in p["mugs"]}  # type: ignore[attr-defined]
     moved = next(p for t, p in run.recorded if t.endswith("/log") and p.get("event") == "sim_mug_moved")
     assert moved["mug_id"] == "m1"
     assert run.result.end_state == "done"  # the next look finds it where it now is
@@ -426,3 +431,28 @@ def test_device_faults_on_a_backend_without_a_simulated_cell_are_refused_at_atta
         "fault 1 (fsr_drop): the fake backend has no simulated devices or world to fail; fault files run on "
         "the simulated cell (--sim)"
     )
+
+
+def test_mug_moved_names_the_mug_by_the_jobs_id_and_a_move_it_cannot_make_does_not_fire(
+    tmp_path: Path,
+) -> None:
+    # The job picks its m2 first: while it lifts it, its m1 is moved; m2 is in the gripper, not on the
+    # counter; and 0.9 m would put a mug off the counter.
+    run = run_with_faults(
+        tmp_path,
+        '[[fault]]\nkind = "mug_moved"\nmug = "m1"\nat_state = "side_grasp.lift"\ndx_m = -0.03\n\n'
+        '[[fault]]\nkind = "mug_moved"\nmug = "m2"\nat_state = "side_grasp.lift"\ndx_m = 0.03\n\n'
+        '[[fault]]\nkind = "mug_moved"\nat_state = "side_grasp.lift"\ndx_m = 0.9\n',
+    )
+    looks = [p["mugs"] for t, p in run.recorded if t.endswith("/detections")]
+    assert all(isinstance(look, list) for look in looks)
+    m1 = [(m["x_m"], m["y_m"]) for look in looks for m in look if m["id"] == "m1"]  # type: ignore[attr-defined]
+    # The job's own m1 was moved: its next look sees it 3 cm back along x.
+    assert m1[1][0] - m1[0][0] == pytest.approx(-0.03, abs=0.005)
+    assert m1[1][1] == pytest.approx(m1[0][1], abs=0.005)
+    assert [f["mug"] for f in run.injector.fired] == ["m1", "m2", "m1"]
+    outcomes = run.injector.outcomes()
+    assert [o.fired for o in outcomes] == [True, False, False]
+    assert str(outcomes[1].reason).endswith("the job's mug m2 was not standing on the counter")
+    assert "off the counter region" in str(outcomes[2].reason)
+    assert run.result.end_state == "done"

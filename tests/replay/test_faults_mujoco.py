@@ -126,7 +126,8 @@ def test_a_slipping_mug_falls_out_of_the_physics_gripper_and_the_fsr_sees_it(tmp
         world="mujoco",
         mugs=1,
     )
-    assert run.injector.fired[0]["mug"] == "m1"
+    assert run.injector.fired[0]["world_mug"] == "m1"
+    assert run.injector.fired[0]["mug"] == run.event("mug_dropped")["mug_id"]  # the job's id
     assert run.event("mug_dropped")["state"] == "flip.transit"
     assert "recover_lost_mug" in run.states
     truth = cell(run).world.mug_truths()["m1"]
