@@ -168,7 +168,13 @@ class Backend:
         return base
 
     async def close(self) -> None:
-        await self.closer()
+        """Release the devices. One that cannot be reached now (a silent servo, a pulled adapter: the arm
+        cannot be relaxed) is logged, not raised: the others are released all the same, and the daemon's
+        shutdown goes on to its end."""
+        try:
+            await self.closer()
+        except (DriverError, BusLost) as e:
+            log.error("device_close_failed", error=f"{type(e).__name__}: {e}")
 
 
 Sink = Callable[[str, Mapping[str, object]], None]

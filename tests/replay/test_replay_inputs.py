@@ -21,6 +21,7 @@ from replay.engine import ReplayOptions, replay, sweep_stale_replay_dirs
 from replay.faults import FaultInjector, parse_faults
 from replay.session import RecordedSession
 from tests.replay.conftest import copy_recording
+from tests.replay.faulty import run_with_faults
 from tests.replay.test_run_faults_cli import without_logs
 
 
@@ -162,3 +163,21 @@ def test_a_disk_full_replay_reports_what_the_daemon_did_not_what_its_recording_k
         m for m in read_messages(kept) if m.topic.endswith("/events") and m.payload["kind"] == "transition"
     ]
     assert len(kept_transitions) < len(report.replayed.states)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "fault",
+    [
+        'kind = "servo_silent"\nservo = 3\nat_state = "detect"\nduration_s = 30\n',
+        'kind = "bus_unplug"\nat_state = "detect"\nduration_s = 30\n',
+    ],
+)
+def test_a_daemon_whose_servo_is_gone_at_shutdown_still_shuts_down_cleanly(
+    tmp_path: Path, fault: str
+) -> None:
+    """The job faults at once and the daemon stops while the servo is still silent (or the adapter still
+    pulled): the arm cannot be relaxed, which is logged, and shutdown goes on to its end."""
+    run = run_with_faults(tmp_path, f"[[fault]]\n{fault}", world="mujoco", mugs=1)
+    assert run.result.end_state == "fault"
+    assert [o.fired for o in run.injector.outcomes()] == [True]
