@@ -249,12 +249,21 @@ def _terminated_as_exit() -> Iterator[None]:
         yield
         return
 
+    received: list[int] = []
+
     def terminated(signum: int, _frame: object) -> None:
+        received.append(signum)
         raise SystemExit(128 + signum)
 
     previous = signal.signal(signal.SIGTERM, terminated)
     try:
         yield
+    except Exception as e:
+        # Raised where the signal landed, the exit can come out as another error (an import it interrupted
+        # fails with ImportError): it is still the termination.
+        if received:
+            raise SystemExit(128 + received[0]) from e
+        raise
     finally:
         signal.signal(signal.SIGTERM, previous)
 

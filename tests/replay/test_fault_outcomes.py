@@ -14,6 +14,7 @@ import pytest
 from cli.main import main
 from daemon.app import ServeContext
 from replay.harness import DishbotReplay
+from tests.daemon.conftest import free_port
 from tests.replay.faulty import run_with_faults
 from tests.replay.test_run_faults_cli import without_logs
 
@@ -144,9 +145,11 @@ def test_run_once_prints_the_faults_that_did_not_fire(
     capsys.readouterr()
     code = main(
         ["run", "--sim", "--world", "kinematic", "--once", "--config", str(config), "--faults", str(faults),
-         "--record-dir", str(tmp_path / "rec")]
+         "--record-dir", str(tmp_path / "rec"), "--listen", f"tcp/127.0.0.1:{free_port()}"]
     )  # fmt: skip
-    lines = without_logs(capsys.readouterr().out).splitlines()
+    out, err = capsys.readouterr()
+    lines = without_logs(out).splitlines()
+    assert without_logs(err) == ""
     assert code == 1  # the overload ended the job in fault before it could lose a mug
     assert (
         "fault 2 (fsr_spike at recover_lost_mug): NOT FIRED: the job never entered recover_lost_mug" in lines
