@@ -20,15 +20,22 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
-if TYPE_CHECKING:  # problem.py checks mugs already on the tray with these shapes
-    from planning.placement.problem import MugType
-
 FloatArray = npt.NDArray[np.float64]
+
+
+class MugSize(Protocol):
+    """What an outline needs of a mug type (``problem.MugType`` has it; problem.py imports this module)."""
+
+    @property
+    def diameter_mm(self) -> int: ...
+
+    @property
+    def width_mm(self) -> int: ...
 
 # Half the handle's thickness seen from above: the simulated mugs' handle capsules (sim/mujoco/scene.py,
 # HANDLE_RADIUS_M) and the motion planner's handle check (HANDLE_HALF_THICKNESS_M) use the same 5 mm.
@@ -48,7 +55,7 @@ class MugOutline:
     half_thickness: float
 
     @staticmethod
-    def of(t: MugType) -> MugOutline:
+    def of(t: MugSize) -> MugOutline:
         r = t.diameter_mm / 2.0
         tip = max(r, t.width_mm - r - HANDLE_HALF_THICKNESS_MM)
         return MugOutline(r, r, tip, HANDLE_HALF_THICKNESS_MM)
