@@ -38,6 +38,7 @@ def test_the_readme_has_console_examples() -> None:
 
 
 @pytest.mark.parametrize(("command", "expected"), console_examples())
+@pytest.mark.slow
 def test_readme_example_prints_what_the_readme_says(command: str, expected: list[str]) -> None:
     argv = shlex.split(command)
     assert argv[0] == "dishbot"

@@ -9,6 +9,7 @@ import pytest
 from cli.main import main
 
 
+@pytest.mark.slow
 def test_bench_motion_json_reports_ik_trajectories_and_the_dataset_cycle(
     capsys: pytest.CaptureFixture[str],
 ) -> None:

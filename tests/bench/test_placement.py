@@ -9,6 +9,7 @@ import pytest
 from cli.main import main
 
 
+@pytest.mark.slow
 def test_bench_reports_each_method_with_the_thesis_figures(capsys: pytest.CaptureFixture[str]) -> None:
     code = main(
         ["bench", "placement", "--runs", "2", "--datasets", "2", "--methods", "bh,exact,auto", "--json"]
@@ -34,6 +35,7 @@ def test_bench_reports_each_method_with_the_thesis_figures(capsys: pytest.Captur
     assert mug["cpu_s"] > 0
 
 
+@pytest.mark.slow
 def test_bench_table_shows_progress_on_stderr_and_the_mug_shaped_table(
     capsys: pytest.CaptureFixture[str],
 ) -> None:

@@ -164,6 +164,7 @@ print(json.dumps(sorted(loaded)))
 """
 
 
+@pytest.mark.slow
 def test_the_hardware_backend_loads_neither_the_simulated_worlds_nor_mujoco() -> None:
     root = Path(__file__).parents[2]
     done = subprocess.run(

@@ -84,6 +84,7 @@ def command_paths(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()) -
                 yield from command_paths(sub, (*path, name))
 
 
+@pytest.mark.slow
 def test_no_help_screen_loads_a_heavy_library(tmp_path: Path) -> None:
     paths = list(command_paths(build_parser()))
     assert ("bench", "sim") in paths
@@ -96,12 +97,14 @@ def test_no_help_screen_loads_a_heavy_library(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     "argv", [("config", "show"), ("config", "show", "--json"), ("statechart",)], ids=" ".join
 )
+@pytest.mark.slow
 def test_a_local_verb_loads_no_heavy_library(tmp_path: Path, argv: tuple[str, ...]) -> None:
     [result] = run_cli(tmp_path, argv)
     assert result["code"] == 0
     assert heavy_loaded([result]) == {}
 
 
+@pytest.mark.slow
 def test_the_client_verbs_load_no_heavy_library_while_they_command_a_daemon(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     base = ("--connect", endpoint, "--robot", ROBOT)

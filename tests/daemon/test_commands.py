@@ -157,6 +157,7 @@ def test_each_class_of_bad_command_is_refused_with_its_reason_and_changes_nothin
 VERBS = ("status", "start", "pause", "resume", "stop", "estop", "reset")
 
 
+@pytest.mark.slow
 def test_deep_or_huge_payloads_are_refused_with_their_reason_for_every_verb(tmp_path: Path) -> None:
     deep = b"[" * 2000 + b"]" * 2000  # 4000 bytes: under the size limit, far past the nesting limit
     deep_object = b'{"mugs": ' + b'{"a": ' * 9 + b"1" + b"}" * 10
@@ -297,6 +298,7 @@ _json = st.recursive(
 
 @settings(max_examples=200, deadline=None)
 @given(verb=st.sampled_from(["start", "pause", "status", "nope"]), body=_json)
+@pytest.mark.slow
 def test_the_parser_accepts_or_refuses_any_json_with_a_bad_command_error(verb: str, body: object) -> None:
     config = _CONFIG
     message = "accepted"
@@ -335,6 +337,7 @@ def test_any_integer_in_a_numeric_field_is_accepted_or_refused_in_one_line_namin
         assert len(message) < 100
 
 
+@pytest.mark.slow
 def test_monitor_prints_state_changes_and_events_of_a_running_job(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -402,6 +405,7 @@ def test_the_nesting_check_agrees_with_the_parsed_depth(body: object, levels: in
     assert nested_deeper_than(json.dumps(body), levels) == (_depth(body) > levels)
 
 
+@pytest.mark.slow
 def test_a_command_flood_with_a_slow_subscriber_is_answered_in_full_and_changes_nothing(
     tmp_path: Path,
 ) -> None:

@@ -87,6 +87,7 @@ def the_recording(tmp_path: Path) -> Path:
     return files[0]
 
 
+@pytest.mark.slow
 def test_daemon_notifies_ready_pings_the_watchdog_and_stops_cleanly_on_sigterm(
     tmp_path: Path, notify_socket: socket.socket
 ) -> None:
@@ -111,6 +112,7 @@ def test_daemon_notifies_ready_pings_the_watchdog_and_stops_cleanly_on_sigterm(
     assert stopping.startswith("STOPPING=1")
 
 
+@pytest.mark.slow
 def test_daemon_killed_with_sigkill_leaves_a_recording_readable_to_about_a_second_before(
     tmp_path: Path, notify_socket: socket.socket
 ) -> None:

@@ -27,6 +27,7 @@ def _run(tmp_path: Path, scenario: Callable[[Rig, Daemon], Awaitable[None]], **k
     asyncio.run(go())
 
 
+@pytest.mark.slow
 def test_a_gripper_overload_is_recovered_reported_and_the_job_goes_on(tmp_path: Path) -> None:
     async def scenario(r: Rig, d: Daemon) -> None:
         # The servo trips the first time a closing goal reaches it (a jam), then closes normally.
@@ -59,6 +60,7 @@ def test_a_gripper_that_keeps_tripping_faults_the_job_and_only_reset_leaves(tmp_
     _run(tmp_path, scenario)
 
 
+@pytest.mark.slow
 def test_an_arm_servo_that_stays_overloaded_faults_the_idle_daemon_after_the_grace(tmp_path: Path) -> None:
     async def scenario(r: Rig, d: Daemon) -> None:
         r.servos.overload(2)
@@ -73,6 +75,7 @@ def test_an_arm_servo_that_stays_overloaded_faults_the_idle_daemon_after_the_gra
     _run(tmp_path, scenario)
 
 
+@pytest.mark.slow
 def test_a_servo_that_stops_answering_faults_the_daemon_naming_it(tmp_path: Path) -> None:
     async def scenario(r: Rig, d: Daemon) -> None:
         r.servos.silence(3)
@@ -102,6 +105,7 @@ def test_corrupt_packets_are_retried_and_counted_without_a_fault(tmp_path: Path)
     _run(tmp_path, scenario)
 
 
+@pytest.mark.slow
 def test_unplugging_the_servo_adapter_reports_the_lost_bus_and_faults(tmp_path: Path) -> None:
     async def scenario(r: Rig, d: Daemon) -> None:
         assert (await d.command("start"))["ok"]
@@ -130,6 +134,7 @@ def test_unplugging_the_servo_adapter_reports_the_lost_bus_and_faults(tmp_path: 
     _run(tmp_path, scenario)
 
 
+@pytest.mark.slow
 def test_a_silent_force_sensor_while_carrying_faults_the_job(tmp_path: Path) -> None:
     async def scenario(r: Rig, d: Daemon) -> None:
         assert (await d.command("start"))["ok"]
@@ -145,6 +150,7 @@ def test_a_silent_force_sensor_while_carrying_faults_the_job(tmp_path: Path) -> 
     _run(tmp_path, scenario, carry_s=1.5)
 
 
+@pytest.mark.slow
 def test_an_unplugged_force_sensor_while_idle_is_reported_and_refuses_a_start_until_back(
     tmp_path: Path,
 ) -> None:
@@ -164,6 +170,7 @@ def test_an_unplugged_force_sensor_while_idle_is_reported_and_refuses_a_start_un
     _run(tmp_path, scenario)
 
 
+@pytest.mark.slow
 def test_the_force_dropping_while_carrying_recovers_the_lost_mug(tmp_path: Path) -> None:
     async def scenario(r: Rig, d: Daemon) -> None:
         assert (await d.command("start"))["ok"]
@@ -193,6 +200,7 @@ def _sim(tmp_path: Path, scenario: Callable[[SimDaemon], Awaitable[None]], **kw:
 
 
 @pytest.mark.parametrize("protocol", [1, 2])
+@pytest.mark.slow
 def test_reset_clears_a_tripped_arm_servo_and_the_job_can_start_again(tmp_path: Path, protocol: int) -> None:
     """1.0: Torque Limit restored and torque enabled again; 2.0: REBOOT, then torque enabled again."""
 

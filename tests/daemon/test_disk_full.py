@@ -29,6 +29,7 @@ ROBOT = "diskfull"
 FULL_FOR_S = 0.02  # the fake cell's whole job takes about a tenth of a simulated second
 
 
+@pytest.mark.slow
 def test_a_disk_full_mid_job_is_published_shown_in_status_and_counted_and_the_job_ends_done(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -31,6 +31,7 @@ def run_without(module: str, *argv: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow
 def test_run_on_the_mujoco_cell_without_the_sim_extra_names_the_extra(tmp_path: Path) -> None:
     proc = run_without(
         "mujoco",
@@ -45,6 +46,7 @@ def test_run_on_the_mujoco_cell_without_the_sim_extra_names_the_extra(tmp_path: 
 
 
 @pytest.mark.parametrize("bench", ["sim", "perception"])
+@pytest.mark.slow
 def test_the_mujoco_benchmarks_without_the_sim_extra_name_the_extra(bench: str) -> None:
     proc = run_without("mujoco", "bench", bench, "--datasets" if bench == "sim" else "--frames", "1")
     assert proc.returncode == 2
@@ -52,6 +54,7 @@ def test_the_mujoco_benchmarks_without_the_sim_extra_name_the_extra(bench: str) 
     assert "Traceback" not in proc.stderr
 
 
+@pytest.mark.slow
 def test_the_hardware_daemon_runs_a_job_without_mujoco(tmp_path: Path) -> None:
     """``dishbot run`` on the hardware backend, on the simulated devices' pseudo-terminals, with MuJoCo
     impossible to import: the robot's code path needs nothing of the ``sim`` extra."""
@@ -68,6 +71,7 @@ def test_the_hardware_daemon_runs_a_job_without_mujoco(tmp_path: Path) -> None:
     assert len(list(tmp_path.glob("*.mcap"))) == 1
 
 
+@pytest.mark.slow
 def test_a_missing_core_library_keeps_its_traceback() -> None:
     """OR-Tools is a core dependency: its absence is a broken install, not a missing extra, so it is not
     dressed up as one."""

@@ -65,6 +65,7 @@ def test_a_concrete_command_key_is_always_that_command(robot: str, verb: str) ->
     assert (target.verb, target.many, target.error) == (verb, False, None)
 
 
+@pytest.mark.slow
 def test_a_fleet_behind_a_router_answers_wildcards_with_each_robots_own_id(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -143,6 +144,7 @@ def test_a_reply_from_another_robot_than_named_is_not_trusted(capsys: pytest.Cap
     )
 
 
+@pytest.mark.slow
 def test_the_daemon_says_once_when_it_loses_its_router_and_once_when_it_is_back(tmp_path: Path) -> None:
     hub = f"tcp/127.0.0.1:{free_port()}"
     direct = f"tcp/127.0.0.1:{free_port()}"
@@ -173,6 +175,7 @@ def test_the_daemon_says_once_when_it_loses_its_router_and_once_when_it_is_back(
     ]
 
 
+@pytest.mark.slow
 def test_a_daemon_that_reaches_no_router_at_start_says_so_once(tmp_path: Path) -> None:
     nowhere = f"tcp/127.0.0.1:{free_port()}"
 
@@ -187,6 +190,7 @@ def test_a_daemon_that_reaches_no_router_at_start_says_so_once(tmp_path: Path) -
     ]
 
 
+@pytest.mark.slow
 def test_monitor_shows_every_robot_and_says_when_one_is_gone(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

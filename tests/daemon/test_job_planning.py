@@ -11,6 +11,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import Any
 
+import pytest
+
 from daemon.backend import CyclePlannerSpec, plan_placement
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
@@ -95,6 +97,7 @@ def test_a_blocked_mug_is_swapped_for_a_reachable_one_of_its_type_and_both_are_p
     assert placed.index(swaps[0]["mug_id"]) < placed.index(swaps[0]["slot_for"])
 
 
+@pytest.mark.slow
 def test_the_dynamics_energy_model_costs_placement_moves_from_the_arm() -> None:
     config = load_config()
     problem = cell_dataset_problem(config.cell, 1)
@@ -220,6 +223,7 @@ def test_a_deferred_slot_is_planned_again_when_a_mug_of_its_type_came() -> None:
     assert _calls(services) == ["slot:A", "slot:B", "slot:A"]
 
 
+@pytest.mark.slow
 def test_slots_no_motion_reaches_are_planned_once_in_a_whole_job_and_then_given_up() -> None:
     world = make_world(5)  # small true0, true2 and true4, big true1 and true3; a big slot is planned first
     published: list[tuple[str, dict[str, Any]]] = []

@@ -8,6 +8,8 @@ import queue
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from cli.commands.client import request
 from daemon.app import RunOptions, serve
 from daemon.config import load_config
@@ -25,6 +27,7 @@ class _BrokenCamera(RuntimeError):
     """A bug in a unit's collaborator: nothing the job expects."""
 
 
+@pytest.mark.slow
 def test_a_crashed_unit_logs_its_exception_text_and_worker_records_carry_t(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}})

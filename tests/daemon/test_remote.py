@@ -84,6 +84,7 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
         yield Site(pair, keys, foreign, tmp / "records", router, daemon, agent)
 
 
+@pytest.mark.slow
 def test_the_operator_commands_the_robot_directly_and_through_the_router(site: Site) -> None:
     for extra in (["--connect", DIRECT], []):
         code, out, err = site.status("op", *extra)
@@ -106,6 +107,7 @@ def test_the_monitor_watches_but_is_refused_start(site: Site) -> None:
     assert out.splitlines()[1] == "state: idle"  # nothing started
 
 
+@pytest.mark.slow
 def test_no_certificate_a_wrong_password_and_a_foreign_ca_are_refused(site: Site, tmp_path: Path) -> None:
     wrong = tmp_path / "wrong"
     shutil.copytree(site.keys, wrong)
@@ -158,6 +160,7 @@ def test_the_routers_key_with_the_monitors_password_is_refused_at_the_robot(
     assert out.splitlines()[1] == "state: idle"  # nothing started, nothing stopped
 
 
+@pytest.mark.slow
 def test_after_a_router_restart_both_sides_resume(site: Site) -> None:
     site.agent.call("watch", name="router", profile=site.profile("mon"))
     mark = len(site.daemon.lines)
@@ -173,6 +176,7 @@ def test_after_a_router_restart_both_sides_resume(site: Site) -> None:
     assert heard > relaunched  # and the watching session hears the robot again
 
 
+@pytest.mark.slow
 def test_a_10_s_link_cut_the_job_goes_on_the_operator_reconnects_and_the_recording_loses_nothing(
     site: Site,
 ) -> None:
@@ -210,6 +214,7 @@ def test_a_10_s_link_cut_the_job_goes_on_the_operator_reconnects_and_the_recordi
     assert sum(1 for t in joints if cut_at * 1e9 < t < restored * 1e9) > CUT_S * 10
 
 
+@pytest.mark.slow
 def test_a_plain_endpoint_beyond_loopback_is_refused_unless_insecure(site: Site, tmp_path: Path) -> None:
     plain = f"tcp/{ROBOT_ADDRESS}:{PORT + 1}"
     argv = ["run", "--sim", "--world", "kinematic", "--listen", plain, "--record-dir", str(tmp_path)]

@@ -390,6 +390,7 @@ def test_roles_become_a_default_deny_access_control_with_one_subject_per_identit
 # --- over real sessions -------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_operator_commands_monitor_watches_and_intruders_are_refused(
     keys: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -453,6 +454,7 @@ def test_operator_commands_monitor_watches_and_intruders_are_refused(
     asyncio.run(scenario())
 
 
+@pytest.mark.slow
 def test_a_payload_too_big_for_the_transport_is_dropped_and_the_daemon_goes_on(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = robot_config(ROBOT)
@@ -536,6 +538,7 @@ def test_the_router_refuses_bad_or_exposed_endpoints(
     assert err.count("\n") == 1
 
 
+@pytest.mark.slow
 def test_the_router_routes_over_tls_with_roles(keys: Path, tmp_path: Path) -> None:
     """`dishbot router` as a process: a robot's daemon connects out to it, the operator reaches the robot."""
     home = tmp_path / "k"

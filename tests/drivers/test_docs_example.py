@@ -11,6 +11,7 @@ import structlog
 DOC = Path(__file__).resolve().parents[2] / "docs" / "drivers.md"
 
 
+@pytest.mark.slow
 def test_the_drivers_readme_example_runs(capsys: pytest.CaptureFixture[str]) -> None:
     source = re.search(r"```python\n(.*?)```", DOC.read_text(), re.S)
     assert source is not None

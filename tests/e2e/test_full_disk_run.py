@@ -11,6 +11,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from recorder import read_messages
 from tests.daemon.conftest import free_port
 
@@ -23,6 +25,7 @@ def _limited() -> None:
     resource.setrlimit(resource.RLIMIT_FSIZE, (LIMIT_BYTES, LIMIT_BYTES))
 
 
+@pytest.mark.slow
 def test_a_once_job_on_a_full_disk_ends_done_and_counts_the_lost_messages(tmp_path: Path) -> None:
     cmd = [sys.executable, "-B", "-m", "cli.main", "run", "--sim", "--world", "kinematic", "--once"]
     cmd += ["--dataset", "1", "--record-dir", str(tmp_path), "--listen", f"tcp/127.0.0.1:{free_port()}"]

@@ -11,6 +11,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import pytest
+
 from cli.commands.client import request
 from tests.daemon.conftest import free_port
 
@@ -48,6 +50,7 @@ def _alive(sid: int) -> list[_Proc]:
     return [p for p in _in_session(sid) if p.state != "Z"]
 
 
+@pytest.mark.slow
 def test_sigkill_mid_job_leaves_no_helper_process_alive(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     run = ["run", "--sim", "--world", "kinematic", "--listen", endpoint, "--record-dir", str(tmp_path)]

@@ -58,6 +58,7 @@ def decoded(job: RunResult) -> dict[str, list[Decoded]]:
     return by_topic
 
 
+@pytest.mark.slow
 def test_a_once_job_is_one_finished_job_file_whose_header_names_what_it_ran(job: RunResult) -> None:
     assert job.end_state == "done"
     assert job.files == (job.recording,)
@@ -76,6 +77,7 @@ def test_a_once_job_is_one_finished_job_file_whose_header_names_what_it_ran(job:
     assert header["file"]["kind"] == "job"  # type: ignore[index]
 
 
+@pytest.mark.slow
 def test_every_channel_decodes_with_the_schema_in_the_file(decoded: dict[str, list[Decoded]]) -> None:
     # The kinematic cell has no depth camera: no depth image, so no calibration (test_scene_view has them).
     schemas = {topic: {d.schema_name for d in items} for topic, items in decoded.items()}

@@ -11,6 +11,8 @@ import textwrap
 import time
 from pathlib import Path
 
+import pytest
+
 from recorder import read_messages
 
 RATE_HZ = 200
@@ -35,6 +37,7 @@ WRITER = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_sigkilled_writer_loses_at_most_about_a_second(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
     last_sent = run_and_kill(WRITER, path)
@@ -73,6 +76,7 @@ FOXGLOVE_WRITER = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_sigkilled_writer_keeps_the_foxglove_channels_to_the_same_bound(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
     last_sent = run_and_kill(FOXGLOVE_WRITER, path)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 from pathlib import Path
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -28,6 +29,7 @@ _counter = itertools.count()
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(payloads=st.lists(st.tuples(st.sampled_from(["a/x", "a/y", "b/**"]), json_objects), max_size=20))
+@pytest.mark.slow
 def test_any_json_objects_read_back_exactly(
     tmp_path: Path, payloads: list[tuple[str, dict[str, object]]]
 ) -> None:

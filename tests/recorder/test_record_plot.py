@@ -70,6 +70,7 @@ def png_size(path: Path) -> tuple[int, int]:
     return width, height
 
 
+@pytest.mark.slow
 def test_plot_writes_png_and_svg_of_a_session(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = session(tmp_path / "job.mcap")
     png, svg = tmp_path / "job.png", tmp_path / "job.svg"

@@ -307,6 +307,7 @@ def fault_files(draw: st.DrawFn) -> tuple[FaultSpec, ...]:
 
 @settings(max_examples=150, deadline=None)
 @given(fault_files())
+@pytest.mark.slow
 def test_a_valid_fault_file_round_trips(faults: tuple[FaultSpec, ...]) -> None:
     assert parse_faults(dump_faults(faults), source="faults.toml", config=load_config()) == faults
 

@@ -168,6 +168,7 @@ def _check(row: Row, trace: ReplayTrace) -> None:
 
 
 @pytest.mark.parametrize("row", ROWS, ids=[r.name for r in ROWS])
+@pytest.mark.slow
 def test_each_row_of_the_matrix_ends_in_its_safe_state(
     row: Row, recorded_job: Path, dishbot: DishbotReplay
 ) -> None:
@@ -176,6 +177,7 @@ def test_each_row_of_the_matrix_ends_in_its_safe_state(
 
 
 @pytest.mark.parametrize("row", CAMERA_ROWS, ids=[r.name for r in CAMERA_ROWS])
+@pytest.mark.slow
 def test_each_camera_row_ends_in_its_safe_state(
     row: Row, recorded_mujoco_job: Path, dishbot: DishbotReplay
 ) -> None:
@@ -183,6 +185,7 @@ def test_each_camera_row_ends_in_its_safe_state(
     _check(row, trace)
 
 
+@pytest.mark.slow
 def test_a_replay_without_faults_of_the_matrix_job_matches(
     recorded_job: Path, dishbot: DishbotReplay
 ) -> None:

@@ -91,6 +91,7 @@ def test_occurrence_counts_entries_into_the_state_not_a_resume_after_a_pause(tmp
     assert [o.fired for o in run.injector.outcomes()] == [True]
 
 
+@pytest.mark.slow
 def test_replay_check_exits_1_when_a_fault_did_not_fire_and_json_lists_every_fault(
     kinematic_job: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -116,6 +117,7 @@ def test_replay_check_exits_1_when_a_fault_did_not_fire_and_json_lists_every_fau
     )
 
 
+@pytest.mark.slow
 def test_the_fixture_fails_a_test_whose_fault_did_not_fire_unless_it_says_it_may_not(
     kinematic_job: Path, tmp_path: Path
 ) -> None:

@@ -74,6 +74,7 @@ def test_an_arm_servo_overload_in_the_turn_faults_the_job_naming_the_servo(tmp_p
     )
 
 
+@pytest.mark.slow
 def test_a_gripper_overload_while_closing_is_recovered_and_the_job_goes_on(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path, '[[fault]]\nkind = "servo_overload"\nservo = 6\nat_state = "side_grasp.close"\n'
@@ -104,6 +105,7 @@ def test_an_overheated_servo_faults_the_job_at_its_next_move(tmp_path: Path) -> 
     assert servo.latched == {"overheating"}  # hot until the end of the run (no duration_s), still latched
 
 
+@pytest.mark.slow
 def test_a_low_servo_voltage_is_a_warning_the_daemon_does_not_act_on(tmp_path: Path) -> None:
     seen: list[float] = []
 
@@ -143,6 +145,7 @@ def test_a_silent_servo_is_a_bus_timeout_naming_it(tmp_path: Path) -> None:
     )
 
 
+@pytest.mark.slow
 def test_a_little_line_noise_is_retried_and_the_job_finishes(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path, '[[fault]]\nkind = "bus_corrupt"\nrate = 0.01\nseed = 3\nat_s = 0\nduration_s = 30\n'
@@ -184,6 +187,7 @@ def test_an_unplugged_servo_bus_faults_the_idle_daemon_and_is_back_once_replugge
     assert run.result.end_state == "fault"  # only reset leaves fault
 
 
+@pytest.mark.slow
 def test_a_briefly_unplugged_force_sensor_while_carrying_is_forgiven(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path,
@@ -194,6 +198,7 @@ def test_a_briefly_unplugged_force_sensor_while_carrying_is_forgiven(tmp_path: P
     assert run.result.end_state == "done"  # back within the job's grace
 
 
+@pytest.mark.slow
 def test_the_force_dropping_while_carrying_recovers_the_lost_mug(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path,
@@ -206,6 +211,7 @@ def test_the_force_dropping_while_carrying_recovers_the_lost_mug(tmp_path: Path)
     assert run.result.end_state == "done"
 
 
+@pytest.mark.slow
 def test_a_force_spike_is_one_raw_sample_the_filter_keeps_out(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path, '[[fault]]\nkind = "fsr_spike"\nvalue_n = 30\nat_state = "side_grasp.close"\n'
@@ -235,6 +241,7 @@ def test_a_camera_sending_no_frame_at_the_first_look_faults_the_job(tmp_path: Pa
     assert run.event("fault")["t"] == pytest.approx(float(run.event("fault_injected")["t"]) + 1.0)  # type: ignore[arg-type]
 
 
+@pytest.mark.slow
 def test_a_stale_camera_shows_placed_mugs_still_on_the_counter(tmp_path: Path) -> None:
     run = run_with_faults(tmp_path, '[[fault]]\nkind = "camera_stale"\nat_s = 0\n')
     injected(run, "camera_stale", "detect")
@@ -255,6 +262,7 @@ def test_a_bad_frame_is_refused_by_the_detector_and_faults_the_job(tmp_path: Pat
     )
 
 
+@pytest.mark.slow
 def test_a_camera_hang_that_ends_lets_the_job_finish(tmp_path: Path) -> None:
     run = run_with_faults(tmp_path, '[[fault]]\nkind = "camera_hang"\nat_state = "detect"\nduration_s = 3\n')
     assert run.injector.fired[0]["ended_at_s"] == 3.0
@@ -271,6 +279,7 @@ def test_a_camera_hang_for_good_leaves_the_job_in_detect_and_the_daemon_still_st
     assert run.result.end_state == "detect"
 
 
+@pytest.mark.slow
 def test_a_slipping_mug_really_falls_and_is_recovered(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path, '[[fault]]\nkind = "mug_slip"\nat_state = "flip.transit"\nafter_s = 0.5\n'
@@ -286,6 +295,7 @@ def test_a_slipping_mug_really_falls_and_is_recovered(tmp_path: Path) -> None:
     assert run.result.summary.drops == 1
 
 
+@pytest.mark.slow
 def test_a_mug_moved_while_the_arm_works_elsewhere_is_moved_in_the_world(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path, '[[fault]]\nkind = "mug_moved"\nat_state = "side_grasp.lift"\ndx_m = 0.05\ndy_m = -0.01\n'
@@ -338,6 +348,7 @@ def test_a_full_disk_costs_only_what_came_while_it_was_full_and_the_job_carries_
     assert run.states[-1] == "done"
 
 
+@pytest.mark.slow
 def test_a_loop_stall_blocks_the_loop_for_its_wall_time(tmp_path: Path) -> None:
     gaps: list[float] = []
     last = [time.perf_counter()]
@@ -370,6 +381,7 @@ def test_sigterm_stops_the_daemon_mid_job_and_finishes_the_recording(tmp_path: P
     assert run.logs("daemon_stopping")
 
 
+@pytest.mark.slow
 def test_two_faults_in_one_file_fire_in_their_order(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path,

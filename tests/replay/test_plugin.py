@@ -40,6 +40,7 @@ def test_loading_the_plugin_imports_nothing_heavy() -> None:
     assert json.loads(out) == []
 
 
+@pytest.mark.slow
 def test_the_readme_example_is_ten_lines_and_passes(pytester: pytest.Pytester) -> None:
     example = readme_example()
     assert len([line for line in example.splitlines() if line.strip()]) <= 10

@@ -19,6 +19,7 @@ from replay.session import RecordedSession
 from tests.replay.conftest import copy_recording
 
 
+@pytest.mark.slow
 def test_a_kinematic_job_replays_exactly_from_its_recording(kinematic_job: Path, tmp_path: Path) -> None:
     session = RecordedSession.load(kinematic_job)
     report = replay(session, ReplayOptions(record=tmp_path / "again.mcap"))
@@ -36,6 +37,7 @@ def test_a_kinematic_job_replays_exactly_from_its_recording(kinematic_job: Path,
     assert again.trace.states == session.trace.states
 
 
+@pytest.mark.slow
 def test_a_different_observation_diverges_at_the_plan_and_the_simulated_cell_finishes_the_job(
     kinematic_job: Path, tmp_path: Path
 ) -> None:
@@ -66,6 +68,7 @@ def test_a_different_observation_diverges_at_the_plan_and_the_simulated_cell_fin
 
 
 @pytest.mark.parametrize("fraction", [0.3, 0.5, 0.8])
+@pytest.mark.slow
 def test_a_recording_cut_by_a_crash_replays_up_to_the_cut_and_says_so(
     fraction: float, kinematic_job: Path, tmp_path: Path
 ) -> None:
@@ -86,6 +89,7 @@ def test_a_recording_cut_by_a_crash_replays_up_to_the_cut_and_says_so(
     assert report.replayed.states == whole.trace.states[: len(report.replayed.states)]
 
 
+@pytest.mark.slow
 def test_replay_json_has_the_documented_fields_and_check_passes(
     kinematic_job: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -103,6 +107,7 @@ def test_replay_json_has_the_documented_fields_and_check_passes(
     assert doc["wall_s"] > 0
 
 
+@pytest.mark.slow
 def test_check_exits_1_when_a_replay_without_faults_does_not_match(
     kinematic_job: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -216,6 +221,7 @@ def test_the_recording_keeps_what_a_replay_needs(kinematic_job: Path) -> None:
     assert {"label", "end_rad", "t_start", "t_end", "duration_s"} <= set(follow)
 
 
+@pytest.mark.slow
 def test_with_listen_the_replay_publishes_on_zenoh_as_the_daemon_does(kinematic_job: Path) -> None:
     """A monitor connected to ``--listen`` sees the replayed job's state, joints and events, as from a
     daemon (the replay runs at 20x real time so that the subscriber is there before the job ends)."""

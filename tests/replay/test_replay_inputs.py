@@ -86,6 +86,7 @@ def test_record_is_checked_before_the_replay_starts(
     assert (code, err) == (2, f"dishbot replay: error: --record {target}: {not_a_dir} is not a directory\n")
 
 
+@pytest.mark.slow
 def test_the_working_directory_of_a_killed_replay_is_swept_and_a_stopped_one_cleans_up(
     kinematic_job: Path, tmp_path: Path
 ) -> None:

@@ -77,6 +77,7 @@ def test_faults_without_the_simulated_cell_exit_2(tmp_path: Path, capsys: pytest
     )
 
 
+@pytest.mark.slow
 def test_a_once_job_with_a_fault_file_prints_the_faults_fired_and_records_them(
     tmp_path: Path, config: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

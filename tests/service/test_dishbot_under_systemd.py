@@ -221,6 +221,7 @@ def test_the_unit_is_installed_unchanged_and_systemd_accepts_every_directive(con
     assert exposure.group(2) == "OK"
 
 
+@pytest.mark.slow
 def test_start_returns_once_the_daemon_is_ready_and_the_status_text_shows(
     container: Container, record_property: Callable[[str, object], None]
 ) -> None:
@@ -249,6 +250,7 @@ def test_start_returns_once_the_daemon_is_ready_and_the_status_text_shows(
     print(f"start -> ready {ready_s:.2f} s (systemctl start returned after {took:.2f} s)")
 
 
+@pytest.mark.slow
 def test_a_stalled_loop_is_killed_by_the_watchdog_and_restarted(
     container: Container, record_property: Callable[[str, object], None]
 ) -> None:
@@ -278,6 +280,7 @@ def test_a_stalled_loop_is_killed_by_the_watchdog_and_restarted(
     print(f"SIGSTOP -> watchdog kill after {killed_after:.2f} s, running again after {took:.2f} s")
 
 
+@pytest.mark.slow
 def test_sigkill_is_followed_by_a_restart_and_the_cut_recording_reads(
     container: Container, record_property: Callable[[str, object], None]
 ) -> None:
@@ -313,6 +316,7 @@ def test_sigkill_is_followed_by_a_restart_and_the_cut_recording_reads(
     )
 
 
+@pytest.mark.slow
 def test_stop_mid_move_exits_0_with_the_recording_finished(
     container: Container, record_property: Callable[[str, object], None]
 ) -> None:
@@ -359,6 +363,7 @@ STUCK_CONFIG: Final = "/etc/dishbot/stuck.toml"
 DETECT_BOUND_S: Final = 5.0  # a shorter bound than the default 60 s, so the test does not wait a minute
 
 
+@pytest.mark.slow
 def test_a_stuck_state_ends_in_fault_and_not_in_silent_pings(container: Container) -> None:
     """A hung camera leaves the job in detect; the progress watchdog faults it past the state's time bound,
     naming the bound, and the service itself lives on (no watchdog kill, no restart)."""
@@ -406,6 +411,7 @@ def test_a_stuck_state_ends_in_fault_and_not_in_silent_pings(container: Containe
         container.systemctl("reset-failed", SERVICE, check=False)
 
 
+@pytest.mark.slow
 def test_start_limit_burst_ends_a_crash_loop(
     container: Container, record_property: Callable[[str, object], None]
 ) -> None:

@@ -85,6 +85,7 @@ def test_a_missing_urdf_exits_2(capsys: pytest.CaptureFixture[str], tmp_path: Pa
     )
 
 
+@pytest.mark.slow
 def test_workspace_draws_the_cell_and_reports_it_reachable(
     capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
@@ -99,6 +100,7 @@ def test_workspace_draws_the_cell_and_reports_it_reachable(
     assert image.shape[0] > 500
 
 
+@pytest.mark.slow
 def test_workspace_with_an_unreachable_tray_exits_1(
     capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:

@@ -37,6 +37,7 @@ def _pairs(path: Path) -> None:
 @pytest.mark.parametrize(
     ("argv", "expected"), _examples(), ids=lambda v: " ".join(v) if isinstance(v, list) else ""
 )
+@pytest.mark.slow
 def test_console_example_prints_what_the_docs_show(
     argv: list[str],
     expected: str,

@@ -83,6 +83,7 @@ def test_thesis_proxy_is_weight_times_straight_distance() -> None:
     assert thesis_energy_j(0.2, (0.0, 0.4), (0.3, 0.0)) == pytest.approx(0.2 * thesis.GRAVITY_M_S2 * 0.5)
 
 
+@pytest.mark.slow
 def test_move_cost_tracks_the_planned_cycle(arm: ArmModel, cell: CellLayout) -> None:
     cost: MoveCost = DynamicsMoveCost(arm, cell)
     planner = CyclePlanner(arm, cell, thesis.MUG_TYPES)

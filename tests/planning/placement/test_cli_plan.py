@@ -199,6 +199,7 @@ def test_own_weights_and_ranking_are_taken_and_checked(capsys: pytest.CaptureFix
     )
 
 
+@pytest.mark.slow
 def test_footprint_flag_plans_mug_shapes_with_brims_and_handles(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -223,6 +224,7 @@ def test_an_unknown_footprint_is_a_usage_error(capsys: pytest.CaptureFixture[str
     assert err == "dishbot plan: error: --footprint: unknown footprint 'round' (known: rect, mug)\n"
 
 
+@pytest.mark.slow
 def test_the_problem_files_footprint_stands_unless_the_flag_says_otherwise(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -236,6 +238,7 @@ def test_the_problem_files_footprint_stands_unless_the_flag_says_otherwise(
     assert "mug-shaped" not in out
 
 
+@pytest.mark.slow
 def test_the_plan_verb_imports_only_what_its_path_uses(tmp_path: Path) -> None:
     """No OpenCV without a PNG, no OR-Tools or pandas when no exact model runs, no scipy.optimize at all."""
     problem = tmp_path / "problem.json"

@@ -112,6 +112,7 @@ def mug_problem(
     sequence_seed=st.integers(0, 1000),
     scan=st.sampled_from(SCANS),
 )
+@pytest.mark.slow
 def test_packed_outlines_never_overlap_and_stay_inside_the_tray(
     size: tuple[int, int],
     tolerance: int,
@@ -151,6 +152,7 @@ def test_packed_outlines_never_overlap_and_stay_inside_the_tray(
     mugs=counter_mugs,
     fixed_at=st.lists(st.tuples(st.integers(0, 230), st.integers(0, 270)), max_size=3),
 )
+@pytest.mark.slow
 def test_planned_mugs_keep_clear_of_each_other_and_of_the_mugs_already_on_the_tray(
     tolerance: int, mugs: list[tuple[str, float, float, float | None]], fixed_at: list[tuple[int, int]]
 ) -> None:
@@ -170,6 +172,7 @@ def test_planned_mugs_keep_clear_of_each_other_and_of_the_mugs_already_on_the_tr
 
 
 @pytest.mark.parametrize("n", [1, 2, 3])
+@pytest.mark.slow
 def test_mug_shapes_place_more_than_the_rectangle_optimum_on_the_robot_tray(n: int) -> None:
     rect_problem = dataset_problem(n)
     rect = plan(rect_problem, PlanOptions())
@@ -181,6 +184,7 @@ def test_mug_shapes_place_more_than_the_rectangle_optimum_on_the_robot_tray(n: i
     assert mug.notes[0].startswith(f"mug-shaped: {rect.n} from the rectangle layout, {mug.n} after ")
 
 
+@pytest.mark.slow
 def test_a_seed_repeats_a_mug_shaped_plan_exactly() -> None:
     problem = replace(dataset_problem(2), footprint_kind="mug")
     a = plan(problem, PlanOptions(seed=4, time_limit_s=5.0))
@@ -281,6 +285,7 @@ def test_the_assignment_costs_what_the_best_of_all_matchings_costs(cost: list[li
     assert sum(cost[r][c] for r, c in pairs) == pytest.approx(best)
 
 
+@pytest.mark.slow
 def test_the_planned_handle_yaw_is_the_one_the_motion_planner_predicts() -> None:
     from daemon.config import load_config
     from description.thesis import MUG_TYPES

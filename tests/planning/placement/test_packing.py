@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 import random
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -45,6 +46,7 @@ def problems(draw: st.DrawFn) -> tuple[Problem, list[int]]:
 
 @settings(max_examples=150, deadline=None)
 @given(problems(), st.sampled_from(list(Heuristic)), st.randoms(use_true_random=False))
+@pytest.mark.slow
 def test_fast_packer_places_every_mug_where_the_occupancy_matrix_does(
     case: tuple[Problem, list[int]], heuristic: Heuristic, rng: random.Random
 ) -> None:

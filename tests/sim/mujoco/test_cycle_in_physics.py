@@ -47,6 +47,7 @@ def _open(world: SimWorld, arm: ArmModel, aperture_m: float | None) -> None:
 
 
 @pytest.mark.parametrize("mug_spec", [SMALL_MUG, BIG_MUG], ids=["small", "big"])
+@pytest.mark.slow
 def test_a_planned_cycle_places_the_mug_on_its_slot_beside_a_neighbour_without_touching_it(
     make_world: WorldFactory, arm_model: ArmModel, mug_spec: MugSpec
 ) -> None:
