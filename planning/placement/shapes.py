@@ -37,6 +37,7 @@ class MugSize(Protocol):
     @property
     def width_mm(self) -> int: ...
 
+
 # Half the handle's thickness seen from above: the simulated mugs' handle capsules (sim/mujoco/scene.py,
 # HANDLE_RADIUS_M) and the motion planner's handle check (HANDLE_HALF_THICKNESS_M) use the same 5 mm.
 HANDLE_HALF_THICKNESS_MM = 5.0
