@@ -61,6 +61,46 @@ def _wrap_into(angle: float, lower: float, upper: float) -> float:
 
 
 @dataclass(frozen=True, slots=True)
+class _Chain:
+    """A serial chain of joints rotating about x, y or z, as numpy arrays: per joint its placement in its
+    parent (rotation, translation) and its axis (0, 1, 2); the tool frame's placement in the last joint."""
+
+    joints: tuple[tuple[FloatArray, FloatArray, int], ...]
+    tool: tuple[FloatArray, FloatArray]
+
+
+_AXES = {"JointModelRX": 0, "JointModelRY": 1, "JointModelRZ": 2}
+
+
+def _serial_chain(model: pin.Model, tool_id: int) -> _Chain | None:
+    """The model as a ``_Chain``, or None when it is not one (a prismatic or unaligned joint, a branch)."""
+    joints = []
+    for i in range(1, model.njoints):
+        axis = _AXES.get(model.joints[i].shortname())
+        if axis is None or model.parents[i] != i - 1:
+            return None
+        placement = model.jointPlacements[i]
+        joints.append((placement.rotation.copy(), placement.translation.copy(), axis))
+    frame = model.frames[tool_id]
+    if frame.parentJoint != model.njoints - 1:
+        return None
+    return _Chain(tuple(joints), (frame.placement.rotation.copy(), frame.placement.translation.copy()))
+
+
+def _axis_rotations(axis: int, angles: FloatArray) -> FloatArray:
+    """Rotations (N, 3, 3) by ``angles`` about the x, y or z axis (0, 1, 2)."""
+    c, s = np.cos(angles), np.sin(angles)
+    out = np.zeros((len(angles), 3, 3))
+    a, b = (axis + 1) % 3, (axis + 2) % 3
+    out[:, axis, axis] = 1.0
+    out[:, a, a] = c
+    out[:, b, b] = c
+    out[:, b, a] = s
+    out[:, a, b] = -s
+    return out
+
+
+@dataclass(frozen=True, slots=True)
 class _PlanarArm:
     """The thesis arm's shoulder-elbow-wrist triangle, measured at q = 0, for closed-form seeds."""
 
@@ -94,6 +134,7 @@ class ArmModel:
         self.max_velocity = np.array([s.max_speed_rad_s for s in servo_models])
         self.max_acceleration = np.array([s.max_accel_rad_s2 for s in servo_models])
         self._tool_id = model.getFrameId(tool_frame)
+        self._chain = _serial_chain(model, self._tool_id)
         self._limits = ([float(v) for v in self.lower], [float(v) for v in self.upper])
         self._planar = self._measure_planar() if self.joint_names == THESIS_ARM_JOINTS else None
 
@@ -189,6 +230,40 @@ class ArmModel:
         pin.framesForwardKinematics(self.model, self.data, qv)
         placement = self.data.oMf[self._tool_id]
         return placement.translation.copy(), placement.rotation.copy()
+
+    def fk_many(self, qs: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Forward kinematics of many poses ``qs`` (N, dof) at once: grasp-point positions (N, 3), rotations
+        (N, 3, 3) and every joint's origin (N, dof, 3), base first; what ``fk`` and ``joint_positions`` give
+        one pose at a time, to rounding (numpy over all poses instead of one Pinocchio call per pose: the
+        collision checks look at thousands of poses per cycle)."""
+        qs = np.asarray(qs, dtype=np.float64).reshape(-1, self.dof)
+        if self._chain is None:
+            return self._fk_each(qs)
+        n = len(qs)
+        rotation = np.broadcast_to(np.eye(3), (n, 3, 3))
+        position = np.zeros((n, 3))
+        origins = np.empty((n, self.dof, 3))
+        for j, (placement_r, placement_p, axis) in enumerate(self._chain.joints):
+            position = position + rotation @ placement_p
+            rotation = rotation @ (placement_r @ _axis_rotations(axis, qs[:, j]))
+            origins[:, j] = position
+        tool_r, tool_p = self._chain.tool
+        return position + rotation @ tool_p, rotation @ tool_r, origins
+
+    def _fk_each(self, qs: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``fk_many`` one Pinocchio call per pose, for a chain ``fk_many`` cannot do in numpy."""
+        positions, rotations, origins = [], [], []
+        for q in qs:
+            p, r = self.fk(q)
+            positions.append(p)
+            rotations.append(r)
+            origins.append([self.data.oMi[i].translation.copy() for i in range(1, self.model.njoints)])
+        shape = (len(qs), self.dof, 3)
+        return (
+            np.array(positions).reshape(-1, 3),
+            np.array(rotations).reshape(-1, 3, 3),
+            np.array(origins).reshape(shape),
+        )
 
     def joint_positions(self, q: JointValues) -> FloatArray:
         """World positions (n, 3) of every joint axis origin, base first, at ``q``."""

@@ -10,6 +10,7 @@ The arm links behind the wrist are only checked against the counter top.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -27,6 +28,8 @@ _FLOOR_MARGIN_M = 0.002
 _LINK_FLOOR_MARGIN_M = 0.01
 _CHECK_STEP_M = 0.01
 _COUNTER = "the counter"
+# Bounding boxes are widened by this before the exact sphere checks, so rounding cannot drop a contact.
+_BOUND_SLACK_M = 1e-9
 
 # A collision found at one pose of a motion: the pose's index, why, and the obstacle's name.
 _Finding = tuple[int, str, str]
@@ -136,6 +139,16 @@ def gripper_spheres(gripper: GripperGeometry, *, aperture_m: float) -> tuple[Flo
     return np.array(centres), np.array(radii)
 
 
+@functools.lru_cache(maxsize=64)
+def _gripper_spheres(gripper: GripperGeometry, aperture_m: float) -> tuple[FloatArray, FloatArray]:
+    """``gripper_spheres``, computed once per gripper and aperture (a plan uses a handful of apertures);
+    read-only, as they are shared."""
+    centres, radii = gripper_spheres(gripper, aperture_m=aperture_m)
+    centres.flags.writeable = False
+    radii.flags.writeable = False
+    return centres, radii
+
+
 class CollisionWorld:
     """The obstacles of one planning problem; checks sampled arm poses against them."""
 
@@ -167,7 +180,7 @@ class CollisionWorld:
     ) -> Collision | None:
         """The first colliding pose's collision (None when every pose is clear). Poses are checked at the
         given samples and between them wherever the grasp point moved more than 1 cm."""
-        spheres, radii = gripper_spheres(self.arm.gripper, aperture_m=aperture_m)
+        spheres, radii = _gripper_spheres(self.arm.gripper, float(aperture_m))
         active = np.array(
             [c.name not in ignore and c.name.removesuffix(" handle") not in ignore for c in self.cylinders],
             dtype=bool,
@@ -203,7 +216,7 @@ class CollisionWorld:
         abandoned grasp the open gripper still straddles the mug it let go of."""
         if not len(self._cyl):
             return frozenset()
-        spheres, radii = gripper_spheres(self.arm.gripper, aperture_m=aperture_m)
+        spheres, radii = _gripper_spheres(self.arm.gripper, float(aperture_m))
         positions, rotations, _ = self._poses(np.asarray(q, dtype=np.float64)[None, :])
         centres = positions[0][None, :] + spheres @ rotations[0].T
         cyl = self._cyl
@@ -222,58 +235,75 @@ class CollisionWorld:
     def _poses(self, q_samples: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Grasp-point positions (N, 3), rotations (N, 3, 3) and the heights of the joints after the shoulder
         turn (N, n-1), densified so the grasp point moves at most 1 cm between poses."""
-        positions: list[FloatArray] = []
-        rotations: list[FloatArray] = []
-        heights: list[FloatArray] = []
-        data = self.arm.data
-        prev_q: FloatArray | None = None
-        for q in np.asarray(q_samples, dtype=np.float64):
-            p, r = self.arm.fk(q)
-            if prev_q is not None:
-                steps = math.ceil(float(np.linalg.norm(p - positions[-1])) / _CHECK_STEP_M)
-                for k in range(1, steps):
-                    pk, rk = self.arm.fk(prev_q + (q - prev_q) * (k / steps))
-                    positions.append(pk)
-                    rotations.append(rk)
-                    heights.append(
-                        np.array([data.oMi[i].translation[2] for i in range(2, self.arm.model.njoints)])
-                    )
-                p, r = self.arm.fk(q)
-            positions.append(p)
-            rotations.append(r)
-            heights.append(np.array([data.oMi[i].translation[2] for i in range(2, self.arm.model.njoints)]))
-            prev_q = q
-        return np.array(positions), np.array(rotations), np.array(heights)
+        samples = np.asarray(q_samples, dtype=np.float64).reshape(-1, self.arm.dof)
+        positions, rotations, origins = self.arm.fk_many(samples)
+        if len(samples) > 1:
+            gaps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+            steps = np.ceil(gaps / _CHECK_STEP_M).astype(np.int64)
+            if np.any(steps > 1):
+                # Each sample, preceded by the poses between it and the previous one.
+                qs = [samples[:1]]
+                for k, n in enumerate(steps.tolist(), start=1):
+                    prev, q = samples[k - 1], samples[k]
+                    if n > 1:
+                        fractions = np.arange(1, n, dtype=np.float64) / n
+                        qs.append(prev + (q - prev) * fractions[:, None])
+                    qs.append(samples[k : k + 1])
+                positions, rotations, origins = self.arm.fk_many(np.concatenate(qs))
+        return positions, rotations, origins[:, 1:, 2]
 
     def _spheres_vs_obstacles(
         self, centres: FloatArray, radii: FloatArray, active: FloatArray
     ) -> tuple[int, str]:
-        """First pose (axis 0 of ``centres`` (N, S, 3)) where a sphere meets an obstacle, and its name."""
+        """First pose (axis 0 of ``centres`` (N, S, 3)) where a sphere meets an obstacle, and its name.
+
+        Only the (pose, obstacle) pairs whose bounding boxes overlap are checked sphere by sphere: a pose's
+        spheres are near a few obstacles at most."""
         first = len(centres)
         name = ""
-        if len(self._cyl):
-            cyl = self._cyl
-            dxy = np.hypot(
-                centres[:, :, None, 0] - cyl[None, None, :, 0], centres[:, :, None, 1] - cyl[None, None, :, 1]
+        if not len(centres):
+            return first, name
+        r = radii[None, :, None]
+        lo = np.min(centres - r, axis=1) - _BOUND_SLACK_M  # (N, 3): each pose's spheres' bounding box
+        hi = np.max(centres + r, axis=1) + _BOUND_SLACK_M
+        cyl = self._cyl[active]
+        if len(cyl):
+            near = (
+                (lo[:, None, 0] < cyl[None, :, 0] + cyl[None, :, 2])
+                & (hi[:, None, 0] > cyl[None, :, 0] - cyl[None, :, 2])
+                & (lo[:, None, 1] < cyl[None, :, 1] + cyl[None, :, 2])
+                & (hi[:, None, 1] > cyl[None, :, 1] - cyl[None, :, 2])
+                & (lo[:, None, 2] < cyl[None, :, 4])
+                & (hi[:, None, 2] > cyl[None, :, 3])
             )
-            r = radii[None, :, None]
-            overlap = (dxy < cyl[None, None, :, 2] + r) & (
-                (centres[:, :, None, 2] + r > cyl[None, None, :, 3])
-                & (centres[:, :, None, 2] - r < cyl[None, None, :, 4])
-            )
-            hits = np.any(overlap, axis=1) & active[None, :]
-            poses = np.flatnonzero(np.any(hits, axis=1))
-            if len(poses):
-                first = int(poses[0])
-                name = self.cylinders[int(np.argmax(hits[first]))].name
+            pose, which = np.nonzero(near)
+            if len(pose):
+                c = centres[pose]  # (P, S, 3) against cyl[which] (P, 5)
+                o = cyl[which][:, None, :]
+                rr = radii[None, :]
+                dxy = np.hypot(c[:, :, 0] - o[:, :, 0], c[:, :, 1] - o[:, :, 1])
+                overlap = (dxy < o[:, :, 2] + rr) & (
+                    (c[:, :, 2] + rr > o[:, :, 3]) & (c[:, :, 2] - rr < o[:, :, 4])
+                )
+                hit = np.flatnonzero(np.any(overlap, axis=1))
+                if len(hit):
+                    # Pairs are in (pose, obstacle) order: the first hit is the first pose's first obstacle.
+                    first = int(pose[hit[0]])
+                    name = self.cylinders[int(np.flatnonzero(active)[which[hit[0]]])].name
         if len(self._box_lo):
-            nearest = np.clip(centres[:, :, None, :], self._box_lo[None, None], self._box_hi[None, None])
-            dist = np.linalg.norm(centres[:, :, None, :] - nearest, axis=3)
-            hits = np.any(dist < radii[None, :, None], axis=1)
-            poses = np.flatnonzero(np.any(hits, axis=1))
-            if len(poses) and int(poses[0]) < first:
-                first = int(poses[0])
-                name = self.boxes[int(np.argmax(hits[first]))].name
+            near = np.all(
+                (lo[:, None, :] < self._box_hi[None, :, :]) & (hi[:, None, :] > self._box_lo[None, :, :]),
+                axis=2,
+            )
+            pose, which = np.nonzero(near[:first])
+            if len(pose):
+                c = centres[pose]
+                nearest = np.clip(c, self._box_lo[which][:, None, :], self._box_hi[which][:, None, :])
+                dist = np.linalg.norm(c - nearest, axis=2)
+                hit = np.flatnonzero(np.any(dist < radii[None, :], axis=1))
+                if len(hit) and int(pose[hit[0]]) < first:
+                    first = int(pose[hit[0]])
+                    name = self.boxes[int(which[hit[0]])].name
         return first, name
 
     def _held_collisions(
@@ -285,18 +315,29 @@ class CollisionWorld:
         base = centre + axis * held.x_lo
         top = centre + axis * held.x_hi
         vertical = np.abs(axis[:, 2]) > 0.999
-        for i in np.flatnonzero(vertical):
-            z_lo, z_hi = sorted((float(base[i, 2]), float(top[i, 2])))
-            if z_lo < self.floor_z - 1e-6:
-                why = f"the held {held.name} would touch the counter (z={z_lo:.3f} m)"
-                findings.append((int(i), why, _COUNTER))
-                break
-            hit = self._held_cylinder_vs_obstacles(
-                float(base[i, 0]), float(base[i, 1]), held.radius, z_lo, z_hi, active
+        upright = np.flatnonzero(vertical)
+        if len(upright):
+            z_lo = np.minimum(base[upright, 2], top[upright, 2])
+            z_hi = np.maximum(base[upright, 2], top[upright, 2])
+            on_floor = z_lo < self.floor_z - 1e-6
+            cyl_hits, box_hits = self._held_cylinders_vs_obstacles(
+                base[upright, :2], held.radius, z_lo, z_hi, active
             )
-            if hit:
-                findings.append((int(i), f"the held {held.name} would hit {hit}", hit))
-                break
+            bad = np.flatnonzero(on_floor | cyl_hits.any(axis=1) | box_hits.any(axis=1))
+            if len(bad):
+                k = int(bad[0])
+                i = int(upright[k])
+                if on_floor[k]:
+                    why = f"the held {held.name} would touch the counter (z={float(z_lo[k]):.3f} m)"
+                    findings.append((i, why, _COUNTER))
+                else:
+                    hits = np.flatnonzero(cyl_hits[k])
+                    hit = (
+                        self.cylinders[int(hits[0])].name
+                        if len(hits)
+                        else self.boxes[int(np.flatnonzero(box_hits[k])[0])].name
+                    )
+                    findings.append((i, f"the held {held.name} would hit {hit}", hit))
         tilted = np.flatnonzero(~vertical)
         if len(tilted):
             n = max(2, math.ceil((held.x_hi - held.x_lo) / held.radius * 2))
@@ -314,24 +355,30 @@ class CollisionWorld:
                 findings.append((int(tilted[pose]), why, name))
         return findings
 
-    def _held_cylinder_vs_obstacles(
-        self, x: float, y: float, radius: float, z_lo: float, z_hi: float, active: FloatArray
-    ) -> str:
-        """A held, upright mug must keep ``clearance_m`` above anything it overlaps in plan view."""
+    def _held_cylinders_vs_obstacles(
+        self, xy: FloatArray, radius: float, z_lo: FloatArray, z_hi: FloatArray, active: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """A held, upright mug must keep ``clearance_m`` above anything it overlaps in plan view. For mugs
+        at ``xy`` (V, 2) spanning ``z_lo``-``z_hi`` (V,): which cylinders (V, C) and boxes (V, B) each
+        comes too close to."""
         gap = self.clearance_m
-        for c, on in zip(self.cylinders, active, strict=True):
-            if not on or math.hypot(x - c.x, y - c.y) >= radius + c.radius:
-                continue
-            if z_lo < c.z_hi + gap and z_hi > c.z_lo - gap:
-                return c.name
-        for b in self.boxes:
-            dx = max(b.lo[0] - x, 0.0, x - b.hi[0])
-            dy = max(b.lo[1] - y, 0.0, y - b.hi[1])
-            if math.hypot(dx, dy) >= radius:
-                continue
-            if z_lo < b.hi[2] + gap and z_hi > b.lo[2] - gap:
-                return b.name
-        return ""
+        cyl = self._cyl
+        dxy = np.hypot(xy[:, None, 0] - cyl[None, :, 0], xy[:, None, 1] - cyl[None, :, 1])
+        cyl_hits = (
+            active[None, :]
+            & (dxy < radius + cyl[None, :, 2])
+            & (z_lo[:, None] < cyl[None, :, 4] + gap)
+            & (z_hi[:, None] > cyl[None, :, 3] - gap)
+        )
+        lo, hi = self._box_lo, self._box_hi
+        dx = np.maximum(np.maximum(lo[None, :, 0] - xy[:, None, 0], 0.0), xy[:, None, 0] - hi[None, :, 0])
+        dy = np.maximum(np.maximum(lo[None, :, 1] - xy[:, None, 1], 0.0), xy[:, None, 1] - hi[None, :, 1])
+        box_hits = (
+            (np.hypot(dx, dy) < radius)
+            & (z_lo[:, None] < hi[None, :, 2] + gap)
+            & (z_hi[:, None] > lo[None, :, 2] - gap)
+        )
+        return cyl_hits, box_hits
 
 
 def tray_walls(bounds: tuple[float, float, float, float], *, height: float, thickness: float) -> list[Box]:

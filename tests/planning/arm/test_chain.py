@@ -132,3 +132,13 @@ def test_every_urdf_joint_limit_is_a_position_its_servo_can_take(arm: ArmModel) 
         assert float(arm.upper[i]) <= high + 1e-8, name
     wrist = arm.joint_names.index("wrist_turn")
     assert float(arm.upper[wrist]) == pytest.approx(math.radians(149.70703125))
+
+
+def test_forward_kinematics_of_many_poses_is_that_of_each_pose(arm: ArmModel) -> None:
+    qs = np.random.default_rng(7).uniform(arm.lower, arm.upper, (200, arm.dof))
+    positions, rotations, origins = arm.fk_many(qs)
+    for q, p, r, o in zip(qs, positions, rotations, origins, strict=True):
+        one_p, one_r = arm.fk(q)
+        np.testing.assert_allclose(p, one_p, atol=1e-12)
+        np.testing.assert_allclose(r, one_r, atol=1e-12)
+        np.testing.assert_allclose(o, arm.joint_positions(q), atol=1e-12)

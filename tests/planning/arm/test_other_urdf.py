@@ -77,3 +77,24 @@ def test_locking_a_joint_the_urdf_lacks_is_refused(tmp_path: Path) -> None:
     path = _urdf(tmp_path)
     with pytest.raises(ArmModelError, match=rf"^{path} has no joint 'gripper' to lock \(locked_joints\)$"):
         ArmModel.load(path, servos=SERVOS, tool_frame="tool")
+
+
+@pytest.mark.parametrize("last_joint", ["revolute", "prismatic"])
+def test_forward_kinematics_of_many_poses_is_that_of_each_pose(tmp_path: Path, last_joint: str) -> None:
+    """``fk_many`` (numpy over all poses for a chain of x, y and z joints; one Pinocchio call per pose
+    otherwise, here a prismatic joint) gives what ``fk`` and ``joint_positions`` give pose by pose."""
+    path = _urdf(tmp_path)
+    path.write_text(
+        path.read_text(encoding="utf-8").replace(
+            'name="j6" type="revolute"', f'name="j6" type="{last_joint}"'
+        ),
+        encoding="utf-8",
+    )
+    arm = ArmModel.load(path, servos=SERVOS, tool_frame="tool", locked_joints=())
+    qs = np.random.default_rng(3).uniform(arm.lower, arm.upper, (50, arm.dof))
+    positions, rotations, origins = arm.fk_many(qs)
+    for q, p, r, o in zip(qs, positions, rotations, origins, strict=True):
+        one_p, one_r = arm.fk(q)
+        np.testing.assert_allclose(p, one_p, atol=1e-12)
+        np.testing.assert_allclose(r, one_r, atol=1e-12)
+        np.testing.assert_allclose(o, arm.joint_positions(q), atol=1e-12)
