@@ -97,15 +97,20 @@ class CyclePlanner:
         self.correction = correction
         # The arm model keeps one Pinocchio Data: calls from several threads take turns.
         self._lock = threading.Lock()
+        # What every candidate for a slot shares (``_shared_refusals``), by slot and the mugs on the tray.
+        self._shared: dict[
+            tuple[TraySlot, tuple[TraySlot, ...]], tuple[MotionRefused | None, MotionRefused | None] | None
+        ] = {}
         tallest = max(m.height_mm for m in self.catalogue.values()) / 1000.0
         # Mugs on the tray stand on its base, so the tallest obstacle is that much higher there.
         self.carry_z_m = carry_height_m(tallest + max(0.0, cell.tray.base_m))
         self.open_aperture_m = arm.gripper.aperture_m(JOINT_LIMITS["gripper"].lower_rad)
 
     def __getstate__(self) -> dict[str, object]:
-        """Picklable (the daemon may plan in a worker process): the lock stays behind."""
+        """Picklable (the daemon may plan in a worker process): the lock and what it remembers stay behind."""
         state = dict(self.__dict__)
         del state["_lock"]
+        state["_shared"] = {}
         return state
 
     def __setstate__(self, state: dict[str, object]) -> None:
@@ -258,14 +263,36 @@ class CyclePlanner:
         """Plan the cycle for ``slot`` with the mug it names or, when that one cannot be reached (another mug
         stands in front of it, say), with another counter mug of the same type, nearest the arm first
         (thesis §4.1: the closest mug is taken). Returns the mug used and its plan; raises ``MotionRefused``
-        listing why each candidate failed."""
+        listing why each candidate failed.
+
+        What every candidate shares is decided first, once per slot and tray: whether a mug of the type
+        can be put down in the slot, and (for a mug standing upright) turned over in the flip area, each
+        from above it with the counter's mugs left out. When either is impossible, no candidate is tried:
+        fewer obstacles and the same motions cannot make any of them possible."""
         named = [m for m in counter if m.mug_id == slot.mug_id]
         others = sorted(
             (m for m in counter if m.type == slot.type and m.mug_id != slot.mug_id),
             key=lambda m: (math.hypot(m.x_m, m.y_m), m.mug_id),
         )
+        candidates = [*named, *others]
         reasons: list[tuple[str, MotionRefused]] = []
-        for mug in [*named, *others]:
+        shared = self._shared_refusals(slot, on_tray) if candidates else None
+        if shared is not None:
+            place, upright = shared
+            if place is not None:
+                raise MotionRefused.combining(
+                    f"slot for {slot.mug_id}: no {slot.type} mug can be moved there ({place})", [place]
+                )
+            if upright is not None:
+                if not any(m.upside_down for m in candidates):
+                    raise MotionRefused.combining(
+                        f"slot for {slot.mug_id}: no {slot.type} mug can be moved there "
+                        f"(a mug standing upright: {upright})",
+                        [upright],
+                    )
+                reasons.append(("every upright mug", upright))
+                candidates = [m for m in candidates if m.upside_down]
+        for mug in candidates:
             try:
                 plan = self.plan_cycle(
                     start_q, mug, replace(slot, mug_id=mug.mug_id), on_tray, counter=counter
@@ -280,6 +307,94 @@ class CyclePlanner:
         raise MotionRefused.combining(
             f"slot for {slot.mug_id}: no {slot.type} mug can be moved there ({why})", (e for _, e in reasons)
         )
+
+    def _shared_refusals(
+        self, slot: TraySlot, on_tray: Sequence[TraySlot]
+    ) -> tuple[MotionRefused | None, MotionRefused | None] | None:
+        """Why no mug of the slot's type can be put down in it (None: it can), and why none standing
+        upright can be flipped and then put down in it (None: one can); None when the slot itself is
+        refused before any motion (each candidate says why). Remembered per slot and tray."""
+        try:
+            spec = self._spec(slot.type, f"slot for {slot.mug_id}")
+            if slot.rotated or not (math.isfinite(slot.x_m) and math.isfinite(slot.y_m)):
+                return None
+            self._check_slot_in_tray(slot, spec)
+        except MotionRefused:
+            return None
+        placed = tuple(on_tray)
+        key = (slot, placed)
+        if key not in self._shared:
+            if len(self._shared) >= _REMEMBERED:
+                self._shared.clear()
+            with self._lock:
+                self._shared[key] = self._shared_motions_refused(slot, spec, placed)
+        return self._shared[key]
+
+    def _shared_motions_refused(
+        self, slot: TraySlot, spec: MugSpec, placed: Sequence[TraySlot]
+    ) -> tuple[MotionRefused | None, MotionRefused | None]:
+        """``_shared_refusals``, worked out: the place part of a cycle from above the slot, and the flip
+        part from above the flip area, with either wrist roll, among the tray's mugs only. A roll that
+        works for both ends the search (what a slot that can be filled costs)."""
+        c = _CycleContext(self, MugPose(slot.mug_id, slot.type, slot.x_m, slot.y_m), spec, slot, placed, ())
+        place_z = self.cell.tray.base_m + thesis.GRASP_HEIGHT_M + self.release_gap_m
+        fx, fy = self.cell.flip_area_center_m
+        set_down_z = spec.height_mm / 1000.0 - thesis.GRASP_HEIGHT_M + self.release_gap_m
+        flipped: list[_Builder] = []
+
+        def place(kind: GraspKind) -> MotionRefused | None:
+            try:
+                target = self._grasp(slot.x_m, slot.y_m, spec, kind, place_z, f"slot of {slot.mug_id}")
+            except MotionRefused as e:
+                return e
+            try:
+                self._place(_Builder(self, self._above(target)), c, kind)
+            except MotionRefused as e:
+                return e
+            return None
+
+        def regrasp(kind: GraspKind) -> MotionRefused | None:
+            if not flipped:
+                set_down = self._grasp(fx, fy, spec, GraspKind.SIDE_UPSIDE_DOWN, set_down_z, "flip set-down")
+                flip = _Builder(self, self._above(GraspTarget(set_down.position_m, GraspKind.SIDE)))
+                self._flip(flip, c)
+                flipped.append(flip)
+            try:
+                self._regrasp(flipped[0].fork(), c, kind)
+            except MotionRefused as e:
+                return e
+            return None
+
+        placing: list[MotionRefused | None] = []
+        upright: list[MotionRefused] = []
+        try:
+            for kind in _ROLLS:
+                refused = place(kind)
+                placing.append(refused)
+                if refused is None:
+                    try:
+                        refused = regrasp(kind)
+                    except MotionRefused as e:
+                        return None, e  # the flip itself, before either roll
+                    if refused is None:
+                        return None, None
+                upright.append(refused)
+        except _Undecided:
+            return None, None
+        if all(e is not None for e in placing):
+            return _either(*placing), None
+        return None, _either(*upright)
+
+    def _above(self, target: GraspTarget) -> FloatArray:
+        """The joint angles at carry height above ``target`` with its orientation; ``_Undecided`` when
+        they cannot be had from no seed (a candidate's own way there decides)."""
+        above = _at_z(target, self.carry_z_m)
+        if self.correction is not None:
+            above = GraspTarget(self.correction.correct(above.position_m), above.kind)
+        result = self.arm.ik(above)
+        if not result.ok or result.q is None:
+            raise _Undecided
+        return np.asarray(result.q)
 
     def _cycle_motions(
         self,
@@ -854,6 +969,24 @@ class _Builder:
         lateral = held.lateral if held is not None else 0.0
         self.motions.append(_Motion(Step(phase, StepKind.MOVE, trajectory), path, mass, lateral))
         self.q = trajectory.positions[-1].copy()
+
+
+# The two ways of holding the inverted mug, in the order they are tried (``CyclePlanner._either_roll``).
+_ROLLS = (GraspKind.SIDE_UPSIDE_DOWN, GraspKind.SIDE)
+# Slots and tray states whose shared motions a planner remembers (one job has a few dozen).
+_REMEMBERED = 256
+
+
+class _Undecided(Exception):
+    """What every candidate shares could not be worked out apart from them: plan each on its own."""
+
+
+def _either(first: MotionRefused | None, second: MotionRefused | None) -> MotionRefused:
+    """The refusal of a part of the cycle with either wrist roll, worded as ``_either_roll`` words it."""
+    assert first is not None
+    assert second is not None
+    why = str(first) if str(first) == str(second) else f"{first}; with the wrist level: {second}"
+    return MotionRefused.combining(why, (first, second))
 
 
 # Mugs a move may touch: one mug id, or several (a gripper lifting off the mugs it straddles).
