@@ -1,8 +1,9 @@
 """The ``dishbot`` command line. Each verb lives in its own module under ``cli.commands``.
 
-Building the parser imports every verb module, so each keeps its heavy imports (MuJoCo, scipy, Pinocchio,
-OpenCV, OR-Tools, numpy) inside the functions that run the verb: ``--help`` and the client verbs start fast
-and a plain install (no ``sim`` extra) can run them (tests/daemon/test_cli_imports.py checks).
+Running a verb imports the module that implements it and no other (``VERBS`` says which); ``--help`` lists
+every verb from ``VERBS`` alone. Each module keeps its heavy imports (MuJoCo, scipy, Pinocchio, OpenCV,
+OR-Tools, numpy) inside the functions that run the verb: ``--help`` and the client verbs start fast and a
+plain install (no ``sim`` extra) can run them (tests/daemon/test_cli_imports.py checks both).
 """
 
 from __future__ import annotations
@@ -11,46 +12,99 @@ import argparse
 import importlib
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
+from typing import Final, NamedTuple
 
 from cli.extras import missing_extra
 from cli.logs import LEVELS, configure_cli_logging
 from daemon.errors import ConfigError, UsageError
 
-# Each module defines ``register(subparsers)``, which adds its verbs and sets ``handler`` on the parser:
-# a callable taking the parsed namespace and returning the exit code. Named, not imported: the benchmarks
-# are the top layer, which nothing imports statically.
-COMMAND_MODULES: tuple[str, ...] = (
-    "bench.cli",
-    "cli.commands.config_cmd",
-    "cli.commands.statechart_cmd",
-    "cli.commands.record",
-    "cli.commands.plan",
-    "cli.commands.run",
-    "cli.commands.replay",
-    "cli.commands.client",
-    "cli.commands.monitor",
-    "cli.commands.security",
-    "cli.commands.router",
-    "cli.commands.servo",
-    "cli.commands.fsr",
-    "cli.commands.sim",
-    "cli.commands.arm",
-    "cli.commands.detect",
-    "cli.commands.calibrate",
-)
+
+class Verb(NamedTuple):
+    """A top-level verb: the module whose ``register(subparsers)`` adds it, and its line in ``--help``."""
+
+    module: str
+    help: str
+
+
+# Every verb in the order ``dishbot --help`` lists them, as its module registers them (the listing is
+# checked against the modules' own parsers). Each module defines ``register(subparsers)``, which adds its
+# verbs and sets ``handler`` on the parser: a callable taking the parsed namespace and returning the exit
+# code. Named, not imported: the benchmarks are the top layer, which nothing imports statically.
+VERBS: Final[dict[str, Verb]] = {
+    "bench": Verb("bench.cli", "run a benchmark and print its table (or --json)"),
+    "config": Verb("cli.commands.config_cmd", "show the effective configuration"),
+    "statechart": Verb(
+        "cli.commands.statechart_cmd",
+        "print the statechart (states, events, guards) as a Mermaid stateDiagram",
+    ),
+    "record": Verb(
+        "cli.commands.record", "inspect session recordings (MCAP): summary and outcome, or a picture"
+    ),
+    "plan": Verb("cli.commands.plan", "plan the mugs' tray positions and placing order"),
+    "run": Verb(
+        "cli.commands.run",
+        "run the daemon (simulated cell with --sim); --once runs one loading job and exits",
+    ),
+    "replay": Verb(
+        "cli.commands.replay",
+        "re-run a recorded job through the daemon on simulated time, with injected faults",
+    ),
+    "status": Verb(
+        "cli.commands.client",
+        "daemon command: print the daemon's state, job progress and the commands allowed now",
+    ),
+    "start": Verb(
+        "cli.commands.client",
+        "daemon command: start a loading job (simulation: --dataset or --mugs set the counter up first)",
+    ),
+    "pause": Verb(
+        "cli.commands.client", "daemon command: stop motion where it is; resume continues from there"
+    ),
+    "resume": Verb("cli.commands.client", "daemon command: continue a paused job where it stopped"),
+    "stop": Verb("cli.commands.client", "daemon command: abandon the job: stop motion, go back to idle"),
+    "estop": Verb(
+        "cli.commands.client",
+        "daemon command: emergency stop: stop the arm, then switch its torque off; only reset leaves",
+    ),
+    "reset": Verb("cli.commands.client", "daemon command: leave fault or estop for idle"),
+    "list": Verb("cli.commands.client", "list the robots alive at the endpoint (their liveliness tokens)"),
+    "monitor": Verb("cli.commands.monitor", "show running daemons' live state, joints and gripper force"),
+    "security": Verb(
+        "cli.commands.security",
+        "set up TLS certificates, passwords and roles for commanding a robot from other machines",
+    ),
+    "router": Verb(
+        "cli.commands.router",
+        "run a Zenoh router for a fleet, with the same TLS, passwords and roles as the daemon",
+    ),
+    "servo": Verb("cli.commands.servo", "find Dynamixel servos and change their id or baud rate"),
+    "fsr": Verb("cli.commands.fsr", "the force-sensing resistor in the gripper pad"),
+    "sim": Verb("cli.commands.sim", "run a simulated device on a pseudo-terminal"),
+    "arm": Verb("cli.commands.arm", "kinematics of the arm: forward, inverse, workspace, calibration"),
+    "detect": Verb("cli.commands.detect", "detect the mugs in a depth image"),
+    "calibrate": Verb(
+        "cli.commands.calibrate", "find the camera's pose from an image of a ChArUco board on the table"
+    ),
+}
+COMMAND_MODULES: Final = tuple(dict.fromkeys(v.module for v in VERBS.values()))
+# The options before the verb that take a value (``--log-level debug``).
+_VALUED_OPTIONS: Final = ("--log-level", "--profile")
 
 Handler = Callable[[argparse.Namespace], int]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(verbs: Collection[str] | None = None) -> argparse.ArgumentParser:
+    """The command line's parser. ``verbs`` None: every verb registered by its module (the whole command
+    line, for its documentation and tests); otherwise only the modules of ``verbs`` are imported, and every
+    other verb is listed by name and help line, so ``--help`` reads the same."""
     parser = argparse.ArgumentParser(
         prog="dishbot",
         description="Load the mugs on a kitchen counter into a dishwasher tray with a low-cost robot arm.",
     )
     parser.add_argument(
         "--log-level",
-        choices=tuple(LEVELS),
+        choices=LEVELS,
         default="info",
         help="least severe log event written to stderr (default: info); stdout carries only results",
     )
@@ -61,14 +115,44 @@ def build_parser() -> argparse.ArgumentParser:
         "$DISHBOT_PROFILE)",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMAND_MODULES:
-        importlib.import_module(name).register(sub)
+    wanted = None if verbs is None else {VERBS[v].module for v in verbs if v in VERBS}
+    for module in COMMAND_MODULES:
+        if wanted is None or module in wanted:
+            importlib.import_module(module).register(sub)
+            continue
+        for name, verb in VERBS.items():
+            if verb.module == module:
+                sub.add_parser(name, help=verb.help)
     return parser
 
 
+def named_verb(argv: Sequence[str]) -> str | None:
+    """The verb ``argv`` runs (its first word that is not an option or an option's value), or None."""
+    args = iter(argv)
+    for arg in args:
+        if arg == "--":
+            return next(args, None)
+        if arg.startswith("-"):
+            # argparse takes an unambiguous prefix of an option too (``--log debug``).
+            if "=" not in arg and len(arg) > 2 and any(o.startswith(arg) for o in _VALUED_OPTIONS):
+                next(args, None)
+            continue
+        return arg
+    return None
+
+
+def parse(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """``argv`` (default: the process's) parsed with only what its verb needs imported."""
+    args_list = sys.argv[1:] if argv is None else list(argv)
+    verb = named_verb(args_list)
+    args = build_parser(() if verb is None else (verb,)).parse_args(args_list)
+    if not hasattr(args, "handler"):  # the verb was not where ``named_verb`` looked: take every module
+        args = build_parser().parse_args(args_list)
+    return args
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parse(argv)
     configure_cli_logging(args.log_level)
     handler: Handler = args.handler
     try:

@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from cli.commands.arm import SIDE_GRASPS
-from cli.main import build_parser
+from cli.main import build_parser, named_verb
 from daemon.app import RunOptions, serve
 from daemon.config import load_config
 from daemon.sdnotify import SdNotifier
@@ -35,6 +35,9 @@ ROBOT = "importtest"
 _PROBE = """
 import json, sys
 loaded = {m.partition(".")[0] for m in sys.modules}
+OURS = {"bench", "cli", "daemon", "description", "drivers", "perception", "planning", "recorder", "replay",
+        "sim", "statechart", "wire"}
+seen = set()
 from cli.main import main
 cases, out = json.loads(sys.argv[1]), sys.argv[2]
 done = []
@@ -44,15 +47,18 @@ for argv in cases:
     except SystemExit as e:
         code = e.code
     now = {m.partition(".")[0] for m in sys.modules}
-    done.append({"argv": argv, "code": code, "new": sorted(now - loaded)})
+    ours = {m for m in sys.modules if m.partition(".")[0] in OURS} - seen
+    done.append({"argv": argv, "code": code, "new": sorted(now - loaded), "ours": sorted(ours)})
     loaded = now
+    seen |= ours
 with open(out, "w", encoding="utf-8") as f:
     json.dump(done, f)
 """
 
 
 def run_cli(tmp_path: Path, *cases: Sequence[str]) -> list[dict[str, Any]]:
-    """Run each argv in one fresh interpreter; per argv: exit code and the packages it loaded first."""
+    """Run each argv in one fresh interpreter; per argv: exit code, the packages it loaded first (``new``)
+    and the modules of dishbot it loaded first (``ours``)."""
     out = tmp_path / f"probe-{len(list(tmp_path.iterdir()))}.json"
     proc = subprocess.run(
         [sys.executable, "-c", _PROBE, json.dumps([list(c) for c in cases]), str(out)],
@@ -92,6 +98,44 @@ def test_no_help_screen_loads_a_heavy_library(tmp_path: Path) -> None:
     results = run_cli(tmp_path, *[(*p, "--help") for p in paths])
     assert [r["code"] for r in results] == [0] * len(paths)
     assert heavy_loaded(results) == {}
+
+
+def test_the_help_screen_loads_no_verb_and_reads_as_every_verb_registered() -> None:
+    """``dishbot --help`` lists the verbs from ``cli.main.VERBS`` without importing their modules; the
+    listing is what the modules themselves register."""
+    assert build_parser(()).format_help() == build_parser().format_help()
+
+
+def test_the_bare_help_screen_imports_only_the_command_line_itself(tmp_path: Path) -> None:
+    [result] = run_cli(tmp_path, ("--help",))
+    assert result["code"] == 0
+    assert set(result["ours"]) <= {"cli", "cli.main", "cli.extras", "cli.logs", "daemon", "daemon.errors"}
+    assert not {"structlog", "logging", "asyncio", "zenoh"} & set(result["new"])
+
+
+@pytest.mark.parametrize(
+    ("argv", "verb"),
+    [
+        (["status"], "status"),
+        (["--log-level", "debug", "run", "--sim"], "run"),
+        (["--log", "debug", "stop"], "stop"),
+        (["--profile=robot.toml", "start", "--dataset", "2"], "start"),
+        (["--profile", "status", "status"], "status"),
+        (["--help"], None),
+        ([], None),
+    ],
+)
+def test_the_verb_is_the_first_word_that_is_no_option_nor_its_value(
+    argv: list[str], verb: str | None
+) -> None:
+    assert named_verb(argv) == verb
+
+
+def test_a_verb_imports_its_own_module_and_no_other_verb(tmp_path: Path) -> None:
+    [result] = run_cli(tmp_path, ("statechart",))
+    assert result["code"] == 0
+    verbs = {m for m in result["ours"] if m.startswith("cli.commands.") or m.startswith("bench")}
+    assert verbs == {"cli.commands.statechart_cmd"}
 
 
 @pytest.mark.parametrize(
@@ -141,6 +185,14 @@ def test_the_client_verbs_load_no_heavy_library_while_they_command_a_daemon(tmp_
     results = asyncio.run(go())
     assert [r["code"] for r in results] == [*verbs.values(), 0]
     assert heavy_loaded(results) == {}
+    # The client and the Zenoh session, not the daemon's other layers nor the other verbs.
+    layers = {"planning", "perception", "statechart", "sim", "wire", "recorder", "replay", "bench"}
+    loaded = {m for r in results for m in r["ours"]}
+    assert not {m for m in loaded if m.partition(".")[0] in layers}
+    assert {m for m in loaded if m.startswith("cli.commands.")} == {
+        "cli.commands.client",
+        "cli.commands.monitor",
+    }
 
 
 def test_the_arm_verbs_name_the_side_grasps_of_the_arm_model() -> None:
