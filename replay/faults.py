@@ -29,6 +29,7 @@ import math
 import os
 import re
 import signal
+import threading
 import time
 import tomllib
 from collections.abc import Callable, Coroutine, Mapping, Sequence
@@ -139,7 +140,8 @@ FAULT_KINDS: Final[Mapping[str, KindSpec]] = {
     ),
     "zenoh_peer_loss": KindSpec(
         "a Zenoh peer on loopback",
-        "the peer the daemon connects to closes its session, and opens it again after duration_s",
+        "the peer the daemon connects to closes its session, and opens it again after duration_s of wall "
+        "time (Zenoh notices a lost link on the wall clock)",
         ("duration_s",),
     ),
     "disk_full": KindSpec(
@@ -782,7 +784,10 @@ class FaultInjector:
         ctx = self._ctx
         assert ctx is not None
         assert spec.duration_s is not None
-        await ctx.clock.sleep(spec.duration_s)
+        if spec.kind == "zenoh_peer_loss":  # Zenoh notices a lost link on the wall clock
+            await _wall_wait(spec.duration_s)
+        else:
+            await ctx.clock.sleep(spec.duration_s)
         active = self._active.get(slot, [])
         before = tuple(active)
         active.remove(spec)
@@ -982,6 +987,27 @@ def _combined_corruption(active: Sequence[FaultSpec]) -> tuple[float, int, int |
 def _log_time_ns(t: float) -> int:
     """A recording's log time for the clock's ``now()`` (as ``serve`` stamps every message)."""
     return round(t * 1e9)
+
+
+async def _wall_wait(seconds: float) -> None:
+    """Wait ``seconds`` of wall time, whatever clock the session is on, without holding it up: Zenoh
+    notices a lost link on the wall clock, so a peer lost for a few simulated seconds at full speed would be
+    back before anyone noticed it had gone. Simulated time runs on meanwhile (the daemon's own timers, such as
+    the one that settles a change of links, fire as usual)."""
+    loop = asyncio.get_running_loop()
+    woken: asyncio.Future[None] = loop.create_future()
+
+    def wake() -> None:
+        if not woken.done():
+            woken.set_result(None)
+
+    timer = threading.Timer(seconds, loop.call_soon_threadsafe, (wake,))
+    timer.daemon = True
+    timer.start()
+    try:
+        await woken
+    finally:
+        timer.cancel()
 
 
 def _stall(seconds: float) -> None:
