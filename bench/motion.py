@@ -4,14 +4,16 @@ IK is measured on targets known to be reachable: forward kinematics of seeded ra
 limits (position-only targets), and of random side-grasp poses (horizontal, upright or upside down) for the
 grasp targets, so the success rate measures the solver, not the workspace. The cycle part plans the thesis's
 dataset in the default cell the way the daemon does: the placement planner's layout and order, each slot
-served by the named mug or another reachable one of its type, every cycle collision-checked. Per mug it
-reports the cycle time and the electrical energy of the dynamics model (RNEA + servo model, with and without
-the servos' standby draw) beside the thesis's proxy E = M g Δm (Eq 4.2).
+served by the named mug or another reachable one of its type, every cycle collision-checked (datasets 4-6 on
+the full-size tray, where many slots are out of the arm's reach). Per mug it reports the cycle time and the
+electrical energy of the dynamics model (RNEA + servo model, with and without the servos' standby draw)
+beside the thesis's proxy E = M g Δm (Eq 4.2), and how long a slot no mug can be moved to takes to refuse.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import statistics
 import time
@@ -43,7 +45,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     parser.add_argument("--samples", default="400", help="IK targets per kind (default 400)")
     parser.add_argument(
-        "--dataset", default="1", help="thesis dataset on the robot tray: 1, 2 or 3 (default 1)"
+        "--dataset",
+        default="1",
+        help="thesis dataset: 1, 2 or 3 on the robot tray, 4, 5 or 6 on the full-size tray (default 1)",
     )
     parser.add_argument("--seed", default="0", help="random seed for the IK samples (default 0)")
     add_json_flag(parser)
@@ -53,8 +57,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def run(args: argparse.Namespace) -> int:
     samples = _whole("--samples", args.samples, minimum=10)
     seed = _whole("--seed", args.seed, minimum=0)
-    if args.dataset not in ("1", "2", "3"):
-        raise UsageError(f"--dataset: expected 1, 2 or 3 (the robot-tray datasets), got {args.dataset!r}")
+    if args.dataset not in ("1", "2", "3", "4", "5", "6"):
+        raise UsageError(f"--dataset: expected a thesis dataset, 1 to 6, got {args.dataset!r}")
     import numpy as np
 
     from planning.arm import ArmModel
@@ -178,10 +182,13 @@ def _dataset_cycles(arm: ArmModel, dataset: int) -> dict[str, object]:
     from planning.arm.grasp import handle_facing_away_rad
     from planning.motion import CyclePlanner, thesis_energy_j
     from planning.placement import PlanOptions, cell_dataset_problem, plan
+    from sim.counter import dataset_counter
 
     config = load_config()
-    planner = CyclePlanner(arm, config.cell, thesis.MUG_TYPES)
     problem = cell_dataset_problem(config.cell, dataset)
+    # Datasets 4-6 go to the full-size tray, where the kinematic cell sets them out.
+    tray = dataset_counter(dataset, config.cell, thesis.MUG_TYPES).tray
+    planner = CyclePlanner(arm, dataclasses.replace(config.cell, tray=tray), thesis.MUG_TYPES)
     layout = plan(problem, PlanOptions(method="sa", time_limit_s=1.0))
     counter = {}
     for m in problem.mugs:
@@ -191,13 +198,17 @@ def _dataset_cycles(arm: ArmModel, dataset: int) -> dict[str, object]:
     placed: list[TraySlot] = []
     durations, dyn_motion, dyn_total, proxy, plan_times = [], [], [], [], []
     refused: list[str] = []
+    refusal_times: list[float] = []
+    refusal_cpu: list[float] = []
     for spot in sorted(layout.placed, key=lambda p: p.order):
         cx, cy = problem.to_world_mm(*problem.brim_centre_on_tray(spot.type, spot.x_mm, spot.y_mm))
         slot = TraySlot(spot.id, spot.type, cx / 1000.0, cy / 1000.0, spot.rotated)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         try:
             mug, cycle = planner.plan_for_slot(q, slot, list(counter.values()), placed)
         except MotionRefused as e:
+            refusal_cpu.append(time.thread_time() - c0)
+            refusal_times.append(time.perf_counter() - t0)
             refused.append(f"{spot.id}: {str(e)[:160]}")
             continue
         plan_times.append(time.perf_counter() - t0)
@@ -214,6 +225,11 @@ def _dataset_cycles(arm: ArmModel, dataset: int) -> dict[str, object]:
     rows: list[list[object]] = [
         [f"mugs moved (dataset {dataset})", n, "mugs", f"{layout.n} planned by the placement planner"],
         ["cycle planning p50", round(_pct(plan_times, 50), 3), "s", "thesis: < 60 s"],
+        [f"slots refused (dataset {dataset})", len(refused), "slots", "no mug can be moved there"],
+        ["refused slot p50", round(_pct(refusal_times, 50), 3), "s", "<= 0.1 s"],
+        ["refused slot max", round(max(refusal_times, default=math.nan), 3), "s", "<= 0.1 s"],
+        ["refused slot CPU time p50", round(_pct(refusal_cpu, 50), 3), "s", "<= 0.1 s"],
+        ["refused slot CPU time max", round(max(refusal_cpu, default=math.nan), 3), "s", "<= 0.1 s"],
         [
             "cycle time per mug (mean)",
             round(statistics.fmean(durations), 2) if n else math.nan,

@@ -30,10 +30,23 @@ def test_bench_motion_json_reports_ik_trajectories_and_the_dataset_cycle(
     assert doc["dataset"] == 1
 
 
+def test_bench_motion_on_the_full_size_tray_reports_how_long_a_refused_slot_takes(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert main(["bench", "motion", "--samples", "10", "--dataset", "4", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    rows = {r["metric"]: r for r in doc["rows"]}
+    assert rows["mugs moved (dataset 4)"]["value"] >= 1
+    assert rows["slots refused (dataset 4)"]["value"] == len(doc["refused"]) >= 1
+    cpu = rows["refused slot CPU time p50"]["value"]
+    assert 0 < cpu <= rows["refused slot CPU time max"]["value"]
+    assert rows["refused slot p50"]["unit"] == "s"
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--dataset", "4"], "--dataset: expected 1, 2 or 3 (the robot-tray datasets), got '4'"),
+        (["--dataset", "7"], "--dataset: expected a thesis dataset, 1 to 6, got '7'"),
         (["--samples", "5"], "--samples: expected a whole number, at least 10, got '5'"),
     ],
 )
