@@ -14,13 +14,14 @@ from typing import Any
 import pytest
 
 from daemon.config import load_config
-from description.cell import CellLayout, Tray
+from description.cell import CellLayout
 from description.thesis import MUG_TYPES
 from planning.arm import ArmModel
 from planning.arm.grasp import handle_facing_away_rad
 from planning.interfaces import CyclePlan, MotionRefused, MugPose, StepKind, TraySlot
 from planning.motion import CyclePlanner
 from planning.placement import PlanOptions, cell_dataset_problem, plan
+from sim.counter import dataset_counter
 
 START_Q = (0.0, -1.2, 1.7, -2.0, -math.pi / 2)
 MUG = MugPose("m1", "big", -0.10, 0.45, handle_yaw_rad=math.atan2(0.45, -0.10))
@@ -81,9 +82,7 @@ def test_filling_a_dataset_slot_by_slot_plans_what_each_candidate_in_turn_plans(
     arm: ArmModel, cell: CellLayout, dataset: int
 ) -> None:
     problem = cell_dataset_problem(cell, dataset)
-    tray = Tray(
-        (problem.tray_origin_mm[0] / 1000.0, problem.tray_origin_mm[1] / 1000.0), problem.tray_size_mm
-    )
+    tray = dataset_counter(dataset, cell, MUG_TYPES).tray  # the full-size tray for dataset 4
     planner = CyclePlanner(arm, dataclasses.replace(cell, tray=tray), MUG_TYPES)
     reference = CyclePlanner(arm, dataclasses.replace(cell, tray=tray), MUG_TYPES)
     layout = plan(problem, PlanOptions(method="bh"))
