@@ -80,7 +80,10 @@ VERBS: Final[dict[str, Verb]] = {
     ),
     "servo": Verb("cli.commands.servo", "find Dynamixel servos and change their id or baud rate"),
     "fsr": Verb("cli.commands.fsr", "the force-sensing resistor in the gripper pad"),
-    "sim": Verb("cli.commands.sim", "run a simulated device on a pseudo-terminal"),
+    "sim": Verb(
+        "cli.commands.sim",
+        "simulated devices: the servo chain (bus) or the whole cell as separate devices (rig)",
+    ),
     "arm": Verb("cli.commands.arm", "kinematics of the arm: forward, inverse, workspace, calibration"),
     "detect": Verb("cli.commands.detect", "detect the mugs in a depth image"),
     "calibrate": Verb(

@@ -36,7 +36,9 @@ DEFAULT_CAMERA_KEY = "dishbot/camera/depth"
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    parser = sub.add_parser("sim", help="run a simulated device on a pseudo-terminal")
+    parser = sub.add_parser(
+        "sim", help="simulated devices: the servo chain (bus) or the whole cell as separate devices (rig)"
+    )
     sim_sub = parser.add_subparsers(dest="sim_command", metavar="DEVICE", required=True)
     bus = sim_sub.add_parser(
         "bus",
