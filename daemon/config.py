@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.errors import ConfigError
-from daemon.security import ZenohConfig, check_files, parse_zenoh
+from daemon.security import ZenohConfig, check_files, check_key, parse_zenoh
 from daemon.security import check_endpoint as check_endpoint  # where the verbs have always found it
 from description.camera import MAX_FOVY_DEG, MIN_FOVY_DEG, CameraSpec
 from description.cell import CellLayout, Tray
@@ -640,9 +640,7 @@ def _hardware_gripper(s: _Section) -> HardwareGripperConfig:
 
 
 def _zenoh_camera(s: _Section) -> ZenohCameraConfig:
-    key = s.text("key")
-    if any(c in key for c in "*$?#") or key.startswith("/") or key.endswith("/") or "//" in key:
-        raise ConfigError(f"hardware.zenoh_camera.key: {_show(key)} is not a plain Zenoh key (no wildcards)")
+    key = check_key(s._get("key"), "hardware.zenoh_camera.key")
     connect = check_endpoint(s._get("connect"), "hardware.zenoh_camera.connect")
     cfg = ZenohCameraConfig(connect=connect, key=key)
     s.finish()

@@ -68,6 +68,20 @@ def check_endpoint(value: object, name: str) -> str:
     return str(value)
 
 
+def check_key(value: object, name: str) -> str:
+    """A plain Zenoh key (``a/b/c``: no wildcards, no empty chunk); raises ``ConfigError`` naming ``name``."""
+    if (
+        not isinstance(value, str)
+        or not value
+        or any(c in value for c in "*$?#")
+        or value.startswith("/")
+        or value.endswith("/")
+        or "//" in value
+    ):
+        raise ConfigError(f"{name}: {_show(value)} is not a plain Zenoh key (no wildcards)")
+    return value
+
+
 def endpoint_protocol(endpoint: str) -> str:
     return endpoint.split("/", 1)[0]
 

@@ -156,7 +156,7 @@ def _bus(args: argparse.Namespace) -> int:
 def _rig(args: argparse.Namespace) -> int:
     from daemon.clock import RealClock
     from daemon.config import load_config, to_toml
-    from daemon.security import check_endpoint
+    from daemon.security import check_endpoint, check_key
 
     if args.world != "mujoco":
         raise UsageError(
@@ -166,10 +166,9 @@ def _rig(args: argparse.Namespace) -> int:
         raise UsageError(f"--camera-hz {args.camera_hz:g} is out of range; allowed [0.5, 30]")
     try:
         check_endpoint(args.listen, "--listen")
+        check_key(args.camera_key, "--camera-key")
     except ConfigError as e:
         raise UsageError(str(e)) from e
-    if not _plain_key(args.camera_key):
-        raise UsageError(f"--camera-key {args.camera_key!r} is not a plain Zenoh key (no wildcards)")
     target = Path(args.write_config)
     _check_writable(target)
     base = load_config(Path(args.config) if args.config else None)
@@ -255,10 +254,6 @@ def _publish(
         stop.wait(max(0.0, next_at - clock.monotonic()))
 
 
-def _plain_key(key: str) -> bool:
-    return bool(key) and not any(c in key for c in "*$?#") and not key.startswith("/") and "//" not in key
-
-
 def _check_writable(target: Path) -> None:
     if target.is_dir():
         raise UsageError(f"--write-config {target}: is a folder; name a file")
@@ -275,33 +270,37 @@ def _check_writable(target: Path) -> None:
 
 def _counter(args: argparse.Namespace, config: Any) -> list[Any]:
     """The rig's counter mugs: the listed ones, else the dataset's (default 1), on the config's cell."""
-    from daemon.commands_handler import BadCommand, parse
     from sim.counter import dataset_counter, listed_counter, require_cell_tray
 
+    entries = _listed_mugs(args.mugs, config) if args.mugs is not None else None
     try:
-        if args.mugs is not None:
-            try:
-                listed = json.loads(Path(args.mugs).read_text(encoding="utf-8"))
-            except OSError as e:
-                raise UsageError(f"--mugs {args.mugs}: cannot read it: {e.strerror}") from e
-            except (json.JSONDecodeError, UnicodeDecodeError) as e:
-                raise UsageError(f"--mugs {args.mugs}: not valid JSON: {e}") from e
-            try:
-                request = parse("start", json.dumps({"mugs": listed}).encode(), config)
-            except BadCommand as e:
-                raise UsageError(f"--mugs {args.mugs}: {e}") from e
-            if request is None or request.mugs is None:
-                raise UsageError(f"--mugs {args.mugs}: lists no mugs")
-            entries = [(m.mug_id, m.type, m.x_m, m.y_m) for m in request.mugs]
+        if entries is not None:
             counter = listed_counter(entries, config.cell, config.mug_catalogue())
         else:
             counter = dataset_counter(args.dataset or 1, config.cell, config.mug_catalogue())
         require_cell_tray(counter, config.cell)
     except (KeyError, ValueError) as e:
-        if isinstance(e, UsageError):
-            raise
         raise UsageError(f"sim rig: {e}") from e
     return list(counter.mugs)
+
+
+def _listed_mugs(path: str, config: Any) -> list[tuple[str, str, float, float]]:
+    """A ``dishbot start --mugs`` file's mugs, checked as the daemon checks a ``start`` command's."""
+    from daemon.commands_handler import BadCommand, parse
+
+    try:
+        listed = json.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as e:
+        raise UsageError(f"--mugs {path}: cannot read it: {e.strerror}") from e
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise UsageError(f"--mugs {path}: not valid JSON: {e}") from e
+    try:
+        request = parse("start", json.dumps({"mugs": listed}).encode(), config)
+    except BadCommand as e:
+        raise UsageError(f"--mugs {path}: {e}") from e
+    if request is None or request.mugs is None:
+        raise UsageError(f"--mugs {path}: lists no mugs")
+    return [(m.mug_id, m.type, m.x_m, m.y_m) for m in request.mugs]
 
 
 def _rig_config(

@@ -117,7 +117,7 @@ def run_cli(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, s
         (["--world", "kinematic"], "--world kinematic: the rig needs a world with a depth camera to publish"),
         (["--camera-hz", "100"], "--camera-hz 100 is out of range; allowed [0.5, 30]"),
         (["--listen", "127.0.0.1:7460"], "--listen: '127.0.0.1:7460' is not a Zenoh endpoint"),
-        (["--camera-key", "cam/*"], "--camera-key 'cam/*' is not a plain Zenoh key (no wildcards)"),
+        (["--camera-key", "cam/*"], "--camera-key: 'cam/*' is not a plain Zenoh key (no wildcards)"),
         (["--dataset", "5"], "sim rig: "),
     ],
 )
