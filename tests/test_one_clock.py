@@ -92,11 +92,11 @@ ALLOWED: Final[dict[tuple[str, str], str]] = {
     ("perception/observer.py", "CameraObserver._look"): (
         "measures how long detection took (the observation's detect_ms), nothing else"
     ),
-    ("planning/placement/planner.py", "Context.__init__"): (
+    ("planning/placement/context.py", "Context.__init__"): (
         "a compute budget: how long an optimiser may think on this machine"
     ),
-    ("planning/placement/planner.py", "Context.out_of_time"): "the same compute budget",
-    ("planning/placement/planner.py", "Context.elapsed"): "the same compute budget",
+    ("planning/placement/context.py", "Context.out_of_time"): "the same compute budget",
+    ("planning/placement/context.py", "Context.elapsed"): "the same compute budget",
     ("planning/placement/mugshaped.py", "run"): (
         "the mug packer's compute budget (CPU time of its thread): how long it may search on this machine"
     ),

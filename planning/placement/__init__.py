@@ -4,10 +4,11 @@ Every method of the thesis (§4.2: packing heuristics, SA, GA, PSOp, PSOk, best 
 model that proves the largest number of mugs that fit, and ``auto``, which combines them within a time budget.
 """
 
+from planning.placement.context import PlanOptions
 from planning.placement.cost import MoveCost, ThesisMoveCost
 from planning.placement.datasets import cell_dataset_problem, dataset_problem
 from planning.placement.errors import InvalidProblem
-from planning.placement.planner import METHODS, PlacedMug, PlanOptions, PlanResult, plan
+from planning.placement.planner import METHODS, PlacedMug, PlanResult, plan
 from planning.placement.problem import FOOTPRINTS, CounterMug, MugType, Problem, TrayMug
 from planning.placement.seam import PlacementPlanner
 

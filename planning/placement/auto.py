@@ -10,9 +10,9 @@ the result says it is optimal.
 from __future__ import annotations
 
 from planning.placement import exact, sa
+from planning.placement.context import Candidate, Context
 from planning.placement.cost import Metrics
 from planning.placement.heuristics import Heuristic
-from planning.placement.planner import Candidate, Context
 from planning.placement.sorts import Sort, sorted_order
 
 # Kept back from the budget for building the result.

@@ -26,8 +26,8 @@ import numpy as np
 from ortools.sat.python import cp_model
 
 from planning.placement.assignment import least_cost_assignment
+from planning.placement.context import Candidate, Context, Layout
 from planning.placement.order import execution_order
-from planning.placement.planner import Candidate, Context, Layout
 from planning.placement.problem import Problem
 
 # Beyond this many (choice, covered point) pairs the set-packing model takes longer to build than to solve.

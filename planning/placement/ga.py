@@ -16,9 +16,9 @@ from __future__ import annotations
 import random
 
 from description import thesis
+from planning.placement.context import Candidate, Context
 from planning.placement.cost import Metrics
 from planning.placement.packing import Packing
-from planning.placement.planner import Candidate, Context
 
 # Breeding gives up on a generation after this many duplicate offspring in a row; only reached when almost
 # every permutation is already in the population (a handful of mugs), where the search is exhausted anyway.

@@ -28,10 +28,10 @@ from dataclasses import replace
 import numpy as np
 
 from planning.placement.assignment import least_cost_assignment
+from planning.placement.context import Candidate, Context, Layout
 from planning.placement.cost import Metrics
 from planning.placement.errors import InvalidProblem
 from planning.placement.mugpack import SCANS, MugPacker, Scan, Spot, fixed_bodies
-from planning.placement.planner import Candidate, Context, Layout
 from planning.placement.problem import Problem
 from planning.placement.shapes import Bodies, MugOutline, keeps_clear
 

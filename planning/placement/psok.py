@@ -15,9 +15,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from description import thesis
+from planning.placement.context import Candidate, Context
 from planning.placement.cost import Fitness, Metrics
 from planning.placement.packing import Packing
-from planning.placement.planner import Candidate, Context
 from planning.placement.sorts import Sort
 
 VELOCITY_LIMIT = 0.1

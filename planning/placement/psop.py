@@ -21,8 +21,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from description import thesis
+from planning.placement.context import Candidate, Context
 from planning.placement.cost import Fitness, Metrics, size_sorted
-from planning.placement.planner import Candidate, Context
 
 VELOCITY_FRACTION = 0.1
 

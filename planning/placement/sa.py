@@ -13,8 +13,8 @@ from __future__ import annotations
 import math
 
 from description import thesis
+from planning.placement.context import Candidate, Context
 from planning.placement.packing import Packer, Packing
-from planning.placement.planner import Candidate, Context
 
 
 def run(ctx: Context) -> Candidate:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from planning.placement.planner import PlanOptions, PlanResult
+from planning.placement.context import PlanOptions
+from planning.placement.planner import PlanResult
 from planning.placement.problem import Problem
 
 
