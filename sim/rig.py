@@ -26,10 +26,9 @@ from description.cell import CellLayout, SceneMug
 from drivers.interfaces import Clock, RGBDFrame
 from drivers.sim.fsr import FsrSimulator
 from drivers.sim.servo_chain import ServoChainSimulator, default_chain
-from drivers.stack import ARM_JOINTS
 from sim.mujoco.arm import build_arm_mjcf, load_urdf
 from sim.mujoco.camera import DepthNoise
-from sim.mujoco.cell import SnapshotCamera
+from sim.mujoco.cell import SnapshotCamera, start_pose
 from sim.mujoco.collisions import TrayCollision, TrayCollisionCounter
 from sim.mujoco.scene import build_mjcf
 from sim.mujoco.world import SimWorld
@@ -79,15 +78,10 @@ def open_rig(
     """Start the rig with ``mugs`` on the counter and its device links in ``directory``; everything stops,
     and the links go, when the block ends. ``clock`` stamps the camera's frames (the wall clock: the world
     runs at real time)."""
-    if start_pose_rad is not None and len(start_pose_rad) != len(ARM_JOINTS):
-        raise ValueError(f"start_pose_rad needs {len(ARM_JOINTS)} joint angles, got {len(start_pose_rad)}")
+    pose = start_pose(start_pose_rad)
     directory.mkdir(parents=True, exist_ok=True)
     arm_mjcf = build_arm_mjcf(load_urdf(BUNDLED_URDF))
     xml = build_mjcf(layout, mugs, arm_body_xml=arm_mjcf.body_xml, arm_actuator_xml=arm_mjcf.actuator_xml)
-    pose = None
-    if start_pose_rad is not None:
-        pose = {joint: float(q) for joint, q in zip(ARM_JOINTS, start_pose_rad, strict=True)}
-        pose["gripper"] = 0.0
     world = SimWorld(xml, arm_mjcf, mug_ids=[m.mug_id for m in mugs], speed=1.0, initial_pose_rad=pose)
     with contextlib.ExitStack() as stack:
         collisions = TrayCollisionCounter(world, layout.tray.region_m, on_collision=on_collision)

@@ -116,7 +116,7 @@ class ServoChain:
         if not self._open or self._loop is None:
             raise RuntimeError("the servo chain is not open; use `async with ServoChain(...)`")
         events = _Events(self._loop, self._on_event)
-        if self._executor is None:  # inline: on the loop's thread
+        if self.inline:  # on the loop's thread
             self._events = events
             try:
                 return fn(self.bus)

@@ -282,7 +282,7 @@ async def start_sim_cell(
             world.start()
         return world, _camera(world, layout, noise, seed, clock), counter
 
-    switch = _WorldSwitch(*build(mugs, _pose(start_pose_rad)))
+    switch = _WorldSwitch(*build(mugs, start_pose(start_pose_rad)))
     stack = contextlib.AsyncExitStack()
     stack.callback(lambda: switch.world.stop())
     stack.callback(lambda: switch.camera.close())
@@ -390,7 +390,9 @@ async def open_sim_cell(
         await close()
 
 
-def _pose(start_pose_rad: Sequence[float] | None) -> dict[str, float] | None:
+def start_pose(start_pose_rad: Sequence[float] | None) -> dict[str, float] | None:
+    """The world's initial joint angles from the five arm joints (gripper closed); None: the ready pose.
+    ValueError unless there are five finite angles."""
     if start_pose_rad is None:
         return None
     if len(start_pose_rad) != len(ARM_JOINTS) or not all(math.isfinite(v) for v in start_pose_rad):
@@ -417,5 +419,6 @@ __all__ = [
     "SnapshotCamera",
     "gripper_spec",
     "open_sim_cell",
+    "start_pose",
     "start_sim_cell",
 ]
