@@ -9,29 +9,73 @@ file and the Foxglove channels derived from them; tolerant reading of finished a
 - ``plot``: one picture of a session (``dishbot record plot``)
 """
 
-from recorder.reader import (
-    MCAP_MAGIC,
-    RecordedMessage,
-    RecordingRead,
-    being_written,
-    read_messages,
-)
-from recorder.writer import (
-    COMPRESSIONS,
-    MESSAGE_ENCODING,
-    PROFILE,
-    SCHEMA_ENCODING,
-    ChannelSpec,
-    Derived,
-    Deriver,
-    DiskSpace,
-    Recorder,
-    RecorderStats,
-    Tee,
-    header_payload,
-    json_channel,
-)
-from wire.schemas import HEADER_TOPIC, schema_for
+# The names below are loaded when first used (PEP 562), so that importing one light module of the package
+# (``recorder.settings``, which the daemon's config reads) does not pull in the MCAP writer and reader.
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from recorder.reader import (
+        MCAP_MAGIC,
+        RecordedMessage,
+        RecordingRead,
+        being_written,
+        read_messages,
+    )
+    from recorder.writer import (
+        COMPRESSIONS,
+        MESSAGE_ENCODING,
+        PROFILE,
+        SCHEMA_ENCODING,
+        ChannelSpec,
+        Derived,
+        Deriver,
+        DiskSpace,
+        Recorder,
+        RecorderStats,
+        Tee,
+        header_payload,
+        json_channel,
+    )
+    from wire.schemas import HEADER_TOPIC, schema_for
+
+_HOME = {
+    **dict.fromkeys(
+        ("MCAP_MAGIC", "RecordedMessage", "RecordingRead", "being_written", "read_messages"),
+        "recorder.reader",
+    ),
+    **dict.fromkeys(
+        (
+            "COMPRESSIONS",
+            "MESSAGE_ENCODING",
+            "PROFILE",
+            "SCHEMA_ENCODING",
+            "ChannelSpec",
+            "Derived",
+            "Deriver",
+            "DiskSpace",
+            "Recorder",
+            "RecorderStats",
+            "Tee",
+            "header_payload",
+            "json_channel",
+        ),
+        "recorder.writer",
+    ),
+    **dict.fromkeys(("HEADER_TOPIC", "schema_for"), "wire.schemas"),
+}
+
+
+def __getattr__(name: str) -> object:
+    home = _HOME.get(name)
+    if home is None:
+        raise AttributeError(f"module 'recorder' has no attribute {name!r}")
+    value = getattr(importlib.import_module(home), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "COMPRESSIONS",
