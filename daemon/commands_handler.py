@@ -14,23 +14,22 @@ resuming, stopping or resetting robots nobody named is not.
 from __future__ import annotations
 
 import json
-import math
 import re
 import sys
-from collections.abc import Mapping
-from typing import Any
+from dataclasses import dataclass
+from typing import Annotated, Any
+
+import msgspec
 
 from daemon.backend import CounterMug
-from daemon.config import PLANNER_COSTS, PLANNER_FITNESS, Config
+from daemon.config import Config, PlannerCost, PlannerFitness, PlannerMethod, PlannerTimeLimit, Seed
 from daemon.job import CommandRefused, Job, PlannerRequest, StartRequest
 from daemon.security import FLEET_VERBS
 from description import thesis
-from planning.placement import METHODS
+from validation import convert, show, within
 
 VERBS = ("status", "start", "pause", "resume", "stop", "estop", "reset")
-_ID = re.compile(r"^[A-Za-z0-9_-]{1,32}$")
 _MAX_MUGS = 64
-_LONGEST_SHOWN = 20  # digits of an integer quoted in an error; a longer one is named by its length
 # The deepest command is three levels (start -> mugs -> a mug); anything much deeper is not a command.
 MAX_NESTING = 8
 _STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"?', re.DOTALL)
@@ -39,6 +38,46 @@ _NOT_BRACKET = re.compile(r"[^\[\]{}]+")
 
 class BadCommand(ValueError):
     """The command's verb or payload is malformed; the message says which field and why."""
+
+
+# The bodies, declared once and checked by the one validator (``validation``); the planner fields take the
+# ranges and choices of ``[planner]`` in the config.
+
+MugId = Annotated[
+    str,
+    msgspec.Meta(pattern=r"^[A-Za-z0-9_-]{1,32}$", extra={"expected": "1-32 letters, digits, '_' or '-'"}),
+]
+CounterCoordinate = Annotated[float, within(-2.0, 2.0)]
+
+
+@dataclass(frozen=True, slots=True)
+class MugBody:
+    """One counter mug of ``start``'s ``mugs``: its id, its configured type and where it stands."""
+
+    id: MugId
+    type: str  # one of the config's mug types, checked against the running config
+    x_m: CounterCoordinate
+    y_m: CounterCoordinate
+
+
+@dataclass(frozen=True, slots=True)
+class PlannerBody:
+    """``start``'s ``planner``: the config's placement settings a job may override."""
+
+    method: PlannerMethod | None = None
+    cost: PlannerCost | None = None
+    fitness: PlannerFitness | None = None
+    time_limit_s: PlannerTimeLimit | None = None
+    seed: Seed | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class StartBody:
+    """``start``: a dataset or the counter's mugs (simulation only), and planner overrides."""
+
+    dataset: Annotated[int, within(1, max(thesis.DATASETS))] | None = None
+    mugs: Annotated[list[MugBody], msgspec.Meta(min_length=1, max_length=_MAX_MUGS)] | None = None
+    planner: PlannerBody | None = None
 
 
 def parse(verb: str, payload: bytes, config: Config) -> StartRequest | None:
@@ -50,15 +89,15 @@ def parse(verb: str, payload: bytes, config: Config) -> StartRequest | None:
         if body:
             raise BadCommand(f"{verb} takes no arguments, got {', '.join(repr(k) for k in sorted(body))}")
         return None
-    _only(body, ("dataset", "mugs", "planner"), "start")
     if "dataset" in body and "mugs" in body:
         raise BadCommand("give either dataset or mugs, not both")
-    dataset = None
-    if "dataset" in body:
-        dataset = _integer(body["dataset"], "dataset", 1, max(thesis.DATASETS))
-    mugs = _mugs(body["mugs"], config) if "mugs" in body else None
-    planner = _planner(body["planner"]) if "planner" in body else PlannerRequest()
-    return StartRequest(dataset=dataset, mugs=mugs, planner=planner)
+    start: StartBody = convert(body, StartBody, error=BadCommand, root="start")
+    mugs = _mugs(start.mugs, config) if start.mugs is not None else None
+    p = start.planner or PlannerBody()
+    planner = PlannerRequest(
+        method=p.method, cost=p.cost, fitness=p.fitness, time_limit_s=p.time_limit_s, seed=p.seed
+    )
+    return StartRequest(dataset=start.dataset, mugs=mugs, planner=planner)
 
 
 async def handle(job: Job, verb: str, payload: bytes, many: bool = False) -> dict[str, object]:
@@ -125,96 +164,20 @@ def nested_deeper_than(text: str, levels: int) -> bool:
     return False
 
 
-def _mugs(value: object, config: Config) -> tuple[CounterMug, ...]:
-    if not isinstance(value, list):
-        raise BadCommand(f"mugs: expected a list of mugs, got {_kind(value)}")
-    if not 1 <= len(value) <= _MAX_MUGS:
-        raise BadCommand(f"mugs: expected 1-{_MAX_MUGS} mugs, got {len(value)}")
+def _mugs(mugs: list[MugBody], config: Config) -> tuple[CounterMug, ...]:
+    """The mugs' types are the config's, and no id is used twice."""
     types = [m.name for m in config.mug_types]
-    out = []
-    for i, item in enumerate(value):
-        where = f"mugs[{i}]"
-        if not isinstance(item, dict):
-            raise BadCommand(f"{where}: expected an object, got {_kind(item)}")
-        _only(item, ("id", "type", "x_m", "y_m"), where)
-        for field in ("id", "type", "x_m", "y_m"):
-            if field not in item:
-                raise BadCommand(f"{where}.{field}: missing")
-        mug_id = item["id"]
-        if not isinstance(mug_id, str) or not _ID.match(mug_id):
-            raise BadCommand(f"{where}.id: expected 1-32 letters, digits, '_' or '-', got {mug_id!r}")
-        if item["type"] not in types:
+    for i, mug in enumerate(mugs):
+        if mug.type not in types:
             raise BadCommand(
-                f"{where}.type: {item['type']!r} is not a configured mug type ({', '.join(types)})"
+                f"mugs[{i}].type: {mug.type!r} is not a configured mug type ({', '.join(types)})"
             )
-        x = _number(item["x_m"], f"{where}.x_m", -2.0, 2.0)
-        y = _number(item["y_m"], f"{where}.y_m", -2.0, 2.0)
-        out.append(CounterMug(mug_id, item["type"], x, y))
-    ids = [m.mug_id for m in out]
+    ids = [m.id for m in mugs]
     duplicate = next((i for i in ids if ids.count(i) > 1), None)
     if duplicate is not None:
         raise BadCommand(f"mugs: id {duplicate!r} is used twice")
-    return tuple(out)
-
-
-def _planner(value: object) -> PlannerRequest:
-    if not isinstance(value, dict):
-        raise BadCommand(f"planner: expected an object, got {_kind(value)}")
-    _only(value, ("method", "cost", "fitness", "time_limit_s", "seed"), "planner")
-    return PlannerRequest(
-        method=_choice(value, "method", METHODS),
-        cost=_choice(value, "cost", PLANNER_COSTS),
-        fitness=_choice(value, "fitness", PLANNER_FITNESS),
-        time_limit_s=(
-            _number(value["time_limit_s"], "planner.time_limit_s", 0.01, 600.0)
-            if "time_limit_s" in value
-            else None
-        ),
-        seed=_integer(value["seed"], "planner.seed", 0, 2**31 - 1) if "seed" in value else None,
-    )
-
-
-def _only(body: Mapping[str, object], allowed: tuple[str, ...], where: str) -> None:
-    for name in body:
-        if name not in allowed:
-            raise BadCommand(f"{where}: unknown field {name!r} (known: {', '.join(allowed)})")
-
-
-def _choice(body: Mapping[str, object], name: str, allowed: tuple[str, ...]) -> str | None:
-    if name not in body:
-        return None
-    value = body[name]
-    if value not in allowed:
-        raise BadCommand(f"planner.{name}: {value!r} is not one of {', '.join(allowed)}")
-    return str(value)
-
-
-def _integer(value: object, name: str, lo: int, hi: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise BadCommand(f"{name}: expected an integer {lo}-{hi}, got {_kind(value)}")
-    if not lo <= value <= hi:
-        raise BadCommand(f"{name}: {_kind(value)} is out of range {lo}-{hi}")
-    return value
-
-
-def _number(value: object, name: str, lo: float, hi: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise BadCommand(f"{name}: expected a number in [{lo:g}, {hi:g}], got {_kind(value)}")
-    # Compared as given: an integer too large for a float is out of range, not an OverflowError.
-    if (isinstance(value, float) and not math.isfinite(value)) or not lo <= value <= hi:
-        raise BadCommand(f"{name}: {_kind(value)} is out of range [{lo:g}, {hi:g}]")
-    return float(value)
+    return tuple(CounterMug(m.id, m.type, m.x_m, m.y_m) for m in mugs)
 
 
 def _kind(value: object) -> str:
-    if isinstance(value, dict):
-        return "an object"
-    if isinstance(value, list):
-        return "a list"
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int) and abs(value) >= 10**_LONGEST_SHOWN:
-        return f"an integer of {len(str(abs(value)))} digits"
-    return repr(value)
+    return "an object" if isinstance(value, dict) else "null" if value is None else show(value)

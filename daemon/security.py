@@ -30,9 +30,10 @@ import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 from daemon.errors import ConfigError
+from validation import convert, show, within
 
 NAMESPACE = "dishbot"
 # dishbot's own port ("DISH" on a phone keypad): not Zenoh's 7447 (zenohd, ROS 2's rmw_zenoh router, the
@@ -62,7 +63,7 @@ def check_endpoint(value: object, name: str) -> str:
     match = _ENDPOINT.match(value) if isinstance(value, str) else None
     if match is None or not 1 <= int(match.group(3)) <= 65535:
         raise ConfigError(
-            f"{name}: {_show(value)} is not a Zenoh endpoint like tcp/127.0.0.1:{DEFAULT_PORT} "
+            f"{name}: {show(value)} is not a Zenoh endpoint like tcp/127.0.0.1:{DEFAULT_PORT} "
             "(protocol tcp, udp, tls, quic or ws; port 1-65535)"
         )
     return str(value)
@@ -78,7 +79,7 @@ def check_key(value: object, name: str) -> str:
         or value.endswith("/")
         or "//" in value
     ):
-        raise ConfigError(f"{name}: {_show(value)} is not a plain Zenoh key (no wildcards)")
+        raise ConfigError(f"{name}: {show(value)} is not a plain Zenoh key (no wildcards)")
     return value
 
 
@@ -106,7 +107,7 @@ def is_loopback(endpoint: str) -> bool:
 def check_name(value: object, name: str) -> str:
     """A robot id or identity name: a Zenoh key chunk, a certificate common name, a user and a file name."""
     if not isinstance(value, str) or not _NAME.match(value):
-        raise ConfigError(f"{name}: {_show(value)} is not a valid name; use {NAME_RULE}")
+        raise ConfigError(f"{name}: {show(value)} is not a valid name; use {NAME_RULE}")
     return value
 
 
@@ -116,7 +117,7 @@ def check_robot(value: object, name: str, *, many: bool = False) -> str:
         return "*"
     if not isinstance(value, str) or not _NAME.match(value):
         extra = " (or '*' for every robot)" if many else ""
-        raise ConfigError(f"{name}: {_show(value)} is not a robot id; use {NAME_RULE}{extra}")
+        raise ConfigError(f"{name}: {show(value)} is not a robot id; use {NAME_RULE}{extra}")
     return value
 
 
@@ -160,6 +161,15 @@ class Access:
     routers: tuple[str, ...] = ()
     robots: tuple[str, ...] = ()
 
+    def __post_init__(self) -> None:
+        for role in ("operators", "monitors", "routers", "robots"):
+            names = getattr(self, role)
+            for i, name in enumerate(names):
+                check_name(name, f"{role}[{i}]")
+            twice = next((n for n in names if names.count(n) > 1), None)
+            if twice is not None:
+                raise ConfigError(f"{role}: {twice!r} is listed twice")
+
 
 @dataclass(frozen=True, slots=True)
 class ZenohConfig:
@@ -178,29 +188,74 @@ class ZenohConfig:
         return replace(self, tls=self.tls.resolved(base), auth=self.auth.resolved(base))
 
 
+@dataclass(frozen=True, slots=True)
+class _TlsTable:
+    """``[zenoh.tls]`` and a profile's ``[tls]``: PEM file names ("" for none)."""
+
+    root_ca_certificate: str = ""
+    certificate: str = ""
+    private_key: str = ""
+
+    def files(self) -> TlsFiles:
+        return TlsFiles(
+            *(Path(p) if p else None for p in (self.root_ca_certificate, self.certificate, self.private_key))
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class _AuthTable:
+    """``[zenoh.auth]`` and a profile's ``[auth]``."""
+
+    dictionary_file: str = ""
+    user: str = ""
+    password: str = field(default="", repr=False)
+
+    def __post_init__(self) -> None:
+        if self.user:
+            check_name(self.user, "user")
+
+
+@dataclass(frozen=True, slots=True)
+class _ZenohTable:
+    """``[zenoh]``, declared once for the validator (``validation.convert``)."""
+
+    listen: tuple[str, ...]
+    connect: tuple[str, ...]
+    insecure: bool = False
+    lease_s: Annotated[float, within(1.0, 60.0)] = 10.0
+    tls: _TlsTable = _TlsTable()
+    auth: _AuthTable = _AuthTable()
+    access: Access = Access()
+
+    def __post_init__(self) -> None:
+        for kind in ("listen", "connect"):
+            for i, endpoint in enumerate(getattr(self, kind)):
+                check_endpoint(endpoint, f"{kind}[{i}]")
+
+
+@dataclass(frozen=True, slots=True)
+class _ProfileTable:
+    """A client profile file."""
+
+    endpoint: str
+    robot: str
+    role: str = ""
+    tls: _TlsTable = _TlsTable()
+    auth: _AuthTable = _AuthTable()
+
+    def __post_init__(self) -> None:
+        check_endpoint(self.endpoint, "endpoint")
+        check_robot(self.robot, "robot")
+
+
 def parse_zenoh(section: Mapping[str, Any], where: str = "zenoh") -> ZenohConfig:
     """The ``[zenoh]`` table, checked: endpoints, TLS files that go together, roles that need identities."""
-    s = _Table(section, where)
-    listen = s.endpoints("listen")
-    connect = s.endpoints("connect")
-    insecure = s.flag("insecure", False)
-    lease_s = s.number("lease_s", 10.0, 1.0, 60.0)
-    t = s.table("tls")
-    tls = TlsFiles(t.path("root_ca_certificate"), t.path("certificate"), t.path("private_key"))
-    t.finish()
-    a = s.table("auth")
-    auth = Auth(a.path("dictionary_file"), a.name("user"), a.text("password", ""))
-    a.finish()
-    r = s.table("access")
-    access = Access(
-        enabled=r.flag("enabled", False),
-        operators=r.names("operators"),
-        monitors=r.names("monitors"),
-        routers=r.names("routers"),
-        robots=r.names("robots"),
-    )
-    r.finish()
-    s.finish()
+    table: _ZenohTable = convert(section, _ZenohTable, name=where, error=ConfigError)
+    tls = table.tls.files()
+    a = table.auth
+    auth = Auth(Path(a.dictionary_file) if a.dictionary_file else None, a.user, a.password)
+    access = table.access
+    listen, connect = table.listen, table.connect
     missing = _missing_tls(tls)
     if missing:
         raise ConfigError(
@@ -219,7 +274,7 @@ def parse_zenoh(section: Mapping[str, Any], where: str = "zenoh") -> ZenohConfig
             f"{where}.access: roles need identities; set {where}.tls (certificate common names) or "
             f"{where}.auth.dictionary_file (user names)"
         )
-    return ZenohConfig(listen, connect, insecure, tls, auth, access, lease_s)
+    return ZenohConfig(listen, connect, table.insecure, tls, auth, access, table.lease_s)
 
 
 def tls_missing(endpoint: str, tls: TlsFiles, *, where: str = "zenoh") -> str:
@@ -412,17 +467,12 @@ def load_profile(path: Path) -> Profile:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{where} is not valid TOML: {e}") from e
-    s = _Table(data, where, file=True)
-    endpoint = check_endpoint(s.text("endpoint"), f"{where}: endpoint")
-    robot = check_robot(s.text("robot"), f"{where}: robot")
-    role = s.text("role", "")
-    t = s.table("tls")
-    tls = TlsFiles(t.path("root_ca_certificate"), t.path("certificate"), t.path("private_key"))
-    t.finish()
-    a = s.table("auth")
-    user, password = a.name("user"), a.text("password", "")
-    a.finish()
-    s.finish()
+    table: _ProfileTable = convert(
+        data, _ProfileTable, error=ConfigError, prefix=f"{where}: ", root="the profile"
+    )
+    endpoint, robot, role = table.endpoint, table.robot, table.role
+    tls = table.tls.files()
+    user, password = table.auth.user, table.auth.password
     missing = _missing_tls(tls)
     if missing:
         raise ConfigError(
@@ -522,94 +572,3 @@ def _private(path: Path | None, name: str) -> None:
     _readable(path, name)
     if path.stat().st_mode & stat.S_IROTH:
         raise ConfigError(f"{name}: {path} is readable by every user; chmod 600 {path} (or 640 for a group)")
-
-
-def _show(value: object) -> str:
-    if isinstance(value, Mapping):
-        return "a table"
-    if isinstance(value, list):
-        return "a list"
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    return repr(value)
-
-
-class _Table:
-    """Typed access to one TOML table with defaults; ``finish()`` rejects keys nobody asked for.
-
-    Keys are named ``where.key`` (a config section, ``zenoh.tls.certificate``), or ``where: key`` and
-    ``where [table]: key`` in a file of its own (``profile FILE: endpoint``)."""
-
-    def __init__(self, data: Mapping[str, Any], where: str, *, file: bool = False) -> None:
-        self._data = data
-        self._where = where
-        self._file = file
-        self._seen: set[str] = set()
-
-    def _name(self, key: str) -> str:
-        return f"{self._where}: {key}" if self._file else f"{self._where}.{key}"
-
-    def _get(self, key: str, default: object) -> object:
-        """The value at ``key``, or ``default``; a missing key without a default (None) is an error."""
-        self._seen.add(key)
-        if key in self._data:
-            return self._data[key]
-        if default is None:
-            raise ConfigError(f"{self._name(key)}: missing")
-        return default
-
-    def table(self, key: str) -> _Table:
-        value = self._get(key, {})
-        if not isinstance(value, Mapping):
-            raise ConfigError(f"{self._name(key)}: expected a table, got {_show(value)}")
-        if self._file:
-            return _Table(value, f"{self._where} [{key}]", file=True)
-        return _Table(value, f"{self._where}.{key}")
-
-    def text(self, key: str, default: str | None = None) -> str:
-        value = self._get(key, default)
-        if not isinstance(value, str):
-            raise ConfigError(f"{self._name(key)}: expected a string, got {_show(value)}")
-        return value
-
-    def name(self, key: str) -> str:
-        value = self.text(key, "")
-        return check_name(value, self._name(key)) if value else ""
-
-    def path(self, key: str) -> Path | None:
-        value = self.text(key, "")
-        return Path(value) if value else None
-
-    def flag(self, key: str, default: bool) -> bool:
-        value = self._get(key, default)
-        if not isinstance(value, bool):
-            raise ConfigError(f"{self._name(key)}: expected true or false, got {_show(value)}")
-        return value
-
-    def number(self, key: str, default: float, lo: float, hi: float) -> float:
-        value = self._get(key, default)
-        if isinstance(value, bool) or not isinstance(value, int | float) or not lo <= value <= hi:
-            raise ConfigError(f"{self._name(key)}: {_show(value)} is out of range; allowed [{lo:g}, {hi:g}]")
-        return float(value)
-
-    def endpoints(self, key: str) -> tuple[str, ...]:
-        value = self._get(key, None)
-        if not isinstance(value, list):
-            raise ConfigError(f"{self._name(key)}: expected a list, got {_show(value)}")
-        return tuple(check_endpoint(v, f"{self._name(key)}[{i}]") for i, v in enumerate(value))
-
-    def names(self, key: str) -> tuple[str, ...]:
-        value = self._get(key, [])
-        if not isinstance(value, list):
-            raise ConfigError(f"{self._name(key)}: expected a list of names, got {_show(value)}")
-        names = tuple(check_name(v, f"{self._name(key)}[{i}]") for i, v in enumerate(value))
-        twice = next((n for n in names if names.count(n) > 1), None)
-        if twice is not None:
-            raise ConfigError(f"{self._name(key)}: {twice!r} is listed twice")
-        return names
-
-    def finish(self) -> None:
-        unknown = sorted(set(self._data) - self._seen)
-        if unknown:
-            known = ", ".join(sorted(self._seen))
-            raise ConfigError(f"{self._name(unknown[0])}: unknown key (known keys: {known})")

@@ -85,18 +85,26 @@ BAD = [
     ),
     ("start", b"\xff\xfe", "payload is not UTF-8 text: invalid start byte at byte 0"),
     ("start", b"[1, 2]", "payload must be a JSON object, got a list"),
-    ("start", b'{"dataset": "one"}', "dataset: expected an integer 1-6, got 'one'"),
-    ("start", b'{"dataset": true}', "dataset: expected an integer 1-6, got true"),
-    ("start", b'{"dataset": 9}', "dataset: 9 is out of range 1-6"),
+    ("start", b'{"dataset": "one"}', "dataset: expected an integer in [1, 6], got 'one'"),
+    ("start", b'{"dataset": true}', "dataset: expected an integer in [1, 6], got true"),
+    ("start", b'{"dataset": 9}', "dataset: 9 is out of range; allowed [1, 6]"),
     ("start", b'{"dataset": 1, "mugs": []}', "give either dataset or mugs, not both"),
-    ("start", b'{"speed": 2}', "start: unknown field 'speed' (known: dataset, mugs, planner)"),
+    ("start", b'{"speed": 2}', "speed: unknown key in start (known keys: dataset, mugs, planner)"),
     (
         "start",
         b'{"planner": {"method": "magic"}}',
         "planner.method: 'magic' is not one of auto, exact, bh, sa, ga, psop-n, psop-i, psok-n, psok-i",
     ),
-    ("start", b'{"planner": {"time_limit_s": 0}}', "planner.time_limit_s: 0 is out of range [0.01, 600]"),
-    ("start", b'{"planner": {"time_limit_s": NaN}}', "planner.time_limit_s: nan is out of range [0.01, 600]"),
+    (
+        "start",
+        b'{"planner": {"time_limit_s": 0}}',
+        "planner.time_limit_s: 0 is out of range; allowed [0.01, 600]",
+    ),
+    (
+        "start",
+        b'{"planner": {"time_limit_s": NaN}}',
+        "planner.time_limit_s: nan is out of range; allowed [0.01, 600]",
+    ),
     (
         "start",
         b'{"mugs": [{"id": "a", "type": "huge", "x_m": 0, "y_m": 0.3}]}',
@@ -106,7 +114,7 @@ BAD = [
     (
         "start",
         b'{"mugs": [{"id": "a", "type": "big", "x_m": 5, "y_m": 0.3}]}',
-        "mugs[0].x_m: 5 is out of range [-2, 2]",
+        "mugs[0].x_m: 5 is out of range; allowed [-2, 2]",
     ),
     (
         "start",
@@ -124,16 +132,20 @@ BAD = [
         "dataset and mugs set up a simulated counter; this backend is real hardware",
     ),
     ("start", b"x" * 5000, "payload of 5000 bytes is larger than the limit of 4096 bytes"),
-    ("start", b'{"dataset": 1' + b"0" * 399 + b"}", "dataset: an integer of 400 digits is out of range 1-6"),
+    (
+        "start",
+        b'{"dataset": 1' + b"0" * 399 + b"}",
+        "dataset: an integer of 400 digits is out of range; allowed [1, 6]",
+    ),
     (
         "start",
         b'{"mugs": [{"id": "a", "type": "big", "x_m": -1' + b"0" * 399 + b', "y_m": 0.3}]}',
-        "mugs[0].x_m: an integer of 400 digits is out of range [-2, 2]",
+        "mugs[0].x_m: an integer of 400 digits is out of range; allowed [-2, 2]",
     ),
     (
         "start",
         b'{"planner": {"time_limit_s": 1' + b"0" * 399 + b"}}",
-        "planner.time_limit_s: an integer of 400 digits is out of range [0.01, 600]",
+        "planner.time_limit_s: an integer of 400 digits is out of range; allowed [0.01, 600]",
     ),
 ]
 

@@ -95,7 +95,7 @@ BAD: list[tuple[dict[str, Any], str]] = [
     ),
     ({"camera": {"position_m": [1.0, 0.0]}}, "camera.position_m: expected 3 values, got 2"),
     ({"camera": {"calibration_file": 3}}, "camera.calibration_file: expected a string, got 3"),
-    ({"camera": {"fovy_deg": 130.0}}, "camera.fovy_deg: 130.0 is out of range; allowed [10, 120]"),
+    ({"camera": {"fovy_deg": 130.0}}, "camera.fovy_deg: 130 is out of range; allowed [10, 120]"),
     ({"camera": {"pitch_rad": 0.0}}, "camera.pitch_rad: 0 does not look down; allowed (0, 1.5708)"),
     ({"recording": "here"}, "recording: expected a table, got 'here'"),
 ]

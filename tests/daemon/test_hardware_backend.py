@@ -236,7 +236,7 @@ BAD_HARDWARE: list[tuple[dict[str, Any], str]] = [
     ),
     (
         {"gripper": {"aperture_map": [[0.5]]}},
-        "hardware.gripper.aperture_map[0]: expected [servo angle rad, aperture m], got a list",
+        "hardware.gripper.aperture_map[0]: expected 2 values, got 1",
     ),
     ({"camera": "kinect"}, "hardware.camera: 'kinect' is not one of realsense, zenoh, none"),
     ({"read_timeout_s": 0}, "hardware.read_timeout_s: 0 is out of range; allowed [0.001, 1]"),

@@ -187,7 +187,7 @@ def test_init_bad_input_is_one_line_and_writes_nothing(
         ),
         (
             {"tls": {"ca": "ca.pem"}},
-            "zenoh.tls.ca: unknown key (known keys: certificate, private_key, root_ca_certificate)",
+            "zenoh.tls.ca: unknown key in zenoh.tls (known keys: certificate, private_key, root_ca_certificate)",
         ),
         (
             {"access": {"enabled": True, "operators": ["alice"]}},
@@ -259,7 +259,7 @@ def test_security_files_must_exist_and_keys_must_not_be_world_readable(keys: Pat
         ),
         (
             'endpoint = "tcp/127.0.0.1:3474"\nrobot = "r1"\ncolour = "red"\n',
-            "colour: unknown key (known keys: auth, endpoint, robot, role, tls)",
+            "colour: unknown key in the profile (known keys: auth, endpoint, robot, role, tls)",
         ),
         ("endpoint = \n", "is not valid TOML: Invalid value (at line 1, column 12)"),
     ],

@@ -44,7 +44,7 @@ def test_the_config_round_trips_through_config_show(compression: str) -> None:
         ),
         (
             {"recording": {"idle_file_s": 1.0}},
-            "recording.idle_file_s: 1.0 is out of range; allowed [10, 604800]",
+            "recording.idle_file_s: 1 is out of range; allowed [10, 604800]",
         ),
         ({"recording": {"job_tail_s": -1}}, "recording.job_tail_s: -1 is out of range; allowed [0, 60]"),
         (

@@ -154,7 +154,7 @@ def test_the_rig_never_overwrites_a_config_it_did_not_write(
             '[{"id": "m1", "type": "teacup", "x_m": 0.3, "y_m": 0.4}]',
             "mugs[0].type: 'teacup' is not a configured mug type (big, small)",
         ),
-        ("[]", "mugs: expected 1-64 mugs, got 0"),
+        ("[]", "mugs: expected 1-64 values, got 0"),
     ],
 )
 def test_a_bad_mugs_file_is_refused_naming_it(
