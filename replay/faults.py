@@ -35,13 +35,15 @@ import tomllib
 from collections.abc import Callable, Coroutine, Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Final
+from typing import TYPE_CHECKING, Annotated, Any, Final
 
+import msgspec
 import structlog
 
 from daemon.errors import UsageError
 from drivers.sim.camera import CameraFault
 from statechart.chart import LEAVES, STATES, top_level
+from validation import OneOf, above, convert, number_range, show, within
 
 if TYPE_CHECKING:
     import zenoh
@@ -176,44 +178,36 @@ _FIELD_HELP: Final = {
 }
 
 
-@dataclass(frozen=True, slots=True)
-class Range:
-    """The values a number of a fault file may take: ``[low, high]`` (``(low, high]`` when ``open_low``)."""
-
-    low: float
-    high: float
-    unit: str = ""
-    open_low: bool = False
-
-    def text(self) -> str:
-        unit = f" {self.unit}" if self.unit else ""
-        return f"{'(' if self.open_low else '['}{_number(self.low)}, {_number(self.high)}]{unit}"
-
-
-def _number(value: float) -> str:
-    """``86400``, ``0.5``, ``1e+300``: whole numbers in full, as a file would hold them."""
-    if math.isfinite(value) and float(value).is_integer() and abs(value) < 1e15:
-        return str(int(value))
-    return f"{value:g}"
-
-
 DAY_S: Final = 86_400.0
-# Every number a fault file can hold, with the values it may take (docs/recording.md lists them).
-RANGES: Final[Mapping[str, Range]] = {
-    "at_s": Range(0.0, DAY_S, "s"),
-    "after_s": Range(0.0, DAY_S, "s"),
-    "occurrence": Range(1, 10_000),
-    "duration_s": Range(0.0, DAY_S, "s", open_low=True),
-    "servo": Range(0, 253),
-    "rate": Range(0.0, 1.0, open_low=True),
-    "seed": Range(0, 2**32 - 1),
-    "value_n": Range(0.0, 1000.0, "N"),
-    "dx_m": Range(-1.0, 1.0, "m"),
-    "dy_m": Range(-1.0, 1.0, "m"),
-}
+# Every number a fault file can hold, with the values it may take (docs/recording.md lists them), declared
+# once for the one validator (``validation.convert``).
+Seconds = Annotated[float, within(0.0, DAY_S, unit="s")]
+Duration = Annotated[float, above(0.0, DAY_S, unit="s")]
 # A loop_stall blocks the event loop for its duration of wall time: at most a minute (past WatchdogSec,
 # systemd has long restarted the daemon).
-LOOP_STALL_RANGE: Final = Range(0.0, 60.0, "s", open_low=True)
+LOOP_STALL_MAX_S: Final = 60.0
+Name = Annotated[str, msgspec.Meta(min_length=1, max_length=64)]
+Move = Annotated[float, within(-1.0, 1.0, unit="m")]
+
+
+@dataclass(frozen=True, slots=True)
+class _FaultTable:
+    """One ``[[fault]]`` table as the file holds it; which keys a kind takes is ``FAULT_KINDS``."""
+
+    kind: Annotated[str, OneOf(tuple(FAULT_KINDS))]
+    at_s: Seconds | None = None
+    at_state: Name | None = None
+    occurrence: Annotated[int, within(1, 10_000)] | None = None
+    after_s: Seconds | None = None
+    duration_s: Duration | None = None
+    servo: Annotated[int, within(0, 253)] | None = None
+    rate: Annotated[float, above(0.0, 1.0)] | None = None
+    seed: Annotated[int, within(0, 2**32 - 1)] | None = None
+    value_n: Annotated[float, within(0.0, 1000.0, unit="N")] | None = None
+    dx_m: Move | None = None
+    dy_m: Move | None = None
+    mug: Name | None = None
+    device: Annotated[str, OneOf(BUS_DEVICES)] | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -328,154 +322,80 @@ def _configured_servos(config: Config | None) -> tuple[int, ...] | None:
     return tuple(s.id for s in config.hardware.servos)
 
 
-class _Entry:
-    """Reads one table, raising the one-line error for the first thing wrong."""
-
-    def __init__(self, index: int, table: Mapping[str, Any], source: str) -> None:
-        self.index = index
-        self.table = table
-        self.source = source
-        self.kind: str | None = None
-
-    def error(self, key: str, problem: str) -> UsageError:
-        kind = f" ({self.kind})" if self.kind is not None else ""
-        return UsageError(f"{self.source}: fault {self.index}{kind}: {key}: {problem}")
-
-    def out_of_range(self, key: str, value: float, limits: Range) -> UsageError:
-        return self.error(key, f"{_number(value)} is out of range; allowed {limits.text()}")
-
-    def number(self, key: str, limits: Range) -> float | None:
-        value = self.table.get(key)
-        if value is None:
-            return None
-        unit = limits.unit
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self.error(key, f"must be a number{f' ({unit})' if unit else ''}, got {_shown(value)}")
-        value = float(value)
-        if not math.isfinite(value):
-            raise self.error(key, f"must be a finite number, got {value}")
-        if value < limits.low or (limits.open_low and value == limits.low):
-            bound = f"greater than {limits.low:g}" if limits.open_low else f"at least {limits.low:g}"
-            raise self.error(key, f"must be {bound}{f' {unit}' if unit else ''}, got {value:g}")
-        if value > limits.high:
-            raise self.out_of_range(key, value, limits)
-        return value
-
-    def integer(self, key: str, limits: Range) -> int | None:
-        value = self.table.get(key)
-        if value is None:
-            return None
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise self.error(key, f"must be an integer, got {_shown(value)}")
-        if value < limits.low:
-            raise self.error(key, f"must be at least {limits.low:g}, got {value}")
-        if value > limits.high:
-            raise self.out_of_range(key, value, limits)
-        return value
-
-    def text(self, key: str) -> str | None:
-        value = self.table.get(key)
-        if value is None:
-            return None
-        if not isinstance(value, str) or not value:
-            raise self.error(key, f"must be a non-empty string, got {_shown(value)}")
-        if len(value) > 64:
-            raise self.error(key, f"must be at most 64 characters, got {len(value)}")
-        return value
-
-
-def _shown(value: object) -> str:
-    if isinstance(value, str):
-        return repr(value)
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, dict):
-        return "a table"
-    if isinstance(value, list):
-        return "an array"
-    return repr(value)
-
-
 def _entry(index: int, table: Mapping[str, Any], source: str, servos: tuple[int, ...] | None) -> FaultSpec:
-    e = _Entry(index, table, source)
+    where = f"{source}: fault {index}"
     kind = table.get("kind")
     if kind is None:
-        raise e.error("kind", f"missing ({_FIELD_HELP['kind']})")
-    if not isinstance(kind, str):
-        raise e.error("kind", f"must be a string, got {_shown(kind)}")
-    spec = FAULT_KINDS.get(kind)
-    if spec is None:
-        raise e.error("kind", f"unknown kind {kind!r} ({_FIELD_HELP['kind']})")
-    e.kind = kind
+        raise UsageError(f"{where}: kind: missing ({_FIELD_HELP['kind']})")
+    if not isinstance(kind, str) or kind not in FAULT_KINDS:
+        raise UsageError(f"{where}: kind: {show(kind)} is not one of {', '.join(FAULT_KINDS)}")
+    where = f"{where} ({kind})"
+    spec = FAULT_KINDS[kind]
     allowed = (*_COMMON_KEYS, *spec.keys)
     for key in table:
         if key not in allowed:
             if key == "duration_s":
-                raise e.error(key, f"{kind} happens once; it takes no duration")
-            raise e.error(key, f"unknown key (allowed: {', '.join(allowed)})")
+                raise UsageError(f"{where}: {key}: {kind} happens once; it takes no duration")
+            raise UsageError(f"{where}: {key}: unknown key (allowed: {', '.join(allowed)})")
     for key in spec.required:
         if key not in table:
-            raise e.error(key, f"missing ({_FIELD_HELP.get(key, key)})")
-    at_s = e.number("at_s", RANGES["at_s"])
-    at_state = e.text("at_state")
-    if at_s is None and at_state is None:
-        raise e.error("at_s", "missing: give at_s (simulated seconds from the session start) or at_state")
-    if at_s is not None and at_state is not None:
-        raise e.error("at_state", "give either at_s or at_state, not both")
-    if at_state is not None and at_state not in STATE_PATHS:
-        raise e.error(
+            raise UsageError(f"{where}: {key}: missing ({_FIELD_HELP.get(key, key)})")
+
+    def error(key: str, problem: str) -> UsageError:
+        return UsageError(f"{where}: {key}: {problem}")
+
+    stall = table.get("duration_s")
+    numeric = isinstance(stall, float | int) and not isinstance(stall, bool)
+    if kind == "loop_stall" and numeric and not 0.0 < stall <= LOOP_STALL_MAX_S:  # type: ignore[operator]
+        limits = f"{number_range(0.0, LOOP_STALL_MAX_S, open_low=True)} s"
+        raise error("duration_s", f"{show(stall)} is out of range; allowed {limits}")  # NaN too
+    t: _FaultTable = convert(table, _FaultTable, error=UsageError, prefix=f"{where}: ")
+
+    if t.at_s is None and t.at_state is None:
+        raise error("at_s", "missing: give at_s (simulated seconds from the session start) or at_state")
+    if t.at_s is not None and t.at_state is not None:
+        raise error("at_state", "give either at_s or at_state, not both")
+    if t.at_state is not None and t.at_state not in STATE_PATHS:
+        raise error(
             "at_state",
-            f"{at_state!r} is not a state of the chart (e.g. detect, flip, flip.turn, place.release)",
+            f"{t.at_state!r} is not a state of the chart (e.g. detect, flip, flip.turn, place.release)",
         )
-    occurrence = e.integer("occurrence", RANGES["occurrence"])
-    after_s = e.number("after_s", RANGES["after_s"])
-    if at_state is None:
+    if t.at_state is None:
         for key in ("occurrence", "after_s"):
             if key in table:
-                raise e.error(key, "only with at_state (at_s already says when)")
-    duration_s = e.number("duration_s", LOOP_STALL_RANGE if kind == "loop_stall" else RANGES["duration_s"])
-    if kind == "loop_stall" and duration_s is None:
-        duration_s = LOOP_STALL_DEFAULT_S
-    servo = e.integer("servo", Range(0, math.inf))
-    if servo is not None and servo > RANGES["servo"].high:
-        raise e.error("servo", f"must be a servo ID 0-253, got {servo}")
-    if servo is not None and servos is not None and servo not in servos:
-        raise e.error("servo", f"no servo {servo} in the configured chain ({', '.join(map(str, servos))})")
-    rate = e.number("rate", replace(RANGES["rate"], high=math.inf))
-    if rate is not None and rate > RANGES["rate"].high:
-        raise e.error("rate", f"must be in (0, 1], got {rate:g}")
-    device = e.text("device")
-    if kind == "bus_unplug":
-        device = device or "servo"
-        if device not in BUS_DEVICES:
-            raise e.error("device", f"must be {' or '.join(map(repr, BUS_DEVICES))}, got {device!r}")
-    value_n = e.number("value_n", RANGES["value_n"])
-    if kind == "fsr_spike" and value_n is None:
-        value_n = 0.0
-    dx_m, dy_m = e.number("dx_m", RANGES["dx_m"]), e.number("dy_m", RANGES["dy_m"])
-    if kind == "mug_moved" and not (dx_m or dy_m):
-        raise e.error("dx_m", "missing: say how far to move the mug (dx_m, dy_m in metres, not both 0)")
+                raise error(key, "only with at_state (at_s already says when)")
+    duration_s = t.duration_s
+    if kind == "loop_stall":
+        if duration_s is None:
+            duration_s = LOOP_STALL_DEFAULT_S
+        elif duration_s > LOOP_STALL_MAX_S:
+            allowed_range = number_range(0.0, LOOP_STALL_MAX_S, open_low=True)
+            raise error(
+                "duration_s", f"{show(table['duration_s'])} is out of range; allowed {allowed_range} s"
+            )
+    if t.servo is not None and servos is not None and t.servo not in servos:
+        raise error("servo", f"no servo {t.servo} in the configured chain ({', '.join(map(str, servos))})")
+    dx_m, dy_m = t.dx_m, t.dy_m
     if kind == "mug_moved":
+        if not (dx_m or dy_m):
+            raise error("dx_m", "missing: say how far to move the mug (dx_m, dy_m in metres, not both 0)")
         dx_m, dy_m = dx_m or 0.0, dy_m or 0.0
-    seed = e.integer("seed", RANGES["seed"])
-    if kind == "bus_corrupt" and seed is None:
-        seed = 0
     return FaultSpec(
         index=index,
         kind=kind,
-        at_s=at_s,
-        at_state=at_state,
-        occurrence=occurrence or 1,
-        after_s=after_s or 0.0,
+        at_s=t.at_s,
+        at_state=t.at_state,
+        occurrence=t.occurrence or 1,
+        after_s=t.after_s or 0.0,
         duration_s=duration_s,
-        servo=servo,
-        rate=rate,
-        seed=seed,
-        value_n=value_n,
+        servo=t.servo,
+        rate=t.rate,
+        seed=0 if kind == "bus_corrupt" and t.seed is None else t.seed,
+        value_n=0.0 if kind == "fsr_spike" and t.value_n is None else t.value_n,
         dx_m=dx_m,
         dy_m=dy_m,
-        mug=e.text("mug"),
-        device=device,
+        mug=t.mug,
+        device=(t.device or "servo") if kind == "bus_unplug" else t.device,
     )
 
 
