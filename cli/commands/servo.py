@@ -70,11 +70,18 @@ def _check_id(name: str, value: int) -> None:
         raise UsageError(f"{name} {value} is outside 0..{MAX_ID}")
 
 
-def _open(config: BusConfig) -> DynamixelBus:
+# A scan waits this long at each id nobody answers (253 ids: 2.5 s); a command to one known servo waits
+# longer, so that a busy computer's late status packet is not taken for a silent servo (a real servo answers
+# within a couple of milliseconds, so the wait costs nothing when it does).
+_SCAN_TIMEOUT_S = 0.01
+_COMMAND_TIMEOUT_S = 0.2
+
+
+def _open(config: BusConfig, *, read_timeout_s: float = _SCAN_TIMEOUT_S) -> DynamixelBus:
     from daemon.clock import RealClock
     from drivers.dynamixel import DynamixelBus  # dynamixel-sdk
 
-    bus = DynamixelBus(config, clock=RealClock(), read_timeout_s=0.01, retries=0)
+    bus = DynamixelBus(config, clock=RealClock(), read_timeout_s=read_timeout_s, retries=0)
     try:
         bus.open()
     except BusLost as e:
@@ -141,7 +148,7 @@ def _set_id(args: argparse.Namespace) -> int:
     _check_id("--new-id", args.new_id)
     if args.servo_id == args.new_id:
         raise UsageError(f"--new-id {args.new_id} is the servo's present id; nothing to change")
-    bus = _open(_config(args))
+    bus = _open(_config(args), read_timeout_s=_COMMAND_TIMEOUT_S)
     try:
         name = _find(bus, args.servo_id)
         taken = bus.ping(args.new_id, attempts=2)
@@ -163,7 +170,7 @@ def _set_baud(args: argparse.Namespace) -> int:
         code = baud_code(config.protocol, args.new_baud)
     except ValueError as e:
         raise UsageError(str(e)) from e
-    bus = _open(config)
+    bus = _open(config, read_timeout_s=_COMMAND_TIMEOUT_S)
     try:
         name = _find(bus, args.servo_id)
         bus.set_baud(args.servo_id, code, args.new_baud)
