@@ -187,7 +187,8 @@ def test_init_bad_input_is_one_line_and_writes_nothing(
         ),
         (
             {"tls": {"ca": "ca.pem"}},
-            "zenoh.tls.ca: unknown key in zenoh.tls (known keys: certificate, private_key, root_ca_certificate)",
+            "zenoh.tls.ca: unknown key in zenoh.tls "
+            "(known keys: certificate, private_key, root_ca_certificate)",
         ),
         (
             {"access": {"enabled": True, "operators": ["alice"]}},
