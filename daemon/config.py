@@ -34,7 +34,7 @@ from drivers.dynamixel.tables import BAUD_CODES_1, BAUD_CODES_2, MODELS
 from planning.placement import FOOTPRINTS, METHODS
 from recorder.settings import RecordingConfig
 from statechart.chart import JOB_LEAVES, JOB_STATES, top_level
-from validation import NON_EMPTY, Invalid, OneOf, convert, show, within
+from validation import NON_EMPTY, Invalid, OneOf, convert, show, toml, within
 
 _ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 _BACKENDS = ("sim", "hardware")
@@ -487,10 +487,9 @@ def parse_config(data: Mapping[str, Any]) -> Config:
 
 
 def to_toml(data: Mapping[str, Any]) -> str:
-    """A TOML document for a mapping of the types ``Config.to_dict`` produces."""
-    lines: list[str] = []
-    _emit_table(data, [], lines)
-    return "\n".join(lines).strip() + "\n"
+    """A TOML document for a mapping of the types ``Config.to_dict`` produces (the one TOML writer,
+    ``validation.toml``)."""
+    return toml.dumps(data)
 
 
 def _path_or_none(text: str) -> Path | None:
@@ -723,28 +722,3 @@ def _plain(value: Any) -> Any:
     if value is None:
         return ""
     return value
-
-
-def _emit_table(data: Mapping[str, Any], path: list[str], lines: list[str]) -> None:
-    scalars = {k: v for k, v in data.items() if not isinstance(v, Mapping)}
-    tables = {k: v for k, v in data.items() if isinstance(v, Mapping)}
-    if path and scalars:
-        lines.append("")
-        lines.append(f"[{'.'.join(path)}]")
-    for key, value in scalars.items():
-        bare = re.fullmatch(r"[A-Za-z0-9_-]+", key) is not None
-        lines.append(f"{key if bare else _toml_value(key)} = {_toml_value(value)}")
-    for key, value in tables.items():
-        _emit_table(value, [*path, key], lines)
-
-
-def _toml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int | float):
-        return repr(value)
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(value, list):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    raise TypeError(f"cannot write {type(value).__name__} as TOML")

@@ -19,7 +19,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
-import json
 import os
 import shutil
 import signal
@@ -45,6 +44,7 @@ from replay.drivers import Replayer, replay_backend
 from replay.errors import ReplayError
 from replay.faults import FaultOutcome
 from replay.session import Divergence, RecordedSession, Trace, compare, trace_of_messages
+from validation import toml
 
 log = structlog.get_logger("replay")
 
@@ -471,21 +471,7 @@ def fault_text(faults: Faults) -> str:
         return faults.read_text(encoding="utf-8")
     if isinstance(faults, str):
         return faults
-    lines = []
-    for table in faults:
-        lines.append("[[fault]]")
-        lines.extend(f"{key} = {_toml_value(value)}" for key, value in table.items())
-    return "\n".join(lines) + "\n"
-
-
-def _toml_value(value: object) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int | float):
-        return repr(value)
-    if isinstance(value, str):
-        return json.dumps(value)
-    raise TypeError(f"a fault's values are strings, numbers or booleans, not {value!r}")
+    return toml.dumps({"fault": [dict(table) for table in faults]}) if faults else ""
 
 
 __all__ = [

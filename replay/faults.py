@@ -43,7 +43,7 @@ import structlog
 from daemon.errors import UsageError
 from drivers.sim.camera import CameraFault
 from statechart.chart import LEAVES, STATES, top_level
-from validation import OneOf, above, convert, number_range, show, within
+from validation import OneOf, above, convert, number_range, show, toml, within
 
 if TYPE_CHECKING:
     import zenoh
@@ -288,24 +288,8 @@ def parse_faults(text: str, *, source: str, config: Config | None = None) -> tup
 
 def dump_faults(faults: Sequence[FaultSpec]) -> str:
     """A fault file listing ``faults`` (``parse_faults`` reads it back to the same entries)."""
-    blocks = []
-    for spec in faults:
-        lines = ["[[fault]]"]
-        for key, value in spec.to_json().items():
-            if key != "index":
-                lines.append(f"{key} = {_toml_value(value)}")
-        blocks.append("\n".join(lines))
-    return "\n\n".join(blocks) + "\n"
-
-
-def _toml_value(value: object) -> str:
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, float):
-        return repr(value)
-    return str(value)
+    tables = [{k: v for k, v in spec.to_json().items() if k != "index"} for spec in faults]
+    return toml.dumps({"fault": tables}) if tables else ""
 
 
 def _toml_error(message: str) -> str:
