@@ -186,14 +186,17 @@ def test_a_10_s_link_cut_the_job_goes_on_the_operator_reconnects_and_the_recordi
     code, out, _ = site.agent.cli("start", "--profile", site.profile("op"), "--connect", DIRECT)
     assert (code, out.splitlines()[1]) == (0, "state: detect")
     monitor.wait_for("state detect")
+    # The daemon's clock (a paced simulated clock, which falls behind the wall clock on a loaded machine)
+    # just before the cut and once the operator is answered again: the cut lies between, as the recording
+    # has it.
+    before = site.agent.call("until_answered", profile=site.profile("op"), connect=DIRECT)["reply"]["t"]
     site.pair.cut()
-    cut_at = time.time()
     time.sleep(CUT_S)
     site.pair.restore()
-    restored = time.time()
     mark = len(monitor.lines)
     back = site.agent.call("until_answered", profile=site.profile("op"), connect=DIRECT)
     assert back["reply"]["state"] != "fault"
+    after = back["reply"]["t"]
     monitor.wait_for("state ", after=mark)  # the monitor follows the job again
     code, _, _ = site.agent.cli("stop", "--profile", site.profile("op"), "--connect", DIRECT)
     assert code == 0
@@ -202,16 +205,17 @@ def test_a_10_s_link_cut_the_job_goes_on_the_operator_reconnects_and_the_recordi
     (path,) = [p for p in site.records.glob("r1-*.mcap") if is_job_file(p)]
     recording = read_messages(path)
     assert not recording.truncated
-    during = [m for m in recording if cut_at * 1e9 < m.log_time_ns < restored * 1e9]
-    transitions = [
-        m for m in during if m.topic == "dishbot/r1/events" and m.payload.get("kind") == "transition"
-    ]
-    assert transitions, "the job made no progress while the link was down"
+    during = [m for m in recording if before * 1e9 < m.log_time_ns < after * 1e9]
+    # The job went on through the cut: its state, published at its own rate, stayed a working state (not
+    # paused, stopped or faulted by the lost link).
+    states = [m.payload.get("state") for m in during if m.topic == "dishbot/r1/state"]
+    assert states, "nothing was published while the link was down"
+    assert not {"idle", "paused", "fault", "done"} & set(states), states
     assert not [m for m in recording if m.topic == "dishbot/r1/state" and m.payload.get("state") == "fault"]
     joints = [m.log_time_ns for m in recording if m.topic == "dishbot/r1/joints"]
     gaps_s = [(b - a) / 1e9 for a, b in itertools.pairwise(joints)]
     assert max(gaps_s) < 1.0, "the recording has a hole"  # 25 Hz, link or no link
-    assert sum(1 for t in joints if cut_at * 1e9 < t < restored * 1e9) > CUT_S * 10
+    assert sum(1 for m in during if m.topic == "dishbot/r1/joints") > (after - before) * 10
 
 
 @pytest.mark.slow
