@@ -1,4 +1,5 @@
-"""The job runner: owns the chart, answers commands, and dispatches each leaf state to its unit of work.
+"""The job runner: owns the chart and dispatches each leaf state to its unit of work, each command to
+``commands`` and each device report to ``devices``.
 
 One control task owns the chart. The unit of the current leaf (``registry.UNITS``) runs as a separate asyncio
 task; when it ends it posts its outcome (an event with guard values) to the control task's inbox, and
@@ -22,14 +23,15 @@ import asyncio
 import concurrent.futures
 import contextlib
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 from typing import Protocol
 
 import structlog
 
 from daemon.backend import Backend
 from daemon.config import Config
+from daemon.job.commands import Command, Commands
 from daemon.job.context import JobContext, JobSummary, Outcome
+from daemon.job.devices import DeviceSupervisor
 from daemon.job.errors import CommandRefused
 from daemon.job.progress import Deadline, Progress
 from daemon.job.registry import UNITS
@@ -46,9 +48,6 @@ from statechart.machine import StateChart, Transition
 
 log = structlog.get_logger("daemon.job")
 
-# How long the force sensor may be lost or silent while the job works before it faults (see device_event).
-_FORCE_GRACE_S = 0.3
-
 
 class RecordingHealth(Protocol):
     """What the job asks of the session's recording (``recorder.SessionRecording``)."""
@@ -58,16 +57,9 @@ class RecordingHealth(Protocol):
     def health(self) -> dict[str, object]: ...
 
 
-@dataclass(slots=True)
-class _Command:
-    verb: str
-    request: StartRequest | None
-    reason: str
-    reply: asyncio.Future[dict[str, object]]
-
-
 class Job:
-    """Runs loading jobs on a backend: owns the chart, dispatches each state's work, answers commands."""
+    """Runs loading jobs on a backend: owns the chart and dispatches each state's work, each command
+    (``commands``) and each device's report (``devices``)."""
 
     def __init__(
         self,
@@ -89,12 +81,13 @@ class Job:
         self._services = Services(
             backend, config, publish, associate, state=lambda: self.chart.state, executor=executor
         )
-        self._inbox: asyncio.Queue[_Command | tuple[int, Outcome]] = asyncio.Queue()
+        self._devices = DeviceSupervisor(self._services, working=self._working, fault=self.fault)
+        self._commands = Commands(self._services, self._devices, self)
+        self._inbox: asyncio.Queue[Command | tuple[int, Outcome]] = asyncio.Queue()
         self._work: asyncio.Task[None] | None = None
         self._generation = 0
         self._ctx = JobContext(planner=PlannerRequest().options(config.planner))
         self._transitions = 0
-        self._force_down = 0  # FSR lost/stale reports since it was last restored
         self._recording = recording
         self._dropped_before = 0  # the recording's losses when the job started
         self._progress = Progress(config.daemon.state_bound_s)
@@ -146,32 +139,17 @@ class Job:
 
     async def command(self, verb: str, request: StartRequest | None = None) -> dict[str, object]:
         """Queue a command for the control task and wait for its reply; ``CommandRefused`` when refused."""
-        return await self._submit(_Command(verb, request, "", asyncio.get_running_loop().create_future()))
+        return await self._submit(Command(verb, request, "", asyncio.get_running_loop().create_future()))
 
     async def fault(self, reason: str) -> None:
         """A device failed outside a state's work (e.g. while reading telemetry): enter fault."""
         with contextlib.suppress(CommandRefused):
-            await self._submit(_Command("fault", None, reason, asyncio.get_running_loop().create_future()))
+            await self._submit(Command("fault", None, reason, asyncio.get_running_loop().create_future()))
 
     def device_event(self, event: Mapping[str, object]) -> None:
-        """A driver's fault or recovery (``backend.device_event_payload``), on the event loop: published on
-        ``events``; a lost bus, and a silent or unplugged force sensor while a job works (a drop could no
-        longer be seen), fault the job. Servo faults and warnings are only reported here: the gripper recovers
-        overloads itself, and a fault that stands reaches the job as the driver's exception (from its work,
-        the telemetry or the health poll). However many of them report one cause, the job faults once."""
-        kind = str(event.get("kind", ""))
-        self._services.publish("events", {**event, "state": self.chart.state})
-        reason = f"{kind} on {event.get('port', event.get('device', '?'))}"
-        if "error" in event:
-            reason += f": {event['error']}"
-        if kind == "bus_lost":
-            asyncio.get_running_loop().create_task(self.fault(reason))
-        elif kind in ("fsr_lost", "fsr_stale"):
-            self._force_down += 1
-            if self._working():
-                asyncio.get_running_loop().create_task(self._fault_unless_force_back(reason))
-        elif kind == "fsr_restored":
-            self._force_down = 0
+        """A driver's fault or recovery, on the event loop: published, and a fault when it stops the job
+        (``DeviceSupervisor.on_event``)."""
+        self._devices.on_event(event, self.chart.state)
 
     async def run(self) -> None:
         """The control task: fire each outcome or command in turn. Cancel it to stop (after ``shutdown``)."""
@@ -181,12 +159,12 @@ class Job:
                 await self._take(item)
             except Exception as e:  # a bug handling one item must not leave the job with no control task
                 _say(log.error, "control_failed", error=repr(e))
-                if isinstance(item, _Command) and not item.reply.done():
+                if isinstance(item, Command) and not item.reply.done():
                     item.reply.set_exception(CommandRefused(f"internal error: {e!r}"))
                 await self._fault_after_failure(f"internal error: {e!r}")
 
-    async def _take(self, item: _Command | tuple[int, Outcome]) -> None:
-        if isinstance(item, _Command):
+    async def _take(self, item: Command | tuple[int, Outcome]) -> None:
+        if isinstance(item, Command):
             await self._handle(item)
             return
         generation, outcome = item
@@ -200,7 +178,7 @@ class Job:
         if not self._working() or not self.chart.can("fault"):
             return
         try:
-            await self._safe_stop()
+            await self._devices.safe_stop()
             self._services.event("fault", reason=reason)
             await self._fire(Outcome("fault", {"reason": reason}))
         except Exception as e:  # reported; the deadline or the operator may still end it
@@ -211,18 +189,17 @@ class Job:
         if self._deadline is not None:
             self._deadline.cancel()
         await self._cancel_work()
-        with contextlib.suppress(DriverError, BusLost):
-            await self.backend.arm.stop()
+        await self._devices.stop_arm()
 
     # --- commands ------------------------------------------------------------------------------------------
 
-    async def _submit(self, cmd: _Command) -> dict[str, object]:
+    async def _submit(self, cmd: Command) -> dict[str, object]:
         await self._inbox.put(cmd)
         return await cmd.reply
 
-    async def _handle(self, cmd: _Command) -> None:
+    async def _handle(self, cmd: Command) -> None:
         try:
-            result = await self._execute(cmd)
+            result = await self._commands.execute(cmd)
         except CommandRefused as e:
             if not cmd.reply.done():
                 cmd.reply.set_exception(e)
@@ -230,101 +207,33 @@ class Job:
         if not cmd.reply.done():
             cmd.reply.set_result(result)
 
-    async def _execute(self, cmd: _Command) -> dict[str, object]:
-        verb = cmd.verb
-        if not self.chart.can(verb):
-            raise CommandRefused(f"cannot {verb} in state {self.chart.state}")
-        if verb == "start":
-            problems = self._device_problems()
-            if problems:
-                raise CommandRefused("; ".join(problems))
-            self._begin(cmd.request or StartRequest())
-            await self._fire(Outcome("start"))
-        elif verb in ("pause", "stop"):
-            await self._cancel_work()
-            await self._safe_stop()
-            await self._fire(Outcome(verb))
-        elif verb == "fault":
-            if self.chart.state == "fault":  # one cause, many reporters (telemetry, events, the work)
-                _say(log.info, "fault_already", reason=cmd.reason)
-                return {"state": self.chart.state}
-            await self._cancel_work()
-            await self._advance(Outcome("fault", {"reason": cmd.reason}))
-        elif verb == "estop":
-            await self._cancel_work()
-            await self._safe_stop()
-            with contextlib.suppress(DriverError, BusLost):
-                await self.backend.arm.relax()
-            await self._fire(Outcome("estop"))
-        elif verb in ("resume", "reset"):
-            if verb == "reset":
-                await self._clear_devices()
-            self._ctx.rejoin = verb == "resume"
-            await self._fire(Outcome(verb))
-        else:
-            raise CommandRefused(f"unknown command {verb!r}")
-        return {"state": self.chart.state}
+    # --- what a command may ask (``commands.Control``) ------------------------------------------------------
 
-    def _device_problems(self) -> list[str]:
-        """What stands against a start: a force sensor that is not reporting, a device in error."""
-        problems = []
-        if self._force_down:
-            problems.append(
-                "the gripper's force sensor is not reporting (lost or silent); check the FSR Arduino"
-            )
-        if self.backend.health is not None:
-            problems += self.backend.health.problems()
-        return problems
+    @property
+    def context(self) -> JobContext:
+        return self._ctx
 
-    async def _clear_devices(self) -> None:
-        """Reset's device check: clear what can be cleared (a tripped servo, a bus plugged back in);
-        refused, naming what still stands, when anything does."""
-        problems: list[str] = []
-        if self.backend.health is not None:
-            try:
-                problems += await self.backend.health.clear()
-            except (DriverError, BusLost) as e:
-                problems.append(str(e))
-        if self._force_down:
-            problems.append(
-                "the gripper's force sensor is not reporting (lost or silent); check the FSR Arduino"
-            )
-        if problems:
-            log.warning("reset_refused", problems=problems)
-            raise CommandRefused("cannot reset: " + "; ".join(problems))
-
-    def _begin(self, request: StartRequest) -> None:
-        """A new job's context: a new scene (a dataset or mugs to set the simulated counter up with) starts
-        with an empty tray; on the same scene, what earlier jobs put on the tray is still there."""
-        options = request.planner.options(self.config.planner)
-        if request.dataset is not None or request.mugs is not None:
-            self._set_counter(request)
-            self._ctx = JobContext(planner=options)
-        else:
-            self._ctx = self._ctx.next_job(options)
+    def begin(self, ctx: JobContext) -> None:
+        self._ctx = ctx
         self._ctx.summary.started_at = self._services.monotonic()
         self._ctx.summary.clock = self._services.clock
         self._dropped_before = self._recording.dropped() if self._recording is not None else 0
         self.finished.clear()
 
-    def _set_counter(self, request: StartRequest) -> None:
-        backend = self.backend
-        if backend.counter is None:
-            raise CommandRefused("dataset and mugs set up a simulated counter; this backend is real hardware")
-        try:
-            tray = backend.counter.set_counter(dataset=request.dataset, mugs=request.mugs)
-        except ValueError as e:
-            raise CommandRefused(str(e)) from e
-        if tray != backend.tray and backend.motion_for is not None:
-            backend.motion = backend.motion_for(tray)
-        backend.tray = tray
-        self._services.event("scene_set", scene=backend.scene())  # the recording's header has the first
+    async def cancel_work(self) -> None:
+        await self._cancel_work()
+
+    async def fire(self, outcome: Outcome) -> None:
+        await self._fire(outcome)
+
+    async def advance(self, outcome: Outcome) -> None:
+        await self._advance(outcome)
 
     # --- driving the chart ---------------------------------------------------------------------------------
 
     async def _advance(self, outcome: Outcome) -> None:
         if outcome.trigger == "fault":
-            await self._safe_stop()
+            await self._devices.safe_stop()
             _say(log.error, "fault", reason=outcome.values.get("reason", ""))
             self._services.event("fault", **dict(outcome.values))
         await self._fire(outcome)
@@ -408,19 +317,6 @@ class Job:
             work.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await work
-
-    async def _fault_unless_force_back(self, reason: str, *, grace_s: float = _FORCE_GRACE_S) -> None:
-        """Fault the job when the force sensor is still lost or silent after ``grace_s``: a short stall of
-        the event loop must not end a job, a sensor that stays away must (no drop could be seen)."""
-        await self._services.sleep(grace_s)
-        if self._force_down and self._working():
-            await self.fault(reason)
-
-    async def _safe_stop(self) -> None:
-        with contextlib.suppress(DriverError, BusLost):
-            await self.backend.arm.stop()
-        with contextlib.suppress(DriverError, BusLost):
-            await self.backend.gripper.stop()
 
 
 def _say(method: Callable[..., object], event: str, **fields: object) -> None:
