@@ -462,7 +462,7 @@ def test_a_placed_mug_is_an_obstacle_with_its_handle_where_it_really_points(plan
 
 
 def test_handle_bars_that_cross_are_touching_and_apart_ones_measure_their_gap() -> None:
-    from planning.motion.planner import _segment_segment_m
+    from planning.motion.handle import segment_segment_m as _segment_segment_m
 
     bar = ((0.0, 0.0), (0.02, 0.0))
     assert _segment_segment_m(bar, ((0.01, -0.01), (0.01, 0.01))) == 0.0
