@@ -12,7 +12,7 @@ import structlog
 # pytester: the tests of the pytest plugin dishbot ships run pytest inside pytest. The plugin itself comes
 # with the installed package (entry point pytest11 "dishbot"); an install older than the entry point gets
 # it by name.
-pytest_plugins = ["pytester"]
+pytest_plugins = ["pytester", "tests.fakes.slow_guard"]
 if not any(e.name == "dishbot" for e in entry_points(group="pytest11")):
     pytest_plugins.append("replay.pytest_plugin")
 

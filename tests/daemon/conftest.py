@@ -1,20 +1,15 @@
-"""Fixtures for daemon tests: free loopback ports; structlog reset after each test."""
+"""Fixtures for daemon tests: structlog reset after each test (and the harness's ``free_port``)."""
 
 from __future__ import annotations
 
-import socket
 from collections.abc import Iterator
 
 import pytest
 import structlog
 
+from tests.fakes.daemon import free_port
 
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that nothing listens on right now."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
+__all__ = ["free_port"]  # where the daemon tests have long taken it from; it lives with the harness
 
 
 @pytest.fixture(autouse=True)

@@ -6,7 +6,6 @@ import asyncio
 import contextlib
 import json
 from collections.abc import AsyncIterator, Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -15,51 +14,23 @@ import zenoh
 
 from cli.commands.client import request
 from cli.main import main
-from daemon.app import RunOptions, serve
 from daemon.config import Config, load_config
-from daemon.sdnotify import SdNotifier
 from daemon.security import Profile, ZenohConfig, node_settings
-from daemon.zenoh_session import ZenohSession, session_config
-from perception import associate
+from daemon.zenoh_session import session_config
+from tests.fakes.daemon import Daemon, running_daemon
 from tests.fakes.job import make_backend, make_world
-
-
-@dataclass
-class Daemon:
-    session: ZenohSession
-    recording: Path
-    endpoint: str
 
 
 @contextlib.asynccontextmanager
 async def daemon(
     tmp_path: Path, config: Config, *, listen: Sequence[str], connect: Sequence[str] = (), mugs: int = 2
 ) -> AsyncIterator[Daemon]:
-    """``serve`` on this loop with the fake cell, until the block ends."""
-    stop = asyncio.Event()
-    ready: asyncio.Future[tuple[ZenohSession, Path]] = asyncio.get_running_loop().create_future()
-    options = RunOptions(listen=tuple(listen), connect=tuple(connect), record_dir=tmp_path / config.robot_id)
-    task = asyncio.create_task(
-        serve(
-            config,
-            make_backend(make_world(mugs)),
-            associate,
-            options,
-            notifier=SdNotifier(None),
-            on_ready=lambda session, path: ready.set_result((session, path)),
-            stop=stop,
-        )
-    )
-    waits: set[asyncio.Future[Any]] = {task, ready}
-    done, _ = await asyncio.wait(waits, timeout=20, return_when=asyncio.FIRST_COMPLETED)
-    if task in done:
-        task.result()  # raises what stopped it
-    session, path = ready.result()
-    try:
-        yield Daemon(session, path, listen[0] if listen else "")
-    finally:
-        stop.set()
-        await asyncio.wait_for(task, 20)
+    """The harness's daemon on the fake cell with ``mugs`` mugs, recording under ``tmp_path/<robot id>``."""
+    backend = make_backend(make_world(mugs))
+    async with running_daemon(
+        config, backend, tmp_path / config.robot_id, listen=listen, connect=connect
+    ) as d:
+        yield d
 
 
 def robot_config(robot_id: str, path: Path | None = None, **zenoh: Any) -> Config:

@@ -18,12 +18,9 @@ import pytest
 
 from cli.commands.arm import SIDE_GRASPS
 from cli.main import build_parser, named_verb
-from daemon.app import RunOptions, serve
 from daemon.config import load_config
-from daemon.sdnotify import SdNotifier
-from perception import associate
 from planning.arm import GraspKind
-from tests.daemon.conftest import free_port
+from tests.fakes.daemon import running_daemon
 from tests.fakes.job import make_backend, make_world
 
 HEAVY = frozenset({"mujoco", "scipy", "pinocchio", "cv2", "ortools", "numpy"})
@@ -106,6 +103,7 @@ def test_the_help_screen_loads_no_verb_and_reads_as_every_verb_registered() -> N
     assert build_parser(()).format_help() == build_parser().format_help()
 
 
+@pytest.mark.slow
 def test_the_bare_help_screen_imports_only_the_command_line_itself(tmp_path: Path) -> None:
     [result] = run_cli(tmp_path, ("--help",))
     assert result["code"] == 0
@@ -131,6 +129,7 @@ def test_the_verb_is_the_first_word_that_is_no_option_nor_its_value(
     assert named_verb(argv) == verb
 
 
+@pytest.mark.slow
 def test_a_verb_imports_its_own_module_and_no_other_verb(tmp_path: Path) -> None:
     [result] = run_cli(tmp_path, ("statechart",))
     assert result["code"] == 0
@@ -150,37 +149,19 @@ def test_a_local_verb_loads_no_heavy_library(tmp_path: Path, argv: tuple[str, ..
 
 @pytest.mark.slow
 def test_the_client_verbs_load_no_heavy_library_while_they_command_a_daemon(tmp_path: Path) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    base = ("--connect", endpoint, "--robot", ROBOT)
     # From idle: pause, resume and stop are refused (exit 1), estop and reset accepted, start starts a job.
     verbs = {"status": 0, "pause": 1, "resume": 1, "stop": 1, "estop": 0, "reset": 0, "start": 0}
     config = load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}})
-    options = RunOptions(listen=(endpoint,), connect=(), record_dir=tmp_path / "recordings")
 
     async def go() -> list[dict[str, Any]]:
-        stop = asyncio.Event()
-        ready = asyncio.Event()
-        daemon = asyncio.create_task(
-            serve(
-                config,
-                make_backend(make_world(2)),
-                associate,
-                options,
-                notifier=SdNotifier(None),
-                on_ready=lambda session, path: ready.set(),
-                stop=stop,
-            )
-        )
-        try:
-            await asyncio.wait_for(ready.wait(), 10)
+        backend = make_backend(make_world(2))
+        async with running_daemon(config, backend, tmp_path / "recordings") as d:
+            base = ("--connect", d.endpoint, "--robot", ROBOT)
             results = []
             for verb in verbs:  # one interpreter each, in this order
                 results += await asyncio.to_thread(run_cli, tmp_path, (verb, *base))
             results += await asyncio.to_thread(run_cli, tmp_path, ("monitor", *base, "--duration", "0.3"))
             return results
-        finally:
-            stop.set()
-            await asyncio.wait_for(daemon, 20)
 
     results = asyncio.run(go())
     assert [r["code"] for r in results] == [*verbs.values(), 0]

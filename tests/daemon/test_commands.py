@@ -17,14 +17,12 @@ from hypothesis import strategies as st
 from cli import credentials
 from cli.commands.client import DEFAULT_ENDPOINT, Unreachable, request
 from cli.main import main
-from daemon.app import RunOptions, serve
 from daemon.commands_handler import BadCommand, nested_deeper_than, parse
 from daemon.config import load_config
-from daemon.sdnotify import SdNotifier
 from daemon.security import DEFAULT_PORT
 from daemon.zenoh_session import session_config
-from perception import associate
 from tests.daemon.conftest import free_port
+from tests.fakes.daemon import running_daemon
 from tests.fakes.job import make_backend, make_world
 
 ROBOT = "cmdtest"
@@ -34,44 +32,11 @@ Client = Callable[[str, bytes], Awaitable[dict[str, Any]]]
 
 def _with_daemon(tmp_path: Path, scenario: Callable[[str, Client], Awaitable[None]]) -> None:
     """Run an in-process daemon on a free port, then ``scenario(endpoint, send)`` against it."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}})
-    options = RunOptions(listen=(endpoint,), connect=(), record_dir=tmp_path)
 
     async def go() -> None:
-        stop = asyncio.Event()
-        ready = asyncio.Event()
-        daemon = asyncio.create_task(
-            serve(
-                config,
-                make_backend(make_world(2)),
-                associate,
-                options,
-                notifier=SdNotifier(None),
-                on_ready=lambda bus, path: ready.set(),
-                stop=stop,
-            )
-        )
-        await asyncio.wait_for(ready.wait(), 10)
-        with zenoh.open(session_config(listen=[], connect=[endpoint])) as session:
-
-            def query(verb: str, payload: bytes) -> dict[str, Any]:
-                replies = list(session.get(f"dishbot/{ROBOT}/cmd/{verb}", payload=payload, timeout=5.0))
-                assert len(replies) == 1
-                ok = replies[0].ok
-                err = replies[0].err
-                assert ok is not None, err.payload.to_string() if err is not None else "no reply"
-                result: dict[str, Any] = json.loads(ok.payload.to_bytes())
-                return result
-
-            async def send(verb: str, payload: bytes) -> dict[str, Any]:
-                return await asyncio.to_thread(query, verb, payload)
-
-            try:
-                await scenario(endpoint, send)
-            finally:
-                stop.set()
-                await asyncio.wait_for(daemon, 20)
+        async with running_daemon(config, make_backend(make_world(2)), tmp_path) as d:
+            await scenario(d.endpoint, d.query)
 
     asyncio.run(go())
 
@@ -150,6 +115,7 @@ BAD = [
 ]
 
 
+@pytest.mark.slow
 def test_each_class_of_bad_command_is_refused_with_its_reason_and_changes_nothing(tmp_path: Path) -> None:
     async def scenario(endpoint: str, send: Client) -> None:
         before = await send("status", b"")
@@ -215,6 +181,7 @@ def test_brackets_inside_strings_do_not_count_as_nesting() -> None:
     assert nested_deeper_than(body, 2) is True
 
 
+@pytest.mark.slow
 def test_a_good_command_sequence_runs_a_job_over_zenoh(tmp_path: Path) -> None:
     async def scenario(endpoint: str, send: Client) -> None:
         assert await send("start", b'{"planner": {"method": "bh", "time_limit_s": 0.5}}') == {
@@ -235,6 +202,7 @@ def test_a_good_command_sequence_runs_a_job_over_zenoh(tmp_path: Path) -> None:
     _with_daemon(tmp_path, scenario)
 
 
+@pytest.mark.slow
 def test_the_daemon_announces_itself_with_a_liveliness_token(tmp_path: Path) -> None:
     async def scenario(endpoint: str, send: Client) -> None:
         def alive() -> list[str]:
@@ -248,6 +216,7 @@ def test_the_daemon_announces_itself_with_a_liveliness_token(tmp_path: Path) -> 
     _with_daemon(tmp_path, scenario)
 
 
+@pytest.mark.slow
 def test_the_client_verbs_print_the_reply_and_exit_by_its_outcome(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

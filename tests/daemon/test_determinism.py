@@ -13,17 +13,15 @@ from typing import Any
 
 import pytest
 
-from daemon.app import RunOptions, RunResult, serve
+from daemon.app import RunResult
 from daemon.backend import Backend, CounterMug, SimOptions
 from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import StartRequest
-from daemon.sdnotify import SdNotifier
-from perception import associate
 from planning.placement import cell_dataset_problem
 from recorder import HEADER_TOPIC, read_messages
-from tests.daemon.conftest import free_port
+from tests.fakes.daemon import serve_daemon
 
 WALL_START = 1_795_000_000.0
 ROBOT = "determinism"
@@ -36,10 +34,7 @@ def _run_once(tmp_path: Path, world: str, request: StartRequest) -> tuple[RunRes
     async def main() -> RunResult:
         sim = SimOptions(world=world, dataset=1, seed=0)
         backend: Backend = await open_backend(config, sim=sim, clock=clock)
-        options = RunOptions(
-            listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path, once=request
-        )
-        return await serve(config, backend, associate, options, notifier=SdNotifier(None))
+        return await serve_daemon(config, backend, tmp_path, once=request)
 
     result = clock.run(main())
     return result, result.recording

@@ -14,11 +14,11 @@ from typing import Any
 import pytest
 
 from daemon.clock import wall_seconds
-from tests.fakes.hw_rig import GRIPPER_ID, Daemon, Rig, rig, running_daemon
+from tests.fakes.hw_rig import GRIPPER_ID, Rig, RigDaemon, rig, running_daemon
 from tests.fakes.inprocess_rig import SimDaemon, run_daemon
 
 
-def _run(tmp_path: Path, scenario: Callable[[Rig, Daemon], Awaitable[None]], **kw: Any) -> None:
+def _run(tmp_path: Path, scenario: Callable[[Rig, RigDaemon], Awaitable[None]], **kw: Any) -> None:
     async def go() -> None:
         with rig() as r:
             async with running_daemon(r, tmp_path, **kw) as d:
@@ -29,7 +29,7 @@ def _run(tmp_path: Path, scenario: Callable[[Rig, Daemon], Awaitable[None]], **k
 
 @pytest.mark.slow
 def test_a_gripper_overload_is_recovered_reported_and_the_job_goes_on(tmp_path: Path) -> None:
-    async def scenario(r: Rig, d: Daemon) -> None:
+    async def scenario(r: Rig, d: RigDaemon) -> None:
         # The servo trips the first time a closing goal reaches it (a jam), then closes normally.
         r.servos.overload(GRIPPER_ID, now=False, repeats=1)
         assert (await d.command("start"))["ok"]
@@ -45,8 +45,9 @@ def test_a_gripper_overload_is_recovered_reported_and_the_job_goes_on(tmp_path: 
     _run(tmp_path, scenario)
 
 
+@pytest.mark.slow
 def test_a_gripper_that_keeps_tripping_faults_the_job_and_only_reset_leaves(tmp_path: Path) -> None:
-    async def scenario(r: Rig, d: Daemon) -> None:
+    async def scenario(r: Rig, d: RigDaemon) -> None:
         r.servos.overload(GRIPPER_ID, now=False, repeats=50)
         assert (await d.command("start"))["ok"]
         await d.until(lambda: d.reached("done", "fault"))
@@ -62,7 +63,7 @@ def test_a_gripper_that_keeps_tripping_faults_the_job_and_only_reset_leaves(tmp_
 
 @pytest.mark.slow
 def test_an_arm_servo_that_stays_overloaded_faults_the_idle_daemon_after_the_grace(tmp_path: Path) -> None:
-    async def scenario(r: Rig, d: Daemon) -> None:
+    async def scenario(r: Rig, d: RigDaemon) -> None:
         r.servos.overload(2)
         await d.until(lambda: d.reached("fault"))
         assert d.event("servo_fault")["servo_id"] == 2
@@ -77,7 +78,7 @@ def test_an_arm_servo_that_stays_overloaded_faults_the_idle_daemon_after_the_gra
 
 @pytest.mark.slow
 def test_a_servo_that_stops_answering_faults_the_daemon_naming_it(tmp_path: Path) -> None:
-    async def scenario(r: Rig, d: Daemon) -> None:
+    async def scenario(r: Rig, d: RigDaemon) -> None:
         r.servos.silence(3)
         await d.until(lambda: d.reached("fault"))
         assert (d.event("servo_fault")["servo_id"], d.event("servo_fault")["faults"]) == (3, "['no_status']")
@@ -88,8 +89,9 @@ def test_a_servo_that_stops_answering_faults_the_daemon_naming_it(tmp_path: Path
     _run(tmp_path, scenario)
 
 
+@pytest.mark.slow
 def test_corrupt_packets_are_retried_and_counted_without_a_fault(tmp_path: Path) -> None:
-    async def scenario(r: Rig, d: Daemon) -> None:
+    async def scenario(r: Rig, d: RigDaemon) -> None:
         assert d.backend.devices is not None
         r.servos.corrupt(4, packets=2)
         await d.until(
@@ -107,7 +109,7 @@ def test_corrupt_packets_are_retried_and_counted_without_a_fault(tmp_path: Path)
 
 @pytest.mark.slow
 def test_unplugging_the_servo_adapter_reports_the_lost_bus_and_faults(tmp_path: Path) -> None:
-    async def scenario(r: Rig, d: Daemon) -> None:
+    async def scenario(r: Rig, d: RigDaemon) -> None:
         assert (await d.command("start"))["ok"]
         await d.until(lambda: d.state.startswith("side_grasp"))
         unplugged = time.time()  # the daemon runs on the wall clock here: events carry time.time()
@@ -136,7 +138,7 @@ def test_unplugging_the_servo_adapter_reports_the_lost_bus_and_faults(tmp_path: 
 
 @pytest.mark.slow
 def test_a_silent_force_sensor_while_carrying_faults_the_job(tmp_path: Path) -> None:
-    async def scenario(r: Rig, d: Daemon) -> None:
+    async def scenario(r: Rig, d: RigDaemon) -> None:
         assert (await d.command("start"))["ok"]
         await d.until(lambda: d.state == "flip.transit")
         r.fsr.silence()
@@ -154,7 +156,7 @@ def test_a_silent_force_sensor_while_carrying_faults_the_job(tmp_path: Path) -> 
 def test_an_unplugged_force_sensor_while_idle_is_reported_and_refuses_a_start_until_back(
     tmp_path: Path,
 ) -> None:
-    async def scenario(r: Rig, d: Daemon) -> None:
+    async def scenario(r: Rig, d: RigDaemon) -> None:
         r.fsr.unplug()
         await d.until(lambda: "fsr_lost" in d.kinds())
         assert d.event("fsr_lost")["port"] == r.fsr.device_path
@@ -172,7 +174,7 @@ def test_an_unplugged_force_sensor_while_idle_is_reported_and_refuses_a_start_un
 
 @pytest.mark.slow
 def test_the_force_dropping_while_carrying_recovers_the_lost_mug(tmp_path: Path) -> None:
-    async def scenario(r: Rig, d: Daemon) -> None:
+    async def scenario(r: Rig, d: RigDaemon) -> None:
         assert (await d.command("start"))["ok"]
         await d.until(lambda: d.state == "flip.transit")
         r.fsr.drop_force()
@@ -226,6 +228,7 @@ def test_reset_clears_a_tripped_arm_servo_and_the_job_can_start_again(tmp_path: 
     _sim(tmp_path, scenario, protocol=protocol)
 
 
+@pytest.mark.slow
 def test_reset_is_refused_while_a_servo_stays_silent_and_start_stays_refused(tmp_path: Path) -> None:
     async def scenario(d: SimDaemon) -> None:
         d.servos.silence(3)
@@ -244,6 +247,7 @@ def test_reset_is_refused_while_a_servo_stays_silent_and_start_stays_refused(tmp
     _sim(tmp_path, scenario)
 
 
+@pytest.mark.slow
 def test_heat_and_a_sagging_supply_are_found_by_polling_warned_then_faulted(tmp_path: Path) -> None:
     async def scenario(d: SimDaemon) -> None:
         d.servos.servo(4).set("temperature_limit", 99)  # the servo's own limit would not trip: only the poll
@@ -280,6 +284,7 @@ def test_heat_and_a_sagging_supply_are_found_by_polling_warned_then_faulted(tmp_
     _sim(tmp_path, scenario, hardware={"health": {"poll_period_s": 0.2}})
 
 
+@pytest.mark.slow
 def test_low_voltage_mid_job_faults_naming_servo_value_and_limit(tmp_path: Path) -> None:
     async def scenario(d: SimDaemon) -> None:
         assert (await d.command("start"))["ok"]
@@ -294,6 +299,7 @@ def test_low_voltage_mid_job_faults_naming_servo_value_and_limit(tmp_path: Path)
     _sim(tmp_path, scenario)
 
 
+@pytest.mark.slow
 def test_an_unplugged_bus_faults_within_a_control_tick_once_and_reset_waits_for_the_replug(
     tmp_path: Path,
 ) -> None:
@@ -325,6 +331,7 @@ def test_an_unplugged_bus_faults_within_a_control_tick_once_and_reset_waits_for_
     print(f"unplug to fault: {measured['sim_ms']:.1f} simulated ms, {measured['wall_ms']:.1f} wall ms")
 
 
+@pytest.mark.slow
 def test_a_short_glitch_on_one_servo_faults_naming_only_that_servo(tmp_path: Path) -> None:
     async def scenario(d: SimDaemon) -> None:
         d.servos.drop(3, packets=3)
@@ -338,6 +345,7 @@ def test_a_short_glitch_on_one_servo_faults_naming_only_that_servo(tmp_path: Pat
 
 
 @pytest.mark.parametrize(("every", "faults"), [(3, True), (12, False)])
+@pytest.mark.slow
 def test_corruption_over_the_threshold_faults_bus_corrupt_and_under_it_does_not(
     tmp_path: Path, every: int, faults: bool
 ) -> None:
@@ -360,6 +368,7 @@ def test_corruption_over_the_threshold_faults_bus_corrupt_and_under_it_does_not(
     _sim(tmp_path, scenario)
 
 
+@pytest.mark.slow
 def test_reset_after_an_estop_enables_the_torque_again_where_the_arm_stands(tmp_path: Path) -> None:
     async def scenario(d: SimDaemon) -> None:
         assert (await d.command("estop"))["state"] == "estop"

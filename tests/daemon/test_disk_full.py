@@ -5,23 +5,18 @@ recording goes on (``recording_restored``) and only what came while the disk was
 from __future__ import annotations
 
 import asyncio
-import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import pytest
-import zenoh
 
-from daemon.app import RunOptions, ServeContext, ServeHooks, serve
+from daemon.app import ServeContext
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import StartRequest
-from daemon.sdnotify import SdNotifier
-from daemon.zenoh_session import session_config
-from perception import associate
 from recorder import HEADER_TOPIC, read_messages, writer
-from tests.daemon.conftest import free_port
+from tests.fakes.daemon import running_daemon, serve_daemon
 from tests.fakes.disk import SmallDisk
 from tests.fakes.job import make_backend, make_world
 
@@ -35,7 +30,6 @@ def test_a_disk_full_mid_job_is_published_shown_in_status_and_counted_and_the_jo
 ) -> None:
     disk = SmallDisk(free=10**9)
     monkeypatch.setattr(writer, "open", disk.open, raising=False)
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}})
     events: list[Mapping[str, object]] = []
 
@@ -46,37 +40,15 @@ def test_a_disk_full_mid_job_is_published_shown_in_status_and_counted_and_the_jo
         if payload.get("kind") == "mug_placed":
             disk.free = 0  # full from the first mug on
 
-    def query(verb: str) -> dict[str, Any]:
-        with zenoh.open(session_config(listen=[], connect=[endpoint])) as session:
-            (reply,) = list(session.get(f"dishbot/{ROBOT}/cmd/{verb}", timeout=5.0))
-            assert reply.ok is not None
-            result: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
-            return result
-
     async def go() -> tuple[dict[str, Any], dict[str, Any]]:
-        stop = asyncio.Event()
-        ready: asyncio.Future[ServeContext] = asyncio.get_running_loop().create_future()
-        daemon = asyncio.create_task(
-            serve(
-                config,
-                make_backend(make_world(2)),
-                associate,
-                RunOptions(listen=(endpoint,), connect=(), record_dir=tmp_path),
-                notifier=SdNotifier(None),
-                stop=stop,
-                hooks=ServeHooks(on_publish=(tap,), on_ready=ready.set_result),
-            )
-        )
-        await asyncio.wait_for(ready, 20)
-        before = await asyncio.to_thread(query, "status")
-        assert (await asyncio.to_thread(query, "start"))["ok"] is True
-        for _ in range(500):
-            status = await asyncio.to_thread(query, "status")
-            if status["state"] == "done" and not status["recording"]["ok"]:
-                break
-            await asyncio.sleep(0.02)
-        stop.set()
-        await asyncio.wait_for(daemon, 20)
+        async with running_daemon(config, make_backend(make_world(2)), tmp_path, on_publish=(tap,)) as d:
+            before = await d.query("status")
+            assert (await d.query("start"))["ok"] is True
+            for _ in range(500):
+                status = await d.query("status")
+                if status["state"] == "done" and not status["recording"]["ok"]:
+                    break
+                await asyncio.sleep(0.02)
         return before, status
 
     before, status = asyncio.run(go())
@@ -123,6 +95,7 @@ def test_the_status_verb_prints_a_failed_recording() -> None:
     assert "recording" not in _readable({**reply, "recording": {"ok": True, "path": "x", "dropped": 0}})
 
 
+@pytest.mark.slow
 def test_a_disk_full_for_a_while_mid_job_costs_only_that_while_and_the_job_file_goes_on_to_done(
     tmp_path: Path,
 ) -> None:
@@ -150,17 +123,14 @@ def test_a_disk_full_for_a_while_mid_job_costs_only_that_while_and_the_job_file_
 
             asyncio.get_running_loop().call_later(FULL_FOR_S, freed)
 
-    options = RunOptions(
-        listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path, once=StartRequest()
-    )
     result = clock.run(
-        serve(
+        serve_daemon(
             config,
             make_backend(make_world(2), clock=clock),
-            associate,
-            options,
-            notifier=SdNotifier(None),
-            hooks=ServeHooks(on_publish=(tap,), on_ready=contexts.append),
+            tmp_path,
+            once=StartRequest(),
+            on_publish=(tap,),
+            on_ready=contexts.append,
         )
     )
     assert result.end_state == "done"

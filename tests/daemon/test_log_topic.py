@@ -11,13 +11,10 @@ from typing import Any
 import pytest
 
 from cli.commands.client import request
-from daemon.app import RunOptions, serve
 from daemon.config import load_config
-from daemon.sdnotify import SdNotifier
-from perception import associate
 from perception.interfaces import Observation
 from recorder import read_messages
-from tests.daemon.conftest import free_port
+from tests.fakes.daemon import running_daemon
 from tests.fakes.job import make_backend, make_world
 
 ROBOT = "logtest"
@@ -29,7 +26,6 @@ class _BrokenCamera(RuntimeError):
 
 @pytest.mark.slow
 def test_a_crashed_unit_logs_its_exception_text_and_worker_records_carry_t(tmp_path: Path) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}})
     backend = make_backend(make_world(2))
 
@@ -38,38 +34,24 @@ def test_a_crashed_unit_logs_its_exception_text_and_worker_records_carry_t(tmp_p
 
     backend.observer.observe = broken  # type: ignore[method-assign]
     worker_logs: queue.Queue[Any] = queue.Queue()
-    options = RunOptions(listen=(endpoint,), connect=(), record_dir=tmp_path, worker_logs=worker_logs)
 
     async def scenario() -> tuple[Path, ...]:
-        stop = asyncio.Event()
-        ready: asyncio.Future[Path] = asyncio.get_running_loop().create_future()
-        daemon = asyncio.create_task(
-            serve(
-                config,
-                backend,
-                associate,
-                options,
-                notifier=SdNotifier(None),
-                on_ready=lambda session, path: ready.set_result(path),
-                stop=stop,
-            )
-        )
-        await asyncio.wait_for(asyncio.shield(ready), 20)
-        reply = await asyncio.to_thread(request, endpoint, ROBOT, "start", {}, timeout_s=5.0)
-        assert reply is not None
-        assert reply["ok"], reply
-        # A record as the planning worker's relay puts it: the worker's clock is not the daemon's.
-        worker_logs.put({"event": "placement_planned", "level": "info", "process": "planning"})
-        for _ in range(500):
-            reply = await asyncio.to_thread(request, endpoint, ROBOT, "status", {}, timeout_s=5.0)
-            if reply is not None and reply["state"] == "fault":
-                break
-            await asyncio.sleep(0.02)
-        assert reply is not None
-        assert reply["state"] == "fault"
-        stop.set()
-        result = await asyncio.wait_for(daemon, 20)
-        return result.files
+        async with running_daemon(config, backend, tmp_path, worker_logs=worker_logs) as d:
+            endpoint = d.endpoint
+            reply = await asyncio.to_thread(request, endpoint, ROBOT, "start", {}, timeout_s=5.0)
+            assert reply is not None
+            assert reply["ok"], reply
+            # A record as the planning worker's relay puts it: the worker's clock is not the daemon's.
+            worker_logs.put({"event": "placement_planned", "level": "info", "process": "planning"})
+            for _ in range(500):
+                reply = await asyncio.to_thread(request, endpoint, ROBOT, "status", {}, timeout_s=5.0)
+                if reply is not None and reply["state"] == "fault":
+                    break
+                await asyncio.sleep(0.02)
+            assert reply is not None
+            assert reply["state"] == "fault"
+        assert d.result is not None
+        return d.result.files
 
     messages = [m for path in asyncio.run(scenario()) for m in read_messages(path)]
     records = [m.payload for m in messages if m.topic == f"dishbot/{ROBOT}/log"]

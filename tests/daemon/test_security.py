@@ -484,6 +484,7 @@ def test_a_payload_too_big_for_the_transport_is_dropped_and_the_daemon_goes_on(t
     asyncio.run(scenario())
 
 
+@pytest.mark.slow
 def test_zenoh_itself_refuses_a_client_without_a_certificate(keys: Path, tmp_path: Path) -> None:
     """Below the CLI: a bare Zenoh client session to the TLS endpoint does not open at all."""
     config = load_config(keys / "site" / "robot.toml")
@@ -574,6 +575,7 @@ def test_the_router_routes_over_tls_with_roles(keys: Path, tmp_path: Path) -> No
         assert router.wait(20) == 0
 
 
+@pytest.mark.slow
 def test_a_stolen_router_key_with_a_monitors_password_is_refused_at_the_robots_listener(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -41,6 +41,7 @@ def test_the_router_unit_is_hardened_and_sees_no_devices(router_service: dict[st
 
 
 @pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed")
+@pytest.mark.slow
 def test_systemd_accepts_every_directive_of_the_router_unit(tmp_path: Path) -> None:
     unit = tmp_path / "dishbot-router.service"
     unit.write_text(

@@ -103,6 +103,7 @@ def test_unit_is_hardened(service: dict[str, list[str]]) -> None:
 
 
 @pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed")
+@pytest.mark.slow
 def test_systemd_accepts_every_directive(tmp_path: Path) -> None:
     # verify needs an executable that exists; everything else is checked as installed.
     unit = tmp_path / "dishbot.service"

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import structlog
 
-from daemon.app import RunOptions, ServeContext, ServeHooks, serve
+from daemon.app import ServeContext
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import Job, StartRequest
@@ -27,7 +27,7 @@ from daemon.sdnotify import SdNotifier
 from drivers.interfaces import Clock, RGBDFrame
 from perception import CameraObserver, associate
 from recorder import Recorder, read_messages
-from tests.daemon.conftest import free_port
+from tests.fakes.daemon import serve_daemon
 from tests.fakes.devices import ScriptedCamera
 from tests.fakes.job import FakeArm, FakeWorld, make_backend, make_world
 
@@ -184,22 +184,15 @@ def _serve_stuck_move(
     def on_ready(ctx: ServeContext) -> None:
         tasks.append(asyncio.get_running_loop().create_task(script(ctx)))
 
-    options = RunOptions(listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path)
     clock.run(
-        serve(
-            config,
-            backend,
-            associate,
-            options,
-            notifier=notifier,
-            hooks=ServeHooks(on_publish=(tap,), on_ready=on_ready),
-        )
+        serve_daemon(config, backend, tmp_path, notifier=notifier, on_publish=(tap,), on_ready=on_ready)
     )
     assert tasks[0].done()
     tasks[0].result()
     return published, notifier, times
 
 
+@pytest.mark.slow
 def test_a_state_past_its_bound_faults_the_job_once_and_the_watchdog_pings_on_in_fault(
     tmp_path: Path, notify_socket: socket.socket
 ) -> None:
@@ -214,6 +207,7 @@ def test_a_state_past_its_bound_faults_the_job_once_and_the_watchdog_pings_on_in
     assert [t for t in pings if t > times["fault"]] != []  # fault is safe: pinged again
 
 
+@pytest.mark.slow
 def test_a_stall_the_fault_cannot_end_stops_the_watchdog_pings_until_the_job_has_left_the_state(
     tmp_path: Path, notify_socket: socket.socket
 ) -> None:
@@ -278,6 +272,7 @@ def test_a_state_past_its_bound_faults_even_when_every_log_line_fails(structlog_
     assert [e["reason"] for e in _events(published, "fault")] == ["state flip exceeded its 20 s bound"]
 
 
+@pytest.mark.slow
 def test_a_dead_log_output_changes_nothing_the_job_ends_done_and_the_lost_lines_are_counted(
     tmp_path: Path, structlog_restored: None
 ) -> None:
@@ -287,9 +282,6 @@ def test_a_dead_log_output_changes_nothing_the_job_ends_done_and_the_lost_lines_
     structlog.configure(logger_factory=structlog.PrintLoggerFactory(dead))
     clock = SimulatedClock()
     config = load_config(overrides={"robot_id": "deadout", "planner": {"method": "bh"}})
-    options = RunOptions(
-        listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path, once=StartRequest()
-    )
 
     def give_up_after_an_hour(ctx: ServeContext) -> None:  # the bound of this test, not the daemon's
         async def later() -> None:
@@ -300,13 +292,12 @@ def test_a_dead_log_output_changes_nothing_the_job_ends_done_and_the_lost_lines_
 
     try:
         result = clock.run(
-            serve(
+            serve_daemon(
                 config,
                 make_backend(make_world(2), clock=clock),
-                associate,
-                options,
-                notifier=SdNotifier(None),
-                hooks=ServeHooks(on_ready=give_up_after_an_hour),
+                tmp_path,
+                once=StartRequest(),
+                on_ready=give_up_after_an_hour,
             )
         )
     finally:
@@ -351,12 +342,7 @@ def _stalled_job_recorded(tmp_path: Path) -> tuple[list[tuple[str, str, float]],
             "daemon": {"state_bounds_s": {"flip": 20.0}},
         }
     )
-    options = RunOptions(
-        listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path, once=StartRequest()
-    )
-    result = clock.run(
-        serve(config, make_backend(world, clock=clock), associate, options, notifier=SdNotifier(None))
-    )
+    result = clock.run(serve_daemon(config, make_backend(world, clock=clock), tmp_path, once=StartRequest()))
     assert result.end_state == "fault"
     events = [
         (str(m.payload["kind"]), str(m.payload["state"]), float(str(m.payload["t"])))
@@ -366,6 +352,7 @@ def _stalled_job_recorded(tmp_path: Path) -> tuple[list[tuple[str, str, float]],
     return events, result.summary.recording_dropped
 
 
+@pytest.mark.slow
 def test_on_simulated_time_a_slow_recorder_loses_nothing_and_a_stalled_job_records_the_same_every_run(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -21,6 +21,7 @@ def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, 
     return code, out, (err.splitlines() or [""])[-1]
 
 
+@pytest.mark.slow
 def test_sim_bus_prints_its_device_path_on_the_first_line_and_serves_the_thesis_chain(
     capsys: pytest.CaptureFixture[str],
 ) -> None:

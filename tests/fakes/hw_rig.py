@@ -18,22 +18,19 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from daemon.app import RunOptions, RunResult, serve
 from daemon.backend import Backend, open_hardware_backend
 from daemon.clock import RealClock
 from daemon.config import Config, load_config
-from daemon.sdnotify import SdNotifier
-from daemon.zenoh_session import ZenohSession, session_config
+from daemon.zenoh_session import session_config
 from drivers.interfaces import JointTrajectory
 from drivers.sim import FsrSimulator, ServoChainSimulator, default_chain
 from drivers.sim.plant import FirstOrderPlant
 from drivers.stack import ARM_JOINTS, gripper_spec
-from perception import associate
 from perception.interfaces import Detection, Observation
 from planning.arm import ArmModel
 from planning.interfaces import CyclePlan, MotionRefused, MugPose, Step, StepKind, TraySlot
 from statechart.chart import CARRYING, CYCLE_PHASES
-from tests.daemon.conftest import free_port
+from tests.fakes import daemon as harness
 
 ROBOT = "hwtest"
 GRIPPER_ID = 6
@@ -151,8 +148,8 @@ def _line(a: np.ndarray, b: np.ndarray, seconds: float, label: str) -> JointTraj
 
 
 @dataclass
-class Daemon:
-    """A running daemon on the hardware backend, and what a Zenoh subscriber received from it."""
+class RigDaemon:
+    """A daemon running on the rig's hardware backend, and what a Zenoh subscriber received from it."""
 
     backend: Backend
     motion: ShortMoves = field(default_factory=ShortMoves)
@@ -194,47 +191,37 @@ class Daemon:
 
 
 @contextlib.asynccontextmanager
-async def running_daemon(r: Rig, tmp_path: Path, *, carry_s: float = 0.4) -> AsyncIterator[Daemon]:
-    """``serve`` on the hardware backend of ``r`` over a real loopback Zenoh session, with a second session
-    subscribed to ``events`` and ``state`` (what a monitor on another machine sees)."""
+async def running_daemon(r: Rig, tmp_path: Path, *, carry_s: float = 0.4) -> AsyncIterator[RigDaemon]:
+    """The harness's daemon (``tests.fakes.daemon``) on the hardware backend of ``r`` over a real loopback
+    Zenoh session, with a second session subscribed to ``events`` and ``state`` (what a monitor on another
+    machine sees)."""
     backend = await open_hardware_backend(r.config)
-    d = Daemon(backend, ShortMoves(carry_s=carry_s))
+    d = RigDaemon(backend, ShortMoves(carry_s=carry_s))
     backend = dataclasses.replace(
         backend, observer=CounterStandIn(lambda: "mug_placed" in d.kinds()), motion=d.motion
     )
     d.backend = backend
-    d.endpoint = f"tcp/127.0.0.1:{free_port()}"
-    options = RunOptions(listen=(d.endpoint,), connect=(), record_dir=tmp_path)
     loop = asyncio.get_running_loop()
-    stop = asyncio.Event()
-    ready = asyncio.Event()
+    async with harness.running_daemon(r.config, backend, tmp_path) as running:
+        d.endpoint = running.endpoint
+        with zenoh.open(session_config(listen=[], connect=[d.endpoint])) as session:
+            d.session = session
 
-    def on_ready(session: ZenohSession, path: Path) -> None:
-        ready.set()
+            def on_event(sample: zenoh.Sample) -> None:
+                loop.call_soon_threadsafe(d.events.append, json.loads(sample.payload.to_bytes()))
 
-    task: asyncio.Task[RunResult] = asyncio.create_task(
-        serve(r.config, backend, associate, options, notifier=SdNotifier(None), on_ready=on_ready, stop=stop)
-    )
-    await asyncio.wait_for(ready.wait(), 15)
-    with zenoh.open(session_config(listen=[], connect=[d.endpoint])) as session:
-        d.session = session
+            def on_state(sample: zenoh.Sample) -> None:
+                state = json.loads(sample.payload.to_bytes())["state"]
+                loop.call_soon_threadsafe(d.states.append, state)
 
-        def on_event(sample: zenoh.Sample) -> None:
-            loop.call_soon_threadsafe(d.events.append, json.loads(sample.payload.to_bytes()))
-
-        def on_state(sample: zenoh.Sample) -> None:
-            state = json.loads(sample.payload.to_bytes())["state"]
-            loop.call_soon_threadsafe(d.states.append, state)
-
-        subs = [
-            session.declare_subscriber(f"dishbot/{ROBOT}/events", on_event),
-            session.declare_subscriber(f"dishbot/{ROBOT}/state", on_state),
-        ]
-        await asyncio.sleep(0.3)  # let the subscription reach the daemon's session
-        try:
-            yield d
-        finally:
-            stop.set()
-            await asyncio.wait_for(task, 30)
-            for sub in subs:
-                sub.undeclare()  # type: ignore[no-untyped-call]  # zenoh's stub leaves it untyped
+            subs = [
+                session.declare_subscriber(f"dishbot/{ROBOT}/events", on_event),
+                session.declare_subscriber(f"dishbot/{ROBOT}/state", on_state),
+            ]
+            await asyncio.sleep(0.3)  # let the subscription reach the daemon's session
+            try:
+                yield d
+            finally:
+                await running.stop(timeout_s=30.0)
+                for sub in subs:
+                    sub.undeclare()  # type: ignore[no-untyped-call]  # zenoh's stub leaves it untyped

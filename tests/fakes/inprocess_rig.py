@@ -9,7 +9,6 @@ counter, the pad force rising when the gripper closes past it, short planned mov
 
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 import json
 from collections.abc import Awaitable, Callable, Mapping
@@ -17,16 +16,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from daemon.app import RunOptions, ServeContext, ServeHooks, serve
+from daemon.app import ServeContext
 from daemon.backend import Backend, open_hardware_backend
 from daemon.clock import SimulatedClock
 from daemon.config import Config, load_config
-from daemon.sdnotify import SdNotifier
 from drivers.sim import FsrSimulator, ServoChainSimulator, default_chain
 from drivers.sim.plant import FirstOrderPlant
 from drivers.stack import ARM_JOINTS
-from perception import associate
-from tests.daemon.conftest import free_port
+from tests.fakes.daemon import running_daemon
 from tests.fakes.hw_rig import CONTACT_RAD, GRIP_N, GRIPPER_ID, CounterStandIn, ShortMoves
 
 ROBOT = "inproc"
@@ -138,12 +135,6 @@ def run_daemon(
                 motion=ShortMoves(carry_s=carry_s),
             )
             d.backend = backend
-            ready = asyncio.Event()
-            stop = asyncio.Event()
-
-            def on_ready(ctx: ServeContext) -> None:
-                d.ctx = ctx
-                ready.set()
 
             def tap(topic: str, payload: Mapping[str, object]) -> None:
                 if topic == "events":
@@ -151,28 +142,9 @@ def run_daemon(
                 elif topic == "state":
                     d.states.append(str(payload["state"]))
 
-            options = RunOptions(listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path)
-            task = asyncio.create_task(
-                serve(
-                    config,
-                    backend,
-                    associate,
-                    options,
-                    notifier=SdNotifier(None),
-                    stop=stop,
-                    hooks=ServeHooks(on_publish=(tap,), on_ready=on_ready),
-                )
-            )
-            waiting = asyncio.create_task(ready.wait())
-            await asyncio.wait({task, waiting}, return_when=asyncio.FIRST_COMPLETED)
-            if task.done():
-                waiting.cancel()
-                task.result()  # serve failed before it was ready: say why
-            try:
+            async with running_daemon(config, backend, tmp_path, on_publish=(tap,)) as running:
+                d.ctx = running.context
                 await scenario(d)
-            finally:
-                stop.set()
-                await task
             return d
         finally:
             servos.stop()

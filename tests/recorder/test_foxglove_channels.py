@@ -9,18 +9,16 @@ from typing import Any
 
 import pytest
 
-from daemon.app import RunOptions, RunResult, serve
+from daemon.app import RunResult
 from daemon.backend import CounterMug, SimOptions
 from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import StartRequest
-from daemon.sdnotify import SdNotifier
-from perception import associate
 from planning.placement import cell_dataset_problem
 from recorder import read_messages
 from recorder.foxglove_arm import ArmFrames
-from tests.daemon.conftest import free_port
+from tests.fakes.daemon import serve_daemon
 from tests.recorder.foxglove_decode import Decoded, decode_all
 
 ROBOT = "fox"
@@ -37,15 +35,11 @@ def job(tmp_path_factory: pytest.TempPathFactory) -> RunResult:
     directory = tmp_path_factory.mktemp("fox")
     config = load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}})
     request = StartRequest(mugs=four_mugs())
-    options = RunOptions(
-        listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=directory, once=request
-    )
-
     clock = SimulatedClock()
 
     async def run() -> RunResult:
         backend = await open_backend(config, sim=SimOptions(world="kinematic", seed=0), clock=clock)
-        return await serve(config, backend, associate, options, notifier=SdNotifier(None))
+        return await serve_daemon(config, backend, directory, once=request)
 
     return clock.run(run())
 
@@ -114,6 +108,7 @@ def test_every_channel_decodes_with_the_schema_in_the_file(decoded: dict[str, li
     }
 
 
+@pytest.mark.slow
 def test_each_transform_message_is_the_whole_tree_rooted_at_world(decoded: dict[str, list[Decoded]]) -> None:
     arm = ArmFrames.load()
     tf = decoded["/tf"]
@@ -135,6 +130,7 @@ def test_each_transform_message_is_the_whole_tree_rooted_at_world(decoded: dict[
         )
 
 
+@pytest.mark.slow
 def test_the_transforms_follow_the_joint_samples(decoded: dict[str, list[Decoded]]) -> None:
     arm = ArmFrames.load()
     joints = {d.log_time_ns: d.message for d in decoded[f"dishbot/{ROBOT}/joints"]}
@@ -161,6 +157,7 @@ def test_the_transforms_follow_the_joint_samples(decoded: dict[str, list[Decoded
     assert moved == len(joints)
 
 
+@pytest.mark.slow
 def test_the_arm_is_drawn_on_its_link_frames(decoded: dict[str, list[Decoded]]) -> None:
     (update,) = decoded["/scene/arm"]  # one file, one opening
     arm = ArmFrames.load()
@@ -174,6 +171,7 @@ def test_the_arm_is_drawn_on_its_link_frames(decoded: dict[str, list[Decoded]]) 
         assert len(e.cubes) == sum(1 for v in arm.visuals if v.link == link and v.shape == "box")
 
 
+@pytest.mark.slow
 def test_one_mug_entity_per_detection(decoded: dict[str, list[Decoded]]) -> None:
     mugs_by_time = {d.log_time_ns: d.message for d in decoded["/scene/mugs"]}
     detections = decoded[f"dishbot/{ROBOT}/detections"]
@@ -188,6 +186,7 @@ def test_one_mug_entity_per_detection(decoded: dict[str, list[Decoded]]) -> None
             assert len(e.cubes) == 1  # its handle
 
 
+@pytest.mark.slow
 def test_the_carried_mug_rides_on_the_gripper_and_placed_mugs_stay_on_the_tray(
     decoded: dict[str, list[Decoded]], job: RunResult
 ) -> None:
@@ -200,6 +199,7 @@ def test_the_carried_mug_rides_on_the_gripper_and_placed_mugs_stay_on_the_tray(
     assert all(len(e.cylinders) == 2 for e in final.entities if "(on tray)" in e.texts[0].text)  # + mark
 
 
+@pytest.mark.slow
 def test_the_plan_shows_the_slots_in_order(decoded: dict[str, list[Decoded]]) -> None:
     plans = list(decoded[f"dishbot/{ROBOT}/plan"])
     updates = {d.log_time_ns: d.message for d in decoded["/scene/plan"]}
@@ -208,6 +208,7 @@ def test_the_plan_shows_the_slots_in_order(decoded: dict[str, list[Decoded]]) ->
         assert labels == [f"{i}: {s['id']}" for i, s in enumerate(plan.message["slots"], start=1)]
 
 
+@pytest.mark.slow
 def test_logs_and_events_are_foxglove_logs_with_levels(decoded: dict[str, list[Decoded]]) -> None:
     logs = decoded["/log"]
     assert [d.message.message.split()[0] for d in logs] == [
@@ -223,6 +224,7 @@ def test_logs_and_events_are_foxglove_logs_with_levels(decoded: dict[str, list[D
     assert all(level != 0 for _, level in levels)
 
 
+@pytest.mark.slow
 def test_the_events_schema_has_every_kind_and_the_mug_and_reason(job: RunResult) -> None:
     rec = read_messages(job.recording)
     schema: Any = rec.schemas[f"dishbot/{ROBOT}/events"]

@@ -135,6 +135,7 @@ FULL_DISK = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_a_full_disk_counts_the_lost_messages_and_leaves_a_readable_file(tmp_path: Path) -> None:
     path = tmp_path / "full.mcap"
     result = subprocess.run(

@@ -10,15 +10,13 @@ from pathlib import Path
 import pytest
 
 from cli.commands.run import _print_summary
-from daemon.app import RunOptions, RunResult, serve
+from daemon.app import RunResult
 from daemon.config import load_config
 from daemon.errors import UsageError
 from daemon.job import JobSummary, StartRequest
-from daemon.sdnotify import SdNotifier
-from perception import associate
 from recorder import read_messages
 from recorder.outcome import JobOutcome
-from tests.daemon.conftest import free_port
+from tests.fakes.daemon import serve_daemon
 from tests.fakes.job import make_backend, make_world
 
 REFUSAL = "slot for m10: no small mug can be moved there (m10: the gripper would hit mug m9)"
@@ -79,15 +77,13 @@ def test_the_once_summary_names_each_failed_mug_with_its_reason(capsys: pytest.C
     ]
 
 
+@pytest.mark.slow
 def test_a_job_through_the_daemon_records_and_reports_the_mug_it_gave_up(tmp_path: Path) -> None:
     config = load_config(overrides={"robot_id": "out", "planner": {"method": "bh"}})
-    options = RunOptions(
-        listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path, once=StartRequest()
-    )
 
     async def run() -> RunResult:
         backend = make_backend(make_world(3), refuse=["true1"])
-        return await serve(config, backend, associate, options, notifier=SdNotifier(None))
+        return await serve_daemon(config, backend, tmp_path, once=StartRequest())
 
     result = asyncio.run(run())
     assert result.end_state == "done"
@@ -101,38 +97,33 @@ def test_a_job_through_the_daemon_records_and_reports_the_mug_it_gave_up(tmp_pat
     assert JobOutcome.of(recorded).failed_lines() == [line]  # record info says the same
 
 
+@pytest.mark.slow
 def test_a_start_refused_for_a_zenoh_endpoint_in_use_leaves_no_file(tmp_path: Path) -> None:
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        options = RunOptions(listen=(f"tcp/127.0.0.1:{port}",), connect=(), record_dir=tmp_path / "rec")
+        listen = (f"tcp/127.0.0.1:{port}",)
 
         async def run() -> None:
-            await serve(
-                load_config(), make_backend(make_world(1)), associate, options, notifier=SdNotifier(None)
-            )
+            await serve_daemon(load_config(), make_backend(make_world(1)), tmp_path / "rec", listen=listen)
 
         with pytest.raises(UsageError, match=r"^cannot open the Zenoh session \(listen \['tcp/127\.0\.0\.1:"):
             asyncio.run(run())
     assert list((tmp_path / "rec").iterdir()) == []
 
 
+@pytest.mark.slow
 def test_a_start_refused_for_a_foxglove_port_in_use_leaves_no_file(tmp_path: Path) -> None:
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        options = RunOptions(
-            listen=(f"tcp/127.0.0.1:{free_port()}",),
-            connect=(),
-            record_dir=tmp_path / "rec",
-            foxglove=("127.0.0.1", port),
-        )
+        foxglove = ("127.0.0.1", port)
 
         async def run() -> None:
-            await serve(
-                load_config(), make_backend(make_world(1)), associate, options, notifier=SdNotifier(None)
+            await serve_daemon(
+                load_config(), make_backend(make_world(1)), tmp_path / "rec", foxglove=foxglove
             )
 
         with pytest.raises(UsageError, match=rf"^cannot start the Foxglove server on 127\.0\.0\.1:{port}: "):

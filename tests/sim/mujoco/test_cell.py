@@ -58,6 +58,7 @@ def _path(
 
 
 @pytest.mark.parametrize("transport", TRANSPORTS)
+@pytest.mark.slow
 def test_cell_devices_speak_the_driver_protocols(transport: str) -> None:
     async def body(clock: SessionClock) -> None:
         mugs = counter_mugs([("a", "small", *MUG_XY)], MUG_TYPES)
@@ -73,6 +74,7 @@ def test_cell_devices_speak_the_driver_protocols(transport: str) -> None:
     run_on(transport, body)
 
 
+@pytest.mark.slow
 def test_arm_driver_moves_the_physics_arm_and_a_grasp_lifts_then_drops_the_mug() -> None:
     async def body(cell: SimCell, model: ArmModel, clock: Clock) -> None:
         spec = SMALL_MUG
@@ -122,6 +124,7 @@ def test_arm_driver_moves_the_physics_arm_and_a_grasp_lifts_then_drops_the_mug()
     run_on("inprocess", main)
 
 
+@pytest.mark.slow
 def test_the_camera_pipeline_sees_the_counter_mugs_where_they_are() -> None:
     async def main(clock: SessionClock) -> None:
         mugs = counter_mugs([("a", "small", 0.0, 0.45), ("b", "big", 0.25, 0.45)], MUG_TYPES)
@@ -137,6 +140,7 @@ def test_the_camera_pipeline_sees_the_counter_mugs_where_they_are() -> None:
     run_on("inprocess", main)
 
 
+@pytest.mark.slow
 def test_a_new_counter_brings_a_new_world_with_the_arm_where_it_was() -> None:
     async def main(clock: SessionClock) -> None:
         layout = cell_layout()
@@ -161,6 +165,7 @@ def test_a_new_counter_brings_a_new_world_with_the_arm_where_it_was() -> None:
     run_on("inprocess", main)
 
 
+@pytest.mark.slow
 def test_the_cells_servos_are_watched_and_cleared_as_on_the_robot() -> None:
     """The MuJoCo cell's chain has the robot's health check: polled fine, a tripped servo refused at start
     and cleared by reset's check (issue 13)."""
