@@ -211,9 +211,12 @@ class Job:
 
     @property
     def context(self) -> JobContext:
+        """The job's context (what its units share)."""
         return self._ctx
 
     def begin(self, ctx: JobContext) -> None:
+        """A new job starts with ``ctx``, now: its summary's clock starts, the recording's losses are counted
+        from here, and ``finished`` is cleared."""
         self._ctx = ctx
         self._ctx.summary.started_at = self._services.monotonic()
         self._ctx.summary.clock = self._services.clock
@@ -221,12 +224,15 @@ class Job:
         self.finished.clear()
 
     async def cancel_work(self) -> None:
+        """Cancel the current state's work and wait for it (its outcome is then ignored)."""
         await self._cancel_work()
 
     async def fire(self, outcome: Outcome) -> None:
+        """Fire ``outcome`` on the chart and start the new state's work."""
         await self._fire(outcome)
 
     async def advance(self, outcome: Outcome) -> None:
+        """``fire``, stopping the arm and reporting the fault first when it is one."""
         await self._advance(outcome)
 
     # --- driving the chart ---------------------------------------------------------------------------------

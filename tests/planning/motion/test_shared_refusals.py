@@ -77,7 +77,8 @@ def same_plan(a: CyclePlan, b: CyclePlan) -> bool:
     ]
 
 
-@pytest.mark.parametrize("dataset", [1, 2, 3, 4])
+# Dataset 4 (the full-size tray: many candidates per refused slot) takes tens of seconds: not the fast loop.
+@pytest.mark.parametrize("dataset", [1, 2, 3, pytest.param(4, marks=pytest.mark.slow)])
 def test_filling_a_dataset_slot_by_slot_plans_what_each_candidate_in_turn_plans(
     arm: ArmModel, cell: CellLayout, dataset: int
 ) -> None:
