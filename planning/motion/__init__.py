@@ -1,4 +1,7 @@
-"""Motion planning of the pick-flip-place cycle: cell, trajectories, collision checks, time and energy."""
+"""Motion planning of the pick-flip-place cycle: cell, trajectories, collision checks, time and energy.
+
+``CyclePlanner`` composes the cycle from the stages of ``planning.motion.stages`` (``Pick``, ``Flip``,
+``Regrasp``, ``Place``, the wrist-roll ``Fallbacks``); ``CyclePlanner.stages`` lists them."""
 
 from planning.interfaces import MotionPlanner, MotionRefused
 from planning.motion.cell import carry_height_m, check_reachable
