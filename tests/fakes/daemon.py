@@ -64,8 +64,9 @@ async def serve_daemon(
     foxglove: tuple[str, int] | None = None,
     worker_logs: Any = None,
 ) -> RunResult:
-    """``serve`` with the fake association's real counterpart, no systemd (unless ``notifier``), listening
-    on a free loopback port (unless ``listen``), until its ``once`` job ends or a hook sets ``stop``."""
+    """``serve`` with the real association (``perception.associate``), no systemd (unless ``notifier``),
+    listening on a free loopback port (unless ``listen``), until its ``once`` job ends or a hook sets
+    ``stop``."""
     refuse_unless_slow("a daemon")
     options = RunOptions(
         listen=tuple(listen) if listen is not None else (loopback(),),
