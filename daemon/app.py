@@ -207,14 +207,6 @@ async def serve(
     clock = backend.clock
     live: LiveServer | None = None
     try:
-        if options.foxglove is not None:
-            from recorder.errors import LiveServerError
-            from recorder.foxglove_server import LiveServer
-
-            try:
-                live = LiveServer(*options.foxglove, name=f"dishbot {config.robot_id}")
-            except LiveServerError as e:
-                raise UsageError(str(e)) from e
         view = None
         if config.foxglove.channels:
             from daemon.backend import scene_view
@@ -223,6 +215,18 @@ async def serve(
             try:
                 view = scene_view(config, depth_hz=config.foxglove.depth_hz)
             except UrdfError as e:
+                raise UsageError(str(e)) from e
+        if options.foxglove is not None:
+            from recorder.errors import LiveServerError
+            from recorder.foxglove_server import LiveServer, known_channels
+
+            try:
+                live = LiveServer(
+                    *options.foxglove,
+                    name=f"dishbot {config.robot_id}",
+                    channels=known_channels(config.robot_id, scene=view is not None),
+                )
+            except LiveServerError as e:
                 raise UsageError(str(e)) from e
     except BaseException:
         if live is not None:
@@ -360,6 +364,14 @@ async def _run(
 
             backend.on_event(device_event)
         session.serve(loop, handle, verbs=commands_handler.VERBS)
+        if live is not None:  # the same verbs, answered by the same handler, for Foxglove's service panel
+            live.offer_commands(
+                loop,
+                handle,
+                config.robot_id,
+                commands_handler.VERBS,
+                max_payload_bytes=config.daemon.max_command_bytes,
+            )
         if options.connect:  # the peers and routers it relies on; clients come and go
             session.watch_connections(loop, health.changed)
         session.publish("state", job.status())  # the first message: it opens the first recording file

@@ -4,13 +4,9 @@ advertised, subscribes, and receives the latched scene at once and then the mess
 from __future__ import annotations
 
 import asyncio
-import base64
-import json
+import collections
 import math
-import struct
-import time
 from pathlib import Path
-from typing import Any
 
 import pytest
 import websockets
@@ -22,62 +18,12 @@ from daemon.config import check_foxglove_listen, load_config
 from daemon.errors import ConfigError
 from recorder import Recorder, read_messages
 from recorder.errors import LiveServerError
-from recorder.foxglove_server import LiveServer
-from tests.recorder.foxglove_decode import message_class
+from recorder.foxglove_server import LiveServer, known_channels
+from recorder.writer import json_channel
+from tests.recorder.foxglove_client import SUBPROTOCOL, FoxgloveClient
 
 T = 1_790_000_000_000_000_000
 JOINTS = ["shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn"]
-SUBPROTOCOL = "foxglove.sdk.v1"
-
-
-class FoxgloveClient:
-    """The client side of Foxglove's WebSocket protocol: JSON control messages, binary message data."""
-
-    def __init__(self, ws: Any) -> None:
-        self.ws = ws
-        self.channels: dict[int, dict[str, Any]] = {}
-        self.subscriptions: dict[int, int] = {}
-        self.server_info: dict[str, Any] = {}
-
-    async def advertised(self, topics: set[str], timeout_s: float = 10.0) -> None:
-        deadline = time.monotonic() + timeout_s
-        while not topics <= {c["topic"] for c in self.channels.values()}:
-            await self._receive(deadline)
-
-    async def subscribe(self, topics: list[str]) -> None:
-        by_topic = {c["topic"]: cid for cid, c in self.channels.items()}
-        subs = [{"id": i, "channelId": by_topic[t]} for i, t in enumerate(topics)]
-        self.subscriptions = {s["id"]: s["channelId"] for s in subs}
-        await self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
-
-    async def messages(self, count: int, timeout_s: float = 10.0) -> list[tuple[str, int, bytes]]:
-        out: list[tuple[str, int, bytes]] = []
-        deadline = time.monotonic() + timeout_s
-        while len(out) < count:
-            got = await self._receive(deadline)
-            if got is not None:
-                out.append(got)
-        return out
-
-    async def _receive(self, deadline: float) -> tuple[str, int, bytes] | None:
-        frame = await asyncio.wait_for(self.ws.recv(), max(0.01, deadline - time.monotonic()))
-        if isinstance(frame, str):
-            doc = json.loads(frame)
-            if doc["op"] == "serverInfo":
-                self.server_info = doc
-            elif doc["op"] == "advertise":
-                self.channels.update({c["id"]: c for c in doc["channels"]})
-            return None
-        opcode, sub_id, log_time = struct.unpack_from("<BIQ", frame)
-        assert opcode == 1  # message data
-        return self.channels[self.subscriptions[sub_id]]["topic"], log_time, frame[13:]
-
-    def decode(self, topic: str, data: bytes) -> Any:
-        channel = next(c for c in self.channels.values() if c["topic"] == topic)
-        if channel["encoding"] == "json":
-            return json.loads(data)
-        assert (channel["encoding"], channel["schemaEncoding"]) == ("protobuf", "protobuf")
-        return message_class(channel["schemaName"], base64.b64decode(channel["schema"])).FromString(data)
 
 
 def joints(q0: float) -> dict[str, object]:
@@ -109,13 +55,15 @@ def test_a_foxglove_client_gets_the_advertised_channels_latched_scene_and_messag
                 )
                 assert client.server_info["name"] == "dishbot test"
                 await client.subscribe(["/scene/arm", "/scene/cell", "dishbot/r1/state", "/tf"])
-                latched = {topic: (t, data) for topic, t, data in await client.messages(4)}
+                latched = {m.topic: (m.log_time_ns, m.data) for m in await client.messages(4)}
                 assert set(latched) == {"/scene/arm", "/scene/cell", "dishbot/r1/state", "/tf"}
                 arm = client.decode("/scene/arm", latched["/scene/arm"][1])
                 assert {e.frame_id for e in arm.entities} >= {"base_link", "upper_arm_link", "gripper_link"}
                 assert client.decode("dishbot/r1/state", latched["dishbot/r1/state"][1])["state"] == "idle"
                 recorder.write("dishbot/r1/joints", joints(0.7), log_time_ns=T + 3)
-                ((topic, log_time, data),) = await client.messages(1)
+                ((topic, log_time, data),) = [
+                    (m.topic, m.log_time_ns, m.data) for m in await client.messages(1)
+                ]
                 assert (topic, log_time) == ("/tf", T + 3)
                 tf = client.decode("/tf", data)
                 turret = next(t for t in tf.transforms if t.child_frame_id == "turret_link")
@@ -128,6 +76,48 @@ def test_a_foxglove_client_gets_the_advertised_channels_latched_scene_and_messag
         assert (
             recorded.topic_counts["/tf"] == 3
         )  # the opening and the two samples: the same channel in the file
+
+    asyncio.run(scenario())
+
+
+def test_every_known_channel_is_declared_before_its_first_message_which_no_subscriber_misses(
+    tmp_path: Path,
+) -> None:
+    """A client connected to a server that has sent nothing yet sees every channel the daemon can record
+    (the header, the JSON topics, the Foxglove scene) in one advertisement, and gets the first message of
+    each of a job's inputs and outputs."""
+
+    async def scenario() -> None:
+        server = LiveServer("127.0.0.1", 0, name="declared", channels=known_channels("r1", scene=True))
+        recorder = Recorder(
+            tmp_path / "first.mcap", chunk_size=1024, deriver=scene_view(load_config()), tee=server
+        )
+        try:
+            client = await FoxgloveClient.connect(server.url)
+            expected = {c.topic for c in known_channels("r1", scene=True)}
+            await client.advertised(expected)
+            assert {"session/header", "dishbot/r1/input/command", "/events", "/scene/plan"} <= expected
+            server.send(json_channel("dishbot/r1/state"), b'{"state": "idle"}', T - 1)
+            await client.subscribe(sorted(client.topics()))
+            await client.messages(1)  # the latched state: the subscriptions are in place
+            firsts: dict[str, dict[str, object]] = {
+                "dishbot/r1/input/command": {"t": 0.0, "verb": "start", "payload": "{}", "reply": {}},
+                "dishbot/r1/input/grasp": {"t_start": 0.0, "t_end": 1.0},
+                "dishbot/r1/output/gripper": {"aperture_m": 0.05},
+                "dishbot/r1/events": {"kind": "transition", "source": "idle", "dest": "detect"},
+            }
+            recorder.write_header({"robot_id": "r1"}, {}, log_time_ns=T)
+            for i, (topic, payload) in enumerate(firsts.items()):
+                recorder.write(topic, payload, log_time_ns=T + 1 + i)
+            written = (await asyncio.to_thread(recorder.close)).written
+            got = await client.messages(written)
+            recorded = read_messages(tmp_path / "first.mcap").topic_counts
+            assert collections.Counter(m.topic for m in got) == recorded
+            assert {*firsts, "session/header", "/events"} <= set(recorded)
+            assert not client.statuses
+            await client.close()
+        finally:
+            server.close()
 
     asyncio.run(scenario())
 
