@@ -5,19 +5,19 @@ wall and CPU time per run, and the thesis's run time and best count. The cost is
 n, E and t normalised over every run of every method on that dataset, as the thesis compared its methods in
 §5.3.2. A second table puts the mug-shaped planner (``footprint = "mug"``, seed 0, default budget) beside the
 rectangle optimum, its upper bound and what people placed in the thesis's observational study; a third times
-the fast packer against the literal occupancy-matrix packer on the same orders. Progress lines go to stderr
-(none with --json).
+the fast packer against the literal occupancy-matrix packer on the same orders. Progress lines (case k of
+N, elapsed, time left) go to stderr (none with --json).
 """
 
 from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 from dataclasses import replace
 
 from cli.commands.output import add_json_flag, emit, format_table
+from cli.progress import Progress
 from daemon.config import load_config
 from daemon.errors import UsageError
 from description import thesis
@@ -86,15 +86,16 @@ def run(args: argparse.Namespace) -> int:
         "metaheuristics_30_mugs_max_cpu_s": 0.0,
     }
     mug_rows: list[list[object]] = []
+    progress = Progress("bench placement", len(datasets) * (2 + len(methods)) + 1, enabled=not args.json)
     for n in datasets:
         problem = cell_dataset_problem(load_config().cell, n)
-        _progress(args, f"dataset {n}: proving the rectangle optimum")
+        progress.next(f"dataset {n}: proving the rectangle optimum")
         optimum = plan(problem, PlanOptions(method="exact", time_limit_s=30.0))
-        _progress(args, f"dataset {n}: mug-shaped footprints")
+        progress.next(f"dataset {n}: mug-shaped footprints")
         mug_rows.append(mug_shaped_row(problem, n, optimum))
         runs: dict[str, list[tuple[PlanResult, float, float]]] = {}
         for method in methods:
-            _progress(args, f"dataset {n}: {method}, {n_runs} runs")
+            progress.next(f"dataset {n}: {method}, {n_runs} runs")
             runs[method] = []
             for seed in range(n_runs):
                 wall, cpu = time.perf_counter(), time.process_time()
@@ -154,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
         "thesis_best",
         "people",
     ]
-    _progress(args, "timing the fast packer against the occupancy matrix")
+    progress.next("timing the fast packer against the occupancy matrix")
     speed_columns, speed_rows = packer_speed(datasets)
     extra: dict[str, object] = {
         "runs": n_runs,
@@ -195,11 +196,6 @@ def mug_shaped_row(problem: Problem, n: int, rect_optimum: PlanResult) -> list[o
         round(wall, 2),
         round(cpu, 2),
     ]
-
-
-def _progress(args: argparse.Namespace, message: str) -> None:
-    if not args.json:
-        print(f"bench placement: {message}", file=sys.stderr, flush=True)
 
 
 def packer_speed(datasets: list[int], *, repeats: int = 5) -> tuple[list[str], list[list[object]]]:

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cli.logs import configure_cli_logging
+from cli.progress import Progress
 from daemon.config import check_endpoint, load_config
 from daemon.errors import ConfigError, UsageError
 from description import thesis
@@ -153,6 +154,8 @@ def _run(args: argparse.Namespace) -> int:
     tolerated_exposure(config, options)  # refused before any simulator or device starts
     associate = association()
     hooks = injector.hooks() if injector is not None else None
+    if args.once:  # one finite job: say which mug it is at, on stderr
+        hooks = _with_progress(hooks, MugProgress(Progress("dishbot run", 0, unit="mug"), clock.simulated))
     try:
         with planning_pool(args.log_level, worker_logs) as pool, SdNotifier.from_env() as notifier:
             result = clock.run(_serve(args, config, clock, options, associate, pool, notifier, hooks))
@@ -365,6 +368,50 @@ def fault_fired_line(record: Mapping[str, object]) -> str:
     if isinstance(record.get("ended_at_s"), float | int):
         line += f", ended at {record['ended_at_s']:.1f} s"
     return line
+
+
+class MugProgress:
+    """Follows a ``--once`` job's ``state`` messages: a progress line as each mug begins (``mug k of N``,
+    the mugs with a tray slot, else the mugs known), one when the job ends."""
+
+    _ENDS = ("done", "fault", "estop")
+
+    def __init__(self, progress: Progress, simulated: bool) -> None:
+        self.progress = progress
+        self._simulated = simulated
+        self._t0: float | None = None
+        self._mug: object = None
+        self._ended = False
+
+    def __call__(self, topic: str, payload: Mapping[str, object]) -> None:
+        if topic != "state" or self._ended:
+            return
+        t = payload.get("t")
+        simulated_s = None
+        if isinstance(t, int | float):
+            self._t0 = t if self._t0 is None else self._t0
+            simulated_s = t - self._t0 if self._simulated else None
+        counts = {k: v if isinstance(v, int) else 0 for k, v in payload.items() if k.startswith("mugs_")}
+        planned, total = counts.get("mugs_planned", 0), counts.get("mugs_total", 0)
+        finished = counts.get("mugs_placed", 0) + counts.get("mugs_failed", 0)
+        state = str(payload.get("state", "")).split(".", 1)[0]
+        mug = payload.get("current_mug")
+        if mug is not None and mug != self._mug:
+            self.progress.total = max(planned or total, finished + 1)
+            self.progress.step(finished + 1, str(mug), simulated_s=simulated_s)
+        self._mug = mug
+        if state in self._ENDS and self._t0 is not None:
+            self._ended = True
+            placed = counts.get("mugs_placed", 0)
+            self.progress.done(f"{state}: {placed} of {planned or total} placed", simulated_s=simulated_s)
+
+
+def _with_progress(hooks: ServeHooks | None, tap: MugProgress) -> ServeHooks:
+    from daemon.app import ServeHooks
+
+    if hooks is None:
+        return ServeHooks(on_publish=(tap,))
+    return dataclasses.replace(hooks, on_publish=(*hooks.on_publish, tap))
 
 
 def time_ratio_line(simulated_s: float, wall_s: float) -> str:

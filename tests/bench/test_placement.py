@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -41,12 +42,19 @@ def test_bench_table_shows_progress_on_stderr_and_the_mug_shaped_table(
 ) -> None:
     assert main(["bench", "placement", "--runs", "1", "--datasets", "1", "--methods", "bh"]) == 0
     out, err = capsys.readouterr()
-    assert err.splitlines() == [
-        "bench placement: dataset 1: proving the rectangle optimum",
-        "bench placement: dataset 1: mug-shaped footprints",
-        "bench placement: dataset 1: bh, 1 runs",
-        "bench placement: timing the fast packer against the occupancy matrix",
+    steps = [
+        "dataset 1: proving the rectangle optimum",
+        "dataset 1: mug-shaped footprints",
+        "dataset 1: bh, 1 runs",
+        "timing the fast packer against the occupancy matrix",
     ]
+    lines = err.splitlines()
+    assert len(lines) == len(steps)
+    for k, (line, step) in enumerate(zip(lines, steps, strict=True), start=1):
+        left = r", about \d+ s left" if k > 1 else ""
+        assert re.fullmatch(rf"bench placement: case {k} of 4 \({step}\), elapsed \d+\.\d s{left}", line), (
+            line
+        )
     table = out[out.index("mug-shaped footprints") :].splitlines()
     assert table[1].split() == ["ds", "rect_optimum", "mug", "upper_bound", "people", "wall_s", "cpu_s"]
     assert table[3].split()[:2] == ["1", "10"]
