@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 
 from cli.commands.output import add_json_flag, emit
 from cli.commands.run import association, planning_pool
+from cli.progress import Progress
 from daemon.config import Config, load_config
 from daemon.errors import UsageError
 from description import thesis
@@ -144,7 +145,9 @@ def run(args: argparse.Namespace) -> int:
     datasets = _datasets(args.datasets, config)
     with planning_pool(args.log_level) as pool:
         runs = []
+        progress = Progress("bench sim", len(datasets), enabled=not args.json)
         for n in datasets:
+            progress.next(f"dataset {n}")
             clock = SimulatedClock()
             run = run_dataset(
                 n,

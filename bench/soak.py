@@ -23,6 +23,7 @@ from typing import Any
 import structlog
 
 from cli.commands.output import add_json_flag, emit
+from cli.progress import Progress
 from daemon.errors import UsageError
 
 log = structlog.get_logger("bench.soak")
@@ -89,7 +90,8 @@ def run(args: argparse.Namespace) -> int:
     if not 1 <= args.jobs <= 10_000:
         raise UsageError(f"--jobs {args.jobs}: choose 1-10000")
     with tempfile.TemporaryDirectory(prefix="dishbot-soak-") as tmp:
-        result = soak(args.jobs, args.seed, Path(tmp))
+        progress = Progress("bench soak", args.jobs, enabled=not args.json)
+        result = soak(args.jobs, args.seed, Path(tmp), progress=progress)
     by_kind: dict[str, list[JobRun]] = {}
     for j in result.jobs:
         by_kind.setdefault(j.fault, []).append(j)
@@ -152,7 +154,7 @@ def rss_mb() -> float:
     return 0.0
 
 
-def soak(jobs: int, seed: int, record_dir: Path) -> Soak:
+def soak(jobs: int, seed: int, record_dir: Path, *, progress: Progress | None = None) -> Soak:
     from daemon.app import RunOptions, ServeContext, ServeHooks, serve
     from daemon.backend import SimOptions
     from daemon.cell import open_backend
@@ -184,8 +186,11 @@ def soak(jobs: int, seed: int, record_dir: Path) -> Soak:
     async def drive(ctx: ServeContext) -> None:
         try:
             out.rss_start_mb = rss_mb()
+            t0 = ctx.clock.now()
             for k in range(jobs):
                 table, expected = SOAK_FAULTS[rng.randrange(len(SOAK_FAULTS))]
+                if progress is not None:
+                    progress.step(k + 1, str(table["kind"]), simulated_s=ctx.clock.now() - t0)
                 counter = dataset_counter(rng.randint(1, 3), config.cell, config.mug_catalogue())
                 mugs = rng.sample(list(counter.mugs), 3)
                 injector = FaultInjector(
