@@ -1,4 +1,4 @@
-"""One picture of a session: the states as coloured bands over time, gripper force, joint angles, events.
+"""One picture of a session: a lane per state over time, gripper force, joint angles, events, injected faults.
 
 For people who would rather look than read, and for CI artefacts (``dishbot record plot``). It reads the
 JSON channels through ``read_messages``, so a file cut by a crash is drawn up to the cut (and says so in its
@@ -10,10 +10,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 from recorder.reader import RecordingRead
 from wire.schemas import HEADER_TOPIC, topic_suffix
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 # Top-level states in chart order and the colour of their band.
 STATE_COLOURS: Final = {
@@ -39,6 +43,12 @@ EVENT_MARKS: Final = {
     "tray_collision": ("tray collision", "#fb6a4a", "*"),
 }
 _DEVICE_FAULTS: Final = ("servo_fault", "bus_lost", "fsr_lost", "fsr_stale")
+# A fault a fault file made happen (``replay.faults``): a dashed line through every panel, named.
+INJECTED: Final = "fault_injected"
+_INJECTED_COLOUR: Final = "#e7298a"
+# A state shorter than this share of the time axis (detect and plan take no simulated time; done is the last
+# message) is still drawn this wide, so that every state entered shows.
+_MIN_SPAN_SHARE: Final = 0.004
 
 
 class PlotUnavailable(RuntimeError):
@@ -57,6 +67,7 @@ class SessionSeries:
     joints: list[list[float]] = field(default_factory=list)
     joint_names: list[str] = field(default_factory=list)
     events: list[tuple[float, str, str]] = field(default_factory=list)  # (t, kind, mug id)
+    injected: list[tuple[float, str]] = field(default_factory=list)  # (t, fault kind) of a fault file
     end_s: float = 0.0
 
     @classmethod
@@ -89,6 +100,8 @@ class SessionSeries:
                 event = str(p.get("kind", ""))
                 if event in EVENT_MARKS or event in _DEVICE_FAULTS:
                     s.events.append((t, event, str(p.get("mug_id") or "")))
+                elif event == INJECTED:
+                    s.injected.append((t, str(p.get("fault") or "fault")))
         s.end_s = ((rec.end_ns or t0) - t0) / 1e9
         return s
 
@@ -102,13 +115,25 @@ def plot_session(
     rec: RecordingRead, outputs: Sequence[Path], *, title: str | None = None, width_in: float = 12.0
 ) -> None:
     """Draw the recording and save it to each of ``outputs`` (the format from the suffix: .png, .svg)."""
+    fig = session_figure(rec, title=title, width_in=width_in)  # PlotUnavailable without matplotlib
+    import matplotlib.pyplot as plt
+
+    try:
+        for path in outputs:
+            fig.savefig(path, dpi=110)
+    finally:
+        plt.close(fig)
+
+
+def session_figure(rec: RecordingRead, *, title: str | None = None, width_in: float = 12.0) -> Figure:
+    """The picture of a recording: a lane per state entered (the top lane: the events, injected faults
+    named), gripper force and aperture, joint angles; every state and event also marked over the panels."""
     try:
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
         from matplotlib.lines import Line2D
-        from matplotlib.patches import Patch
     except ImportError as e:
         raise PlotUnavailable("plotting needs matplotlib: pip install 'dishbot[plot]'") from e
     s = SessionSeries.of(rec)
@@ -118,44 +143,46 @@ def plot_session(
         1,
         figsize=(width_in, 7.5),
         sharex=True,
-        gridspec_kw={"height_ratios": [1.0, 2.0, 2.6], "hspace": 0.08},
+        gridspec_kw={"height_ratios": [1.7, 2.0, 2.3], "hspace": 0.08},
         layout="constrained",
     )
-    seen_states: list[str] = []
+    lanes = _lanes([state for _, state in s.states])
+    row = {state: len(lanes) - 1 - i for i, state in enumerate(lanes)}  # chart order, top down
+    events_row = len(lanes)
+    min_span = end * _MIN_SPAN_SHARE
     for i, (t, state) in enumerate(s.states):
         stop = s.states[i + 1][0] if i + 1 < len(s.states) else end
         colour = STATE_COLOURS.get(state, "#969696")
-        for ax in (ax_state, ax_force, ax_joints):
-            ax.axvspan(t, stop, color=colour, alpha=1.0 if ax is ax_state else 0.18, lw=0)
-        if state not in seen_states:
-            seen_states.append(state)
-    ax_state.set_yticks([])
-    ax_state.set_ylim(0, 1)
-    ax_state.set_ylabel("state", rotation=0, ha="right", va="center")
+        ax_state.broken_barh([(t, max(stop - t, min_span))], (row[state] - 0.4, 0.8), color=colour, lw=0)
+        for ax in (ax_force, ax_joints):
+            ax.axvspan(t, stop, color=colour, alpha=0.18, lw=0)
+    ax_state.set_yticks([*row.values(), events_row], [*row, "events"], fontsize=8)
+    ax_state.set_ylim(-0.6, events_row + 0.9)
+    ax_state.set_ylabel("state")
     marks_seen: dict[str, tuple[str, str, str]] = {}
     for t, kind, mug in s.events:
         label, colour, marker = EVENT_MARKS.get(kind, ("device fault", "#a50f15", "P"))
         marks_seen.setdefault(label, (label, colour, marker))
-        ax_state.plot([t], [0.5], marker=marker, color=colour, ms=8, mec="white", mew=0.6, ls="none")
+        ax_state.plot([t], [events_row], marker=marker, color=colour, ms=7, mec="white", mew=0.6, ls="none")
         if mug and kind != "mug_placed":
-            ax_state.annotate(
-                mug, (t, 0.5), xytext=(0, 7), textcoords="offset points", ha="center", fontsize=7
-            )
+            _label(ax_state, t, events_row, mug, end)
         for ax in (ax_force, ax_joints):
             ax.axvline(t, color=colour, lw=0.8, ls=":", alpha=0.9)
-    handles: list[Patch | Line2D] = [
-        Patch(color=STATE_COLOURS.get(st, "#969696"), label=st) for st in seen_states
-    ]
-    handles += [
-        Line2D([], [], marker=m, color=c, ls="none", label=label, mec="white")
-        for label, c, m in marks_seen.values()
-    ]
-    if handles:
+    for t, fault in s.injected:
+        marks_seen.setdefault("injected fault", ("injected fault", _INJECTED_COLOUR, "*"))
+        ax_state.plot([t], [events_row], marker="*", color=_INJECTED_COLOUR, ms=11, mec="white", ls="none")
+        _label(ax_state, t, events_row, f"injected {fault}", end, colour=_INJECTED_COLOUR)
+        for ax in (ax_state, ax_force, ax_joints):
+            ax.axvline(t, color=_INJECTED_COLOUR, lw=1.2, ls="--")
+    if marks_seen:
         ax_state.legend(
-            handles=handles,
+            handles=[
+                Line2D([], [], marker=m, color=c, ls="none", label=label, mec="white")
+                for label, c, m in marks_seen.values()
+            ],
             loc="lower left",
             bbox_to_anchor=(0.0, 1.02),
-            ncol=min(len(handles), 8),
+            ncol=len(marks_seen),
             fontsize=8,
         )
     if s.force_t:
@@ -179,13 +206,23 @@ def plot_session(
         ax_joints.text(0.5, 0.5, "no joint samples", transform=ax_joints.transAxes, ha="center", va="center")
     ax_joints.set_ylabel("joint angle (rad)")
     ax_joints.set_xlabel("time since the first message (s)")
-    ax_joints.set_xlim(0.0, end)
+    ax_joints.set_xlim(0.0, end + min_span)  # the last state's minimum width stays inside
     fig.suptitle(title or _title(rec), fontsize=11)
-    try:
-        for path in outputs:
-            fig.savefig(path, dpi=110)
-    finally:
-        plt.close(fig)
+    return fig
+
+
+def _lanes(states: Sequence[str]) -> list[str]:
+    """The states entered, in chart order (those the chart does not list after them)."""
+    known = [state for state in STATE_COLOURS if state in states]
+    return known + sorted({state for state in states if state not in STATE_COLOURS})
+
+
+def _label(ax: Axes, t: float, y: float, text: str, end: float, *, colour: str = "black") -> None:
+    """A label above a mark, kept inside the axes near either end (it would be cut off there)."""
+    ha = "left" if t < 0.08 * end else "right" if t > 0.92 * end else "center"
+    ax.annotate(
+        text, (t, y), xytext=(0, 6), textcoords="offset points", ha=ha, va="bottom", fontsize=7, color=colour
+    )
 
 
 def _title(rec: RecordingRead) -> str:

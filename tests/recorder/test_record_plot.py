@@ -6,11 +6,13 @@ import struct
 import sys
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import pytest
+from matplotlib.collections import PolyCollection
 
 from cli.main import main
 from recorder import Recorder, read_messages
-from recorder.plot import SessionSeries
+from recorder.plot import SessionSeries, session_figure
 
 T0 = 1_790_000_000_000_000_000
 
@@ -159,3 +161,78 @@ def test_without_matplotlib_the_plot_says_what_to_install(
     assert capsys.readouterr().err == (
         "dishbot record: error: plotting needs matplotlib: pip install 'dishbot[plot]'\n"
     )
+
+
+def faulted_session(path: Path) -> Path:
+    """A job whose detect and plan take no time (as in simulated time), a fault injected, a mug given up at
+    the very last message and done entered with it."""
+    with Recorder(path, chunk_size=2048) as rec:
+        rec.write_header({"robot_id": "r1"}, {}, log_time_ns=T0, file={"kind": "job", "pid": 1})
+        for i, state in enumerate(["idle", "detect", "plan", "side_grasp.approach"]):
+            rec.write("dishbot/r1/state", {"state": state, "t": 0.0}, log_time_ns=T0 + i)
+        for i in range(1, 200):
+            rec.write(
+                "dishbot/r1/joints",
+                {"t": 0.0, "names": ["a"], "position_rad": [0.01 * i]},
+                log_time_ns=T0 + i * 10**8,
+            )
+        rec.write(
+            "dishbot/r1/events",
+            {"kind": "fault_injected", "fault": "servo_overload", "servo": 3, "state": "flip.turn"},
+            log_time_ns=T0 + 80 * 10**8,
+        )
+        rec.write("dishbot/r1/state", {"state": "flip.turn", "t": 0.0}, log_time_ns=T0 + 50 * 10**8)
+        rec.write(
+            "dishbot/r1/events", {"kind": "mug_given_up", "mug_id": "m12"}, log_time_ns=T0 + 200 * 10**8
+        )
+        rec.write("dishbot/r1/state", {"state": "done", "t": 0.0}, log_time_ns=T0 + 200 * 10**8)
+    return path
+
+
+def test_every_state_has_its_lane_and_is_drawn_visibly_however_short(tmp_path: Path) -> None:
+    rec = read_messages(faulted_session(tmp_path / "job.mcap"))
+    fig = session_figure(rec)
+    try:
+        fig.canvas.draw()
+        ax_state = fig.axes[0]
+        ticks = zip(ax_state.get_yticks(), ax_state.get_yticklabels(), strict=True)
+        top_down = [label.get_text() for _, label in sorted(ticks, key=lambda tick: -tick[0])]
+        assert top_down == ["events", "idle", "detect", "plan", "side_grasp", "flip", "done"]
+        bars = [c for c in ax_state.collections if isinstance(c, PolyCollection)]
+        assert len(bars) == 6  # one span per state entered
+        pixels = [ax_state.transData.transform(c.get_paths()[0].vertices)[:, 0] for c in bars]
+        assert min(float(x.max() - x.min()) for x in pixels) >= 3  # detect, plan and done too
+    finally:
+        plt.close(fig)
+
+
+def test_an_injected_fault_is_marked_and_no_label_is_cut_at_the_edges(tmp_path: Path) -> None:
+    rec = read_messages(faulted_session(tmp_path / "job.mcap"))
+    fig = session_figure(rec)
+    try:
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
+        ax_state = fig.axes[0]
+        labels = {a.get_text(): a for a in ax_state.texts}
+        assert set(labels) == {"injected servo_overload", "m12"}
+        legend = ax_state.get_legend()
+        assert legend is not None
+        assert [t.get_text() for t in legend.get_texts()] == ["given up", "injected fault"]
+        dashed = [line for ax in fig.axes[:3] for line in ax.get_lines() if line.get_linestyle() == "--"]
+        assert len(dashed) == 3  # through every panel, at the injection
+        assert {line.get_xdata()[0] for line in dashed} == {8.0}  # type: ignore[index]
+        box = ax_state.get_window_extent(renderer)
+        for text in labels.values():  # the last label (m12, at the last message) too
+            extent = text.get_window_extent(renderer)
+            assert box.x0 <= extent.x0, text.get_text()
+            assert extent.x1 <= box.x1, text.get_text()
+        figure = fig.bbox
+        texts = [fig.texts, *(ax.texts for ax in fig.axes)]
+        texts += [[ax.xaxis.label, ax.yaxis.label] for ax in fig.axes]
+        texts += [legend.get_texts() for ax in fig.axes if (legend := ax.get_legend()) is not None]
+        for text in (t for group in texts for t in group if t.get_text()):
+            extent = text.get_window_extent(renderer)
+            assert figure.x0 <= extent.x0, text.get_text()
+            assert extent.x1 <= figure.x1, text.get_text()
+    finally:
+        plt.close(fig)
