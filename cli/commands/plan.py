@@ -7,9 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 from dataclasses import replace
 from pathlib import Path
 
@@ -179,13 +177,14 @@ def run(args: argparse.Namespace) -> int:
     # Render everything before writing anything, so a failure leaves no half-written output.
     outputs: list[tuple[Path, bytes]] = []
     if args.svg is not None or args.png is not None:
+        from cli.pictures import png_with_text, write_atomically
         from planning.placement.render import to_png, to_svg
     if args.svg is not None:
         outputs.append((args.svg, to_svg(problem, result).encode()))
     if args.png is not None:
-        outputs.append((args.png, to_png(problem, result)))
+        outputs.append((args.png, png_with_text(to_png(problem, result), picture_text(problem, result))))
     for path, data in outputs:
-        _write_atomically(path, data)
+        write_atomically(path, data)
     if args.json:
         json.dump(result.to_json(), sys.stdout, indent=2)
         sys.stdout.write("\n")
@@ -240,12 +239,18 @@ def summary(result: PlanResult) -> str:
     return "\n".join(lines)
 
 
-def _write_atomically(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent.resolve())
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+def picture_text(problem: Problem, result: PlanResult) -> dict[str, str]:
+    """What the plan's picture shows, in words (its PNG ``tEXt``): the tray's size and units, each mug."""
+    tx, ty = problem.tray_size_mm
+    placed = "; ".join(f"{p.order} {p.id} ({p.type}) at x {p.x_mm} y {p.y_mm} mm" for p in result.placed)
+    lines = [
+        f"Top view of the tray, {tx} x {ty} mm (x away from the arm, up; y to the arm's left, left); "
+        "lengths in mm; a mug's x and y: its footprint's corner, from the tray's origin corner",
+        f"placed in this order: {placed or 'none'}",
+    ]
+    if problem.placed:
+        lines.append("already on the tray (grey): " + ", ".join(q.id for q in problem.placed))
+    if result.unplaced:
+        lines.append("left on the counter: " + ", ".join(result.unplaced))
+    title = f"dishbot plan: {result.method}, {result.n} of {result.n + len(result.unplaced)} mugs on the tray"
+    return {"Title": title, "Description": "\n".join(lines), "Software": "dishbot plan"}
