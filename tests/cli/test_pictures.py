@@ -32,6 +32,7 @@ def test_text_chunks_go_into_a_png_that_still_decodes_and_come_back_out() -> Non
     png = png_with_text(encoded.tobytes(), {"Title": "tray 332 x 374 mm", "Description": "a\nb"})
     assert png_text(png) == {"Title": "tray 332 x 374 mm", "Description": "a\nb"}
     image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)  # CRCs right
+    assert image is not None
     assert image.shape == (4, 6, 3)
     with pytest.raises(ValueError, match="not a PNG"):
         png_with_text(b"GIF89a", {})
