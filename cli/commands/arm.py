@@ -163,7 +163,7 @@ def run_ik(args: argparse.Namespace) -> int:
 
 def run_workspace(args: argparse.Namespace) -> int:
     from planning.motion import check_reachable
-    from planning.motion.workspace import describe, draw_workspace, served_tray, workspace
+    from planning.motion.workspace import describe, served_tray, workspace, workspace_picture
 
     if args.png is not None and not args.png.parent.resolve().is_dir():
         raise UsageError(f"--png: directory {str(args.png.parent)!r} does not exist")
@@ -178,7 +178,11 @@ def run_workspace(args: argparse.Namespace) -> int:
     tray = served_tray(arm, ws, catalogue, tolerance_mm=cell.tolerance_mm)
     problems = check_reachable(cell, arm, catalogue)
     if args.png is not None:
-        draw_workspace(arm, cell, ws, args.png)
+        from cli.pictures import png_with_text, write_atomically
+
+        picture = workspace_picture(arm, cell, ws)
+        text = {"Title": picture.title, "Description": "\n".join(picture.texts), "Software": "dishbot arm"}
+        write_atomically(args.png, png_with_text(picture.png, text))
     rows = describe(ws)
     if args.json:
         doc = {

@@ -6,14 +6,13 @@ a given height depends only on its distance from that axis (a radial profile fou
 and on the bearing the approach needs (Eq 4.28, Eq 4.35), which the shoulder-turn range limits. From the
 profiles follows the largest tray, centred on the arm's x axis, whose every mug position can be served —
 the model's answer to Eq 4.40-4.45 (33.2 x 37.4 cm in the thesis) — and a top-view PNG of the regions with
-the configured cell drawn over them.
+the configured cell drawn over them, with axes in mm, a scale bar, a title and a legend.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -206,16 +205,31 @@ def _tray_ok(
     return True
 
 
-def draw_workspace(
+@dataclass(frozen=True, slots=True)
+class WorkspacePicture:
+    """The top view as PNG bytes, with its title and, in words, everything written on it (its legend, axes,
+    scale), for the PNG's text chunks."""
+
+    png: bytes
+    title: str
+    texts: tuple[str, ...]
+
+
+_LEFT_PX, _TOP_PX, _BOTTOM_PX, _RIGHT_PX = 90, 56, 70, 400  # margins: axes, title, legend
+_TICK_M = 0.2
+_SCALE_M = 0.1
+
+
+def workspace_picture(
     arm: ArmModel,
     cell: CellLayout,
     ws: Workspace,
-    path: Path,
     *,
     px_per_m: float = 800.0,
-) -> None:
-    """A top-view PNG: where every mug type can be picked (green) and placed upside down (blue), with the
-    counter region, the flip area, the tray and the arm's base drawn over it."""
+) -> WorkspacePicture:
+    """A top view: where every mug type can be picked (green) and placed upside down (blue), with the
+    counter region, the flip area, the tray and the arm's base drawn over it, axes in mm, a scale bar, a
+    title and a legend."""
     import cv2
 
     x0, x1, y0, y1 = -0.80, 0.80, -0.80, 0.80
@@ -227,44 +241,89 @@ def draw_workspace(
     wy = np.asarray(y1 - (cols + 0.5) / px_per_m, dtype=np.float64)
     pick = np.logical_and.reduce([reachable_axes(arm, p, wx, wy) for p in ws.pick.values()])
     place = np.logical_and.reduce([reachable_axes(arm, p, wx, wy) for p in ws.place.values()])
-    image = np.full((height, width, 3), 255, dtype=np.uint8)
-    image[pick] = (200, 240, 200)
-    image[place] = (240, 215, 190)
-    image[pick & place] = (220, 230, 200)
+    picture = np.full((height + _TOP_PX + _BOTTOM_PX, width + _LEFT_PX + _RIGHT_PX, 3), 255, dtype=np.uint8)
+    image = picture[_TOP_PX : _TOP_PX + height, _LEFT_PX : _LEFT_PX + width]  # the map: a view into it
+    pick_colour, place_colour, both_colour = (200, 240, 200), (240, 215, 190), (220, 230, 200)
+    image[pick] = pick_colour
+    image[place] = place_colour
+    image[pick & place] = both_colour
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    texts: list[str] = []
 
     def px(x: float, y: float) -> tuple[int, int]:
         return round((y1 - y) * px_per_m), round((x1 - x) * px_per_m)
 
-    for r in np.arange(0.1, 0.81, 0.1):
+    def put(text: str, at: tuple[int, int], colour: tuple[int, int, int], scale: float = 0.5) -> None:
+        cv2.putText(picture, text, at, font, scale, colour, 1, cv2.LINE_AA)
+        texts.append(text)
+
+    grey, dark = (200, 200, 200), (60, 60, 60)
+    for r in np.arange(_SCALE_M, x1 + 1e-9, _SCALE_M):
         cv2.circle(image, px(0, 0), int(r * px_per_m), (225, 225, 225), 1, cv2.LINE_AA)
-    cv2.line(image, px(x1, 0), px(x0, 0), (200, 200, 200), 1)
-    cv2.line(image, px(0, y1), px(0, y0), (200, 200, 200), 1)
+    cv2.line(image, px(x1, 0), px(x0, 0), grey, 1)
+    cv2.line(image, px(0, y1), px(0, y0), grey, 1)
+    counter, tray, flip = (40, 120, 40), (160, 80, 20), (30, 30, 180)
     cx0, cy0, cx1, cy1 = cell.counter_region_m
-    cv2.rectangle(image, px(cx1, cy1), px(cx0, cy0), (40, 120, 40), 2)
+    cv2.rectangle(image, px(cx1, cy1), px(cx0, cy0), counter, 2)
     tx0, ty0, tx1, ty1 = cell.tray.region_m
-    cv2.rectangle(image, px(tx1, ty1), px(tx0, ty0), (160, 80, 20), 2)
+    cv2.rectangle(image, px(tx1, ty1), px(tx0, ty0), tray, 2)
     fx, fy = cell.flip_area_center_m
-    cv2.circle(image, px(fx, fy), int(cell.flip_area_radius_m * px_per_m), (30, 30, 180), 2, cv2.LINE_AA)
-    cv2.circle(image, px(0, 0), int(0.05 * px_per_m), (60, 60, 60), -1, cv2.LINE_AA)
-    font = cv2.FONT_HERSHEY_SIMPLEX
-    labels = [
-        ("counter region", (40, 120, 40), px(cx1, cy1)),
-        ("tray", (160, 80, 20), px(tx1, ty1)),
-        ("flip area", (30, 30, 180), px(fx + cell.flip_area_radius_m, fy + cell.flip_area_radius_m)),
+    cv2.circle(image, px(fx, fy), int(cell.flip_area_radius_m * px_per_m), flip, 2, cv2.LINE_AA)
+    cv2.circle(image, px(0, 0), int(0.05 * px_per_m), dark, -1, cv2.LINE_AA)
+    for text, colour, (u, v) in (
+        ("counter region", counter, px(cx1, cy1)),
+        ("tray", tray, px(tx1, ty1)),
+        ("flip area", flip, px(fx + cell.flip_area_radius_m, fy + cell.flip_area_radius_m)),
+    ):
+        put(text, (_LEFT_PX + u + 4, _TOP_PX + max(14, v - 6)), colour)
+    # Axes: x (forward) up the left edge, y (the arm's left) along the bottom, both in mm.
+    cv2.rectangle(picture, (_LEFT_PX, _TOP_PX), (_LEFT_PX + width, _TOP_PX + height), dark, 1)
+    for k in range(round(x0 / _TICK_M), round(x1 / _TICK_M) + 1):
+        u, v = px(k * _TICK_M, k * _TICK_M)
+        label = f"{round(k * _TICK_M * 1000)}"
+        cv2.line(picture, (_LEFT_PX - 6, _TOP_PX + v), (_LEFT_PX, _TOP_PX + v), dark, 1)
+        put(label, (_LEFT_PX - 10 - 9 * len(label), _TOP_PX + v + 5), dark, 0.45)
+        cv2.line(picture, (_LEFT_PX + u, _TOP_PX + height), (_LEFT_PX + u, _TOP_PX + height + 6), dark, 1)
+        put(label, (_LEFT_PX + u - 5 * len(label), _TOP_PX + height + 22), dark, 0.45)
+    put("x (mm, forward)", (6, _TOP_PX - 10), dark)
+    put("y (mm, to the arm's left)", (_LEFT_PX + width // 2 - 110, _TOP_PX + height + 52), dark)
+    # A scale bar in the map's lower right corner.
+    bar = round(_SCALE_M * px_per_m)
+    right, bottom = _LEFT_PX + width - 20, _TOP_PX + height - 20
+    cv2.line(picture, (right - bar, bottom), (right, bottom), (0, 0, 0), 3)
+    put(f"{round(_SCALE_M * 1000)} mm", (right - bar // 2 - 28, bottom - 10), (0, 0, 0))
+    title = f"dishbot arm workspace: top view at the carry height {ws.carry_z_m * 100:.1f} cm"
+    cv2.putText(picture, title, (_LEFT_PX, 34), font, 0.8, (0, 0, 0), 2, cv2.LINE_AA)
+    # The legend, right of the map.
+    lx, ly = _LEFT_PX + width + 24, _TOP_PX + 10
+    put("legend", (lx, ly + 14), (0, 0, 0), 0.6)
+    swatches = [
+        (pick_colour, "pick reachable: side grasp, every mug type"),
+        (place_colour, "place reachable: upside-down grasp"),
+        (both_colour, "pick and place reachable"),
     ]
-    for text, colour, (u, v) in labels:
-        cv2.putText(image, text, (u + 4, max(14, v - 6)), font, 0.5, colour, 1, cv2.LINE_AA)
-    legend = [
-        ("green: side grasp (pick) at 6 cm and carry height", (40, 120, 40)),
-        ("blue: upside-down grasp (place) at 6 cm and carry height", (160, 80, 20)),
-        (f"carry height {ws.carry_z_m * 100:.1f} cm; grid rings every 10 cm; x forward = up", (60, 60, 60)),
+    for i, (colour, text) in enumerate(swatches):
+        top = ly + 34 + 30 * i
+        cv2.rectangle(picture, (lx, top), (lx + 22, top + 18), colour, -1)
+        cv2.rectangle(picture, (lx, top), (lx + 22, top + 18), grey, 1)
+        put(text, (lx + 32, top + 14), dark, 0.45)
+    outlines = [
+        (counter, "counter region (mugs start here)"),
+        (tray, "tray"),
+        (flip, "flip area"),
+        (dark, "arm base (shoulder axis at 0, 0)"),
+        ((225, 225, 225), f"rings every {round(_SCALE_M * 1000)} mm from the base"),
     ]
-    for i, (text, colour) in enumerate(legend):
-        cv2.putText(
-            image, text, (10, height - 12 - 20 * (len(legend) - 1 - i)), font, 0.5, colour, 1, cv2.LINE_AA
-        )
-    if not cv2.imwrite(str(path), image):
-        raise OSError(f"could not write the workspace image to {path}")
+    for i, (colour, text) in enumerate(outlines):
+        top = ly + 34 + 30 * (len(swatches) + i)
+        cv2.rectangle(picture, (lx, top), (lx + 22, top + 18), colour, 2)
+        put(text, (lx + 32, top + 14), dark, 0.45)
+    note = ly + 34 + 30 * (len(swatches) + len(outlines)) + 10
+    put("grasps at 6 cm and at the carry height", (lx, note), dark, 0.45)
+    ok, encoded = cv2.imencode(".png", picture)
+    if not ok:
+        raise RuntimeError("png: OpenCV could not encode the workspace picture")
+    return WorkspacePicture(bytes(encoded.tobytes()), title, tuple(texts))
 
 
 def describe(ws: Workspace) -> list[tuple[str, str, str, str]]:

@@ -68,3 +68,33 @@ def test_a_tighter_umask_is_respected(tmp_path: Path, capsys: pytest.CaptureFixt
     finally:
         os.umask(old)
     assert stat.S_IMODE(png.stat().st_mode) == 0o640
+
+
+@pytest.mark.slow
+def test_the_workspace_picture_has_a_title_axes_in_mm_a_scale_and_a_legend(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], umask: None
+) -> None:
+    png = tmp_path / "ws.png"
+    assert main(["arm", "workspace", "--png", str(png), "--json"]) == 0
+    carry_m = json.loads(capsys.readouterr().out)["carry_height_m"]
+    assert stat.S_IMODE(png.stat().st_mode) == 0o644
+    text = png_text(png.read_bytes())
+    assert text["Title"] == f"dishbot arm workspace: top view at the carry height {carry_m * 100:.1f} cm"
+    drawn = text["Description"].splitlines()
+    assert {"x (mm, forward)", "y (mm, to the arm's left)"} <= set(drawn)  # the axes, named with units
+    ticks = [int(t) for t in drawn if t.lstrip("-").isdigit()]
+    assert sorted(set(ticks)) == list(range(-800, 801, 200))  # along both axes
+    assert ticks.count(0) == 2
+    assert "100 mm" in drawn  # the scale bar
+    legend = drawn[drawn.index("legend") + 1 :]
+    assert legend[:5] == [
+        "pick reachable: side grasp, every mug type",
+        "place reachable: upside-down grasp",
+        "pick and place reachable",
+        "counter region (mugs start here)",
+        "tray",
+    ]
+    assert {"counter region", "tray", "flip area"} <= set(drawn[: drawn.index("legend")])  # on the map
+    image = cv2.imread(str(png))
+    assert image is not None
+    assert image.shape[1] > image.shape[0]  # the legend beside the map
