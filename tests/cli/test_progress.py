@@ -4,9 +4,16 @@ simulated time and an estimate of the time left; nothing when not enabled; a clo
 from __future__ import annotations
 
 import io
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
 
 from cli.commands.run import MugProgress
 from cli.progress import Progress
+from tests.daemon.conftest import free_port
 
 
 class Wall:
@@ -99,3 +106,26 @@ def test_on_the_wall_clock_no_simulated_time_is_shown() -> None:
     tap("state", state("idle", 5.0))
     tap("state", state("side_grasp.approach", 9.0, planned=3, mug="m2"))
     assert out.getvalue() == "dishbot run: mug 1 of 3 (m2), elapsed 0.0 s\n"
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_a_once_run_prints_mug_k_of_n_on_stderr_and_nothing_of_it_on_stdout(tmp_path: Path) -> None:
+    cmd = [sys.executable, "-m", "cli.main", "run", "--sim", "--world", "kinematic", "--once"]
+    cmd += ["--listen", f"tcp/127.0.0.1:{free_port()}", "--record-dir", str(tmp_path)]
+    done = subprocess.run(
+        cmd, capture_output=True, text=True, timeout=540, cwd=Path(__file__).parents[2], check=False
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    lines = [line for line in done.stderr.splitlines() if line.startswith("dishbot run: ")]
+    step = r"dishbot run: mug (\d+) of (\d+) \((m\d+)\), elapsed [\d.]+ s, simulated [\d.]+ s.*"
+    steps = [re.fullmatch(step, line) for line in lines[:-1]]
+    assert len(steps) >= 2
+    assert all(steps), lines
+    assert [int(m.group(1)) for m in steps if m] == list(range(1, len(steps) + 1))
+    summary = done.stdout.splitlines()
+    planned = int(re.search(r"planned (\d+)", done.stdout).group(1))  # type: ignore[union-attr]
+    assert {int(m.group(2)) for m in steps if m} == {planned}
+    end = r"dishbot run: done \(done: \d+ of \d+ placed\), elapsed [\d.]+ s, simulated [\d.]+ s"
+    assert re.fullmatch(end, lines[-1])
+    assert not any(line.startswith("dishbot run: ") for line in summary)
