@@ -19,6 +19,7 @@ from pathlib import Path
 import structlog
 
 from cli.commands.output import add_json_flag, emit
+from cli.progress import Progress
 from daemon.errors import UsageError
 
 log = structlog.get_logger("bench.replay")
@@ -78,7 +79,9 @@ def run(args: argparse.Namespace) -> int:
     planned = sessions(args.sessions)
     rows = []
     with tempfile.TemporaryDirectory(prefix="dishbot-bench-replay-") as tmp:
+        progress = Progress("bench replay", len(planned), enabled=not args.json)
         for i, s in enumerate(planned):
+            progress.next(f"{s.kind}, {f'dataset {s.dataset}' if s.dataset is not None else '2 mugs'}")
             world = "kinematic" if s.kind == "kinematic" else "mujoco"
             log.info("recording", session=i + 1, of=len(planned), kind=s.kind, dataset=s.dataset)
             job = record_job(
