@@ -13,9 +13,10 @@ lines go to stderr, never stdout, so the result a script reads is unchanged; a s
 from __future__ import annotations
 
 import sys
-import time
 from collections.abc import Callable
 from typing import TextIO
+
+from daemon.clock import wall_seconds
 
 
 class Progress:
@@ -29,7 +30,7 @@ class Progress:
         unit: str = "case",
         enabled: bool = True,
         stream: TextIO | None = None,
-        wall: Callable[[], float] = time.monotonic,
+        wall: Callable[[], float] = wall_seconds,  # the one wall-clock seam: elapsed work time
     ) -> None:
         self.who = who
         self.total = total
