@@ -16,8 +16,6 @@ import sys
 from collections.abc import Callable
 from typing import TextIO
 
-from daemon.clock import wall_seconds
-
 
 class Progress:
     """Steps ``1..total`` of one piece of work, printed as ``<who>: <unit> k of N (<note>), elapsed ...``."""
@@ -30,13 +28,17 @@ class Progress:
         unit: str = "case",
         enabled: bool = True,
         stream: TextIO | None = None,
-        wall: Callable[[], float] = wall_seconds,  # the one wall-clock seam: elapsed work time
+        wall: Callable[[], float] | None = None,  # default: the one wall-clock seam, daemon.clock
     ) -> None:
         self.who = who
         self.total = total
         self.unit = unit
         self.enabled = enabled
         self._stream = stream
+        if wall is None:
+            from daemon.clock import wall_seconds  # here: the help screens stay free of NumPy
+
+            wall = wall_seconds
         self._wall = wall
         self._started = wall()
         self._first_step: float | None = None  # the pace is measured from here, not from the set-up
