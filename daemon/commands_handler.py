@@ -45,7 +45,7 @@ class BadCommand(ValueError):
 
 MugId = Annotated[
     str,
-    msgspec.Meta(pattern=r"^[A-Za-z0-9_-]{1,32}$", extra={"expected": "1-32 letters, digits, '_' or '-'"}),
+    msgspec.Meta(pattern=r"^[A-Za-z0-9_-]{1,32}\Z", extra={"expected": "1-32 letters, digits, '_' or '-'"}),
 ]
 CounterCoordinate = Annotated[float, within(-2.0, 2.0)]
 

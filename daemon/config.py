@@ -36,7 +36,7 @@ from recorder.settings import RecordingConfig
 from statechart.chart import JOB_LEAVES, JOB_STATES, top_level
 from validation import NON_EMPTY, Invalid, OneOf, convert, show, toml, within
 
-_ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+_ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}\Z")
 _BACKENDS = ("sim", "hardware")
 _WORLDS = ("kinematic", "mujoco")
 _TRANSPORTS = ("inprocess", "pty")
@@ -45,8 +45,8 @@ PLANNER_COSTS = ("bpc", "upc", "ec")
 _ENERGY_MODELS = ("thesis", "dynamics")
 _CAMERAS = ("realsense", "zenoh", "none")
 RECORDING_COMPRESSIONS = ("zstd", "lz4", "none")
-_LISTEN = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
-_MUG_TYPE_NAME = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
+_LISTEN = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})\Z")
+_MUG_TYPE_NAME = re.compile(r"^[a-z][a-z0-9_]{0,31}\Z")
 _MISSING = "missing; add it to the config file"
 
 # Ranges used by more than one field.

@@ -39,8 +39,8 @@ NAMESPACE = "dishbot"
 # dishbot's own port ("DISH" on a phone keypad): not Zenoh's 7447 (zenohd, ROS 2's rmw_zenoh router, the
 # Zenoh bridges) nor its scouting port 7446, and below the ports DDS (ROS 2) takes from 7400 up.
 DEFAULT_PORT = 3474
-_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
-_NAME = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})\Z")
+_NAME = re.compile(r"^[A-Za-z0-9_-]{1,64}\Z")
 NAME_RULE = "1-64 letters, digits, '_' or '-'"
 # The commands a query may address to many robots at once (dishbot/*/cmd/<verb>): looking at every robot and
 # stopping every robot are safe in one go; starting or resetting robots nobody named is not.

@@ -117,7 +117,7 @@ def _bound(value: float) -> str:
     return f"{value:g}"
 
 
-_PLAIN_KEY: Final = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+_PLAIN_KEY: Final = re.compile(r"^[A-Za-z0-9_.-]{1,64}\Z")
 
 
 def _join(name: str, key: str | int) -> str:
@@ -252,7 +252,7 @@ _TOO_BIG: Final = re.compile(r"^Number out of range")
 _STR_LENGTH: Final = re.compile(r"^Expected `str` of length >= 1")
 _STR_TOO_LONG: Final = re.compile(r"^Expected `str` of length <= \d+")
 _MISSING: Final = re.compile(r"^Object missing required field `(?P<field>[^`]+)`")
-_ENUM: Final = re.compile(r"^Invalid enum value (?P<value>.+)$")
+_ENUM: Final = re.compile(r"^Invalid enum value (?P<value>.+)\Z")
 _OWN_RULE: Final = re.compile(
     r"^(?P<field>[A-Za-z_][A-Za-z0-9_]*)(?P<index>(?:\[\d+\])*): (?P<text>.*)$", re.S
 )

@@ -12,7 +12,7 @@ import re
 from collections.abc import Mapping, Sequence
 from typing import Any, Final
 
-_BARE_KEY: Final = re.compile(r"^[A-Za-z0-9_-]+$")
+_BARE_KEY: Final = re.compile(r"^[A-Za-z0-9_-]+\Z")
 _ESCAPES: Final = {'"': '\\"', "\\": "\\\\", "\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f", "\r": "\\r"}
 
 
@@ -45,7 +45,7 @@ def value(item: Any) -> str:
 
 def key(name: str) -> str:
     """A key, bare when TOML allows it, quoted otherwise."""
-    return name if _BARE_KEY.match(name) else value(name)
+    return name if _BARE_KEY.fullmatch(name) else value(name)
 
 
 def _escaped(c: str) -> str:

@@ -18,7 +18,7 @@ if TYPE_CHECKING:
 
     from perception.calibration import CameraModel, CharucoBoard
 
-_BOARD = re.compile(r"^(\d+)x(\d+)$")
+_BOARD = re.compile(r"^(\d+)x(\d+)\Z")
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -132,3 +132,20 @@ def test_any_json_is_built_or_refused_in_one_line_never_another_error(data: obje
         assert "\n" not in text
         assert text.startswith("cfg")
         assert len(text) < 300
+
+
+def test_a_trailing_newline_is_not_part_of_a_valid_name() -> None:
+    """``$`` matches before a final newline: names, ids and endpoints are checked to their very end."""
+    from daemon.commands_handler import BadCommand, parse
+    from daemon.config import ConfigError, load_config
+    from daemon.security import check_endpoint, check_name
+
+    with pytest.raises(ConfigError, match=r"^robot_id: 'r1\\n' is not allowed"):
+        load_config(overrides={"robot_id": "r1\n"})
+    with pytest.raises(ConfigError, match=r"is not a Zenoh endpoint"):
+        check_endpoint("tcp/127.0.0.1:3474\n", "zenoh.listen[0]")
+    with pytest.raises(ConfigError, match=r"is not a valid name"):
+        check_name("bob\n", "zenoh.access.operators[0]")
+    body = b'{"mugs": [{"id": "m1\\n", "type": "big", "x_m": 0.1, "y_m": 0.4}]}'
+    with pytest.raises(BadCommand, match=r"^mugs\[0\]\.id: expected 1-32 letters"):
+        parse("start", body, load_config())
