@@ -137,7 +137,8 @@ def test_any_json_is_built_or_refused_in_one_line_never_another_error(data: obje
 def test_a_trailing_newline_is_not_part_of_a_valid_name() -> None:
     """``$`` matches before a final newline: names, ids and endpoints are checked to their very end."""
     from daemon.commands_handler import BadCommand, parse
-    from daemon.config import ConfigError, load_config
+    from daemon.config import load_config
+    from daemon.errors import ConfigError
     from daemon.security import check_endpoint, check_name
 
     with pytest.raises(ConfigError, match=r"^robot_id: 'r1\\n' is not allowed"):
