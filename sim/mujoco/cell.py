@@ -31,21 +31,16 @@ import structlog
 
 from description.arm import BUNDLED_URDF
 from description.cell import CellLayout, SceneMug
-from description.thesis import JOINT_SERVOS
-from drivers.dynamixel import (
-    BusConfig,
-    DeviceEvent,
-    DynamixelArm,
-    DynamixelGripper,
-)
+from drivers.dynamixel import DeviceEvent, DynamixelArm, DynamixelGripper
 from drivers.dynamixel.health import ChainHealth, HealthLimits
 from drivers.fsr.reader import FsrReader
 from drivers.interfaces import Camera, Clock, RGBDFrame, SteppedClock
 from drivers.sim.fsr import FsrSimulator
-from drivers.sim.servo_chain import ServoChainSimulator, default_chain
-from drivers.stack import ARM_JOINTS, FsrSettings, StackSpec, arm_joints, gripper_spec, open_device_stack
+from drivers.sim.servo_chain import ServoChainSimulator
+from drivers.stack import ARM_JOINTS, gripper_spec
 from perception import CameraObserver
 from perception.interfaces import MugObserver
+from sim.devices import TRANSPORTS, open_cell_devices
 from sim.mujoco.arm import build_arm_mjcf, load_urdf
 from sim.mujoco.camera import DepthCamera, DepthNoise
 from sim.mujoco.collisions import TrayCollision, TrayCollisionCounter
@@ -55,7 +50,6 @@ from sim.mujoco.world import PhysicsConfig, SimWorld
 log = structlog.get_logger("sim.mujoco.cell")
 
 ObserverFactory = Callable[[Camera], MugObserver]
-TRANSPORTS = ("inprocess", "pty")
 
 
 class SnapshotCamera:
@@ -293,31 +287,20 @@ async def start_sim_cell(
             listener(event)
 
     try:
-        servo_sim = ServoChainSimulator(default_chain(), plant=switch)
-        fsr_sim = FsrSimulator(switch.force_n)
-        for device in (servo_sim, fsr_sim):
-            if transport == "pty":
-                device.start()
-            else:
-                device.start_in_process(clock)
-            stack.callback(device.stop)
-        arm_servos = dict(JOINT_SERVOS)
-        spec = StackSpec(
-            bus=BusConfig(servo_sim.device_path),
-            joints=arm_joints([(j, i + 1, arm_servos[j]) for i, j in enumerate(ARM_JOINTS)]),
-            gripper=gripper_spec(arm_mjcf.gripper),
-            fsr=FsrSettings(fsr_sim.device_path, threshold_n=holding_threshold_n, debounce_s=fsr_debounce_s),
-            # The simulated servos on a pty answer from a Python thread sharing the GIL with the physics and
-            # the event loop, not from firmware: give a status packet 50 ms (a real chain needs under 20 ms).
-            retries=3,
-            read_timeout_s=0.05,
-            open_bus=servo_sim.open_serial,
-            open_fsr=fsr_sim.open_serial,
-            inline_bus=transport == "inprocess" and clock.simulated,
-            health=health or HealthLimits(),
+        devices = await open_cell_devices(
+            switch,
+            switch.force_n,
+            gripper=arm_mjcf.gripper,
+            clock=clock,
+            transport=transport,
+            stack=stack,
+            on_event=device_event,
+            holding_threshold_n=holding_threshold_n,
+            fsr_debounce_s=fsr_debounce_s,
+            health=health,
         )
-        devices = await open_device_stack(spec, stack, clock=clock, on_event=device_event)
-        arm, gripper, force = devices.arm, devices.gripper, devices.force
+        servo_sim, fsr_sim = devices.servo_sim, devices.fsr_sim
+        arm, gripper, force = devices.stack.arm, devices.stack.gripper, devices.stack.force
     except BaseException:
         await stack.aclose()
         raise
@@ -339,7 +322,7 @@ async def start_sim_cell(
         _rebuild=rebuild,
         _collision_listeners=listeners,
         _device_listeners=device_listeners,
-        health=devices.health,
+        health=devices.stack.health,
     )
     log.info(
         "sim_cell_open",
