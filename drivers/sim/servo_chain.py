@@ -16,6 +16,7 @@ simulated clock a bus transaction then takes no simulated time).
 
 from __future__ import annotations
 
+import functools
 import random
 import threading
 import time
@@ -59,15 +60,21 @@ class SimServo:
 
     @property
     def servo_id(self) -> int:
-        return self.get("id")
+        return self.table[self.spec.registers["id"].address]  # one byte on both protocols
 
     def get(self, name: str) -> int:
-        reg = self.spec.reg(name)
-        return p.from_le(bytes(self.table[reg.address : reg.address + reg.size]), signed=reg.signed)
+        reg = self.spec.registers.get(name) or self.spec.reg(name)  # reg() says which name is unknown
+        address = reg.address
+        if reg.size == 1 and not reg.signed:
+            return self.table[address]
+        return int.from_bytes(self.table[address : address + reg.size], "little", signed=reg.signed)
 
     def set(self, name: str, value: int) -> None:
         reg = self.spec.reg(name)
-        self.table[reg.address : reg.address + reg.size] = p.le(value, reg.size)
+        size = reg.size
+        self.table[reg.address : reg.address + size] = (value & ((1 << (8 * size)) - 1)).to_bytes(
+            size, "little"
+        )
 
 
 class ServoChainSimulator(SimulatedDevice):
@@ -301,11 +308,9 @@ class ServoChainSimulator(SimulatedDevice):
         host = self._link.host_baudrate() if self._link is not None else None
         if self._silent_all:
             return []
-        return [
-            s
-            for s in self._servos
-            if host is None or baud_from_code(self.protocol, s.get("baud_rate")) == host
-        ]
+        if host is None:
+            return list(self._servos)
+        return [s for s in self._servos if _baud(self.protocol, s.get("baud_rate")) == host]
 
     def _handle(self, frame: p.Frame) -> None:
         link = self._link
@@ -480,11 +485,7 @@ class ServoChainSimulator(SimulatedDevice):
         spec = servo.spec
         if address + len(data) > len(servo.table):
             return self._range_error()
-        written = {
-            name
-            for name, reg in spec.registers.items()
-            if reg.address < address + len(data) and address < reg.address + reg.size
-        }
+        written = _registers_in(spec, address, len(data))
         if (
             self.protocol == 2
             and servo.get("torque_enable")
@@ -492,6 +493,7 @@ class ServoChainSimulator(SimulatedDevice):
         ):
             return 7  # access error: EEPROM is locked while the torque is on
         before_torque = servo.get("torque_enable")
+        limp_before = self.protocol == 1 and servo.get("torque_limit") == 0
         saved = bytes(servo.table)
         servo.table[address : address + len(data)] = data
         if ("goal_position" in written and not 0 <= servo.get("goal_position") <= spec.max_tick) or (
@@ -502,8 +504,10 @@ class ServoChainSimulator(SimulatedDevice):
         if self.protocol == 1 and "torque_limit" in written and servo.get("torque_limit") > 0:
             # Restoring the torque limit clears a latched shutdown on the 1.0 servos and powers them again;
             # a servo still too hot trips again at once (a lasting overload trips when next driven).
+            # A shutdown for a live condition (heat that has passed) latches no bit but left the torque
+            # limit at 0: powering it again is the same.
             latched = faults.bits_for(1, ("overload", "overheating"))
-            if servo.hardware_error & latched and servo.get("torque_enable"):
+            if (servo.hardware_error & latched or limp_before) and servo.get("torque_enable"):
                 self.plant.set_torque(servo.servo_id, True)
             servo.hardware_error &= ~latched
             self._apply_conditions(servo)  # a cause still present (still too hot) shuts it down again
@@ -596,6 +600,28 @@ class ServoChainSimulator(SimulatedDevice):
         servo.set("moving", int(abs(servo.get("goal_position") - servo.get("present_position")) > 2))
         if self.protocol == 2:
             servo.set("hardware_error_status", servo.hardware_error)
+
+
+_SPANS: dict[tuple[str, int, int], frozenset[str]] = {}
+
+
+def _registers_in(spec: ModelSpec, address: int, length: int) -> frozenset[str]:
+    """The registers a write of ``length`` bytes at ``address`` touches (cached: a write asks every time)."""
+    key = (spec.name, address, length)
+    names = _SPANS.get(key)
+    if names is None:
+        names = _SPANS[key] = frozenset(
+            name
+            for name, reg in spec.registers.items()
+            if reg.address < address + length and address < reg.address + reg.size
+        )
+    return names
+
+
+@functools.cache
+def _baud(protocol: p.Protocol, code: int) -> int | None:
+    """The baud rate a servo's baud rate register selects (cached: it is asked for every packet)."""
+    return baud_from_code(protocol, code)
 
 
 def _id(servo: SimServo) -> int:
