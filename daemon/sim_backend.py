@@ -4,15 +4,15 @@
 from the config as the robot does (the cycle planner of ``daemon.backend.cycle_planner``, the configured
 cell and catalogue), start the arm at ``sim.start_q_rad`` and set their counters up through ``sim.counter``:
 a dataset's mugs, or the mugs a ``start`` command lists. They differ where the worlds do. The kinematic
-cell observes through the world's truth with noise and takes any dataset, switching to the dataset's tray
+cell's camera sees the world's truth (with noise) and it takes any dataset, switching to the dataset's tray
 (the full-size one of datasets 4-6); the MuJoCo cell observes through the rendered depth camera and the
 depth detector, and its tray is built into the scene, so a dataset planned on another tray is refused
 (``sim.counter.require_cell_tray``: one message, whether at start-up or on a ``start`` command).
 
-Both cells can fail as the robot does, for fault files (``replay.faults``): the kinematic cell's
-devices carry their faults (``sim.kinematic.faults``) and its observer the camera's (``FaultyObserver``); the
-MuJoCo cell's device simulators have their own fault hooks and its camera is a ``FaultyCamera``. Each
-counter keeps what a fault acts on (``KinematicCounter.observer``, ``MujocoCounter.camera``).
+Both cells fail as the robot does, for fault files (``replay.faults``), and the same way: their devices are
+the same byte-level simulators behind the real drivers (``sim.devices``), with the simulators' own fault
+hooks, and each camera is a ``FaultyCamera`` behind the observer's frame checks. Each counter keeps what a
+fault acts on (``cell.servo_sim``, ``cell.fsr_sim``, ``camera``).
 """
 
 from __future__ import annotations
@@ -39,15 +39,13 @@ from description.cell import CellLayout, Tray
 from description.thesis import MugSpec
 from drivers.interfaces import Camera
 from drivers.sim.camera import FaultyCamera
-from perception.interfaces import Detection, MugObserver
+from perception.interfaces import MugObserver
 from perception.observer import cell_observer_factory
 from planning.arm import ArmModel
 from planning.interfaces import MotionPlanner
 from sim.counter import Counter, dataset_counter, listed_counter, require_cell_tray
-from sim.kinematic import KinematicCell, MugGeometry, SimMug, open_kinematic_cell
-from sim.kinematic.faults import KinematicHealth
+from sim.kinematic import KinematicCell, MugGeometry, SimMug, start_kinematic_cell
 from sim.mujoco.cell import SimCell, start_sim_cell
-from sim.truth import FaultyObserver, TruthObserver
 
 WORLDS = ("kinematic", "mujoco")
 
@@ -67,7 +65,7 @@ async def open_sim_backend(
         return await open_mujoco_backend(config, options, arm=arm, clock=clock, executor=executor)
     if world != "kinematic":
         raise UsageError(f"--world {world}: choose {' or '.join(WORLDS)}")
-    return open_kinematic_backend(config, options, arm=arm, clock=clock, executor=executor)
+    return await open_kinematic_backend(config, options, arm=arm, clock=clock, executor=executor)
 
 
 def counter_for(
@@ -84,7 +82,7 @@ def counter_for(
     return dataset_counter(dataset or 1, cell, catalogue)
 
 
-def open_kinematic_backend(
+async def open_kinematic_backend(
     config: Config,
     options: SimOptions,
     *,
@@ -92,68 +90,78 @@ def open_kinematic_backend(
     clock: SessionClock,
     executor: concurrent.futures.Executor | None = None,
 ) -> Backend:
-    """The kinematic placeholder cell (``sim.kinematic``), moving on ``clock``."""
-    seed = config.sim.seed if options.seed is None else options.seed
-    counter = KinematicCounter(config, arm, clock=clock)
+    """The kinematic cell (``sim.kinematic``), moving on ``clock``: the real drivers over the device
+    simulators, over a world without dynamics; its camera behind the driver's frame checks of ``[camera]``."""
     try:
-        tray = counter.set_counter(dataset=options.dataset, mugs=None)
+        first = counter_for(config.cell, config.mug_catalogue(), dataset=options.dataset, mugs=None)
     except ValueError as e:
         raise UsageError(str(e)) from e
-    observer = FaultyObserver(
-        TruthObserver(counter.visible_mugs, clock=clock, noise_m=config.sim.detection_noise_m, seed=seed),
+    catalogue = config.mug_catalogue()
+    tray = config.cell.tray
+    cell, closer = await start_kinematic_cell(
+        [],
+        {n: MugGeometry(m.diameter_mm / 1000.0, m.height_mm / 1000.0) for n, m in catalogue.items()},
+        tray_origin_m=tray.origin_m,
+        tray_size_m=(tray.size_mm[0] / 1000.0, tray.size_mm[1] / 1000.0),
         clock=clock,
+        # As the MuJoCo cell: "holding" at half the grasp threshold.
+        holding_threshold_n=config.grasp.force_threshold_n / 2.0,
+        fsr_debounce_s=options.fsr_debounce_s,
+        detection_noise_m=config.sim.detection_noise_m,
+        seed=config.sim.seed if options.seed is None else options.seed,
+        catalogue=catalogue,
+        frame_limits=frame_limits(config),
+        health=health_limits(config),
+        arm=arm,
+        q0=np.asarray(config.sim.start_q_rad, dtype=np.float64),
     )
-    counter.observer = observer
+    counter = KinematicCounter(config, cell)
+    tray = counter.set_up(first)
 
     def motion_for(tray: Tray) -> MotionPlanner:
         return cycle_planner(config, tray, arm=arm, executor=executor)
 
     def on_event(listener: EventListener) -> None:
-        counter.cell.world.faults.on_event(lambda e: listener(device_event_payload(e, t=clock.now())))
+        cell.on_device_event(lambda e: listener(device_event_payload(e, t=clock.now())))
 
     return Backend(
         name="sim-kinematic",
-        arm=counter.cell.arm,
-        gripper=counter.cell.gripper,
-        force=counter.cell.force,
-        observer=observer,
+        arm=cell.arm,
+        gripper=cell.gripper,
+        force=cell.force,
+        observer=cell.observer,
         motion=motion_for(tray),
         tray=tray,
         counter=counter,
         motion_for=motion_for,
+        closer=closer,
         on_event=on_event,
         clock=clock,
-        health=KinematicHealth(counter.cell.world.faults, poll_period_s=config.hardware.health.poll_period_s),
+        health=cell.health,
     )
 
 
 class KinematicCounter:
     """Sets the kinematic cell's counter up for a job (``daemon.backend.CounterSetup``): any dataset, on the
-    tray it is planned on."""
+    tray it is planned on. ``cell`` is the kinematic cell itself (its device simulators, camera and world,
+    for the fault files, tests and benches)."""
 
-    def __init__(self, config: Config, arm: ArmModel, *, clock: SessionClock) -> None:
+    def __init__(self, config: Config, cell: KinematicCell) -> None:
         self._layout = config.cell
         self._catalogue = config.mug_catalogue()
-        tray = config.cell.tray
-        self.cell: KinematicCell = open_kinematic_cell(
-            [],
-            {
-                n: MugGeometry(m.diameter_mm / 1000.0, m.height_mm / 1000.0)
-                for n, m in self._catalogue.items()
-            },
-            tray_origin_m=tray.origin_m,
-            tray_size_m=(tray.size_mm[0] / 1000.0, tray.size_mm[1] / 1000.0),
-            clock=clock,
-            joint_speed_rad_s=config.sim.joint_speed_rad_s,
-            holding_threshold_n=config.grasp.force_threshold_n / 2.0,
-            arm=arm,
-            q0=np.asarray(config.sim.start_q_rad, dtype=np.float64),
-        )
+        self.cell = cell
         self.dataset: int | None = None
-        self.observer: FaultyObserver | None = None  # the cell's observer, whose camera faults act there
+
+    @property
+    def camera(self) -> FaultyCamera:
+        """The camera the observer looks through, whose faults act there."""
+        return self.cell.camera
 
     def set_counter(self, *, dataset: int | None, mugs: Sequence[CounterMug] | None) -> Tray:
-        counter = counter_for(self._layout, self._catalogue, dataset=dataset, mugs=mugs)
+        return self.set_up(counter_for(self._layout, self._catalogue, dataset=dataset, mugs=mugs))
+
+    def set_up(self, counter: Counter) -> Tray:
+        """Put ``counter``'s mugs out, on its tray."""
         world = self.cell.world
         world.set_mugs(
             [SimMug(m.mug_id, m.spec.name, m.x_m, m.y_m, handle_yaw_rad=m.yaw_rad) for m in counter.mugs]
@@ -162,13 +170,6 @@ class KinematicCounter:
         world.tray_size_m = (counter.tray.size_mm[0] / 1000.0, counter.tray.size_mm[1] / 1000.0)
         self.dataset = counter.dataset
         return counter.tray
-
-    def visible_mugs(self) -> list[Detection]:
-        return [
-            Detection(m.type, m.x_m, m.y_m, m.upside_down, m.handle_yaw_rad, 1.0)
-            for m in self.cell.world.mugs.values()
-            if m.where == "counter"
-        ]
 
     def scene(self) -> dict[str, object]:
         return {**self.cell.world.scene(), "dataset": self.dataset}

@@ -5,11 +5,11 @@ acting on it together ask (``on``/``off``, a camera's fault, a corrupt rate) or 
 (a trip, a spike, a slip, a move). Which faults are acting, and so what each device's condition is, is the
 dispatcher's business; a cell only knows its devices.
 
-The MuJoCo cell runs the real Dynamixel and FSR drivers against the byte-level device simulators, so its
-device faults are the simulators' own hooks (error bits and registers set as the firmware sets them, a
-silent servo, corrupt packets, a pulled adapter, a quiet Arduino); its camera is the ``FaultyCamera`` its
-observer looks through; the mugs are the physics world's. The kinematic cell's devices carry their faults
-themselves (``sim.kinematic.faults``, raising what the drivers raise) and its observer the camera's.
+Both cells run the real Dynamixel and FSR drivers against the same byte-level device simulators
+(``sim.devices``), so one class (``SimFaultCell``) acts on either: the device faults are the simulators' own
+hooks (error bits and registers set as the firmware sets them, a silent servo, corrupt packets, a pulled
+adapter, a quiet Arduino), the camera's the ``FaultyCamera`` the observer looks through. Only the world
+differs (``WorldFaults``): the kinematic world's mugs or the physics world's.
 """
 
 from __future__ import annotations
@@ -22,10 +22,12 @@ from drivers.sim.camera import CameraFault
 if TYPE_CHECKING:
     from daemon.app import ServeContext
     from daemon.sim_backend import KinematicCounter, MujocoCounter
+    from drivers.sim.fsr import FsrSimulator
+    from drivers.sim.servo_chain import ServoChainSimulator
 
 
 class FailingCamera(Protocol):
-    """A camera (or observer) whose captures can be made to fail: ``FaultyCamera``, ``FaultyObserver``."""
+    """A camera whose captures can be made to fail (``drivers.sim.camera.FaultyCamera``)."""
 
     fault: CameraFault | None
 
@@ -88,85 +90,32 @@ def set_camera_fault(camera: FailingCamera, fault: CameraFault | None) -> None:
         camera.set_fault(fault)
 
 
-class KinematicFaultCell:
-    """Faults of the kinematic cell: its devices' fault state, its observer, its world."""
+class WorldFaults(Protocol):
+    """The faults a cell's world takes: a slip, and where its counter mugs stand and a move of one."""
 
-    name = "kinematic"
+    def slip(self) -> str | None: ...
 
-    def __init__(self, counter: KinematicCounter) -> None:
-        self._counter = counter
-        self._faults = counter.cell.world.faults
+    def counter_mugs(self) -> tuple[tuple[str, float, float], ...]: ...
 
-    def servo_ids(self) -> tuple[int, ...]:
-        return tuple(sorted(self._faults.servos))
-
-    def servo_overloaded(self, servo: int, *, on: bool) -> None:
-        if on:
-            self._faults.trip(servo, "overload", lasting=True)
-        else:
-            self._faults.end(servo, "overload")
-
-    def servo_trip(self, servo: int) -> None:
-        self._faults.trip(servo, "overload")
-
-    def servo_hot(self, servo: int, *, on: bool) -> None:
-        if on:
-            self._faults.trip(servo, "overheating", lasting=True)
-        else:
-            self._faults.end(servo, "overheating")
-
-    def servo_low_voltage(self, servo: int, *, on: bool) -> None:
-        self._faults.brown_out(servo, on=on)
-
-    def servo_silent(self, servo: int, *, on: bool) -> None:
-        self._faults.silence(servo, on=on)
-
-    def bus_corrupt(self, rate: float, *, seed: int, servo: int | None) -> None:
-        self._faults.corrupt_fraction(rate, seed=seed, servo_id=servo)
-
-    def unplugged(self, device: str, *, on: bool) -> None:
-        if device == "fsr":
-            self._faults.fsr_unplugged = on
-        else:
-            self._faults.unplug_bus(on)
-
-    def fsr_dropped(self, *, on: bool) -> None:
-        self._faults.fsr_dropped = on
-
-    def fsr_silent(self, *, on: bool) -> None:
-        self._faults.fsr_silent = on
-
-    def fsr_spike(self, value_n: float) -> None:
-        self._faults.fsr_spikes.append(value_n)
-
-    def camera(self) -> FailingCamera:
-        observer = self._counter.observer
-        assert observer is not None
-        return observer
-
-    def slip(self) -> str | None:
-        return self._counter.cell.world.drop_held_mug()
-
-    def counter_mugs(self) -> tuple[tuple[str, float, float], ...]:
-        world = self._counter.cell.world
-        p, _ = world.grasp_pose()
-        on_counter = [m for m in world.mugs.values() if m.where == "counter"]
-        ranked = sorted(on_counter, key=lambda m: (math.hypot(m.x_m - p[0], m.y_m - p[1]), m.mug_id))
-        return tuple((m.mug_id, m.x_m, m.y_m) for m in reversed(ranked))
-
-    def move_mug(self, mug: str, dx_m: float, dy_m: float) -> None:
-        self._counter.cell.world.move_mug(mug, dx_m, dy_m)
+    def move_mug(self, mug: str, dx_m: float, dy_m: float) -> None: ...
 
 
-class MujocoFaultCell:
-    """Faults of the MuJoCo cell: its servo chain and FSR simulators, its camera, its physics world."""
+class SimFaultCell:
+    """Faults of a simulated cell: its servo chain and FSR simulators, its camera, its world."""
 
-    name = "mujoco"
-
-    def __init__(self, counter: MujocoCounter) -> None:
-        self._counter = counter
-        self._servos = counter.cell.servo_sim
-        self._fsr = counter.cell.fsr_sim
+    def __init__(
+        self,
+        name: str,
+        servos: ServoChainSimulator,
+        fsr: FsrSimulator,
+        camera: FailingCamera,
+        world: WorldFaults,
+    ) -> None:
+        self.name = name
+        self._servos = servos
+        self._fsr = fsr
+        self._camera = camera
+        self._world = world
 
     def servo_ids(self) -> tuple[int, ...]:
         return tuple(sorted(self._servos.servo_ids))
@@ -206,15 +155,49 @@ class MujocoFaultCell:
         self._fsr.spike(value_n)
 
     def camera(self) -> FailingCamera:
-        camera = self._counter.camera
-        assert camera is not None
-        return camera
+        return self._camera
 
     def slip(self) -> str | None:
-        return self._counter.cell.world.slip()
+        return self._world.slip()
 
     def counter_mugs(self) -> tuple[tuple[str, float, float], ...]:
-        cell = self._counter.cell
+        return self._world.counter_mugs()
+
+    def move_mug(self, mug: str, dx_m: float, dy_m: float) -> None:
+        self._world.move_mug(mug, dx_m, dy_m)
+
+
+class KinematicWorldFaults:
+    """The kinematic world's mugs."""
+
+    def __init__(self, counter: KinematicCounter) -> None:
+        self._world = counter.cell.world
+
+    def slip(self) -> str | None:
+        return self._world.drop_held_mug()
+
+    def counter_mugs(self) -> tuple[tuple[str, float, float], ...]:
+        world = self._world
+        p, _ = world.grasp_pose()
+        on_counter = [m for m in world.mugs.values() if m.where == "counter"]
+        ranked = sorted(on_counter, key=lambda m: (math.hypot(m.x_m - p[0], m.y_m - p[1]), m.mug_id))
+        return tuple((m.mug_id, m.x_m, m.y_m) for m in reversed(ranked))
+
+    def move_mug(self, mug: str, dx_m: float, dy_m: float) -> None:
+        self._world.move_mug(mug, dx_m, dy_m)
+
+
+class MujocoWorldFaults:
+    """The physics world's mugs."""
+
+    def __init__(self, counter: MujocoCounter) -> None:
+        self._cell = counter.cell
+
+    def slip(self) -> str | None:
+        return self._cell.world.slip()
+
+    def counter_mugs(self) -> tuple[tuple[str, float, float], ...]:
+        cell = self._cell
         tcp = cell.world.tcp_position()
         tray = cell.layout.tray
         standing = [
@@ -228,7 +211,7 @@ class MujocoFaultCell:
         return tuple((t.mug_id, float(t.position_m[0]), float(t.position_m[1])) for t in reversed(ranked))
 
     def move_mug(self, mug: str, dx_m: float, dy_m: float) -> None:
-        self._counter.cell.world.move_mug(mug, dx_m, dy_m)
+        self._cell.world.move_mug(mug, dx_m, dy_m)
 
 
 def cell_of(ctx: ServeContext) -> FaultCell | None:
@@ -237,7 +220,13 @@ def cell_of(ctx: ServeContext) -> FaultCell | None:
 
     counter = ctx.backend.counter
     if isinstance(counter, KinematicCounter):
-        return KinematicFaultCell(counter)
+        cell = counter.cell
+        return SimFaultCell(
+            "kinematic", cell.servo_sim, cell.fsr_sim, cell.camera, KinematicWorldFaults(counter)
+        )
     if isinstance(counter, MujocoCounter):
-        return MujocoFaultCell(counter)
+        camera = counter.camera
+        assert camera is not None
+        sim = counter.cell
+        return SimFaultCell("mujoco", sim.servo_sim, sim.fsr_sim, camera, MujocoWorldFaults(counter))
     return None

@@ -1,35 +1,86 @@
-"""The placeholder detector: the simulation's true mug poses with seeded Gaussian noise.
+"""The kinematic cell's camera and detector: the simulation's true mug poses, behind the camera driver's
+checks.
 
-Stands in for depth-based detection while the cell is simulated without a camera. It reports what a camera
-would report: no ids (association gives those), noisy positions and handle directions, confidence below 1.
-``FaultyObserver`` wraps an observer with the camera's faults, for replays and fault files.
+The kinematic world has nothing to render. ``TruthCamera`` is its ``drivers.interfaces.Camera``: each capture
+is a small flat depth frame stamped on the clock and numbered in its ``meta`` (``truth_frame``), and the
+camera keeps the mugs that were in view when it was taken. ``TruthDetector`` is the detector perception's
+``CameraObserver`` runs on a frame: it reports the mugs that frame saw, with seeded Gaussian noise, as a
+camera would (no ids, association gives those; noisy positions and handle directions; confidence below 1).
+
+So the kinematic cell observes as the MuJoCo cell and the robot do: the frame checks of ``CameraObserver``
+(``FrameLimits``: the timeout, the age limit, a bad frame, the retries) and the camera fault model of
+``drivers.sim.camera.FaultyCamera`` act on these frames; a stale frame shows the mugs as they stood when it
+was taken.
 """
 
 from __future__ import annotations
 
-import asyncio
 import math
-from collections.abc import Callable, Sequence
+from collections import OrderedDict
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 
 import numpy as np
 
-from drivers.camera.realsense import CameraUnavailable
-from drivers.interfaces import Clock
-from drivers.sim.camera import CAMERA_FAULTS, CameraFault
+from description.camera import CameraIntrinsics
+from description.thesis import MugSpec
+from drivers.interfaces import Clock, RGBDFrame
+from perception.detector import DepthMugDetector
 from perception.errors import FrameError
-from perception.interfaces import Detection, MugObserver, Observation
+from perception.interfaces import Detection
+
+FRAME_KEY = "truth_frame"  # the frame's number in its meta
+_KEEP = 64  # frames whose view the camera remembers (a stale frame is the last good one)
 
 
-class TruthObserver:
-    """A ``MugObserver`` over ``truth()``, which returns the exact detections of the mugs in view; an
-    observation's ``t`` is ``clock``'s."""
+class TruthCamera:
+    """A camera over ``truth()`` (the exact detections of the mugs in view): ``width`` x ``height`` frames of
+    a flat table 1 m away, stamped with ``clock``'s ``monotonic``."""
+
+    def __init__(
+        self, truth: Callable[[], Sequence[Detection]], *, clock: Clock, width: int = 16, height: int = 12
+    ) -> None:
+        self._truth = truth
+        self._clock = clock
+        self.intrinsics = CameraIntrinsics(width, height, float(width), float(width), width / 2, height / 2)
+        self._depth = np.ones((height, width), dtype=np.float32)
+        self._depth.flags.writeable = False
+        self._pose = np.eye(4)
+        self._pose.flags.writeable = False
+        self._seen: OrderedDict[int, tuple[Detection, ...]] = OrderedDict()
+        self._frames = 0
+
+    async def capture(self) -> RGBDFrame:
+        self._frames += 1
+        self._seen[self._frames] = tuple(self._truth())
+        while len(self._seen) > _KEEP:
+            self._seen.popitem(last=False)
+        return RGBDFrame(
+            t=self._clock.monotonic(),
+            depth_m=self._depth,
+            intrinsics=self.intrinsics,
+            world_from_camera=self._pose,
+            meta={FRAME_KEY: str(self._frames)},
+        )
+
+    def seen(self, frame: RGBDFrame) -> tuple[Detection, ...]:
+        """The mugs in view when ``frame`` was taken; ``FrameError`` for a frame this camera did not take."""
+        number = frame.meta.get(FRAME_KEY)
+        try:
+            return self._seen[int(number or "")]
+        except (KeyError, ValueError):
+            raise FrameError(f"frame {number!r} was not taken by the kinematic cell's camera") from None
+
+
+class TruthDetector(DepthMugDetector):
+    """The detector for ``camera``'s frames: what each frame saw, with position noise ``noise_m`` (standard
+    deviation, metres) and handle-direction noise ``yaw_noise_rad``, seeded with ``seed``."""
 
     def __init__(
         self,
-        truth: Callable[[], Sequence[Detection]],
+        camera: TruthCamera,
+        catalogue: Mapping[str, MugSpec],
         *,
-        clock: Clock,
         noise_m: float,
         yaw_noise_rad: float = math.radians(2.0),
         seed: int = 0,
@@ -38,15 +89,15 @@ class TruthObserver:
             raise ValueError(
                 f"noise must be non-negative, got noise_m={noise_m}, yaw_noise_rad={yaw_noise_rad}"
             )
-        self._truth = truth
-        self._clock = clock
+        super().__init__(catalogue)
+        self._camera = camera
         self._noise_m = noise_m
         self._yaw_noise_rad = yaw_noise_rad
         self._rng = np.random.default_rng(seed)
 
-    async def observe(self) -> Observation:
+    def detect(self, frame: RGBDFrame) -> list[Detection]:
         seen = []
-        for d in self._truth():
+        for d in self._camera.seen(frame):
             dx, dy = self._rng.normal(0.0, self._noise_m, 2) if self._noise_m else (0.0, 0.0)
             dyaw = float(self._rng.normal(0.0, self._yaw_noise_rad)) if self._yaw_noise_rad else 0.0
             confidence = float(np.clip(1.0 - abs(self._rng.normal(0.0, 0.03)), 0.5, 1.0))
@@ -60,55 +111,4 @@ class TruthObserver:
                     mug_id="",
                 )
             )
-        return Observation(t=self._clock.monotonic(), detections=tuple(seen), meta={"source": "truth"})
-
-
-class FaultyObserver:
-    """A ``MugObserver`` whose camera can fail, for the kinematic cell, which has no camera to fail: each
-    fault shows as the camera driver and the depth detector on the robot would show it.
-
-    ``no_frame`` waits the camera's frame timeout and raises the RealSense driver's ``CameraUnavailable``;
-    ``stale`` returns the last observation again, with its old ``t``; ``bad_frame`` raises the detector's
-    ``FrameError`` for a depth image without valid pixels; ``hang`` does not return until cleared."""
-
-    def __init__(self, inner: MugObserver, *, clock: Clock, timeout_s: float = 1.0) -> None:
-        self._inner = inner
-        self._clock = clock
-        self.timeout_s = timeout_s
-        self.fault: CameraFault | None = None
-        self._last: Observation | None = None
-        self._cleared: asyncio.Event | None = None
-        self.faulty_captures = 0
-
-    def set_fault(self, fault: CameraFault) -> None:
-        if fault not in CAMERA_FAULTS:
-            raise ValueError(f"camera fault {fault!r}: choose one of {', '.join(CAMERA_FAULTS)}")
-        self.fault = fault
-
-    def clear(self) -> None:
-        self.fault = None
-        if self._cleared is not None:
-            self._cleared.set()
-            self._cleared = None
-
-    async def observe(self) -> Observation:
-        fault = self.fault
-        if fault is not None:
-            self.faulty_captures += 1
-        if fault == "hang":
-            while self.fault == "hang":
-                if self._cleared is None:
-                    self._cleared = asyncio.Event()
-                await self._cleared.wait()
-        elif fault == "no_frame":
-            await self._clock.sleep(self.timeout_s)
-            raise CameraUnavailable(
-                f"the RealSense camera sent no frame within {self.timeout_s:.1f} s: Frame didn't arrive "
-                f"within {round(self.timeout_s * 1000)}"
-            )
-        elif fault == "stale" and self._last is not None:
-            return self._last
-        elif fault == "bad_frame":
-            raise FrameError("the depth image has only 0 valid pixels; is the camera covered?")
-        self._last = await self._inner.observe()
-        return self._last
+        return seen

@@ -1,20 +1,20 @@
-"""The kinematic cell: a placeholder simulated work cell (no physics) behind the driver protocols.
+"""The kinematic cell: the fast simulated work cell, a world without dynamics behind the real drivers.
 
-``open_kinematic_cell`` builds the world and its devices; mugs and the tray come from the caller (the daemon
-sets them from a placement dataset or a ``start`` command).
+``start_kinematic_cell`` builds the world and opens the same device simulators and drivers as the MuJoCo cell
+on it; mugs and the tray come from the caller (the daemon sets them from a placement dataset or a ``start``
+command).
 """
 
-from sim.kinematic.cell import KinematicCell, open_kinematic_cell
-from sim.kinematic.devices import SimArm, SimForceSensor, SimGripper
+from sim.kinematic.cell import KinematicCell, start_kinematic_cell, visible_mugs
+from sim.kinematic.devices import KinematicPlant
 from sim.kinematic.world import KinematicWorld, MugGeometry, SimMug
 
 __all__ = [
     "KinematicCell",
+    "KinematicPlant",
     "KinematicWorld",
     "MugGeometry",
-    "SimArm",
-    "SimForceSensor",
-    "SimGripper",
     "SimMug",
-    "open_kinematic_cell",
+    "start_kinematic_cell",
+    "visible_mugs",
 ]

@@ -1,241 +1,168 @@
-"""The kinematic cell's arm, gripper and force sensor: the ``drivers.interfaces`` protocols over the world."""
+"""What the kinematic cell's device simulators move: the servo chain's plant and the FSR's force, over the
+world.
+
+The kinematic cell runs the devices the MuJoCo cell runs — the byte-level Dynamixel chain and FSR Arduino
+simulators of ``drivers.sim`` behind the real drivers — over a world without dynamics. ``KinematicPlant`` is
+the chain's ``drivers.sim.plant.ServoPlant``: each servo goes to its goal at its commanded speed (capped at
+the servo's no-load speed, as in the MuJoCo cell), with no inertia and no gravity, and torque off leaves it
+where it is. The five arm servos move the world's joints; the gripper servo moves the jaw, whose pads squeeze
+a mug they close on (the FSR simulator reads that squeeze through ``force_n``).
+
+The jaw meets a mug as the world decides (``KinematicWorld.contact_aperture_m``) once per close, when it
+has closed to the widest brim of the world's mug types; the mug is released when the jaw opens past it, and
+falls out when the gripper servo's torque goes off. Positions advance lazily on the clock: whenever the chain
+or the FSR simulator asks, the plant first moves every servo by the time passed since it last moved.
+"""
 
 from __future__ import annotations
 
-import numpy as np
+import threading
+from collections.abc import Mapping, Sequence
 
-from drivers.dynamixel import BusTimeout
-from drivers.errors import LimitViolation, ServoFault
-from drivers.interfaces import (
-    FloatArray,
-    ForceReading,
-    GraspResult,
-    GripperState,
-    JointState,
-    JointTrajectory,
-)
-from sim.kinematic.faults import ARM_SERVOS, GRIPPER_SERVO
-from sim.kinematic.world import JAW_SPEED_M_S, OPEN_APERTURE_M, KinematicWorld
+from description.arm import JOINT_LIMITS, GripperGeometry
+from drivers.interfaces import Clock
+from sim.kinematic.world import KinematicWorld
 
-TICK_S = 0.01  # period (on the world's clock) at which a moving device updates the world
-FSR_COUNTS_PER_N = 40.0  # ADC counts per newton of the simulated FSR (saturates at 1023)
-# As the configured gripper (``hardware.gripper``): overload recoveries before a close gives up, and the
-# torque limit each one backs off to.
-OVERLOAD_RETRIES = 3
-GRIP_LIMIT = 0.6
-GRIP_LIMIT_BACKOFF = 0.75
+_EPS_M = 1e-9
 
 
-class SimArm:
-    """Joint-space motion at finite speed: a trajectory is followed at its own timing, slowed down where it
-    asks for more than ``joint_speed_rad_s``; the servos first travel to the trajectory's start if needed."""
+class KinematicPlant:
+    """The servo chain's plant over ``world``: ``arm_servos`` maps each arm servo id to its joint's name (in
+    the world's arm model), ``gripper_servo`` is the jaw's; ``max_speed_rad_s`` is each servo's top speed
+    (by id; a goal asking for more, or for "as fast as it can", moves at it).
+    Thread-safe (a chain served from the bus thread and the FSR task on the loop may both ask)."""
 
-    def __init__(self, world: KinematicWorld, *, joint_speed_rad_s: float) -> None:
+    def __init__(
+        self,
+        world: KinematicWorld,
+        *,
+        arm_servos: Sequence[tuple[int, str]],
+        gripper_servo: int,
+        gripper: GripperGeometry,
+        clock: Clock,
+        max_speed_rad_s: Mapping[int, float],
+    ) -> None:
+        names = world.arm.joint_names
+        unknown = [name for _, name in arm_servos if name not in names]
+        if unknown:
+            raise ValueError(f"joints {unknown} are not in the arm model's {names}")
         self._world = world
-        self._speed = joint_speed_rad_s
-        self._last_q = world.q.copy()
-        self._last_t = world.clock.now()
-        self._velocity: FloatArray = np.zeros(world.arm.dof)
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self._world.arm.joint_names
-
-    async def read_joints(self) -> JointState:
-        self._world.check_bus(ARM_SERVOS)
-        now = self._world.clock.now()
-        q = self._world.q
-        if now > self._last_t:
-            self._velocity = (q - self._last_q) / (now - self._last_t)
-            self._last_q, self._last_t = q.copy(), now
-        load = 0.1 if self._world.held is not None else 0.0
-        return JointState(
-            t=now,
-            names=self.joint_names,
-            position_rad=tuple(float(v) for v in q),
-            velocity_rad_s=tuple(float(v) for v in self._velocity),
-            load=(load,) * len(q),
+        self._geometry = gripper
+        self._clock = clock
+        self._ids = [servo_id for servo_id, _ in arm_servos] + [gripper_servo]
+        self._max_speed = [max_speed_rad_s[servo_id] for servo_id in self._ids]
+        self._index = {servo_id: k for k, servo_id in enumerate(self._ids)}
+        self._joint = [names.index(name) for _, name in arm_servos]  # world joint of each arm servo
+        self._gripper = len(arm_servos)
+        q = [float(world.q[j]) for j in self._joint]
+        jaw = JOINT_LIMITS["gripper"]
+        opening = min(
+            max(world.aperture_m, gripper.aperture_m(jaw.upper_rad)), gripper.aperture_m(jaw.lower_rad)
         )
+        world.aperture_m = opening  # the jaw as the gripper's geometry allows it
+        self._pos = [*q, gripper.angle_for_aperture(opening)]
+        self._goal = list(self._pos)
+        self._speed = list(self._max_speed)
+        self._vel = [0.0] * len(self._pos)
+        self._torque = [False] * len(self._pos)
+        self._last = clock.monotonic()
+        self._checked_contact = False  # the jaw has asked the world what it closes on since it last opened
+        self._lock = threading.Lock()
 
-    async def follow(self, trajectory: JointTrajectory) -> None:
-        self._world.check_bus(ARM_SERVOS)
-        if trajectory.names != self.joint_names:
-            raise LimitViolation(
-                f"trajectory {trajectory.label!r} names joints {trajectory.names}; "
-                f"the arm has {self.joint_names}"
-            )
-        violations = [v for q in trajectory.positions for v in self._world.arm.limit_violations(q, tol=1e-6)]
-        if violations:
-            raise LimitViolation(f"trajectory {trajectory.label!r} leaves the joint limits: {violations[0]}")
-        times, positions = _with_travel_to_start(self._world.q, trajectory, self._speed)
-        times = _retime(times, positions, self._speed)
-        clock = self._world.clock
-        t0 = clock.now()
-        while True:
-            t = clock.now() - t0
-            if t >= times[-1]:
-                self._world.set_q(positions[-1])
-                return
-            self._world.set_q(_interpolate(times, positions, t))
-            await clock.sleep(TICK_S)
-            self._world.check_bus(ARM_SERVOS)
+    # --- ServoPlant ------------------------------------------------------------------------------------
 
-    async def stop(self) -> None:
-        # Positions are only ever set to where the arm is, so holding still needs no command.
-        self._world.check_bus(ARM_SERVOS)
+    def set_goal(self, servo_id: int, position_rad: float, speed_rad_s: float) -> None:
+        with self._lock:
+            self._advance()
+            k = self._k(servo_id)
+            self._goal[k] = position_rad
+            top = self._max_speed[k]
+            speed = top if speed_rad_s <= 0.0 else min(speed_rad_s, top)
+            self._speed[k] = max(speed, 1e-3)
 
-    async def relax(self) -> None:
-        self._world.check_bus(ARM_SERVOS)
+    def present(self, servo_id: int) -> tuple[float, float, float]:
+        with self._lock:
+            self._advance()
+            k = self._k(servo_id)
+            load = max(-1.0, min(1.0, (self._goal[k] - self._pos[k]) * 2.0)) if self._torque[k] else 0.0
+            return self._pos[k], self._vel[k], load
 
+    def set_torque(self, servo_id: int, on: bool) -> None:
+        with self._lock:
+            self._advance()
+            k = self._k(servo_id)
+            self._torque[k] = on
+            self._vel[k] = 0.0
+            if on:
+                self._goal[k] = self._pos[k]
+            elif k == self._gripper and self._world.held is not None:
+                # The jaw goes limp: the carried mug falls where it is, and the next close looks again.
+                self._world.drop_held_mug()
+                self._checked_contact = False
 
-class SimGripper:
-    """A jaw that closes at finite speed; its pad force rises once it squeezes a mug."""
+    # --- the FSR simulator's force source ---------------------------------------------------------------
 
-    def __init__(self, world: KinematicWorld) -> None:
-        self._world = world
+    def force_n(self) -> float:
+        """The pads' squeeze on the mug between them, now."""
+        with self._lock:
+            self._advance()
+            return self._world.pad_force_n()
 
-    async def read(self) -> GripperState:
-        self._world.check_bus(_GRIPPER)
-        return GripperState(
-            t=self._world.clock.now(),
-            aperture_m=self._world.aperture_m,
-            load=min(1.0, self._world.pad_force_n() / 20.0),
-        )
+    # --- motion -----------------------------------------------------------------------------------------
 
-    async def open(self, aperture_m: float | None = None) -> None:
-        # Opening rewrites the torque limit, which clears a latched shutdown whose cause is gone (1.0).
-        faults = self._world.faults
-        for name in ("overload", "overheating"):
-            faults.clear(GRIPPER_SERVO, name)
-        self._world.check_bus(_GRIPPER)
-        self._world.release()
-        target = OPEN_APERTURE_M if aperture_m is None else min(aperture_m, OPEN_APERTURE_M)
-        await self._move_to(max(target, self._world.aperture_m))
+    def _k(self, servo_id: int) -> int:
+        try:
+            return self._index[servo_id]
+        except KeyError:
+            known = ", ".join(map(str, self._ids))
+            raise KeyError(f"no servo with id {servo_id} in the kinematic arm (ids: {known})") from None
 
-    async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
-        """As the Dynamixel gripper driver: an overload while closing is recovered (relax, restore a lower
-        torque limit, clear the fault) and the close tried again, up to ``OVERLOAD_RETRIES`` times."""
-        faults = self._world.faults
-        limit = GRIP_LIMIT
-        recoveries = 0
-        while True:
-            try:
-                return await self._close(force_threshold_n, min_aperture_m)
-            except ServoFault as e:
-                if isinstance(e, BusTimeout) or e.servo_id != GRIPPER_SERVO or "overload" not in e.bits:
-                    raise
-                recoveries += 1
-                if recoveries > OVERLOAD_RETRIES:
-                    raise ServoFault(
-                        f"gripper servo {GRIPPER_SERVO} overloaded {recoveries} times while closing, the "
-                        f"last time at {limit:.0%} of full torque; check the gripper for a jam and "
-                        "power-cycle the servo",
-                        servo_id=GRIPPER_SERVO,
-                        bits=("overload",),
-                    ) from e
-                limit *= GRIP_LIMIT_BACKOFF
-                faults.clear(GRIPPER_SERVO, "overload")
-                faults.mark_clear(GRIPPER_SERVO)
-                faults.emit(
-                    "gripper_overload_recovered",
-                    f"servo/{GRIPPER_SERVO}",
-                    servo_id=GRIPPER_SERVO,
-                    grip_limit=limit,
-                )
-                await self._world.clock.sleep(TICK_S)
+    def _advance(self) -> None:
+        now = self._clock.monotonic()
+        dt = now - self._last
+        if dt <= 0.0:
+            return
+        self._last = now
+        pos, goal, vel = self._pos, self._goal, self._vel
+        moved_arm = False
+        old_jaw = pos[self._gripper]
+        for k in range(len(pos)):
+            if not self._torque[k]:
+                vel[k] = 0.0
+                continue
+            error = goal[k] - pos[k]
+            if error == 0.0:
+                vel[k] = 0.0
+                continue
+            step = self._speed[k] * dt
+            new = goal[k] if abs(error) <= step else pos[k] + (step if error > 0 else -step)
+            vel[k] = (new - pos[k]) / dt
+            pos[k] = new
+            moved_arm = moved_arm or k != self._gripper
+        world = self._world
+        if moved_arm:
+            q = world.q.copy()
+            for k, j in enumerate(self._joint):
+                q[j] = pos[k]
+            world.set_q(q)
+        if pos[self._gripper] != old_jaw:
+            self._move_jaw(old_jaw, pos[self._gripper])
 
-    async def _close(self, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
-        self._world.check_bus(_GRIPPER)
-        contact = self._world.contact_aperture_m()
-        if contact is None or contact <= min_aperture_m:
-            await self._move_to(min_aperture_m)
-            return GraspResult(False, self._world.pad_force_n(), self._world.aperture_m, "closed on nothing")
-        target = contact - force_threshold_n / 2000.0 * 1.5
-        await self._move_to(max(min_aperture_m, target))
-        force = self._world.pad_force_n()
-        if force < force_threshold_n:
-            return GraspResult(False, force, self._world.aperture_m, "force stayed under the threshold")
-        return GraspResult(True, force, self._world.aperture_m)
+    def _move_jaw(self, old_rad: float, new_rad: float) -> None:
+        world = self._world
+        before = world.aperture_m
+        world.aperture_m = self._geometry.aperture_m(new_rad)
+        closing = world.aperture_m < before - _EPS_M
+        if closing and not self._checked_contact and world.held is None and world.aperture_m < self._widest():
+            # The pads can touch a brim now: take the mug between them, if there is one (once per close).
+            self._checked_contact = True
+            world.contact_aperture_m()
+        elif world.aperture_m > before + _EPS_M:
+            self._checked_contact = False
+            held = world.held
+            if held is not None and world.aperture_m >= world.mug_geometry[world.mugs[held].type].diameter_m:
+                world.release()
 
-    async def stop(self) -> None:
-        self._world.check_bus(_GRIPPER)
-
-    async def _move_to(self, aperture_m: float) -> None:
-        clock = self._world.clock
-        while self._world.aperture_m != aperture_m:
-            step = JAW_SPEED_M_S * TICK_S
-            delta = aperture_m - self._world.aperture_m
-            self._world.aperture_m = (
-                aperture_m
-                if abs(delta) <= step
-                else self._world.aperture_m + step * (1.0 if delta > 0 else -1.0)
-            )
-            await clock.sleep(TICK_S)
-            self._world.check_bus(_GRIPPER)
-
-
-_GRIPPER = (GRIPPER_SERVO,)
-
-
-class SimForceSensor:
-    """The FSR in the pad: the world's pad force, with a debounced ``holding``.
-
-    Its faults (``world.faults``) act as on the FSR reader: while the Arduino is silent or unplugged the
-    last reading and ``holding`` stand still; a dropped force reads zero; a spike is one raw sample that the
-    reader's median filter keeps out of the force."""
-
-    def __init__(self, world: KinematicWorld, *, holding_threshold_n: float) -> None:
-        self._world = world
-        self._threshold = holding_threshold_n
-        self._seq = 0
-        self._last: ForceReading | None = None
-        self._holding = False
-
-    def latest(self) -> ForceReading | None:
-        if self._away():
-            return self._last
-        self._seq += 1
-        force = self._force_n()
-        raw = min(1023, int(force * FSR_COUNTS_PER_N))
-        faults = self._world.faults
-        if faults.fsr_spikes:
-            raw = min(1023, max(0, int(faults.fsr_spikes.pop(0) * FSR_COUNTS_PER_N)))
-            faults.fsr_spikes_seen += 1
-        self._last = ForceReading(t=self._world.clock.now(), force_n=force, raw=raw, seq=self._seq)
-        return self._last
-
-    def holding(self) -> bool:
-        if not self._away():
-            self._holding = self._force_n() >= self._threshold
-        return self._holding
-
-    def _force_n(self) -> float:
-        return 0.0 if self._world.faults.fsr_dropped else self._world.pad_force_n()
-
-    def _away(self) -> bool:
-        last = self._last
-        age = self._world.clock.now() - last.t if last is not None else 0.0
-        return self._world.faults.fsr_away(age_s=age)
-
-
-def _with_travel_to_start(
-    q: FloatArray, trajectory: JointTrajectory, speed: float
-) -> tuple[FloatArray, FloatArray]:
-    times = np.asarray(trajectory.times, dtype=np.float64)
-    positions = np.asarray(trajectory.positions, dtype=np.float64)
-    gap = float(np.max(np.abs(positions[0] - q)))
-    if gap < 1e-6:
-        return times, positions
-    travel = gap / speed
-    return np.concatenate([[0.0], times + travel]), np.vstack([q, positions])
-
-
-def _retime(times: FloatArray, positions: FloatArray, speed: float) -> FloatArray:
-    """Stretch each segment that would need more than ``speed`` on some joint."""
-    dt = np.diff(times)
-    dq = np.abs(np.diff(positions, axis=0)).max(axis=1)
-    return np.concatenate([[0.0], np.cumsum(np.maximum(dt, dq / speed))])
-
-
-def _interpolate(times: FloatArray, positions: FloatArray, t: float) -> FloatArray:
-    return np.array([np.interp(t, times, positions[:, j]) for j in range(positions.shape[1])])
+    def _widest(self) -> float:
+        """The widest brim of the world's mug types: a jaw opened wider touches no mug."""
+        return max((g.diameter_m for g in self._world.mug_geometry.values()), default=0.0)

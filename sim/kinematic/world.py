@@ -7,25 +7,22 @@ down if the gripper turned it over. The forward kinematics come from the arm mod
 cell agrees with the motion planner about where the gripper is.
 
 Faults for tests and replays: ``slip_next_grasp`` pushes the mug away as the jaw closes (the grasp fails),
-``drop_held_mug`` lets a carried mug fall, ``move_mug`` shifts a mug on the counter, ``lose_bus`` makes every
-device call raise ``BusLost``; ``faults`` (``sim.kinematic.faults``) holds the devices' own faults, raised as
-the real drivers raise them.
+``drop_held_mug`` lets a carried mug fall, ``move_mug`` shifts a mug on the counter. The devices' own faults
+are the device simulators' (``sim.kinematic.cell``: the servo chain and the FSR Arduino behind the real
+drivers, the camera behind the driver's frame checks), as in the MuJoCo cell.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
 import structlog
 
-from drivers.errors import BusLost
 from drivers.interfaces import Clock, FloatArray
 from planning.arm import ArmModel
-from sim.kinematic.faults import GRIPPER_SERVO, KinematicFaults
 
 log = structlog.get_logger("sim.kinematic")
 
@@ -90,8 +87,6 @@ class KinematicWorld:
         self._held_local: FloatArray = np.zeros(3)
         self._held_up_local: FloatArray = np.array([0.0, 0.0, 1.0])
         self._slip_next = False
-        self.bus_lost: str | None = None
-        self.faults = KinematicFaults(clock)
 
     def set_mugs(self, mugs: list[SimMug]) -> None:
         """Put a new set of mugs on the counter (a new job in simulation); the gripper is empty after it."""
@@ -119,19 +114,6 @@ class KinematicWorld:
         self.mugs[mug_id] = replace(mug, x_m=mug.x_m + dx_m, y_m=mug.y_m + dy_m)
         log.info("sim_mug_moved", mug_id=mug_id, dx_m=dx_m, dy_m=dy_m)
 
-    def lose_bus(self, port: str = "sim") -> None:
-        self.bus_lost = port
-
-    def check_bus(self, servos: Iterable[int] = ()) -> None:
-        """A device call reaching ``servos``: raises as the bus driver would for a fault of theirs."""
-        if self.bus_lost is not None:
-            raise BusLost(
-                f"simulated bus on {self.bus_lost} is gone; reconnect and reset", port=self.bus_lost
-            )
-        if self.held is not None and self.faults.shut_down(GRIPPER_SERVO):
-            self.drop_held_mug()  # the jaw went limp
-        self.faults.check_servos(servos)
-
     # --- arm --------------------------------------------------------------------------------------------
 
     def grasp_pose(self) -> tuple[FloatArray, FloatArray]:
@@ -151,7 +133,7 @@ class KinematicWorld:
     # --- gripper ---------------------------------------------------------------------------------------
 
     def pad_force_n(self) -> float:
-        if self.held is None or self.faults.shut_down(GRIPPER_SERVO):
+        if self.held is None:
             return 0.0
         squeeze = self.mug_geometry[self.mugs[self.held].type].diameter_m - self.aperture_m
         return max(0.0, PAD_STIFFNESS_N_M * squeeze)

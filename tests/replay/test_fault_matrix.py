@@ -1,10 +1,13 @@
-"""The fault matrix (issue 13, docs/faults.md) through replays: one recorded job on the kinematic cell,
-replayed with each row's faults injected at the device boundary or in the simulated world. Each row checks
-the state the daemon ends in, the events it published and what the replay's recording holds.
+"""The fault matrix (issue 13, docs/faults.md) on both simulated cells.
 
-Rows that need the real drivers (the servo chain's error bits, polling, a lost adapter, corrupt replies),
-a process to kill or a Zenoh client live with the drivers' and the daemon's own tests; docs/faults.md says
-which test holds each row.
+``test_each_fault_kind_ends_alike_on_both_cells`` runs the same fault file for every device and world fault
+kind on the kinematic and on the MuJoCo cell (one daemon each, a one-mug job; the MuJoCo side is slow): both
+cells put the same device simulators behind the same drivers, so both must end in the state docs/faults.md
+gives and publish the same key events. The replay rows run one recorded job again with each row's faults and
+check the state the daemon ends in, the events it published and what the replay's recording holds.
+
+Rows that need a process to kill, a disk or a Zenoh client live with the daemon's own tests; docs/faults.md
+says which test holds each row.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import pytest
 
 from replay.harness import DishbotReplay, ReplayTrace
 from tests.replay.conftest import THREE_MUGS
+from tests.replay.faulty import FaultRun, run_with_faults
 
 
 @dataclass(frozen=True)
@@ -97,8 +101,9 @@ ROWS = (
 )
 
 
-# The camera rows run on the MuJoCo cell: its rendered depth camera behind the real observer and detector,
-# with the frame timeout, age limit and retries of [camera].
+# The camera rows run on both cells: the camera fault model behind the real observer's frame checks (the
+# frame timeout, age limit and retries of [camera]), before the rendered depth detector (MuJoCo) or the truth
+# detector (kinematic).
 CAMERA_ROWS = (
     Row(
         "9 camera without a frame for a moment",
@@ -176,12 +181,14 @@ def test_each_row_of_the_matrix_ends_in_its_safe_state(
     _check(row, trace)
 
 
+@pytest.mark.parametrize("world", ["kinematic", "mujoco"])
 @pytest.mark.parametrize("row", CAMERA_ROWS, ids=[r.name for r in CAMERA_ROWS])
 @pytest.mark.slow
 def test_each_camera_row_ends_in_its_safe_state(
-    row: Row, recorded_mujoco_job: Path, dishbot: DishbotReplay
+    row: Row, world: str, request: pytest.FixtureRequest, dishbot: DishbotReplay
 ) -> None:
-    trace = dishbot.replay(recorded_mujoco_job, faults=row.faults)
+    job = request.getfixturevalue("recorded_job" if world == "kinematic" else "recorded_mujoco_job")
+    trace = dishbot.replay(job, faults=row.faults)
     _check(row, trace)
 
 
@@ -192,3 +199,193 @@ def test_a_replay_without_faults_of_the_matrix_job_matches(
     trace = dishbot.replay(recorded_job)
     assert trace.match
     assert trace.final_state == "done"
+
+
+@dataclass(frozen=True)
+class Kind:
+    """One fault file run on both cells: the state the job must end in, events it must publish (kinds, or
+    ``kind:text`` where one such event's ``reason`` must contain ``text``) and events it must not."""
+
+    name: str
+    text: str
+    end: str
+    events: Sequence[str] = ()
+    not_events: Sequence[str] = ()
+    mugs: int = 1
+
+
+def _file(**fault: object) -> str:
+    fields = "".join(f"{k} = {v!r}\n".replace("'", '"') for k, v in fault.items())
+    return f"[[fault]]\n{fields}"
+
+
+BOTH_CELLS = (
+    Kind(
+        "1 arm servo overload in the turn",
+        _file(kind="servo_overload", servo=3, at_state="flip.turn", after_s=0.2),
+        "fault",
+        ("servo_fault", "fault:ServoFault: servo 3 on inprocess:ttyDXL reports overload"),
+    ),
+    Kind(
+        "1 gripper overload while closing, recovered",
+        _file(kind="servo_overload", servo=6, at_state="side_grasp.close", after_s=0.1),
+        "done",
+        ("gripper_overload_recovered",),
+        ("fault",),
+    ),
+    Kind(
+        "2 servo overheats",
+        _file(kind="servo_overheat", servo=2, at_state="side_grasp.lift"),
+        "fault",
+        ("servo_fault", "fault:overheating"),
+    ),
+    Kind(
+        "2 servo supply sags",
+        _file(kind="servo_voltage", servo=4, at_state="side_grasp.lift"),
+        "fault",
+        ("servo_fault", "fault:voltage"),
+    ),
+    Kind(
+        "4 servo silent for good",
+        _file(kind="servo_silent", servo=4, at_state="flip.transit"),
+        "fault",
+        ("servo_fault", "fault:BusTimeout: servo(s) 4 did not answer"),
+    ),
+    Kind(
+        "5 corrupt packets under the limit (5 %)",
+        _file(kind="bus_corrupt", rate=0.05, seed=3, at_state="side_grasp.approach", duration_s=5.0),
+        "done",
+        (),
+        ("fault",),
+    ),
+    Kind(
+        "5 corrupt packets over the limit (100 %)",
+        _file(kind="bus_corrupt", rate=1.0, at_state="side_grasp.approach"),
+        "fault",
+        ("fault:BusCorrupt: servo(s) ",),
+    ),
+    Kind(
+        "3 servo bus unplugged mid-job",
+        _file(kind="bus_unplug", at_state="flip.transit", duration_s=1.0),
+        "fault",
+        ("bus_lost", "fault:bus_lost on inprocess:ttyDXL"),
+    ),
+    Kind(
+        "7 FSR adapter unplugged for a moment while carrying",
+        _file(kind="bus_unplug", device="fsr", at_state="flip.transit", duration_s=0.1),
+        "done",
+        ("fsr_lost", "fsr_restored"),
+        ("fault",),
+    ),
+    Kind(
+        "7 FSR reads no force while carrying",
+        _file(kind="fsr_drop", at_state="flip.transit", after_s=0.1, duration_s=0.5),
+        "done",
+        ("mug_dropped",),
+        ("fault",),
+    ),
+    Kind(
+        "8 one-sample FSR spike",
+        _file(kind="fsr_spike", value_n=30.0, at_state="place.transit"),
+        "done",
+        (),
+        ("mug_dropped", "fault"),
+    ),
+    Kind(
+        "7 FSR silent while carrying",
+        _file(kind="fsr_silent", at_state="flip.transit"),
+        "fault",
+        ("fsr_stale", "fault:fsr_stale on inprocess:ttyFSR"),
+    ),
+    Kind(
+        "9 camera without a frame for a moment",
+        _file(kind="camera_no_frame", at_state="detect", duration_s=0.5),
+        "done",
+        (),
+        ("fault",),
+    ),
+    Kind(
+        "9 camera without a frame for good",
+        _file(kind="camera_no_frame", at_state="detect", occurrence=2),
+        "fault",
+        ("fault:camera: the RealSense camera sent no frame within 1.0 s",),
+    ),
+    Kind(
+        "9 camera stale",
+        _file(kind="camera_stale", at_state="detect", occurrence=2),
+        "fault",
+        ("fault: s old",),
+    ),
+    Kind(
+        "9 camera bad frame",
+        _file(kind="camera_bad_frame", at_state="detect"),
+        "fault",
+        ("fault:camera: bad frame (NaN depth)",),
+    ),
+    Kind(
+        "9 camera hung for good",
+        _file(kind="camera_hang", at_state="detect", occurrence=2),
+        "fault",
+        ("fault:camera: no frame within 2.0 s",),
+    ),
+    Kind(
+        "9 camera hung for a moment (bridged)",
+        _file(kind="camera_hang", at_state="detect", duration_s=3.0),
+        "done",
+        (),
+        ("fault",),
+    ),
+    Kind(
+        "20 the carried mug slips out",
+        _file(kind="mug_slip", at_state="flip.transit", after_s=0.3),
+        "done",
+        ("mug_dropped",),
+        ("fault",),
+    ),
+    Kind(
+        "21 a counter mug moved meanwhile",
+        _file(kind="mug_moved", at_state="side_grasp.lift", dx_m=0.03, dy_m=0.0),
+        "done",
+        (),
+        ("fault",),
+        mugs=2,
+    ),
+)
+
+
+def outcome(run: FaultRun) -> tuple[str, tuple[str, ...], str]:
+    """The end state, the key events (device, job and fault events, in order, each kind once) and the fault's
+    reason of one run: what must be the same on both cells."""
+    key = (
+        "servo_fault",
+        "servo_warning",
+        "gripper_overload_recovered",
+        "bus_lost",
+        "bus_restored",
+        "fsr_lost",
+        "fsr_stale",
+        "fsr_restored",
+        "mug_dropped",
+        "mug_found",
+        "mug_given_up",
+        "fault",
+    )
+    kinds = tuple(dict.fromkeys(k for k in run.kinds() if k in key))
+    faults = run.events("fault")
+    return run.result.end_state, kinds, str(faults[0]["reason"]) if faults else ""
+
+
+@pytest.mark.parametrize("world", ["kinematic", pytest.param("mujoco", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("kind", BOTH_CELLS, ids=[k.name for k in BOTH_CELLS])
+def test_each_fault_kind_ends_alike_on_both_cells(kind: Kind, world: str, tmp_path: Path) -> None:
+    run = run_with_faults(tmp_path, kind.text, world=world, mugs=kind.mugs)
+    assert [o.fired for o in run.injector.outcomes()] == [True], run.injector.outcomes()
+    end, kinds, reason = outcome(run)
+    assert end == kind.end, (world, kind.name, kinds, reason)
+    for wanted in kind.events:
+        name, _, text = wanted.partition(":")
+        assert name in kinds, (world, kind.name, kinds)
+        if text:
+            assert text in reason, (world, kind.name, reason)
+    for unwanted in kind.not_events:
+        assert unwanted not in kinds, (world, kind.name, kinds, reason)

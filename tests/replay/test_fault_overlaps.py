@@ -15,6 +15,9 @@ import pytest
 
 from daemon.app import ServeContext
 from daemon.sim_backend import KinematicCounter, MujocoCounter
+from drivers.sim.camera import FaultyCamera
+from drivers.sim.fsr import FsrSimulator
+from drivers.sim.servo_chain import ServoChainSimulator
 from replay.faults import CAMERA_KINDS, FaultSpec, slot_of
 from tests.replay.faulty import run_with_faults
 
@@ -63,33 +66,18 @@ class Probe:
 def kinematic_probe(ctx: ServeContext) -> Probe:
     counter = ctx.backend.counter
     assert isinstance(counter, KinematicCounter)
-    faults = counter.cell.world.faults
-    observer = counter.observer
-    assert observer is not None
-
-    def read(slot: tuple[str, ...]) -> object:
-        kind = slot[0]
-        if kind == "camera":
-            return observer.fault
-        if kind in ("servo_overload", "servo_overheat", "servo_voltage"):
-            cause = {"servo_overload": "overload", "servo_overheat": "overheating"}.get(kind, "input_voltage")
-            return cause in faults.servos[int(slot[1])].lasting
-        if kind == "servo_silent":
-            return faults.servos[int(slot[1])].silent
-        if kind == "bus_corrupt":
-            return faults.corrupt_rate
-        if kind == "bus_unplug":
-            return faults.fsr_unplugged if slot[1] == "fsr" else faults.bus_unplugged
-        return {"fsr_drop": faults.fsr_dropped, "fsr_silent": faults.fsr_silent}[kind]
-
-    return Probe(read)
+    return simulators_probe(counter.cell.servo_sim, counter.cell.fsr_sim, counter.camera)
 
 
 def mujoco_probe(ctx: ServeContext) -> Probe:
     counter = ctx.backend.counter
     assert isinstance(counter, MujocoCounter)
-    servos, fsr, camera = counter.cell.servo_sim, counter.cell.fsr_sim, counter.camera
-    assert camera is not None
+    assert counter.camera is not None
+    return simulators_probe(counter.cell.servo_sim, counter.cell.fsr_sim, counter.camera)
+
+
+def simulators_probe(servos: ServoChainSimulator, fsr: FsrSimulator, camera: FaultyCamera) -> Probe:
+    """Both cells' devices are the same simulators: read their conditions the same way."""
 
     def read(slot: tuple[str, ...]) -> object:
         kind = slot[0]
@@ -197,9 +185,8 @@ def test_a_short_stale_spell_inside_long_bad_frames_ends_as_the_bad_frames_requi
     )
     run = run_with_faults(tmp_path, text, world=world, mugs=1)
     assert run.result.end_state == "fault"
-    # The kinematic cell's detector words a bad frame otherwise (issue 21, item 3: one device path).
-    words = {"kinematic": "0 valid pixels", "mujoco": "bad frame"}[world]
-    assert words in str(run.event("fault")["reason"])
+    # One device path (issue 21, item 3): both cells' frame checks refuse the bad frame alike.
+    assert run.event("fault")["reason"] == "camera: bad frame (NaN depth)"
     assert [(o.index, o.fired) for o in run.injector.outcomes()] == [(1, True), (2, True)]
 
 
