@@ -1,11 +1,13 @@
 """``dishbot bench soak``: many simulated jobs in one daemon, each with a random fault of the matrix.
 
-One daemon (``serve`` on the kinematic cell, simulated time) runs ``--jobs`` jobs one after the other, each
-on three mugs of a random dataset, each with one fault drawn from ``SOAK_FAULTS`` (seeded). After a job ends
-the fault is ended (a bus replugged, a sensor speaking again), a job that ended in ``fault`` is reset, and
-the next one starts. Checked: the daemon never crashes (no work unit raising, no internal error), every job
-ends in the state docs/faults.md gives for its fault, every recording file reads back finished, and the
-process's memory (RSS) at the start and the end.
+One daemon (``serve`` on the kinematic cell, simulated time: the real drivers over the device simulators)
+runs ``--jobs`` jobs one after the other, each on three mugs of a random dataset, each with one fault drawn
+from ``SOAK_FAULTS`` (seeded), which holds every device and world fault kind of a fault file, supply and heat
+included. After a job ends the fault is ended (a bus replugged, a sensor speaking again, a servo cooled), a
+job that ended in ``fault`` is reset, and the next one starts. Checked: the daemon never crashes (no work unit
+raising, no internal error), every job ends in the state docs/faults.md gives for its fault, a fault that did
+not fire is reported with its reason (``FaultInjector.outcomes``), every recording file reads back finished,
+and the process's memory (RSS) at the start, after the first job and at the end.
 """
 
 from __future__ import annotations
@@ -31,12 +33,35 @@ log = structlog.get_logger("bench.soak")
 # (fault table, the states a job may end in with it): docs/faults.md has the same rows with their reasons.
 SOAK_FAULTS: tuple[tuple[Mapping[str, object], frozenset[str]], ...] = (
     ({"kind": "servo_overload", "servo": 3, "at_state": "flip.turn", "after_s": 0.2}, frozenset({"fault"})),
+    (
+        {"kind": "servo_overload", "servo": 6, "at_state": "side_grasp.close", "after_s": 0.1},
+        frozenset({"done"}),
+    ),
+    ({"kind": "servo_overheat", "servo": 2, "at_state": "side_grasp.lift"}, frozenset({"fault"})),
+    ({"kind": "servo_voltage", "servo": 4, "at_state": "flip.transit"}, frozenset({"fault"})),
     ({"kind": "servo_silent", "servo": 4, "at_state": "flip.transit"}, frozenset({"fault"})),
+    (
+        {"kind": "bus_corrupt", "rate": 0.05, "at_state": "side_grasp.approach", "duration_s": 5.0},
+        frozenset({"done"}),
+    ),
+    ({"kind": "bus_corrupt", "rate": 1.0, "at_state": "place.transit"}, frozenset({"fault"})),
     ({"kind": "bus_unplug", "at_state": "place.descend", "duration_s": 1.0}, frozenset({"fault"})),
+    (
+        {"kind": "bus_unplug", "device": "fsr", "at_state": "flip.transit", "duration_s": 0.1},
+        frozenset({"done"}),
+    ),
     ({"kind": "fsr_drop", "at_state": "flip.transit", "duration_s": 0.5}, frozenset({"done"})),
     ({"kind": "fsr_spike", "at_state": "side_grasp.lift"}, frozenset({"done"})),
     ({"kind": "fsr_silent", "at_state": "place.transit"}, frozenset({"fault"})),
+    (
+        {"kind": "camera_no_frame", "at_state": "detect", "occurrence": 2, "duration_s": 0.5},
+        frozenset({"done"}),
+    ),
+    ({"kind": "camera_no_frame", "at_state": "detect", "occurrence": 2}, frozenset({"fault"})),
+    ({"kind": "camera_stale", "at_state": "detect", "occurrence": 2}, frozenset({"fault"})),
+    ({"kind": "camera_bad_frame", "at_state": "detect", "occurrence": 2}, frozenset({"fault"})),
     ({"kind": "camera_hang", "at_state": "detect", "occurrence": 2}, frozenset({"fault"})),
+    ({"kind": "camera_hang", "at_state": "detect", "occurrence": 2, "duration_s": 3.0}, frozenset({"done"})),
     ({"kind": "mug_slip", "at_state": "flip.transit", "after_s": 0.3}, frozenset({"done"})),
     ({"kind": "mug_moved", "at_state": "side_grasp.lift", "dx_m": 0.03, "dy_m": 0.0}, frozenset({"done"})),
 )
@@ -51,10 +76,16 @@ class JobRun:
     expected: frozenset[str]
     fired: bool
     reason: str = ""
+    # Why the fault did not fire, as the injector reports it (empty: fired, or not reported: a failure).
+    unfired_reason: str = ""
 
     @property
     def as_documented(self) -> bool:
         return self.end_state in self.expected
+
+    @property
+    def unfired_unreported(self) -> bool:
+        return not self.fired and not self.unfired_reason
 
 
 @dataclass
@@ -73,11 +104,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "soak",
         help="N simulated jobs in one daemon, each with a random fault: crashes, end states, recordings, RSS",
         description=(
-            "Run N consecutive jobs in one daemon on the kinematic cell (simulated time), each on three mugs "
-            "with one random fault of the matrix (docs/faults.md), resetting after a fault. Prints the jobs "
-            "per fault, those that did not end in the documented state, crashes, unreadable recordings and "
-            "the RSS at the start and the end. Targets: zero crashes, zero unreadable recordings, every job "
-            "as documented, RSS growth under 50 MB over 100 jobs."
+            "Run N consecutive jobs in one daemon on the kinematic cell (simulated time; the real drivers "
+            "over the device simulators), each on three mugs with one random fault of the matrix "
+            "(docs/faults.md; every device and world fault kind, supply and heat included), resetting after "
+            "a fault. Prints the jobs per fault, those that did not end in the documented state, faults that "
+            "did not fire (and whether the injector said why), crashes, unreadable recordings and the RSS. "
+            "Targets: zero crashes, zero unreadable recordings, every job as documented, every unfired fault "
+            "reported, RSS growth after the first job under 20 MB over 100 jobs."
         ),
     )
     parser.add_argument("--jobs", type=int, default=100, metavar="N", help="jobs to run (default 100)")
@@ -112,6 +145,8 @@ def run(args: argparse.Namespace) -> int:
         "faults": sum(j.fired for j in result.jobs),
         "crashes": len(result.crashes),
         "not_as_documented": sum(not j.as_documented for j in result.jobs),
+        "unfired": sum(not j.fired for j in result.jobs),
+        "unfired_unreported": sum(j.unfired_unreported for j in result.jobs),
         "recordings": len(result.files),
         "unreadable_recordings": len(result.unreadable),
         "rss_start_mb": round(result.rss_start_mb, 1),
@@ -129,14 +164,28 @@ def run(args: argparse.Namespace) -> int:
     if result.crashes:
         extra["crash_reasons"] = result.crashes[:10]
     odd = [
-        f"job {j.index} ({j.fault}): {j.end_state} {j.reason}".strip()
+        f"job {j.index} ({j.fault}): {j.end_state} {j.reason} {j.unfired_reason}".strip()
         for j in result.jobs
-        if not j.as_documented
+        if not j.as_documented or not j.fired
     ]
     if odd:
         extra["not_as_documented_jobs"] = odd[:20]
     emit("bench soak: jobs with random faults in one daemon", columns, rows, as_json=args.json, extra=extra)
     return 0
+
+
+def _name(table: Mapping[str, object]) -> str:
+    """A soak fault's name for the table: its kind, and what sets it apart from the others of that kind."""
+    kind = str(table["kind"])
+    if kind == "servo_overload":
+        return f"{kind} servo {table['servo']}"
+    if kind == "bus_corrupt":
+        return f"{kind} {table['rate']}"
+    if kind == "bus_unplug":
+        return f"{kind} {table.get('device', 'servo')}"
+    if "duration_s" in table and kind in ("camera_no_frame", "camera_hang"):
+        return f"{kind} {table['duration_s']} s"
+    return kind
 
 
 def _count(items: Any) -> dict[str, int]:
@@ -204,14 +253,23 @@ def soak(jobs: int, seed: int, record_dir: Path, *, progress: Progress | None = 
                 }
                 reply = await ctx.handle("start", json.dumps(body).encode(), False)
                 if not reply.get("ok"):
-                    out.jobs.append(JobRun(k + 1, str(table["kind"]), "refused", expected, False, str(reply)))
+                    out.jobs.append(JobRun(k + 1, _name(table), "refused", expected, False, str(reply)))
                     injector.close()
                     continue
                 finished = await ctx.clock.wait(asyncio.ensure_future(ctx.job.finished.wait()), _JOB_LIMIT_S)
                 state = ctx.job.chart.state if finished else f"stuck in {ctx.job.chart.state}"
                 reason = last_fault[0]
+                outcome = injector.outcomes()[0]
                 out.jobs.append(
-                    JobRun(k + 1, str(table["kind"]), state, expected, bool(injector.fired), reason)
+                    JobRun(
+                        k + 1,
+                        _name(table),
+                        state,
+                        expected,
+                        outcome.fired,
+                        reason,
+                        "" if outcome.fired else str(outcome.reason or ""),
+                    )
                 )
                 injector.close()
                 current.clear()
