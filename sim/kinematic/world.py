@@ -28,7 +28,6 @@ log = structlog.get_logger("sim.kinematic")
 
 # The kinematic cell's own parameters (a stand-in, not thesis figures).
 OPEN_APERTURE_M = 0.12  # jaw opening when open: wider than the big mug's 91 mm brim
-JAW_SPEED_M_S = 0.08  # closing and opening speed of the jaw
 PAD_STIFFNESS_N_M = 2000.0  # force per metre of squeeze once both pads touch the mug
 GRASP_CAPTURE_M = 0.02  # how far a mug's axis may be from where a held mug sits and still be taken
 SLIP_DISTANCE_M = 0.04  # how far a slipping grasp pushes the mug away
