@@ -18,6 +18,10 @@ from drivers.interfaces import JointState, JointTrajectory
 
 log = structlog.get_logger("drivers.dynamixel.arm")
 
+# How far past a joint limit a goal may be and still count as at it: floating-point rounding of a plan that
+# goes up to the limit (one encoder step of an AX-12A is 5.1e-3 rad, of an MX-T 1.5e-3 rad).
+LIMIT_SLACK_RAD = 1e-6
+
 
 class DynamixelArm:
     """Joint-space control of the arm over a verified :class:`ServoChain`.
@@ -168,11 +172,14 @@ class DynamixelArm:
     # ------------------------------------------------------------------------------------------ internals
 
     def check_limits(self, positions: Sequence[float] | np.ndarray) -> None:
-        """Raise LimitViolation naming the first joint outside its software limits; nothing is sent."""
+        """Raise LimitViolation naming the first joint outside its software limits; nothing is sent. A goal
+        a rounding error past a limit (``LIMIT_SLACK_RAD``, far below one encoder step) is at the limit:
+        a planner that plans up to a limit computes it in floating point."""
         if len(positions) != len(self.joints):
             raise LimitViolation(f"{len(positions)} joint values for {len(self.joints)} joints")
         for joint, q in zip(self.joints, positions, strict=True):
-            if not (joint.min_rad <= q <= joint.max_rad) or not np.isfinite(q):
+            low, high = joint.min_rad - LIMIT_SLACK_RAD, joint.max_rad + LIMIT_SLACK_RAD
+            if not (low <= q <= high) or not np.isfinite(q):
                 raise LimitViolation(
                     f"joint {joint.name} (servo {joint.servo_id}) goal {float(q):.4f} rad is outside its "
                     f"limits [{joint.min_rad:.4f}, {joint.max_rad:.4f}] rad; nothing was sent"
@@ -180,7 +187,10 @@ class DynamixelArm:
 
     def _goals(self, q: np.ndarray, speed: np.ndarray) -> dict[int, tuple[float, float]]:
         self.check_limits(q)
-        return {j.servo_id: (float(q[k]), float(speed[k])) for k, j in enumerate(self.joints)}
+        return {
+            j.servo_id: (min(max(float(q[k]), j.min_rad), j.max_rad), float(speed[k]))
+            for k, j in enumerate(self.joints)
+        }
 
     async def _stream(self, times: np.ndarray, positions: np.ndarray) -> None:
         t0 = self._clock.monotonic()

@@ -318,3 +318,25 @@ def test_a_frozen_force_reading_never_counts_as_a_grasp() -> None:
                 assert result.force_n == 0.0
 
     run_on("inprocess", body)
+
+
+def test_a_goal_a_rounding_error_past_a_limit_is_sent_at_the_limit() -> None:
+    """A plan up to a joint's limit, computed in floating point, can end 1e-12 rad past it: that is the
+    limit (an encoder step is a thousand times more), not a violation; 1e-3 rad past is one."""
+    joints = (JointSpec("shoulder_turn", 1, "MX-64T", -0.5, 0.5),)
+
+    async def body(clock: Clock) -> None:
+        with serving(ServoChainSimulator([(1, "MX-64T")]), "inprocess", clock) as sim:
+            async with chain_on(sim, clock, [(1, "MX-64T")]) as chain, DynamixelArm(chain, joints) as arm:
+                edge = -0.5 - 1e-12
+                await arm.follow(
+                    JointTrajectory(arm.joint_names, np.array([0.0, 0.5]), np.array([[0.0], [edge]]))
+                )
+                state = await arm.read_joints()
+                assert -0.5 - 2e-3 < state.position_rad[0] < -0.4  # on its way to the limit, not past it
+                with pytest.raises(LimitViolation):
+                    await arm.follow(
+                        JointTrajectory(arm.joint_names, np.array([0.0, 0.5]), np.array([[-0.5], [-0.501]]))
+                    )
+
+    run_on("inprocess", body)
