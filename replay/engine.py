@@ -36,6 +36,7 @@ from daemon.backend import SimOptions
 from daemon.cell import open_backend
 from daemon.clock import SimulatedClock, wall_seconds
 from daemon.config import Config
+from daemon.errors import UsageError
 from daemon.sdnotify import SdNotifier
 from daemon.security import ZenohConfig
 from recorder.files import is_job_file
@@ -43,7 +44,8 @@ from recorder.reader import RecordedMessage
 from replay.drivers import Replayer, replay_backend
 from replay.errors import ReplayError
 from replay.faults import FaultOutcome
-from replay.session import Divergence, RecordedSession, Trace, compare, trace_of_messages
+from replay.resim import STAND_INS, Resimulation
+from replay.session import SIM_BACKENDS, Divergence, RecordedSession, Trace, compare, trace_of_messages
 from validation import toml
 
 log = structlog.get_logger("replay")
@@ -52,6 +54,8 @@ log = structlog.get_logger("replay")
 _OVERRUN_S = 600.0
 # How far past a cut recording's end the replay goes on before it stops (simulated s).
 _PAST_CUT_S = 1.0
+# The kinematic stand-in's joint speed cap for a robot's recording (the highest ``sim.joint_speed_rad_s``).
+_STAND_IN_JOINT_SPEED_RAD_S = 10.0
 # A recorded job that began longer than this after its daemon started is started at once in the replay
 # rather than after as long an idle spell.
 _MAX_IDLE_WAIT_S = 3600.0
@@ -82,6 +86,9 @@ class ReplayOptions:
     record: Path | None = None  # keep the replay's recording here
     listen: tuple[str, ...] = ()  # Zenoh endpoints to publish on while replaying
     insecure: bool = False  # plain endpoints beyond loopback allowed (as ``dishbot run --insecure``)
+    # The stand-in world after a divergence (``replay.resim``): kinematic or mujoco; None: the recording's
+    # own simulated world, the kinematic one for a hardware recording.
+    resim: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,6 +108,12 @@ class ReplayReport:
     served: Mapping[str, int] = field(default_factory=dict)
     world: str = ""
     fault_outcomes: tuple[FaultOutcome, ...] = ()  # every fault of the file: fired or not, and why not
+    resim: Resimulation | None = None  # the stand-in cell, and from when the job went on in it
+
+    @property
+    def resimulated_from_s(self) -> float | None:
+        """From when (seconds from the job's start) the world was re-simulated: model-based from there."""
+        return None if self.resim is None else self.resim.from_s
 
     @property
     def unfired(self) -> tuple[FaultOutcome, ...]:
@@ -133,6 +146,11 @@ class ReplayReport:
             "cut": self.cut,
             "recording": None if self.recording is None else str(self.recording),
             "served": dict(self.served),
+            "stand_in": None if self.resim is None else self.resim.world,
+            "resimulated_from_s": (
+                None if self.resimulated_from_s is None else round(self.resimulated_from_s, 6)
+            ),
+            "resim": None if self.resim is None else self.resim.to_json(),
         }
 
     def lines(self) -> list[str]:
@@ -146,6 +164,8 @@ class ReplayReport:
             )
         else:
             out.append(f"trace {self.first_divergence.line()}")
+        if self.resim is not None:
+            out.extend(self.resim.lines())
         for f in self.faults:
             target = f" servo {f['servo']}" if f.get("servo") is not None else ""
             out.append(f"fault fired: {f.get('kind')}{target} at {float(f.get('fired_at_s', 0.0)):.3f} s")  # type: ignore[arg-type]
@@ -168,13 +188,14 @@ def replay(
     """Replay ``session`` (blocking: it runs its own simulated event loop)."""
     if options.record is not None:
         check_record_path(options.record)
+    stand_in_world(session, options.resim)  # a bad --resim before anything runs
     sweep_stale_replay_dirs()
     wall_start = _wall_start(session)
     clock = SimulatedClock(speed=options.speed, wall_start=wall_start)
     started = wall_seconds()
     tee = _Tee()
     with _terminated_as_exit(), tempfile.TemporaryDirectory(prefix=f"{_TMP_PREFIX}{os.getpid()}-") as tmp:
-        replayer, result_files = clock.run(_replay(session, options, clock, Path(tmp), faults, tee))
+        replayer, resim, result_files = clock.run(_replay(session, options, clock, Path(tmp), faults, tee))
         wall_s = wall_seconds() - started
         # The trace is what the daemon published and recorded as it went, not what its recording kept
         # (a full disk, a dropped message must not change the report).
@@ -210,6 +231,7 @@ def replay(
         recording=kept,
         served=dict(replayer.served),
         world=session.world,
+        resim=resim,
     )
 
 
@@ -322,21 +344,35 @@ async def _replay(
     record_dir: Path,
     faults: FaultSource | None,
     tee: _Tee,
-) -> tuple[Replayer, tuple[Path, ...]]:
+) -> tuple[Replayer, Resimulation, tuple[Path, ...]]:
     config = replay_config(session, options, record_dir)
+    stand_in = stand_in_world(session, options.resim)
+    # A simulated recording's scene (its dataset or mugs, its seed) builds the stand-in; then it is only a
+    # cross-check of what the recording saw. A hardware recording's stand-in is set from the recording.
+    from_header = session.backend in SIM_BACKENDS
+    if not from_header:
+        # A stand-in for the robot must keep up with what the robot did while the recording is served (its
+        # devices are driven too): the trajectories' own timing rules, not the kinematic cell's speed cap.
+        config = dataclasses.replace(
+            config, sim=dataclasses.replace(config.sim, joint_speed_rad_s=_STAND_IN_JOINT_SPEED_RAD_S)
+        )
     dataset = session.scene.get("dataset") if session.job.get("mugs") is None else None
     seed = session.job.get("sim_seed")
-    backend = await open_backend(
-        config,
-        sim=SimOptions(
-            world=session.world,
-            dataset=dataset if isinstance(dataset, int) else 1,
-            transport="inprocess",
-            seed=seed if isinstance(seed, int) else None,
-        ),
-        clock=clock,
-    )
-    replayer = Replayer(session, clock)
+    try:
+        backend = await open_backend(
+            config,
+            sim=SimOptions(
+                world=stand_in,
+                dataset=dataset if isinstance(dataset, int) and from_header else 1,
+                transport="inprocess",
+                seed=seed if isinstance(seed, int) else None,
+            ),
+            clock=clock,
+        )
+    except UsageError as e:
+        raise ReplayError(f"{session.path}: the {stand_in} stand-in cannot be built: {e}") from e
+    resim = Resimulation(session, backend, world=stand_in, from_header=from_header)
+    replayer = Replayer(session, clock, on_diverge=lambda d: resim.take_over(d.t_s))
     backend = replay_backend(backend, replayer)
     recorded_states = session.trace.states
     entered = 0
@@ -350,6 +386,7 @@ async def _replay(
             dest = str(payload.get("dest", ""))
             if not replayer.started and payload.get("trigger") == "start":
                 replayer.job_started()
+                resim.job_started()
             if replayer.started:
                 if replayer.replaying:
                     if entered >= len(recorded_states):
@@ -400,7 +437,17 @@ async def _replay(
                 await task
         if faults is not None:
             faults.close()
-    return replayer, result.files
+    return replayer, resim, result.files
+
+
+def stand_in_world(session: RecordedSession, asked: str | None) -> str:
+    """The world a replay re-simulates in: the one asked for, else the recording's own simulated world, else
+    (a hardware recording) the kinematic one."""
+    if asked is not None:
+        if asked not in STAND_INS:
+            raise ReplayError(f"--resim {asked}: choose {' or '.join(STAND_INS)}")
+        return asked
+    return session.world if session.world in STAND_INS else "kinematic"
 
 
 async def _drive(session: RecordedSession, replayer: Replayer, ctx: ServeContext) -> None:

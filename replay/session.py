@@ -33,6 +33,8 @@ from wire.schemas import topic_suffix
 
 # The backends a replay can rebuild, by the name the session header's scene gives.
 SIM_BACKENDS: Final = {"sim-kinematic": "kinematic", "sim-mujoco": "mujoco"}
+# Every backend whose recordings replay (a hardware one in a simulated stand-in cell, ``replay.resim``).
+RECORDED_BACKENDS: Final = {**SIM_BACKENDS, "hardware": "hardware"}
 # Events that say something about this run of the program rather than about the job, left out of a trace
 # comparison: links to other machines, the recording itself, faults a replay injected.
 UNCOMPARED_EVENTS: Final = frozenset(
@@ -329,7 +331,7 @@ class RecordedSession:
     read: RecordingRead
     header: Mapping[str, object]
     config: Config
-    backend: str  # the scene's backend name: sim-kinematic, sim-mujoco (or hardware, not replayable)
+    backend: str  # the scene's backend name: sim-kinematic, sim-mujoco or hardware
     scene: Mapping[str, object]
     job: Mapping[str, object]
     clock: Mapping[str, object]
@@ -345,7 +347,8 @@ class RecordedSession:
 
     @property
     def world(self) -> str:
-        return SIM_BACKENDS[self.backend]
+        """What recorded it: ``kinematic``, ``mujoco`` (a simulated cell) or ``hardware``."""
+        return RECORDED_BACKENDS[self.backend]
 
     @property
     def cut(self) -> str | None:
@@ -400,10 +403,10 @@ class RecordedSession:
         if isinstance(clock, Mapping) and clock.get("source") == "simulated":
             _check_wall_start(path, clock.get("wall_start"))
         backend = str(scene.get("backend", ""))
-        if backend not in SIM_BACKENDS:
+        if backend not in RECORDED_BACKENDS:
             raise ReplayError(
-                f"{path}: recorded on the {backend or 'unknown'} backend; a replay rebuilds a simulated cell "
-                f"({', '.join(SIM_BACKENDS)}) and cannot stand in for that one"
+                f"{path}: recorded on the {backend or 'unknown'} backend; a replay knows "
+                f"{', '.join(RECORDED_BACKENDS)}"
             )
         try:
             # Over today's defaults, so that a recording made before a setting existed still loads; the

@@ -92,6 +92,37 @@ class KinematicWorld:
         self.mugs = {m.mug_id: m for m in mugs}
         self.held = None
 
+    def restage(
+        self,
+        mugs: list[SimMug],
+        *,
+        q: FloatArray | tuple[float, ...] | None = None,
+        held: SimMug | None = None,
+        force_n: float = 0.0,
+    ) -> None:
+        """Set the world to a state seen elsewhere (a recording's, for a re-simulation): ``mugs`` standing
+        where they are (counter or tray), the arm at ``q`` (None: where it is) and ``held`` in the gripper,
+        its axis where a held mug's is at that pose, squeezed with ``force_n`` (at least what a grasp
+        holds with). The devices' faults are left as they are."""
+        unknown = sorted({m.type for m in [*mugs, *([held] if held else [])]} - set(self.mug_geometry))
+        if unknown:
+            raise ValueError(f"mug types {unknown} are not in the catalogue {sorted(self.mug_geometry)}")
+        if q is not None:
+            self.q = np.asarray(q, dtype=np.float64).copy()
+        self.mugs = {m.mug_id: replace(m, where="tray" if m.where == "tray" else "counter") for m in mugs}
+        self.held = None
+        self._slip_next = False
+        if held is None:
+            return
+        p, r = self.grasp_pose()
+        geo = self.mug_geometry[held.type]
+        axis = p + r[:, 1] * (geo.diameter_m / 2 - self.arm.gripper.thumb_width_m)
+        self.mugs[held.mug_id] = replace(held, x_m=float(axis[0]), y_m=float(axis[1]), where="counter")
+        self._take(held.mug_id)
+        squeeze = max(force_n, 0.0) / PAD_STIFFNESS_N_M
+        self.aperture_m = geo.diameter_m - max(squeeze, 1e-3)
+        log.info("sim_world_restaged", mugs=len(mugs), held=held.mug_id)
+
     # --- faults ---------------------------------------------------------------------------------------
 
     def slip_next_grasp(self) -> None:

@@ -1,0 +1,436 @@
+"""Re-simulation: the world a recording saw at one moment, and the stand-in cell set to it.
+
+A replay serves the recorded inputs for as long as the daemon does what it did; from the first divergence
+or injected fault it goes on in a simulated stand-in cell (``replay.engine``). That cell is set to the
+world *the recording saw* at that instant (``world_at``), whatever backend wrote the file:
+
+- **counter mugs** where the camera last saw them: type, pose, handle, upside down or not, by the job's
+  own ids (the ``detections`` the job published after each look at the counter);
+- **mugs on the tray** where the job put them (its ``mug_placed`` events, brim down as every placed mug
+  stands); for a job that continued an earlier job's tray, those the header's scene has on the tray;
+- **the arm** at its last recorded joint angles (``input/joints``);
+- **the gripper** holding what the force sensor's holding flag said (``input/holding``), and which mug:
+  the job's current mug (``state``). A mug the gripper let go of since the camera last saw it (set down
+  in the flip area, dropped) stands where the gripper released it: the grasp point at the joints of
+  that moment, turned as the arm turned it between the grasp and the release.
+
+Everything here is a pure function of the recording (and the arm model for the forward kinematics); what
+sets a simulated world to it is ``restage``. The world the recording saw is all a replay knows after a
+divergence: what follows is model-based (the stand-in's physics, not the robot's).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Final, Literal
+
+import numpy as np
+
+from planning.arm import ArmModel
+from replay.session import RecordedSession
+from sim.kinematic import SimMug
+from wire.schemas import topic_suffix
+
+if TYPE_CHECKING:
+    from daemon.backend import Backend
+
+Where = Literal["counter", "tray", "gripper"]
+# How a mug's place is known: the camera saw it there, the job placed it there, the header of a job that
+# continued an earlier tray had it there, the gripper let go of it there, or the gripper holds it.
+Source = Literal["seen", "placed", "header", "released", "held"]
+# The worlds a replay can re-simulate in.
+STAND_INS: Final = ("kinematic", "mujoco")
+
+
+@dataclass(frozen=True, slots=True)
+class WorldMug:
+    """One mug of the world the recording saw: the job's id, type and pose (its axis on the surface it
+    stands on, world frame, metres)."""
+
+    mug_id: str
+    type: str
+    x_m: float
+    y_m: float
+    handle_yaw_rad: float
+    upside_down: bool
+    where: Where
+    source: Source
+    at_s: float  # when its place was last known, seconds from the job's start
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "id": self.mug_id,
+            "type": self.type,
+            "x_m": round(self.x_m, 5),
+            "y_m": round(self.y_m, 5),
+            "handle_yaw_rad": round(self.handle_yaw_rad, 5),
+            "upside_down": self.upside_down,
+            "where": self.where,
+            "source": self.source,
+            "at_s": round(self.at_s, 6),
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class RecordedWorld:
+    """The world a recording saw at ``t_s`` (seconds from the job's start)."""
+
+    t_s: float
+    joint_names: tuple[str, ...]
+    joints_rad: tuple[float, ...]  # the arm's last recorded joint angles (empty: none recorded yet)
+    holding: bool  # the force sensor's holding flag
+    force_n: float  # the last recorded pad force
+    held: str | None  # the job's id of the mug in the gripper
+    mugs: tuple[WorldMug, ...]
+
+    def on(self, where: Where) -> tuple[WorldMug, ...]:
+        return tuple(m for m in self.mugs if m.where == where)
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "t_s": round(self.t_s, 6),
+            "joints_rad": [round(v, 6) for v in self.joints_rad],
+            "holding": self.holding,
+            "force_n": round(self.force_n, 4),
+            "held": self.held,
+            "mugs": [m.to_json() for m in self.mugs],
+        }
+
+    def describe(self) -> str:
+        """One line: what is where."""
+        parts = []
+        for where, label in (("counter", "on the counter"), ("tray", "on the tray")):
+            mugs = self.on(where)  # type: ignore[arg-type]
+            ids = " ".join(m.mug_id for m in mugs)
+            parts.append(f"{len(mugs)} {label}" + (f" ({ids})" if ids else ""))
+        parts.append(f"{self.held} held" if self.held is not None else "nothing held")
+        return ", ".join(parts)
+
+
+def world_at(session: RecordedSession, t_s: float, *, arm: ArmModel | None = None) -> RecordedWorld:
+    """The world ``session`` saw at ``t_s`` seconds from its job's start (see the module's docstring)."""
+    arm = arm or ArmModel.load()
+    diameters = {name: spec.diameter_mm / 1000.0 for name, spec in session.config.mug_catalogue().items()}
+    until_ns = session.start_ns + round(t_s * 1e9)
+    mugs: dict[str, WorldMug] = {m.mug_id: m for m in _header_tray(session)}
+    names: tuple[str, ...] = ()
+    q: tuple[float, ...] = ()
+    holding = False
+    force = 0.0
+    current: str | None = None
+    up_in_gripper: np.ndarray | None = None  # the held mug's axis in the gripper's frame, since its grasp
+    for m in session.read.messages[1:]:
+        if m.log_time_ns > until_ns:
+            break
+        at = (m.log_time_ns - session.start_ns) / 1e9
+        suffix = topic_suffix(m.topic)
+        p = m.payload
+        if suffix == "input/joints":
+            names = tuple(str(n) for n in _list(p, "names"))
+            q = tuple(float(v) for v in _list(p, "position_rad") if isinstance(v, int | float))
+        elif suffix == "input/force":
+            force = _float(p, "force_n", force)
+        elif suffix == "state":
+            mug = p.get("current_mug")
+            current = str(mug) if isinstance(mug, str) and mug else None
+        elif suffix == "detections":
+            mugs = _after_look(mugs, p, at, keep=current if holding else None)
+        elif suffix == "events" and p.get("kind") == "mug_placed":
+            mugs = _placed(mugs, p, at)
+        elif suffix == "input/holding":
+            now = bool(p.get("holding"))
+            mug = mugs.get(current) if current is not None and len(q) == arm.dof else None
+            if mug is not None and now and not holding:  # a grasp: the mug turns with the gripper from here
+                _, r = arm.fk(q)
+                up_in_gripper = r.T @ np.array([0.0, 0.0, -1.0 if mug.upside_down else 1.0])
+            elif mug is not None and holding and not now:  # let go of: it stands where it was released
+                if mug.where != "tray":
+                    mugs[mug.mug_id] = _in_gripper(mug, arm, q, up_in_gripper, diameters, at, "released")
+                up_in_gripper = None
+            holding = now
+    held = current if holding and current is not None and current in mugs else None
+    if held is not None and len(q) == arm.dof:
+        mugs[held] = _in_gripper(mugs[held], arm, q, up_in_gripper, diameters, t_s, "held")
+    return RecordedWorld(
+        t_s=t_s,
+        joint_names=names,
+        joints_rad=q,
+        holding=holding,
+        force_n=force,
+        held=held,
+        mugs=tuple(sorted(mugs.values(), key=lambda w: (w.where, w.mug_id))),
+    )
+
+
+def _header_tray(session: RecordedSession) -> list[WorldMug]:
+    """The mugs an earlier job left on the tray, as the header's scene has them (a simulated scene that
+    says where each mug is; the tray is empty otherwise)."""
+    out = []
+    scene_mugs = session.scene.get("mugs")
+    for m in scene_mugs if isinstance(scene_mugs, list) else []:
+        if isinstance(m, Mapping) and m.get("where") == "tray":
+            out.append(
+                WorldMug(
+                    mug_id=str(m.get("id", "")),
+                    type=str(m.get("type", "")),
+                    x_m=_float(m, "x_m"),
+                    y_m=_float(m, "y_m"),
+                    handle_yaw_rad=_float(m, "handle_yaw_rad"),
+                    upside_down=bool(m.get("upside_down", True)),
+                    where="tray",
+                    source="header",
+                    at_s=0.0,
+                )
+            )
+    return out
+
+
+def _after_look(
+    mugs: Mapping[str, WorldMug], detections: Mapping[str, object], at: float, *, keep: str | None
+) -> dict[str, WorldMug]:
+    """The mugs after a look at the counter: the counter is what the camera saw (by the job's ids); the
+    tray, and the mug in the gripper, stay as they were."""
+    out = {k: m for k, m in mugs.items() if m.where != "counter" or k == keep}
+    for d in _list(detections, "mugs"):
+        if not isinstance(d, Mapping):
+            continue
+        mug_id = str(d.get("id", ""))
+        known = out.get(mug_id)
+        if not mug_id or (known is not None and known.where != "counter"):
+            continue
+        out[mug_id] = WorldMug(
+            mug_id=mug_id,
+            type=str(d.get("type", "")),
+            x_m=_float(d, "x_m"),
+            y_m=_float(d, "y_m"),
+            handle_yaw_rad=_float(d, "handle_yaw_rad"),
+            upside_down=bool(d.get("upside_down")),
+            where="counter",
+            source="seen",
+            at_s=at,
+        )
+    return out
+
+
+def _placed(mugs: Mapping[str, WorldMug], event: Mapping[str, object], at: float) -> dict[str, WorldMug]:
+    out = dict(mugs)
+    mug_id = str(event.get("mug_id", ""))
+    known = out.get(mug_id)
+    out[mug_id] = WorldMug(
+        mug_id=mug_id,
+        type=known.type if known is not None else "",
+        x_m=_float(event, "x_m"),
+        y_m=_float(event, "y_m"),
+        handle_yaw_rad=_float(event, "handle_yaw_rad", known.handle_yaw_rad if known is not None else 0.0),
+        upside_down=True,  # every mug goes into the dishwasher's tray brim down
+        where="tray",
+        source="placed",
+        at_s=at,
+    )
+    return out
+
+
+def _in_gripper(
+    mug: WorldMug,
+    arm: ArmModel,
+    q: Sequence[float],
+    up_in_gripper: np.ndarray | None,
+    diameters: Mapping[str, float],
+    at: float,
+    source: Source,
+) -> WorldMug:
+    """``mug`` where a mug held at joints ``q`` has its axis (the grasp point, a radius less the thumb's
+    width to the side), turned as the gripper turned it; in the gripper (``held``) or let go of there."""
+    p, r = arm.fk(q)
+    offset = diameters.get(mug.type, 0.08) / 2.0 - arm.gripper.thumb_width_m
+    axis = p + r[:, 1] * offset
+    upside_down = mug.upside_down if up_in_gripper is None else bool((r @ up_in_gripper)[2] < 0.0)
+    return replace(
+        mug,
+        x_m=float(axis[0]),
+        y_m=float(axis[1]),
+        upside_down=upside_down,
+        where="gripper" if source == "held" else "counter",
+        source=source,
+        at_s=at,
+    )
+
+
+def _list(payload: Mapping[str, object], key: str) -> Sequence[object]:
+    value = payload.get(key)
+    return value if isinstance(value, list) else []
+
+
+def _float(payload: Mapping[str, object], key: str, default: float = 0.0) -> float:
+    value = payload.get(key)
+    return float(value) if isinstance(value, int | float) and math.isfinite(value) else default
+
+
+# --- the stand-in cell -------------------------------------------------------------------------------------
+
+
+def restage(backend: Backend, world: RecordedWorld) -> str:
+    """Set the simulated cell behind ``backend`` to ``world``; its name (``kinematic``, ``mujoco``).
+    ``TypeError`` for a backend without a simulated world."""
+    from daemon.sim_backend import KinematicCounter, MujocoCounter
+
+    counter = backend.counter
+    if isinstance(counter, KinematicCounter):
+        counter.cell.world.restage(
+            [
+                SimMug(m.mug_id, m.type, m.x_m, m.y_m, m.upside_down, m.handle_yaw_rad, m.where)
+                for m in world.mugs
+                if m.where != "gripper"
+            ],
+            q=world.joints_rad or None,
+            held=_held_sim_mug(world),
+            force_n=world.force_n,
+        )
+        return "kinematic"
+    if isinstance(counter, MujocoCounter):
+        from sim.mujoco import StagedMug
+
+        counter.cell.restage(
+            [
+                StagedMug(m.mug_id, m.type, m.x_m, m.y_m, m.handle_yaw_rad, m.upside_down, m.where)
+                for m in world.mugs
+            ],
+            joints=dict(zip(world.joint_names, world.joints_rad, strict=False)),
+            held=world.held,
+        )
+        return "mujoco"
+    raise TypeError(f"the {backend.name} backend has no simulated world to re-simulate in")
+
+
+def _held_sim_mug(world: RecordedWorld) -> SimMug | None:
+    for m in world.on("gripper"):
+        return SimMug(m.mug_id, m.type, m.x_m, m.y_m, m.upside_down, m.handle_yaw_rad, "gripper")
+    return None
+
+
+def cell_truth(backend: Backend) -> dict[str, tuple[str, float, float]]:
+    """Where the simulated cell has its mugs standing free now (id: type, x, y): for the cross-check of a
+    simulated recording's header scene against what the recording saw."""
+    from daemon.sim_backend import KinematicCounter, MujocoCounter
+
+    counter = backend.counter
+    if isinstance(counter, KinematicCounter):
+        return {
+            m.mug_id: (m.type, m.x_m, m.y_m) for m in counter.cell.world.mugs.values() if m.where != "gripper"
+        }
+    if isinstance(counter, MujocoCounter):
+        types = {m.mug_id: m.spec.name for m in counter.cell.mugs}
+        return {
+            t.mug_id: (types.get(t.mug_id, ""), t.position_m[0], t.position_m[1])
+            for t in counter.cell.world.mug_truths().values()
+            if not t.held
+        }
+    return {}
+
+
+def cross_check(world: RecordedWorld, truth: Mapping[str, tuple[str, float, float]]) -> str:
+    """How far the cell built from the header's scene was from what the recording saw: for each mug the
+    recording has standing (counter or tray), the nearest cell mug of its type."""
+    if not truth:
+        return "no simulated world to compare"
+    worst = 0.0
+    missing = []
+    for m in world.mugs:
+        if m.where == "gripper":
+            continue
+        near = [math.hypot(x - m.x_m, y - m.y_m) for t, x, y in truth.values() if t == m.type]
+        if not near:
+            missing.append(m.mug_id)
+            continue
+        worst = max(worst, min(near))
+    line = f"the header's world was within {worst * 1000:.1f} mm of what the recording saw"
+    if missing:
+        line += f"; it has no mug of the type of {' '.join(missing)}"
+    return line
+
+
+class Resimulation:
+    """The stand-in cell of one replay and when it took over.
+
+    A cell built from the header's scene (a simulated recording replayed in its own world) is only
+    cross-checked against what the recording saw; any other (a hardware recording, another world asked
+    for) is first set to the counter as the camera first saw it when the job starts. At the first
+    divergence or injected fault the cell is set to the world the recording saw at that instant
+    (``world_at``), and the job goes on in it: from there, the replay is model-based."""
+
+    def __init__(self, session: RecordedSession, backend: Backend, *, world: str, from_header: bool) -> None:
+        self.session = session
+        self.backend = backend
+        self.world = world  # the stand-in's world: kinematic or mujoco
+        self.from_header = from_header
+        self.from_s: float | None = None  # when the stand-in took over (seconds from the job's start)
+        self.seen: RecordedWorld | None = None  # and the world it was set to then
+        self.check: str | None = None  # the header-built cell against what the recording saw
+        self._arm = ArmModel.load()
+
+    def job_started(self) -> None:
+        """The replay's job started: a cell not built from the header gets the recording's first look."""
+        if self.from_header:
+            return
+        first = first_look_s(self.session)
+        restage(self.backend, world_at(self.session, first if first is not None else 0.0, arm=self._arm))
+
+    def take_over(self, t_s: float) -> None:
+        """The replay diverged (or a fault fired) at ``t_s``: set the cell to what the recording saw then."""
+        if self.from_s is not None:
+            return
+        seen = world_at(self.session, t_s, arm=self._arm)
+        if self.from_header:
+            self.check = cross_check(seen, cell_truth(self.backend))
+        restage(self.backend, seen)
+        self.from_s, self.seen = t_s, seen
+
+    def to_json(self) -> dict[str, object] | None:
+        if self.from_s is None or self.seen is None:
+            return None
+        return {
+            "world": self.world,
+            "from_s": round(self.from_s, 6),
+            "model_based": True,
+            "seen": self.seen.to_json(),
+            "header_check": self.check,
+        }
+
+    def lines(self) -> list[str]:
+        built = "from the header's scene (a cross-check)" if self.from_header else "from the recording"
+        if self.from_s is None or self.seen is None:
+            return [
+                f"not re-simulated: every input came from the recording (stand-in: {self.world} cell, built "
+                f"{built})"
+            ]
+        out = [
+            f"re-simulated from {self.from_s:.3f} s in the {self.world} stand-in, set to what the recording "
+            f"saw then: {self.seen.describe()}; what follows is model-based (the {self.world} cell's "
+            "devices and world, not the recorded inputs)"
+        ]
+        if self.check is not None:
+            out.append(f"cross-check: {self.check}")
+        return out
+
+
+def first_look_s(session: RecordedSession) -> float | None:
+    """When the job first looked at the counter (its first ``detections``), seconds from its start."""
+    for m in session.read.messages:
+        if m.log_time_ns >= session.start_ns and topic_suffix(m.topic) == "detections":
+            return (m.log_time_ns - session.start_ns) / 1e9
+    return None
+
+
+__all__ = [
+    "STAND_INS",
+    "RecordedWorld",
+    "Resimulation",
+    "WorldMug",
+    "cell_truth",
+    "cross_check",
+    "first_look_s",
+    "restage",
+    "world_at",
+]
