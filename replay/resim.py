@@ -21,6 +21,7 @@ divergence: what follows is model-based (the stand-in's physics, not the robot's
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -35,6 +36,8 @@ from wire.schemas import topic_suffix
 
 if TYPE_CHECKING:
     from daemon.backend import Backend
+    from description.thesis import MugSpec
+    from sim.mujoco.cell import SimCell
 
 Where = Literal["counter", "tray", "gripper"]
 # How a mug's place is known: the camera saw it there, the job placed it there, the header of a job that
@@ -58,6 +61,10 @@ class WorldMug:
     where: Where
     source: Source
     at_s: float  # when its place was last known, seconds from the job's start
+    # Where its bottom is (the body's origin: on the surface for an upright mug, a height up for one on its
+    # brim; anywhere for a held one) and its axis from bottom to brim, for a physics world.
+    bottom_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
 
     def to_json(self) -> dict[str, object]:
         return {
@@ -70,6 +77,8 @@ class WorldMug:
             "where": self.where,
             "source": self.source,
             "at_s": round(self.at_s, 6),
+            "bottom_m": [round(v, 5) for v in self.bottom_m],
+            "axis": [round(v, 5) for v in self.axis],
         }
 
 
@@ -82,6 +91,7 @@ class RecordedWorld:
     joints_rad: tuple[float, ...]  # the arm's last recorded joint angles (empty: none recorded yet)
     holding: bool  # the force sensor's holding flag
     force_n: float  # the last recorded pad force
+    aperture_m: float | None  # the gripper's last published opening (None: none yet)
     held: str | None  # the job's id of the mug in the gripper
     mugs: tuple[WorldMug, ...]
 
@@ -94,6 +104,7 @@ class RecordedWorld:
             "joints_rad": [round(v, 6) for v in self.joints_rad],
             "holding": self.holding,
             "force_n": round(self.force_n, 4),
+            "aperture_m": None if self.aperture_m is None else round(self.aperture_m, 5),
             "held": self.held,
             "mugs": [m.to_json() for m in self.mugs],
         }
@@ -112,15 +123,17 @@ class RecordedWorld:
 def world_at(session: RecordedSession, t_s: float, *, arm: ArmModel | None = None) -> RecordedWorld:
     """The world ``session`` saw at ``t_s`` seconds from its job's start (see the module's docstring)."""
     arm = arm or ArmModel.load()
-    diameters = {name: spec.diameter_mm / 1000.0 for name, spec in session.config.mug_catalogue().items()}
+    catalogue = session.config.mug_catalogue()
+    sizes = {name: (spec.diameter_mm / 1000.0, spec.height_mm / 1000.0) for name, spec in catalogue.items()}
     until_ns = session.start_ns + round(t_s * 1e9)
     mugs: dict[str, WorldMug] = {m.mug_id: m for m in _header_tray(session)}
     names: tuple[str, ...] = ()
     q: tuple[float, ...] = ()
     holding = False
     force = 0.0
+    aperture: float | None = None
     current: str | None = None
-    up_in_gripper: np.ndarray | None = None  # the held mug's axis in the gripper's frame, since its grasp
+    grip: _Grip | None = None  # how the held mug sits in the gripper, since its grasp
     for m in session.read.messages[1:]:
         if m.log_time_ns > until_ns:
             break
@@ -132,33 +145,35 @@ def world_at(session: RecordedSession, t_s: float, *, arm: ArmModel | None = Non
             q = tuple(float(v) for v in _list(p, "position_rad") if isinstance(v, int | float))
         elif suffix == "input/force":
             force = _float(p, "force_n", force)
+        elif suffix == "gripper":
+            aperture = _float(p, "aperture_m", aperture if aperture is not None else 0.0)
         elif suffix == "state":
             mug = p.get("current_mug")
             current = str(mug) if isinstance(mug, str) and mug else None
         elif suffix == "detections":
-            mugs = _after_look(mugs, p, at, keep=current if holding else None)
+            mugs = _after_look(mugs, p, at, keep=current if holding else None, sizes=sizes)
         elif suffix == "events" and p.get("kind") == "mug_placed":
-            mugs = _placed(mugs, p, at)
+            mugs = _placed(mugs, p, at, sizes=sizes)
         elif suffix == "input/holding":
             now = bool(p.get("holding"))
             mug = mugs.get(current) if current is not None and len(q) == arm.dof else None
-            if mug is not None and now and not holding:  # a grasp: the mug turns with the gripper from here
-                _, r = arm.fk(q)
-                up_in_gripper = r.T @ np.array([0.0, 0.0, -1.0 if mug.upside_down else 1.0])
+            if mug is not None and now and not holding:  # a grasp: the mug moves with the gripper from here
+                grip = _Grip.of(mug, *arm.fk(q))
             elif mug is not None and holding and not now:  # let go of: it stands where it was released
                 if mug.where != "tray":
-                    mugs[mug.mug_id] = _in_gripper(mug, arm, q, up_in_gripper, diameters, at, "released")
-                up_in_gripper = None
+                    mugs[mug.mug_id] = _in_gripper(mug, arm, q, grip, sizes, at, "released")
+                grip = None
             holding = now
     held = current if holding and current is not None and current in mugs else None
     if held is not None and len(q) == arm.dof:
-        mugs[held] = _in_gripper(mugs[held], arm, q, up_in_gripper, diameters, t_s, "held")
+        mugs[held] = _in_gripper(mugs[held], arm, q, grip, sizes, t_s, "held")
     return RecordedWorld(
         t_s=t_s,
         joint_names=names,
         joints_rad=q,
         holding=holding,
         force_n=force,
+        aperture_m=aperture,
         held=held,
         mugs=tuple(sorted(mugs.values(), key=lambda w: (w.where, w.mug_id))),
     )
@@ -188,7 +203,12 @@ def _header_tray(session: RecordedSession) -> list[WorldMug]:
 
 
 def _after_look(
-    mugs: Mapping[str, WorldMug], detections: Mapping[str, object], at: float, *, keep: str | None
+    mugs: Mapping[str, WorldMug],
+    detections: Mapping[str, object],
+    at: float,
+    *,
+    keep: str | None,
+    sizes: Mapping[str, tuple[float, float]],
 ) -> dict[str, WorldMug]:
     """The mugs after a look at the counter: the counter is what the camera saw (by the job's ids); the
     tray, and the mug in the gripper, stay as they were."""
@@ -200,34 +220,73 @@ def _after_look(
         known = out.get(mug_id)
         if not mug_id or (known is not None and known.where != "counter"):
             continue
+        kind, x, y, upside_down = (
+            str(d.get("type", "")),
+            _float(d, "x_m"),
+            _float(d, "y_m"),
+            bool(d.get("upside_down")),
+        )
         out[mug_id] = WorldMug(
             mug_id=mug_id,
-            type=str(d.get("type", "")),
-            x_m=_float(d, "x_m"),
-            y_m=_float(d, "y_m"),
+            type=kind,
+            x_m=x,
+            y_m=y,
             handle_yaw_rad=_float(d, "handle_yaw_rad"),
-            upside_down=bool(d.get("upside_down")),
+            upside_down=upside_down,
             where="counter",
             source="seen",
             at_s=at,
+            **_standing(x, y, upside_down, sizes.get(kind, (0.0, 0.0))[1]),
         )
     return out
 
 
-def _placed(mugs: Mapping[str, WorldMug], event: Mapping[str, object], at: float) -> dict[str, WorldMug]:
+def _standing(
+    x: float, y: float, upside_down: bool, height_m: float
+) -> dict[str, tuple[float, float, float]]:
+    """The bottom and axis of a mug standing at (x, y) on the counter, upright or on its brim."""
+    if upside_down:
+        return {"bottom_m": (x, y, height_m), "axis": (0.0, 0.0, -1.0)}
+    return {"bottom_m": (x, y, 0.0), "axis": (0.0, 0.0, 1.0)}
+
+
+@dataclass(frozen=True, slots=True)
+class _Grip:
+    """How a grasped mug sits in the gripper: its bottom and axis in the grasp frame."""
+
+    bottom: np.ndarray
+    axis: np.ndarray
+
+    @classmethod
+    def of(cls, mug: WorldMug, p: np.ndarray, r: np.ndarray) -> _Grip:
+        return cls(r.T @ (np.asarray(mug.bottom_m) - p), r.T @ np.asarray(mug.axis))
+
+
+def _placed(
+    mugs: Mapping[str, WorldMug],
+    event: Mapping[str, object],
+    at: float,
+    *,
+    sizes: Mapping[str, tuple[float, float]],
+) -> dict[str, WorldMug]:
+    """The mugs after the job placed one on the tray (brim down, bottom and axis as it stands on the
+    surface: a physics world puts it on the tray's)."""
     out = dict(mugs)
     mug_id = str(event.get("mug_id", ""))
     known = out.get(mug_id)
+    kind = known.type if known is not None else ""
+    x, y = _float(event, "x_m"), _float(event, "y_m")
     out[mug_id] = WorldMug(
         mug_id=mug_id,
-        type=known.type if known is not None else "",
-        x_m=_float(event, "x_m"),
-        y_m=_float(event, "y_m"),
+        type=kind,
+        x_m=x,
+        y_m=y,
         handle_yaw_rad=_float(event, "handle_yaw_rad", known.handle_yaw_rad if known is not None else 0.0),
         upside_down=True,  # every mug goes into the dishwasher's tray brim down
         where="tray",
         source="placed",
         at_s=at,
+        **_standing(x, y, True, sizes.get(kind, (0.0, 0.0))[1]),
     )
     return out
 
@@ -236,26 +295,42 @@ def _in_gripper(
     mug: WorldMug,
     arm: ArmModel,
     q: Sequence[float],
-    up_in_gripper: np.ndarray | None,
-    diameters: Mapping[str, float],
+    grip: _Grip | None,
+    sizes: Mapping[str, tuple[float, float]],
     at: float,
     source: Source,
 ) -> WorldMug:
-    """``mug`` where a mug held at joints ``q`` has its axis (the grasp point, a radius less the thumb's
-    width to the side), turned as the gripper turned it; in the gripper (``held``) or let go of there."""
+    """``mug`` as the gripper at joints ``q`` has it: moved and turned with the gripper since its grasp
+    (without a recorded grasp: its axis at the grasp point, a radius less the thumb's width to the side);
+    in the gripper (``held``), or let go of there (standing where it was released)."""
     p, r = arm.fk(q)
-    offset = diameters.get(mug.type, 0.08) / 2.0 - arm.gripper.thumb_width_m
-    axis = p + r[:, 1] * offset
-    upside_down = mug.upside_down if up_in_gripper is None else bool((r @ up_in_gripper)[2] < 0.0)
+    diameter, height = sizes.get(mug.type, (0.08, 0.1))
+    if grip is None:
+        centre = p + r[:, 1] * (diameter / 2.0 - arm.gripper.thumb_width_m)
+        bottom, axis = np.array([centre[0], centre[1], 0.0]), np.asarray(mug.axis)
+    else:
+        bottom, axis = p + r @ grip.bottom, r @ grip.axis
+    upside_down = bool(axis[2] < 0.0)
+    # The axis's foot on the surface below: the bottom, or a mug's height along the axis for one on its brim.
+    foot = bottom + axis * height if upside_down else bottom
+    held = source == "held"
     return replace(
         mug,
-        x_m=float(axis[0]),
-        y_m=float(axis[1]),
+        x_m=float(foot[0]),
+        y_m=float(foot[1]),
         upside_down=upside_down,
-        where="gripper" if source == "held" else "counter",
+        where="gripper" if held else "counter",
         source=source,
         at_s=at,
+        bottom_m=_triple(bottom)
+        if held
+        else _standing(float(foot[0]), float(foot[1]), upside_down, height)["bottom_m"],
+        axis=_triple(axis) if held else (0.0, 0.0, -1.0 if upside_down else 1.0),
     )
+
+
+def _triple(v: np.ndarray) -> tuple[float, float, float]:
+    return float(v[0]), float(v[1]), float(v[2])
 
 
 def _list(payload: Mapping[str, object], key: str) -> Sequence[object]:
@@ -271,14 +346,15 @@ def _float(payload: Mapping[str, object], key: str, default: float = 0.0) -> flo
 # --- the stand-in cell -------------------------------------------------------------------------------------
 
 
-def restage(backend: Backend, world: RecordedWorld) -> str:
-    """Set the simulated cell behind ``backend`` to ``world``; its name (``kinematic``, ``mujoco``).
-    ``TypeError`` for a backend without a simulated world."""
+def restage(backend: Backend, world: RecordedWorld, catalogue: Mapping[str, MugSpec]) -> str:
+    """Set the simulated cell behind ``backend`` to ``world`` (mug types from ``catalogue``); its name
+    (``kinematic``, ``mujoco``). ``TypeError`` for a backend without a simulated world."""
     from daemon.sim_backend import KinematicCounter, MujocoCounter
 
     counter = backend.counter
     if isinstance(counter, KinematicCounter):
-        counter.cell.world.restage(
+        kinematic = counter.cell.world
+        kinematic.restage(
             [
                 SimMug(m.mug_id, m.type, m.x_m, m.y_m, m.upside_down, m.handle_yaw_rad, m.where)
                 for m in world.mugs
@@ -288,20 +364,36 @@ def restage(backend: Backend, world: RecordedWorld) -> str:
             held=_held_sim_mug(world),
             force_n=world.force_n,
         )
+        if world.held is None and world.aperture_m is not None:
+            kinematic.aperture_m = world.aperture_m
         return "kinematic"
     if isinstance(counter, MujocoCounter):
-        from sim.mujoco import StagedMug
-
-        counter.cell.restage(
-            [
-                StagedMug(m.mug_id, m.type, m.x_m, m.y_m, m.handle_yaw_rad, m.upside_down, m.where)
-                for m in world.mugs
-            ],
-            joints=dict(zip(world.joint_names, world.joints_rad, strict=False)),
-            held=world.held,
-        )
+        _restage_mujoco(counter.cell, world, catalogue)
         return "mujoco"
     raise TypeError(f"the {backend.name} backend has no simulated world to re-simulate in")
+
+
+def _restage_mujoco(cell: SimCell, world: RecordedWorld, catalogue: Mapping[str, MugSpec]) -> None:
+    from description.cell import SceneMug
+    from sim.mujoco.world import HeldMug
+
+    gripper = cell.world.arm.gripper
+    known = [m for m in world.mugs if m.type in catalogue]
+    scene = [
+        SceneMug(m.mug_id, catalogue[m.type], m.x_m, m.y_m, m.handle_yaw_rad, m.upside_down) for m in known
+    ]
+    pose = dict(zip(world.joint_names, world.joints_rad, strict=False))
+    held: HeldMug | None = None
+    for m in known:
+        if m.where != "gripper":
+            continue
+        diameter = catalogue[m.type].diameter_mm / 1000.0
+        aperture = world.aperture_m if world.aperture_m is not None else diameter
+        held = HeldMug(m.mug_id, m.bottom_m, m.axis, m.handle_yaw_rad, min(aperture, diameter), world.force_n)
+    if held is None and world.aperture_m is not None:
+        with contextlib.suppress(ValueError):
+            pose["gripper"] = gripper.angle_for_aperture(world.aperture_m)
+    cell.restage(scene, pose=pose, held=held)
 
 
 def _held_sim_mug(world: RecordedWorld) -> SimMug | None:
@@ -369,13 +461,15 @@ class Resimulation:
         self.seen: RecordedWorld | None = None  # and the world it was set to then
         self.check: str | None = None  # the header-built cell against what the recording saw
         self._arm = ArmModel.load()
+        self._catalogue = session.config.mug_catalogue()
 
     def job_started(self) -> None:
         """The replay's job started: a cell not built from the header gets the recording's first look."""
         if self.from_header:
             return
         first = first_look_s(self.session)
-        restage(self.backend, world_at(self.session, first if first is not None else 0.0, arm=self._arm))
+        seen = world_at(self.session, first if first is not None else 0.0, arm=self._arm)
+        restage(self.backend, seen, self._catalogue)
 
     def take_over(self, t_s: float) -> None:
         """The replay diverged (or a fault fired) at ``t_s``: set the cell to what the recording saw then."""
@@ -384,7 +478,7 @@ class Resimulation:
         seen = world_at(self.session, t_s, arm=self._arm)
         if self.from_header:
             self.check = cross_check(seen, cell_truth(self.backend))
-        restage(self.backend, seen)
+        restage(self.backend, seen, self._catalogue)
         self.from_s, self.seen = t_s, seen
 
     def to_json(self) -> dict[str, object] | None:

@@ -45,7 +45,7 @@ from sim.mujoco.arm import build_arm_mjcf, load_urdf
 from sim.mujoco.camera import DepthCamera, DepthNoise
 from sim.mujoco.collisions import TrayCollision, TrayCollisionCounter
 from sim.mujoco.scene import CAMERA_NAME, build_mjcf
-from sim.mujoco.world import PhysicsConfig, SimWorld
+from sim.mujoco.world import HeldMug, PhysicsConfig, SimWorld
 
 log = structlog.get_logger("sim.mujoco.cell")
 
@@ -96,6 +96,13 @@ class SnapshotCamera:
 
     def close(self) -> None:
         self.camera.close()
+
+
+# Builds a world of given mugs, joint angles and held mug, stepped like the cell's.
+Stager = Callable[
+    [Sequence[SceneMug], Mapping[str, float] | None, HeldMug | None],
+    tuple[SimWorld, SnapshotCamera, TrayCollisionCounter],
+]
 
 
 class _WorldSwitch:
@@ -152,6 +159,8 @@ class SimCell:
     _device_listeners: list[Callable[[DeviceEvent], None]] = field(default_factory=list)
     # The servo chain's health (voltage, temperature, clearing on reset), as on the robot.
     health: ChainHealth | None = None
+    # A world of given mugs, joint angles and held mug (``restage``).
+    _stage: Stager | None = None
 
     @property
     def world(self) -> SimWorld:
@@ -183,13 +192,29 @@ class SimCell:
 
         Call it between jobs (the arm still, nothing in the gripper); the drivers stay connected.
         """
-        world, camera, collisions = self._rebuild(mugs)
+        self._switch_to(self._rebuild(mugs), mugs)
+        log.info("simworld_counter_set", mugs=len(mugs))
+
+    def restage(
+        self, mugs: Sequence[SceneMug], *, pose: Mapping[str, float], held: HeldMug | None = None
+    ) -> None:
+        """Set the cell to a state seen elsewhere (a recording's, for a re-simulation): a fresh world with
+        ``mugs`` standing where they are (counter or tray; ``held`` among them), the arm and the jaw at
+        ``pose`` (joint angles by name), ``held`` in the gripper, settled. The drivers stay connected."""
+        if self._stage is None:
+            raise RuntimeError("this cell was not built to be restaged")
+        self._switch_to(self._stage(mugs, pose, held), mugs)
+        log.info("simworld_restaged", mugs=len(mugs), held=held.mug_id if held is not None else None)
+
+    def _switch_to(
+        self, built: tuple[SimWorld, SnapshotCamera, TrayCollisionCounter], mugs: Sequence[SceneMug]
+    ) -> None:
+        world, camera, collisions = built
         old_world, old_camera = self._switch.world, self._switch.camera
         self._switch.world, self._switch.camera, self._switch.collisions = world, camera, collisions
         old_world.stop()
         old_camera.close()
         self.mugs = tuple(mugs)
-        log.info("simworld_counter_set", mugs=len(mugs))
 
     def scene(self) -> dict[str, object]:
         """The cell's initial scene for a recording's session header (true poses: the simulator's setup)."""
@@ -256,7 +281,7 @@ async def start_sim_cell(
             listener(collision)
 
     def build(
-        scene: Sequence[SceneMug], pose: Mapping[str, float] | None
+        scene: Sequence[SceneMug], pose: Mapping[str, float] | None, held: HeldMug | None = None
     ) -> tuple[SimWorld, SnapshotCamera, TrayCollisionCounter]:
         xml = build_mjcf(
             layout, scene, arm_body_xml=arm_mjcf.body_xml, arm_actuator_xml=arm_mjcf.actuator_xml
@@ -269,6 +294,8 @@ async def start_sim_cell(
             physics=physics,
             initial_pose_rad=pose,
         )
+        if held is not None:
+            world.hold(held)
         counter = TrayCollisionCounter(world, layout.tray.region_m, on_collision=dispatch)
         if stepped is not None:
             world.attach(stepped)
@@ -323,6 +350,7 @@ async def start_sim_cell(
         _collision_listeners=listeners,
         _device_listeners=device_listeners,
         health=devices.stack.health,
+        _stage=build,
     )
     log.info(
         "sim_cell_open",

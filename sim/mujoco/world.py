@@ -109,6 +109,20 @@ class MugTruth:
         return "tipped"
 
 
+@dataclass(frozen=True, slots=True)
+class HeldMug:
+    """A mug to put in the gripper when a world is set to a state seen elsewhere (``SimWorld.hold``): its
+    bottom (the body's origin) and axis (bottom to brim) in the world frame, its handle's yaw about the
+    axis, and the grip: the jaw's opening on it and the pad force."""
+
+    mug_id: str
+    bottom_m: tuple[float, float, float]
+    axis: tuple[float, float, float]
+    yaw_rad: float
+    aperture_m: float
+    force_n: float
+
+
 @dataclass(slots=True)
 class _Servo:
     """A servo's fixed facts; its goal, speed and set-point live in the world's arrays at ``index``."""
@@ -429,6 +443,37 @@ class SimWorld:
             self.model.geom_priority[self._gripper_geoms] = 1
             return mug
 
+    def hold(self, held: HeldMug) -> None:
+        """Put ``held`` in the gripper as a confirmed grasp holds it: the body where it is said to be, the jaw
+        closed on it, welded (a re-simulation starting with a mug in the gripper). Before the world is
+        stepped by anything else, or with ``paused``."""
+        with self.lock:
+            body = self._mug_body.get(held.mug_id)
+            if body is None:
+                raise ValueError(f"mug {held.mug_id} is not in the world")
+            joint = int(self.model.body_jntadr[body])
+            adr = int(self.model.jnt_qposadr[joint])
+            dof = int(self.model.jnt_dofadr[joint])
+            self.data.qpos[adr : adr + 3] = held.bottom_m
+            self.data.qpos[adr + 3 : adr + 7] = _axis_quat(held.axis, held.yaw_rad)
+            self.data.qvel[dof : dof + 6] = 0.0
+            jaw = self._gripper_servo
+            try:
+                angle = self.arm.gripper.angle_for_aperture(held.aperture_m)
+            except ValueError:
+                angle = jaw.upper
+            angle = min(max(angle, jaw.lower), jaw.upper)
+            self.data.qpos[jaw.qpos_adr] = angle
+            self.data.qvel[jaw.dof_adr] = 0.0
+            self._setpoint[jaw.index] = self._goal[jaw.index] = angle
+            self.data.ctrl[self._actuators] = self._setpoint
+            self._goal_gen += 1
+            mujoco.mj_forward(self.model, self.data)
+            self._force_n = held.force_n
+            self._weld_mug(held.mug_id, self.arm.gripper.aperture_m(angle))
+            self._publish_present()
+        log.info("simworld_mug_held", mug_id=held.mug_id)
+
     def move_mug(self, mug: str, dx_m: float, dy_m: float) -> None:
         """Shift a mug that stands free (not held) by ``dx_m``, ``dy_m``, at rest: someone moved it on the
         counter. ValueError for an unknown or held mug."""
@@ -728,4 +773,31 @@ class SimWorld:
         log.debug("simworld_grasp_released", mug_id=mug, reason=reason, t=round(self.time(), 3))
 
 
-__all__ = ["ARM_PREFIX", "MUG_BODY_PREFIX", "ContactSample", "MugTruth", "PhysicsConfig", "SimWorld"]
+def _axis_quat(axis: Sequence[float], yaw_rad: float) -> np.ndarray:
+    """The body quaternion (w, x, y, z) that turns the mug's own z onto ``axis`` after turning it by
+    ``yaw_rad`` about its own axis."""
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / (np.linalg.norm(a) or 1.0)
+    yaw = np.array([math.cos(yaw_rad / 2), 0.0, 0.0, math.sin(yaw_rad / 2)])
+    cross = np.cross((0.0, 0.0, 1.0), a)
+    sin = float(np.linalg.norm(cross))
+    if sin < 1e-9:
+        align = np.array([1.0, 0.0, 0.0, 0.0]) if a[2] > 0 else np.array([0.0, 1.0, 0.0, 0.0])
+    else:
+        angle = math.atan2(sin, float(a[2]))
+        k = cross / sin
+        align = np.array([math.cos(angle / 2), *(k * math.sin(angle / 2))])
+    out = np.zeros(4)
+    mujoco.mju_mulQuat(out, align, yaw)
+    return out
+
+
+__all__ = [
+    "ARM_PREFIX",
+    "MUG_BODY_PREFIX",
+    "ContactSample",
+    "HeldMug",
+    "MugTruth",
+    "PhysicsConfig",
+    "SimWorld",
+]
