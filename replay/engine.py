@@ -44,7 +44,7 @@ from recorder.reader import RecordedMessage
 from replay.drivers import Replayer, replay_backend
 from replay.errors import ReplayError
 from replay.faults import FaultOutcome
-from replay.resim import STAND_INS, Resimulation
+from replay.resim import STAND_INS, Resimulation, carried_over, continues_earlier_job
 from replay.session import SIM_BACKENDS, Divergence, RecordedSession, Trace, compare, trace_of_messages
 from validation import toml
 
@@ -349,8 +349,11 @@ async def _replay(
     stand_in = stand_in_world(session, options.resim)
     # A simulated recording's scene (its dataset or mugs, its seed) builds the stand-in; then it is only a
     # cross-check of what the recording saw. A hardware recording's stand-in is set from the recording.
-    from_header = session.backend in SIM_BACKENDS
-    if not from_header:
+    # A job that continued an earlier one's tray starts from what that job left, as the recording has it
+    # (``replay.resim.carried_over``); its stand-in, too, is set from the recording.
+    continued = continues_earlier_job(session)
+    from_header = session.backend in SIM_BACKENDS and not continued
+    if session.backend not in SIM_BACKENDS:
         # A stand-in for the robot must keep up with what the robot did while the recording is served (its
         # devices are driven too): the trajectories' own timing rules, not the kinematic cell's speed cap.
         config = dataclasses.replace(
@@ -411,6 +414,8 @@ async def _replay(
         faults.on_fire = fired
 
     def on_ready(ctx: ServeContext) -> None:
+        if continued:
+            ctx.job.carry_over(carried_over(session))
         tee.install(ctx)
         if faults is not None:
             faults.attach(ctx)

@@ -49,6 +49,11 @@ class ReplayTrace:
         return [dict(f) for f in self.report.faults]
 
     @property
+    def resimulated_from_s(self) -> float | None:
+        """From when (seconds from the job's start) the replay went on in the re-simulated world."""
+        return self.report.resimulated_from_s
+
+    @property
     def fault_outcomes(self) -> list[FaultOutcome]:
         """Every fault of the file: fired (when, ended when) or not, and why not."""
         return list(self.report.fault_outcomes)
@@ -109,11 +114,14 @@ class DishbotReplay:
         faults: Faults | None = None,
         speed: float | None = None,
         may_not_fire: bool | Collection[int] = False,
+        resim: str | None = None,
     ) -> ReplayTrace:
         """Replay ``session`` with ``faults`` (a fault file, TOML text or a list of ``[[fault]]`` tables).
 
         A fault that did not fire fails the test (it would pass without testing what it says), unless the
-        test says it may not: ``may_not_fire=True`` for any, or the faults' places in the file (1-based)."""
+        test says it may not: ``may_not_fire=True`` for any, or the faults' places in the file (1-based).
+        ``resim`` picks the stand-in world after a divergence (``kinematic``, ``mujoco``; default: the
+        recording's own simulated world, kinematic for a robot's recording)."""
         recorded = session if isinstance(session, RecordedSession) else self.load(session)
         self._n += 1
         out = self._dir / f"replay-{self._n}.mcap"
@@ -124,7 +132,7 @@ class DishbotReplay:
             injector = FaultInjector(
                 parse_faults(fault_text(faults), source="faults", config=recorded.config)
             )
-        report = replay(recorded, ReplayOptions(speed=speed, record=out), faults=injector)
+        report = replay(recorded, ReplayOptions(speed=speed, record=out, resim=resim), faults=injector)
         allowed = may_not_fire if not isinstance(may_not_fire, bool) else ()
         missed = [o for o in report.unfired if may_not_fire is not True and o.index not in allowed]
         if missed:

@@ -22,6 +22,7 @@ divergence: what follows is model-based (the stand-in's physics, not the robot's
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -36,6 +37,7 @@ from wire.schemas import topic_suffix
 
 if TYPE_CHECKING:
     from daemon.backend import Backend
+    from daemon.job.context import JobContext
     from description.thesis import MugSpec
     from sim.mujoco.cell import SimCell
 
@@ -509,6 +511,58 @@ class Resimulation:
         return out
 
 
+def continues_earlier_job(session: RecordedSession) -> bool:
+    """Whether the job went on with the scene an earlier job of its daemon left (the mugs on the tray, the
+    counter it knew): it was started by a ``start`` command that named neither a dataset nor mugs."""
+    for r in session.commands():
+        if r.payload.get("verb") != "start" or r.t_ns > session.start_ns:
+            continue
+        try:
+            body = json.loads(str(r.payload.get("payload", "")) or "{}")
+        except ValueError:
+            return False
+        return isinstance(body, Mapping) and body.get("dataset") is None and body.get("mugs") is None
+    return False
+
+
+def carried_over(session: RecordedSession) -> JobContext:
+    """What the earlier jobs left a job that continued them, as the recording has it: the mugs on the tray
+    where the header's scene says they were, the counter as the job first saw it (so that its first look
+    names the mugs as it did) and the next new mug's id."""
+    from daemon.job.context import JobContext
+    from daemon.job.requests import PlannerRequest
+    from planning.interfaces import MugPose, TraySlot
+    from planning.placement.problem import TrayMug
+
+    config = session.config
+    catalogue = config.mug_catalogue()
+    tray = config.cell.tray
+    first = first_look_s(session)
+    seen = world_at(session, first if first is not None else 0.0)
+    on_tray, tray_mugs = [], []
+    for m in seen.on("tray"):
+        on_tray.append(TraySlot(m.mug_id, m.type, m.x_m, m.y_m))
+        spec = catalogue.get(m.type)
+        r_mm = ((spec.diameter_mm if spec else 0.0) + config.planner.tolerance_mm) / 2.0
+        corner = (
+            m.x_m * 1000.0 - tray.origin_m[0] * 1000.0 - r_mm,
+            m.y_m * 1000.0 - tray.origin_m[1] * 1000.0 - r_mm,
+        )
+        tray_mugs.append(TrayMug(m.mug_id, m.type, round(corner[0]), round(corner[1])))
+    counter = {
+        m.mug_id: MugPose(m.mug_id, m.type, m.x_m, m.y_m, m.handle_yaw_rad, m.upside_down)
+        for m in seen.on("counter")
+    }
+    numbers = [int(m.mug_id[1:]) for m in seen.mugs if m.mug_id[:1] == "m" and m.mug_id[1:].isdigit()]
+    return JobContext(
+        planner=PlannerRequest().options(config.planner),
+        counter=counter,
+        on_tray=on_tray,
+        tray_mugs=tray_mugs,
+        next_id=max(numbers, default=0) + 1,
+    )
+
+
 def first_look_s(session: RecordedSession) -> float | None:
     """When the job first looked at the counter (its first ``detections``), seconds from its start."""
     for m in session.read.messages:
@@ -522,7 +576,9 @@ __all__ = [
     "RecordedWorld",
     "Resimulation",
     "WorldMug",
+    "carried_over",
     "cell_truth",
+    "continues_earlier_job",
     "cross_check",
     "first_look_s",
     "restage",

@@ -19,15 +19,17 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "replay",
         help="re-run a recorded job through the daemon on simulated time, with injected faults",
         description=(
-            "Re-run the job a recording holds (a -job.mcap file of `dishbot run`) through the real daemon: "
-            "the job, the statechart, the planners and the recorder, on simulated time, in the simulated "
-            "cell the recording's header describes. The recorded inputs (joint feedback, force, grasp "
-            "results, observations, plans, the operator's commands) stand in for the cell's while the "
-            "daemon does what it did then; from the first difference, or the first injected fault, the "
-            "simulated cell carries on alone. Prints whether the trace matched or where it first diverged, "
-            "the faults fired, every fault of the file that did not fire and why, the final state and the "
-            "events. Exit 0 when the replay ran (with --check: 1 when a replay without faults did not "
-            "match, or a fault of the file did not fire), 2 for bad input. See docs/recording.md."
+            "Re-run the job a recording holds (a -job.mcap file of `dishbot run`, on the robot or a "
+            "simulated cell) through the real daemon: the job, the statechart, the planners and the "
+            "recorder, on simulated time, with a simulated stand-in cell. The recorded inputs (joint "
+            "feedback, force, grasp results, observations, plans, the operator's commands) stand in for the "
+            "cell's while the daemon does what it did then; from the first difference, or the first "
+            "injected fault, the stand-in is set to the world the recording saw at that instant (mugs, arm, "
+            "gripper) and carries on alone: model-based from there. Prints whether the trace matched or "
+            "where it first diverged, from when the world was re-simulated, the faults fired, every fault "
+            "of the file that did not fire and why, the final state and the events. Exit 0 when the "
+            "replay ran (with --check: 1 when a replay without faults did not match, or a fault of the "
+            "file did not fire), 2 for bad input. See docs/recording.md."
         ),
     )
     parser.add_argument("session", type=Path, metavar="SESSION.mcap", help="a job recording")
@@ -56,6 +58,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--insecure",
         action="store_true",
         help="allow a plain --listen endpoint that other machines can reach",
+    )
+    parser.add_argument(
+        "--resim",
+        choices=("kinematic", "mujoco"),
+        help="the stand-in world to re-simulate in after a divergence or fault (default: the recording's "
+        "own simulated world; kinematic for a robot's recording)",
     )
     parser.add_argument(
         "--check",
@@ -95,7 +103,9 @@ def _replay(args: argparse.Namespace) -> int:
                 f"{args.faults}: disk_full acts on the replay's own recording; add --record OUT.mcap"
             )
         injector = FaultInjector(specs)
-    options = ReplayOptions(speed=speed, record=args.record, listen=listen, insecure=args.insecure)
+    options = ReplayOptions(
+        speed=speed, record=args.record, listen=listen, insecure=args.insecure, resim=args.resim
+    )
     try:
         report = replay(session, options, faults=injector)
     except ReplayError as e:

@@ -97,6 +97,14 @@ class Job:
 
     # --- public surface ------------------------------------------------------------------------------------
 
+    def carry_over(self, earlier: JobContext) -> None:
+        """Take ``earlier`` as what the jobs before this daemon's first one left (the mugs on the tray, the
+        counter it knew, the next mug id): a replay of a job that continued an earlier job's tray starts
+        from it, as the recorded daemon did. Only while idle, before a job starts."""
+        if self.chart.state != "idle":
+            raise CommandRefused(f"cannot carry an earlier job over in state {self.chart.state}")
+        self._ctx = earlier.next_job(self._ctx.planner)
+
     @property
     def summary(self) -> JobSummary:
         if self._recording is not None and self._ctx.summary.started_at is not None:
