@@ -5,7 +5,8 @@ or injected fault it goes on in a simulated stand-in cell (``replay.engine``). T
 world *the recording saw* at that instant (``world_at``), whatever backend wrote the file:
 
 - **counter mugs** where the camera last saw them: type, pose, handle, upside down or not, by the job's
-  own ids (the ``detections`` the job published after each look at the counter);
+  own ids (the ``detections`` the job published after each look at the counter); before its first look,
+  as that first look found them;
 - **mugs on the tray** where the job put them (its ``mug_placed`` events, brim down as every placed mug
   stands); for a job that continued an earlier job's tray, those the header's scene has on the tray;
 - **the arm** at its last recorded joint angles (``input/joints``);
@@ -136,6 +137,7 @@ def world_at(session: RecordedSession, t_s: float, *, arm: ArmModel | None = Non
     aperture: float | None = None
     current: str | None = None
     grip: _Grip | None = None  # how the held mug sits in the gripper, since its grasp
+    looked = False
     for m in session.read.messages[1:]:
         if m.log_time_ns > until_ns:
             break
@@ -153,6 +155,7 @@ def world_at(session: RecordedSession, t_s: float, *, arm: ArmModel | None = Non
             mug = p.get("current_mug")
             current = str(mug) if isinstance(mug, str) and mug else None
         elif suffix == "detections":
+            looked = True
             mugs = _after_look(mugs, p, at, keep=current if holding else None, sizes=sizes)
         elif suffix == "events" and p.get("kind") == "mug_placed":
             mugs = _placed(mugs, p, at, sizes=sizes)
@@ -166,6 +169,11 @@ def world_at(session: RecordedSession, t_s: float, *, arm: ArmModel | None = Non
                     mugs[mug.mug_id] = _in_gripper(mug, arm, q, grip, sizes, at, "released")
                 grip = None
             holding = now
+    if not any(m.where == "counter" for m in mugs.values()) and not looked:
+        # Before the job's first look the counter is as that look found it (nothing took a mug before it).
+        first = next((m for m in session.read.messages if topic_suffix(m.topic) == "detections"), None)
+        if first is not None:
+            mugs = _after_look(mugs, first.payload, 0.0, keep=None, sizes=sizes)
     held = current if holding and current is not None and current in mugs else None
     if held is not None and len(q) == arm.dof:
         mugs[held] = _in_gripper(mugs[held], arm, q, grip, sizes, t_s, "held")

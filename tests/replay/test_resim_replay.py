@@ -1,0 +1,343 @@
+"""One replay path for every recording (issue 20, items 3-4): a recording of the robot (here the rig's,
+``tests/data``, made through the hardware backend) replays to a match in a simulated stand-in; from the
+first injected fault the stand-in is set to the world the recording saw then and the job goes on in it,
+where the fault keeps its meaning (``at_state`` + ``occurrence`` fire there, each device fault acts on the
+stand-in's devices); a job that continued an earlier job's tray replays from what that job left.
+
+For each fault kind the re-simulation ends in the same final state class as a live run of the same fault
+on a simulated cell with the same mugs (``test_resimulation_ends_as_the_live_fault_run``)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from cli.main import main
+from daemon.app import RunOptions, ServeContext, ServeHooks, serve
+from daemon.backend import SimOptions
+from daemon.cell import open_backend
+from daemon.clock import SimulatedClock
+from daemon.config import load_config
+from daemon.sdnotify import SdNotifier
+from recorder.files import is_job_file
+from replay.engine import ReplayOptions, ReplayReport, replay
+from replay.faults import FaultInjector, parse_faults
+from replay.harness import DishbotReplay
+from replay.record import record_job
+from replay.resim import continues_earlier_job
+from replay.session import RecordedSession
+
+RIG_RECORDING = Path(__file__).parents[1] / "data" / "rig-2mugs-job.mcap"
+# The rig recording's mugs (its README says how it was made), for the live runs to compare with.
+RIG_MUGS = (("m1", "small", 0.3755, 0.4155), ("m3", "big", 0.0635, 0.4155))
+
+FSR_DROP = {"kind": "fsr_drop", "at_state": "place.transit"}
+OVERLOAD = {"kind": "servo_overload", "servo": 3, "at_state": "flip.turn", "after_s": 0.2}
+SLIP = {"kind": "mug_slip", "at_state": "flip.transit", "after_s": 0.5}
+
+
+@pytest.fixture(scope="module")
+def rig() -> RecordedSession:
+    return RecordedSession.load(RIG_RECORDING)
+
+
+def with_faults(
+    session: RecordedSession, *faults: Mapping[str, object], resim: str | None = None
+) -> ReplayReport:
+    text = "".join("[[fault]]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in f.items()) for f in faults)
+    injector = FaultInjector(parse_faults(text, source="test", config=session.config))
+    return replay(session, ReplayOptions(resim=resim), faults=injector)
+
+
+@pytest.mark.slow
+def test_a_robot_recording_replays_to_a_match_in_the_kinematic_stand_in(
+    rig: RecordedSession, capsys: pytest.CaptureFixture[str]
+) -> None:
+    report = replay(rig)
+    assert report.first_divergence is None, report.first_divergence
+    assert report.replayed.states == rig.trace.states
+    assert report.replayed.final_state == "done"
+    assert report.resimulated_from_s is None  # every input came from the recording
+    assert {"observation", "plan", "follow", "grasp", "input/joints", "input/holding"} <= set(report.served)
+    assert report.world == "hardware"
+    assert "not re-simulated: every input came from the recording (stand-in: kinematic cell" in "\n".join(
+        report.lines()
+    )
+    # The command line: --check passes, and --json says which stand-in and that nothing was re-simulated.
+    capsys.readouterr()
+    assert main(["--log-level", "warning", "replay", str(RIG_RECORDING), "--check", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert (doc["match"], doc["world"], doc["stand_in"], doc["resimulated_from_s"], doc["resim"]) == (
+        True,
+        "hardware",
+        "kinematic",
+        None,
+        None,
+    )
+
+
+@pytest.mark.slow
+def test_a_dropped_force_in_place_transit_recovers_the_mug_in_the_restaged_world(
+    rig: RecordedSession,
+) -> None:
+    report = with_faults(rig, FSR_DROP)
+    (fault,) = report.faults
+    assert report.resimulated_from_s == pytest.approx(float(fault["fired_at_s"]), abs=1e-3)  # type: ignore[arg-type]
+    assert report.first_divergence is not None
+    assert report.first_divergence.what == "fault"
+    assert (
+        report.replayed.states[: rig.trace.states.index("place.transit") + 1]
+        == rig.trace.states[: rig.trace.states.index("place.transit") + 1]
+    )
+    states = report.replayed.states
+    assert "recover_lost_mug" in states[states.index("place.transit") :]
+    assert report.replayed.final_state == "done"
+    kinds = [e.kind for e in report.replayed.events]
+    assert "mug_dropped" in kinds
+    ends = {
+        e.detail.get("mug_id") for e in report.replayed.events if e.kind in ("mug_placed", "mug_given_up")
+    }
+    assert ends == {"m1", "m2"}  # every mug found and placed, or given up with the reason
+    assert all(e.detail.get("reason") for e in report.replayed.events if e.kind == "mug_given_up")
+    # The world it was set to: what the recording saw as place.transit began, m1 in the gripper.
+    assert report.resim is not None
+    assert report.resim.seen is not None
+    assert report.resim.seen.held == "m1"
+    assert [m.mug_id for m in report.resim.seen.on("counter")] == ["m2"]
+    doc = report.to_json()
+    assert doc["resimulated_from_s"] == pytest.approx(report.resimulated_from_s)
+    resim = doc["resim"]
+    assert isinstance(resim, dict)
+    assert resim["world"] == "kinematic"
+    assert resim["model_based"] is True
+    assert any(
+        line.startswith(f"re-simulated from {report.resimulated_from_s:.3f} s in the kinematic stand-in")
+        for line in report.lines()
+    )
+
+
+@pytest.mark.slow
+def test_an_arm_servo_overloading_in_flip_turn_faults_in_the_restaged_world(rig: RecordedSession) -> None:
+    report = with_faults(rig, OVERLOAD)
+    assert report.replayed.final_state == "fault"
+    assert report.replayed.state_at(report.replayed.duration_s - 1e-6) == "flip.turn"
+    (servo_fault,) = [e for e in report.replayed.events if e.kind == "servo_fault"]
+    assert servo_fault.detail["servo_id"] == 3
+    fault = next(e for e in report.replayed.events if e.kind == "fault")
+    assert "servo 3" in str(fault.detail["reason"])
+    assert "overload" in str(fault.detail["reason"])
+    assert report.resimulated_from_s is not None
+
+
+@pytest.mark.slow
+def test_a_mug_slipping_in_flip_transit_is_found_and_placed_or_given_up(rig: RecordedSession) -> None:
+    report = with_faults(rig, SLIP)
+    (fault,) = report.faults
+    assert fault["mug"] == "m1"  # the job's id: the restaged world's mug is the one the job carried
+    assert "mug_dropped" in [e.kind for e in report.replayed.events]
+    assert report.replayed.final_state == "done"
+    ends = {
+        e.detail.get("mug_id") for e in report.replayed.events if e.kind in ("mug_placed", "mug_given_up")
+    }
+    assert "m1" in ends
+
+
+@pytest.mark.slow
+def test_occurrence_counts_entries_in_the_restaged_world(rig: RecordedSession) -> None:
+    """A fault due at the second flip.turn fires there, after an earlier fault already moved the job into the
+    stand-in: triggers keep counting after the divergence."""
+    report = with_faults(rig, {"kind": "fsr_spike", "at_state": "detect"}, {**OVERLOAD, "occurrence": 2})
+    assert [o.fired for o in report.fault_outcomes] == [True, True]
+    assert report.resimulated_from_s == 0.0  # the spike fired as the job entered detect
+    assert report.replayed.final_state == "fault"
+    turns = [
+        t
+        for s, t in zip(report.replayed.states, report.replayed.state_times_s, strict=True)
+        if s == "flip.turn"
+    ]
+    assert len(turns) == 2
+    assert float(report.faults[1]["fired_at_s"]) == pytest.approx(turns[1] + 0.2, abs=0.05)  # type: ignore[arg-type]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fault", [FSR_DROP, OVERLOAD, SLIP], ids=lambda f: str(f["kind"]))
+def test_resimulation_ends_as_the_live_fault_run(
+    fault: Mapping[str, object], rig: RecordedSession, tmp_path: Path
+) -> None:
+    """The same fault, live on the kinematic cell with the rig's mugs, and re-simulated from the rig's
+    recording: the same final state class."""
+    text = "[[fault]]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in fault.items())
+    injector = FaultInjector(parse_faults(text, source="test"))
+    live = record_job(tmp_path, world="kinematic", mugs=RIG_MUGS, hooks=injector.hooks())
+    assert [o.fired for o in injector.outcomes()] == [True]
+    live_final = RecordedSession.load(live.path).trace.final_state
+    assert with_faults(rig, fault).replayed.final_state == live_final
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fault", [FSR_DROP, OVERLOAD, SLIP], ids=lambda f: str(f["kind"]))
+def test_the_mujoco_stand_in_ends_as_the_kinematic_one(
+    fault: Mapping[str, object], rig: RecordedSession
+) -> None:
+    """--resim mujoco: the stand-in is the physics world, set to the same recorded state."""
+    report = with_faults(rig, fault, resim="mujoco")
+    assert report.resim is not None
+    assert report.resim.world == "mujoco"
+    assert report.resimulated_from_s is not None
+    assert (
+        report.replayed.final_state
+        == {"fsr_drop": "done", "servo_overload": "fault", "mug_slip": "done"}[str(fault["kind"])]
+    )
+
+
+# --- a job that continued an earlier job's tray -------------------------------------------------------------
+
+THREE_MUGS = [
+    {"id": "m1", "type": "small", "x_m": 0.22, "y_m": 0.415},
+    {"id": "m2", "type": "big", "x_m": 0.064, "y_m": 0.415},
+    {"id": "m3", "type": "small", "x_m": -0.092, "y_m": 0.529},
+]
+
+
+def record_continued_job(record_dir: Path) -> Path:
+    """A kinematic daemon whose first job (three mugs, started over Zenoh) is stopped after its first
+    placement, and a second job, ``start {}``, that goes on with the tray and counter the first left."""
+
+    async def run() -> tuple[Path, ...]:
+        config = load_config(overrides={"backend": "sim", "sim": {"world": "kinematic", "seed": 0}})
+        backend = await open_backend(config, sim=SimOptions(), clock=clock)
+        placed = asyncio.Event()
+        tasks: list[asyncio.Task[None]] = []
+
+        def on_publish(topic: str, payload: Mapping[str, Any]) -> None:
+            if topic == "events" and payload.get("kind") == "mug_placed":
+                placed.set()
+
+        async def drive(ctx: ServeContext) -> None:
+            assert (await ctx.handle("start", json.dumps({"mugs": THREE_MUGS}).encode(), False))["ok"]
+            await placed.wait()
+            await ctx.clock.sleep(4.0)
+            assert (await ctx.handle("stop", b"", False))["ok"]
+            await ctx.job.finished.wait()
+            await ctx.clock.sleep(3.0)
+            assert (await ctx.handle("start", b"{}", False))["ok"]
+            await ctx.clock.sleep(1.0)
+            await ctx.job.finished.wait()
+            await ctx.clock.sleep(3.0)
+            ctx.stop.set()
+
+        def on_ready(ctx: ServeContext) -> None:
+            tasks.append(asyncio.create_task(drive(ctx)))
+
+        from perception import associate
+
+        result = await serve(
+            config,
+            backend,
+            associate,
+            RunOptions(listen=(), connect=(), record_dir=record_dir),
+            notifier=SdNotifier(None),
+            stop=asyncio.Event(),
+            hooks=ServeHooks(on_publish=(on_publish,), on_ready=on_ready),
+        )
+        return result.files
+
+    clock = SimulatedClock()
+    jobs = [p for p in clock.run(run()) if is_job_file(p)]
+    assert len(jobs) == 2
+    return jobs[1]
+
+
+@pytest.fixture(scope="module")
+def continued(tmp_path_factory: pytest.TempPathFactory) -> RecordedSession:
+    return RecordedSession.load(record_continued_job(tmp_path_factory.mktemp("continued")))
+
+
+@pytest.mark.slow
+def test_a_job_continuing_a_tray_replays_from_what_the_earlier_job_left(continued: RecordedSession) -> None:
+    assert continues_earlier_job(continued)
+    scene_mugs = continued.scene["mugs"]
+    assert isinstance(scene_mugs, list)
+    assert [m["id"] for m in scene_mugs if m["where"] == "tray"] == ["m1"]
+    report = replay(continued)
+    assert report.first_divergence is None, report.first_divergence
+    assert report.replayed.final_state == "done"
+    placed = [e.detail["mug_id"] for e in report.replayed.events if e.kind == "mug_placed"]
+    assert placed == [e.detail["mug_id"] for e in continued.trace.events if e.kind == "mug_placed"]
+    assert "m1" not in placed  # already on the tray
+
+
+@pytest.mark.slow
+def test_a_fault_in_a_continued_job_restages_the_earlier_jobs_tray(continued: RecordedSession) -> None:
+    report = with_faults(continued, SLIP)
+    assert report.resim is not None
+    assert report.resim.seen is not None
+    tray = {m.mug_id: m for m in report.resim.seen.on("tray")}
+    assert tray["m1"].source == "header"
+    assert report.replayed.final_state == "done"
+    # Whatever the job placed after the slip, it placed beside the earlier job's mug, not on it.
+    for e in report.replayed.events:
+        if e.kind == "mug_placed":
+            x, y = e.detail["x_m"], e.detail["y_m"]
+            assert isinstance(x, float)
+            assert isinstance(y, float)
+            assert math.hypot(x - tray["m1"].x_m, y - tray["m1"].y_m) > 0.05
+
+
+# --- the pytest fixture -------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_the_pytest_fixture_loads_and_replays_a_rig_recording(dishbot: DishbotReplay) -> None:
+    session = dishbot.load(RIG_RECORDING)
+    clean = dishbot.replay(session)
+    assert clean.match
+    assert clean.resimulated_from_s is None
+    trace = dishbot.replay(session, faults=[SLIP])
+    assert trace.resimulated_from_s is not None
+    assert "mug_dropped" in trace.events_by_kind
+    assert trace.final_state == "done"
+
+
+# Every fault kind that acts on a device or on the world, on the robot's recording: it fires in the stand-in
+# (with its documented end where docs/faults.md gives one for the kinematic cell's devices).
+DEVICE_FAULTS: list[tuple[dict[str, object], str | None]] = [
+    ({"kind": "servo_overload", "servo": 2, "at_state": "flip.transit", "after_s": 0.3}, "fault"),
+    ({"kind": "servo_overheat", "servo": 2, "at_state": "flip.transit", "after_s": 0.3}, None),
+    ({"kind": "servo_voltage", "servo": 2, "at_state": "flip.transit", "after_s": 0.3}, None),
+    ({"kind": "servo_silent", "servo": 2, "at_state": "flip.transit", "after_s": 0.3}, "fault"),
+    ({"kind": "bus_corrupt", "rate": 1.0, "at_state": "flip.transit", "after_s": 0.3}, "fault"),
+    ({"kind": "bus_unplug", "at_state": "flip.transit", "after_s": 0.3}, "fault"),
+    ({"kind": "bus_unplug", "device": "fsr", "at_state": "flip.transit", "after_s": 0.3}, None),
+    ({"kind": "fsr_drop", "at_state": "flip.transit", "after_s": 0.3}, "done"),
+    ({"kind": "fsr_spike", "at_state": "flip.transit", "after_s": 0.3}, "done"),
+    ({"kind": "fsr_silent", "at_state": "flip.transit", "after_s": 0.3}, None),
+    ({"kind": "camera_no_frame", "at_state": "detect", "occurrence": 2}, None),
+    ({"kind": "camera_stale", "at_state": "detect", "occurrence": 2}, None),
+    ({"kind": "camera_bad_frame", "at_state": "detect", "occurrence": 2}, None),
+    ({"kind": "camera_hang", "at_state": "detect", "occurrence": 2, "duration_s": 1.0}, None),
+    ({"kind": "mug_slip", "at_state": "flip.transit", "after_s": 0.3}, "done"),
+    ({"kind": "mug_moved", "mug": "m2", "dx_m": 0.02, "at_state": "flip.transit"}, "done"),
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("fault", "end"), DEVICE_FAULTS, ids=[f"{f['kind']}-{f.get('device', '')}" for f, _ in DEVICE_FAULTS]
+)
+def test_every_device_fault_kind_acts_on_a_robots_recording(
+    fault: Mapping[str, object], end: str | None, rig: RecordedSession
+) -> None:
+    report = with_faults(rig, fault)
+    (outcome,) = report.fault_outcomes
+    assert outcome.fired, outcome.line()
+    assert report.resimulated_from_s == pytest.approx(outcome.fired_at_s, abs=1e-3)
+    assert report.replayed.final_state in ("done", "fault")
+    if end is not None:
+        assert report.replayed.final_state == end
