@@ -341,3 +341,30 @@ def test_every_device_fault_kind_acts_on_a_robots_recording(
     assert report.replayed.final_state in ("done", "fault")
     if end is not None:
         assert report.replayed.final_state == end
+
+
+def test_a_bad_resim_world_is_one_line_and_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exited:
+        main(["replay", str(RIG_RECORDING), "--resim", "gazebo"])
+    assert exited.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == (
+        "dishbot replay: error: argument --resim: invalid choice: 'gazebo' (choose from 'kinematic', "
+        "'mujoco')"
+    )
+
+
+@pytest.mark.slow
+def test_a_simulated_recordings_header_world_is_a_cross_check(kinematic_job: Path) -> None:
+    """A simulated recording builds the stand-in from its header's scene; at the fault the stand-in is set to
+    what the recording saw all the same, and the report says how far the header's world was from it (the
+    detection noise: millimetres)."""
+    report = with_faults(RecordedSession.load(kinematic_job), SLIP)
+    assert report.resim is not None
+    assert report.resim.from_header
+    check = report.resim.check
+    assert check is not None
+    assert check.startswith("the header's world was within ")
+    assert float(check.removeprefix("the header's world was within ").split(" mm")[0]) < 10.0
+    assert any(line == f"cross-check: {check}" for line in report.lines())
+    assert report.replayed.final_state == "done"
