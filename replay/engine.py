@@ -44,7 +44,7 @@ from recorder.reader import RecordedMessage
 from replay.drivers import Replayer, replay_backend
 from replay.errors import ReplayError
 from replay.faults import FaultOutcome
-from replay.resim import STAND_INS, Resimulation, carried_over, continues_earlier_job
+from replay.resim import STAND_INS, Resimulated, Resimulation, carried_over, continues_earlier_job
 from replay.session import SIM_BACKENDS, Divergence, RecordedSession, Trace, compare, trace_of_messages
 from validation import toml
 
@@ -108,7 +108,7 @@ class ReplayReport:
     served: Mapping[str, int] = field(default_factory=dict)
     world: str = ""
     fault_outcomes: tuple[FaultOutcome, ...] = ()  # every fault of the file: fired or not, and why not
-    resim: Resimulation | None = None  # the stand-in cell, and from when the job went on in it
+    resim: Resimulated | None = None  # the stand-in cell, and from when the job went on in it
 
     @property
     def resimulated_from_s(self) -> float | None:
@@ -231,7 +231,7 @@ def replay(
         recording=kept,
         served=dict(replayer.served),
         world=session.world,
-        resim=resim,
+        resim=resim.result,
     )
 
 

@@ -453,43 +453,17 @@ def cross_check(world: RecordedWorld, truth: Mapping[str, tuple[str, float, floa
     return line
 
 
-class Resimulation:
-    """The stand-in cell of one replay and when it took over.
+@dataclass(frozen=True, slots=True)
+class Resimulated:
+    """What a replay's stand-in did, for its report: its world, how it was built, and from when (seconds
+    from the job's start) the job went on in it, set to ``seen`` (None: every input came from the
+    recording)."""
 
-    A cell built from the header's scene (a simulated recording replayed in its own world) is only
-    cross-checked against what the recording saw; any other (a hardware recording, another world asked
-    for) is first set to the counter as the camera first saw it when the job starts. At the first
-    divergence or injected fault the cell is set to the world the recording saw at that instant
-    (``world_at``), and the job goes on in it: from there, the replay is model-based."""
-
-    def __init__(self, session: RecordedSession, backend: Backend, *, world: str, from_header: bool) -> None:
-        self.session = session
-        self.backend = backend
-        self.world = world  # the stand-in's world: kinematic or mujoco
-        self.from_header = from_header
-        self.from_s: float | None = None  # when the stand-in took over (seconds from the job's start)
-        self.seen: RecordedWorld | None = None  # and the world it was set to then
-        self.check: str | None = None  # the header-built cell against what the recording saw
-        self._arm = ArmModel.load()
-        self._catalogue = session.config.mug_catalogue()
-
-    def job_started(self) -> None:
-        """The replay's job started: a cell not built from the header gets the recording's first look."""
-        if self.from_header:
-            return
-        first = first_look_s(self.session)
-        seen = world_at(self.session, first if first is not None else 0.0, arm=self._arm)
-        restage(self.backend, seen, self._catalogue)
-
-    def take_over(self, t_s: float) -> None:
-        """The replay diverged (or a fault fired) at ``t_s``: set the cell to what the recording saw then."""
-        if self.from_s is not None:
-            return
-        seen = world_at(self.session, t_s, arm=self._arm)
-        if self.from_header:
-            self.check = cross_check(seen, cell_truth(self.backend))
-        restage(self.backend, seen, self._catalogue)
-        self.from_s, self.seen = t_s, seen
+    world: str  # kinematic or mujoco
+    from_header: bool  # built from the header's scene (only a cross-check), else from the recording
+    from_s: float | None = None
+    seen: RecordedWorld | None = None
+    check: str | None = None  # the header-built cell against what the recording saw, at ``from_s``
 
     def to_json(self) -> dict[str, object] | None:
         if self.from_s is None or self.seen is None:
@@ -517,6 +491,40 @@ class Resimulation:
         if self.check is not None:
             out.append(f"cross-check: {self.check}")
         return out
+
+
+class Resimulation:
+    """The stand-in cell of one replay, set to what the recording saw.
+
+    A cell built from the header's scene (a simulated recording) is only cross-checked against what the
+    recording saw; any other (a robot's recording, a job that continued an earlier tray) is first set to
+    the counter as the camera first saw it when the job starts. At the first divergence or injected fault
+    the cell is set to the world the recording saw at that instant (``world_at``), and the job goes on in
+    it: from there, the replay is model-based."""
+
+    def __init__(self, session: RecordedSession, backend: Backend, *, world: str, from_header: bool) -> None:
+        self._session = session
+        self._backend = backend
+        self._arm = ArmModel.load()
+        self._catalogue = session.config.mug_catalogue()
+        self.result = Resimulated(world, from_header)
+
+    def job_started(self) -> None:
+        """The replay's job started: a cell not built from the header gets the recording's first look."""
+        if self.result.from_header:
+            return
+        first = first_look_s(self._session)
+        seen = world_at(self._session, first if first is not None else 0.0, arm=self._arm)
+        restage(self._backend, seen, self._catalogue)
+
+    def take_over(self, t_s: float) -> None:
+        """The replay diverged (or a fault fired) at ``t_s``: set the cell to what the recording saw then."""
+        if self.result.from_s is not None:
+            return
+        seen = world_at(self._session, t_s, arm=self._arm)
+        check = cross_check(seen, cell_truth(self._backend)) if self.result.from_header else None
+        restage(self._backend, seen, self._catalogue)
+        self.result = replace(self.result, from_s=t_s, seen=seen, check=check)
 
 
 def continues_earlier_job(session: RecordedSession) -> bool:
@@ -582,6 +590,7 @@ def first_look_s(session: RecordedSession) -> float | None:
 __all__ = [
     "STAND_INS",
     "RecordedWorld",
+    "Resimulated",
     "Resimulation",
     "WorldMug",
     "carried_over",
