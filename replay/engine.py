@@ -353,9 +353,10 @@ async def _replay(
     # (``replay.resim.carried_over``); its stand-in, too, is set from the recording.
     continued = continues_earlier_job(session)
     from_header = session.backend in SIM_BACKENDS and not continued
-    if session.backend not in SIM_BACKENDS:
-        # A stand-in for the robot must keep up with what the robot did while the recording is served (its
-        # devices are driven too): the trajectories' own timing rules, not the kinematic cell's speed cap.
+    if stand_in != session.world:
+        # A stand-in for another cell (the robot's) must keep up with what that cell did while the recording
+        # is served (its devices are driven too): the trajectories' own timing rules, not the kinematic
+        # cell's speed cap.
         config = dataclasses.replace(
             config, sim=dataclasses.replace(config.sim, joint_speed_rad_s=_STAND_IN_JOINT_SPEED_RAD_S)
         )
