@@ -115,8 +115,9 @@ class RecordedWorld:
     def describe(self) -> str:
         """One line: what is where."""
         parts = []
-        for where, label in (("counter", "on the counter"), ("tray", "on the tray")):
-            mugs = self.on(where)  # type: ignore[arg-type]
+        places: tuple[tuple[Where, str], ...] = (("counter", "on the counter"), ("tray", "on the tray"))
+        for where, label in places:
+            mugs = self.on(where)
             ids = " ".join(m.mug_id for m in mugs)
             parts.append(f"{len(mugs)} {label}" + (f" ({ids})" if ids else ""))
         parts.append(f"{self.held} held" if self.held is not None else "nothing held")
@@ -191,14 +192,23 @@ def world_at(session: RecordedSession, t_s: float, *, arm: ArmModel | None = Non
 
 def _header_tray(session: RecordedSession) -> list[WorldMug]:
     """The mugs an earlier job left on the tray, as the header's scene has them (a simulated scene that
-    says where each mug is; the tray is empty otherwise)."""
+    says where each mug is; the tray is empty otherwise). The scene names them by the simulated world's
+    ids; one the job uses for another mug is renamed ``earlier-<id>``."""
+    taken = {
+        str(d.get("id"))
+        for m in session.read.messages
+        if topic_suffix(m.topic) == "detections"
+        for d in _list(m.payload, "mugs")
+        if isinstance(d, Mapping)
+    }
     out = []
     scene_mugs = session.scene.get("mugs")
     for m in scene_mugs if isinstance(scene_mugs, list) else []:
         if isinstance(m, Mapping) and m.get("where") == "tray":
+            mug_id = str(m.get("id", ""))
             out.append(
                 WorldMug(
-                    mug_id=str(m.get("id", "")),
+                    mug_id=f"earlier-{mug_id}" if mug_id in taken else mug_id,
                     type=str(m.get("type", "")),
                     x_m=_float(m, "x_m"),
                     y_m=_float(m, "y_m"),
