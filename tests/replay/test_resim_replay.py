@@ -26,7 +26,7 @@ from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.sdnotify import SdNotifier
 from recorder.files import is_job_file
-from replay.engine import ReplayOptions, ReplayReport, replay
+from replay.engine import ReplayOptions, ReplayReport, fault_text, replay
 from replay.faults import FaultInjector, parse_faults
 from replay.harness import DishbotReplay
 from replay.record import record_job
@@ -50,8 +50,7 @@ def rig() -> RecordedSession:
 def with_faults(
     session: RecordedSession, *faults: Mapping[str, object], resim: str | None = None
 ) -> ReplayReport:
-    text = "".join("[[fault]]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in f.items()) for f in faults)
-    injector = FaultInjector(parse_faults(text, source="test", config=session.config))
+    injector = FaultInjector(parse_faults(fault_text(faults), source="test", config=session.config))
     return replay(session, ReplayOptions(resim=resim), faults=injector)
 
 
@@ -172,8 +171,7 @@ def test_resimulation_ends_as_the_live_fault_run(
 ) -> None:
     """The same fault, live on the kinematic cell with the rig's mugs, and re-simulated from the rig's
     recording: the same final state class."""
-    text = "[[fault]]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in fault.items())
-    injector = FaultInjector(parse_faults(text, source="test"))
+    injector = FaultInjector(parse_faults(fault_text([fault]), source="test"))
     live = record_job(tmp_path, world="kinematic", mugs=RIG_MUGS, hooks=injector.hooks())
     assert [o.fired for o in injector.outcomes()] == [True]
     live_final = RecordedSession.load(live.path).trace.final_state
