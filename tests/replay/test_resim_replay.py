@@ -5,7 +5,8 @@ where the fault keeps its meaning (``at_state`` + ``occurrence`` fire there, eac
 stand-in's devices); a job that continued an earlier job's tray replays from what that job left.
 
 For each fault kind the re-simulation ends in the same final state class as a live run of the same fault
-on a simulated cell with the same mugs (``test_resimulation_ends_as_the_live_fault_run``)."""
+on a simulated cell of the stand-in's world with the same mugs
+(``test_resimulation_ends_as_the_live_fault_run``)."""
 
 from __future__ import annotations
 
@@ -165,29 +166,21 @@ def test_occurrence_counts_entries_in_the_restaged_world(rig: RecordedSession) -
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("world", ["kinematic", "mujoco"])
 @pytest.mark.parametrize("fault", [FSR_DROP, OVERLOAD, SLIP], ids=lambda f: str(f["kind"]))
 def test_resimulation_ends_as_the_live_fault_run(
-    fault: Mapping[str, object], rig: RecordedSession, tmp_path: Path
+    fault: Mapping[str, object], world: str, rig: RecordedSession, tmp_path: Path
 ) -> None:
-    """The same fault, live on the kinematic cell with the rig's mugs, and re-simulated from the rig's
-    recording: the same final state class."""
+    """The same fault, live on a simulated cell with the rig's mugs, and re-simulated from the rig's
+    recording in a stand-in of that world (``--resim``): the same final state class."""
     injector = FaultInjector(parse_faults(fault_text([fault]), source="test"))
-    live = record_job(tmp_path, world="kinematic", mugs=RIG_MUGS, hooks=injector.hooks())
+    live = RecordedSession.load(record_job(tmp_path, world=world, mugs=RIG_MUGS, hooks=injector.hooks()).path)
     assert [o.fired for o in injector.outcomes()] == [True]
-    live_final = RecordedSession.load(live.path).trace.final_state
-    assert with_faults(rig, fault).replayed.final_state == live_final
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("fault", [FSR_DROP, OVERLOAD, SLIP], ids=lambda f: str(f["kind"]))
-def test_the_mujoco_stand_in_ends_as_the_kinematic_one(
-    fault: Mapping[str, object], rig: RecordedSession
-) -> None:
-    """--resim mujoco: the stand-in is the physics world, set to the same recorded state."""
-    report = with_faults(rig, fault, resim="mujoco")
+    report = with_faults(rig, fault, resim=world)
     assert report.resim is not None
-    assert report.resim.world == "mujoco"
+    assert report.resim.world == world
     assert report.resimulated_from_s is not None
+    assert report.replayed.final_state == live.trace.final_state
     assert (
         report.replayed.final_state
         == {"fsr_drop": "done", "servo_overload": "fault", "mug_slip": "done"}[str(fault["kind"])]
