@@ -386,6 +386,7 @@ def restage(backend: Backend, world: RecordedWorld, catalogue: Mapping[str, MugS
         )
         if world.held is None and world.aperture_m is not None:
             kinematic.aperture_m = world.aperture_m
+        counter.cell.plant.follow_world()  # the servo simulators stand where the world now is
         return "kinematic"
     if isinstance(counter, MujocoCounter):
         _restage_mujoco(counter.cell, world, catalogue)

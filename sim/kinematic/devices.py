@@ -100,6 +100,21 @@ class KinematicPlant:
                 self._world.drop_held_mug()
                 self._checked_contact = False
 
+    def follow_world(self) -> None:
+        """Take the servos' positions from the world as it is now (after ``KinematicWorld.restage``): every
+        servo at rest where the world's joints and jaw are, its goal there, its torque as it was; a jaw
+        holding a mug has met it already. Without this the next step would move the world back to where
+        the servos were."""
+        with self._lock:
+            world = self._world
+            self._last = self._clock.monotonic()
+            for k, j in enumerate(self._joint):
+                self._pos[k] = float(world.q[j])
+            self._pos[self._gripper] = self._geometry.angle_for_aperture(world.aperture_m)
+            self._goal = list(self._pos)
+            self._vel = [0.0] * len(self._pos)
+            self._checked_contact = world.held is not None
+
     # --- the FSR simulator's force source ---------------------------------------------------------------
 
     def force_n(self) -> float:

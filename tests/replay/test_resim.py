@@ -15,7 +15,7 @@ from daemon.clock import SimulatedClock
 from planning.arm import ArmModel
 from replay.resim import WorldMug, first_look_s, world_at
 from replay.session import RecordedSession
-from sim.kinematic import MugGeometry, SimMug, open_kinematic_cell
+from sim.kinematic import MugGeometry, SimMug, start_kinematic_cell
 
 RIG_RECORDING = Path(__file__).parents[1] / "data" / "rig-2mugs-job.mcap"
 
@@ -124,28 +124,43 @@ def test_the_kinematic_world_is_restaged_to_what_the_recording_saw(
 ) -> None:
     catalogue = rig.config.mug_catalogue()
     tray = rig.config.cell.tray
-    cell = open_kinematic_cell(
-        [],
-        {n: MugGeometry(m.diameter_mm / 1000.0, m.height_mm / 1000.0) for n, m in catalogue.items()},
-        tray_origin_m=tray.origin_m,
-        tray_size_m=(tray.size_mm[0] / 1000.0, tray.size_mm[1] / 1000.0),
-        clock=SimulatedClock(),
-        arm=arm,
-    )
     seen = world_at(rig, state_time(rig, "flip.transit") + 0.5, arm=arm)
+    clock = SimulatedClock()
 
     def sim(m: WorldMug) -> SimMug:
         return SimMug(m.mug_id, m.type, m.x_m, m.y_m, m.upside_down, m.handle_yaw_rad, m.where)
 
-    (held,) = seen.on("gripper")
-    cell.world.restage(
-        [sim(m) for m in seen.on("counter")], q=seen.joints_rad, held=sim(held), force_n=seen.force_n
-    )
-    assert cell.world.held == "m1"
-    assert cell.world.q.tolist() == list(seen.joints_rad)
-    assert cell.world.pad_force_n() == pytest.approx(seen.force_n)
-    assert cell.force.holding()  # the force sensor says what the recording's did
-    assert sorted(cell.world.mugs) == ["m1", "m2"]
-    # A slip in the restaged world lets the recorded mug fall.
-    assert cell.world.drop_held_mug() == "m1"
-    assert cell.world.mugs["m1"].where == "counter"
+    async def scenario() -> None:
+        cell, close = await start_kinematic_cell(
+            [],
+            {n: MugGeometry(m.diameter_mm / 1000.0, m.height_mm / 1000.0) for n, m in catalogue.items()},
+            tray_origin_m=tray.origin_m,
+            tray_size_m=(tray.size_mm[0] / 1000.0, tray.size_mm[1] / 1000.0),
+            clock=clock,
+            arm=arm,
+        )
+        try:
+            (held,) = seen.on("gripper")
+            await cell.arm.read_joints()  # the devices are up
+            cell.world.restage(
+                [sim(m) for m in seen.on("counter")], q=seen.joints_rad, held=sim(held), force_n=seen.force_n
+            )
+            cell.plant.follow_world()
+            await clock.sleep(0.5)  # the FSR streams, the servos are polled
+            assert cell.world.held == "m1"
+            # The servos stand where the world was set: nothing moves it back to where they were.
+            assert cell.world.q.tolist() == pytest.approx(list(seen.joints_rad), abs=1e-9)
+            js = await cell.arm.read_joints()
+            assert list(js.position_rad) == pytest.approx(
+                list(seen.joints_rad)[: len(js.position_rad)], abs=0.01
+            )
+            assert cell.world.pad_force_n() == pytest.approx(seen.force_n)
+            assert cell.force.holding()  # the force sensor says what the recording's did
+            assert sorted(cell.world.mugs) == ["m1", "m2"]
+            # A slip in the restaged world lets the recorded mug fall.
+            assert cell.world.drop_held_mug() == "m1"
+            assert cell.world.mugs["m1"].where == "counter"
+        finally:
+            await close()
+
+    clock.run(scenario())
