@@ -92,8 +92,8 @@ def test_a_once_job_with_a_fault_file_prints_the_faults_fired_and_records_them(
     lines = out.splitlines()
     assert lines[0] == "job ended in state fault"
     assert (
-        "fault: ServoFault: servo 3 on inprocess:ttyDXL reports overload; its torque is off until the fault is cleared"
-        in lines
+        "fault: ServoFault: servo 3 on inprocess:ttyDXL reports overload; its torque is off until the "
+        "fault is cleared" in lines
     )
     fired = [line for line in lines if line.startswith("fault fired: ")]
     assert len(fired) == 1
