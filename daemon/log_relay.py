@@ -81,13 +81,20 @@ def _guard(factory: Callable[..., Any], lost: LostLines) -> Callable[..., Any]:
     def guarded_factory(*args: Any) -> Any:
         return _GuardedLogger(factory(*args), lost)
 
+    guarded_factory.lost = lost  # type: ignore[attr-defined]  # what an inner output_guarded counts on
     return guarded_factory
 
 
 @contextlib.contextmanager
 def output_guarded() -> Iterator[LostLines]:
-    """While active, structlog's output drops and counts the lines it cannot write instead of raising."""
+    """While active, structlog's output drops and counts the lines it cannot write instead of raising.
+    Inside another ``output_guarded`` (the command's set-up is guarded too, before the daemon starts), the
+    outer guard and its count go on."""
     factory = structlog.get_config()["logger_factory"]
+    outer = getattr(factory, "lost", None)
+    if isinstance(outer, LostLines):
+        yield outer
+        return
     lost = LostLines()
     structlog.configure(logger_factory=_guard(factory, lost))
     try:

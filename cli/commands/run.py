@@ -123,6 +123,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from daemon.log_relay import output_guarded
+
+    # From the first log line: a dead output (``| head`` gone) drops lines, it never stops the set-up.
+    with output_guarded():
+        return _run_guarded(args)
+
+
+def _run_guarded(args: argparse.Namespace) -> int:
     from daemon.app import RunOptions
     from daemon.job import StartRequest
     from daemon.sdnotify import SdNotifier
