@@ -6,7 +6,9 @@ simulated time), and jobs of the MuJoCo cell on pseudo-terminals: the real Dynam
 talking to the device simulators through the kernel's serial layer on the wall clock, the robot's code path
 to the bytes, with two mugs each so that they take about a minute of wall time. Recording is not timed;
 the replay's wall time is. Targets: every replay matches, >= 20x real time for a kinematic session and
->= 5x for a MuJoCo one.
+>= 10x for a MuJoCo one (issue 20). A faithful replay is served its motion and placement plans from the
+recording (``served_motion``: the plans handed to the job), so what it costs is the daemon's own work and
+the cell's moves.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ log = structlog.get_logger("bench.replay")
 
 # Two mugs for the sessions on pseudo-terminals (wall-clock time): a big and a small one, each flipped.
 PTY_MUGS = (("m1", "small", 0.22, 0.415), ("m2", "big", 0.064, 0.415))
-TARGETS = {"kinematic": 20.0, "mujoco": 5.0, "mujoco-pty": 5.0}
+TARGETS = {"kinematic": 20.0, "mujoco": 10.0, "mujoco-pty": 10.0}
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,7 +45,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
             "Record K kinematic, M MuJoCo and P MuJoCo-on-pseudo-terminal jobs (--sessions K,M,P, "
             "default 5,3,2), replay each without faults (dishbot replay) and print per session whether "
             "the trace matched, the recorded duration, the replay's wall time and their ratio. Targets: "
-            "every replay matches; >= 20x real time for kinematic sessions, >= 5x for MuJoCo ones."
+            "every replay matches; >= 20x real time for kinematic sessions, >= 10x for MuJoCo ones."
         ),
     )
     parser.add_argument(
@@ -108,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
                     round(report.wall_s, 2),
                     round(ratio, 1),
                     ratio >= TARGETS[s.kind],
+                    report.served.get("motion", 0),
                 ]
             )
     columns = [
@@ -121,12 +124,13 @@ def run(args: argparse.Namespace) -> int:
         "replay_wall_s",
         "x_real_time",
         "speed_target_met",
+        "served_motion",
     ]
     matched = sum(1 for r in rows if r[4])
     extra: dict[str, object] = {
         "matched": f"{matched} of {len(rows)}",
         "all_matched": matched == len(rows),
-        "target x_real_time": "kinematic >= 20, mujoco >= 5",
+        "target x_real_time": "kinematic >= 20, mujoco >= 10",
     }
     emit("bench replay: fault-free replays of recorded jobs", columns, rows, as_json=args.json, extra=extra)
     return 0

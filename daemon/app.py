@@ -42,7 +42,7 @@ import structlog
 import zenoh
 
 from daemon import commands_handler
-from daemon.backend import Backend, joints_payload, recorded
+from daemon.backend import Backend, JobPosition, joints_payload, recorded
 from daemon.clock import SessionClock, wall_seconds
 from daemon.config import Config
 from daemon.errors import ConfigError, UsageError
@@ -296,12 +296,14 @@ async def _run(
     loop = asyncio.get_running_loop()
     clock = backend.clock
     # Every read at the driver boundary (the telemetry's too) is recorded as an input for replay.
-    backend = recorded(backend, session.record)
+    position = JobPosition()  # where the job is when a command or a device event comes (for replay)
+    backend = recorded(backend, session.record, position)
     outcome = JobOutcome()
 
     def publish(topic: str, payload: Mapping[str, object]) -> None:
         if topic == "events":
             outcome.add(payload)  # what `--once` says about each mug
+            position.saw(topic, payload)
         session.publish(topic, payload)
         for tap in hooks.on_publish:
             tap(topic, payload)
@@ -322,13 +324,21 @@ async def _run(
                     recording.expect_job(job_header(request, config))
         # The operator's commands are inputs too: a replay sends them again at the same times (``status``
         # asks and changes nothing, so it is not kept).
-        t, t_device = clock.now(), clock.monotonic()
+        t, t_device, at = clock.now(), clock.monotonic(), position.fields()
         reply = await commands_handler.handle(job, verb, payload, many)
         if verb != "status":
             text = payload.decode("utf-8", "replace")
             session.record(
                 "input/command",
-                {"t": t, "t_device": t_device, "verb": verb, "payload": text, "many": many, "reply": reply},
+                {
+                    "t": t,
+                    "t_device": t_device,
+                    "verb": verb,
+                    "payload": text,
+                    "many": many,
+                    "reply": reply,
+                    **at,
+                },
             )
         return reply
 

@@ -19,7 +19,7 @@ import functools
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol, TypeVar
+from typing import TYPE_CHECKING, Final, Protocol, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -58,10 +58,11 @@ from drivers.stack import (
 from perception.interfaces import MugObserver, Observation
 from planning.arm import ArmModel
 from planning.arm.calibration import PositionCorrection
-from planning.interfaces import CyclePlan, MotionPlanner, MugPose, TraySlot
+from planning.interfaces import CyclePlan, MotionPlanner, MotionRefused, MugPose, TraySlot
 from planning.motion import DynamicsMoveCost, check_reachable
 from planning.motion.planner import CyclePlanner
 from planning.placement import PlacementPlanner, PlanOptions, PlanResult, Problem, plan
+from wire.motion import args_digest, result_json
 
 if TYPE_CHECKING:
     from perception.calibration import CameraModel
@@ -179,17 +180,98 @@ class Backend:
 
 Sink = Callable[[str, Mapping[str, object]], None]
 
+# The device commands a job gives (counted by ``JobPosition``): moves, openings, closes, looks, stops.
+DEVICE_COMMAND_TOPICS: Final = (
+    "output/follow",
+    "output/gripper",
+    "output/arm",
+    "input/grasp",
+    "input/grasp_failed",
+    "input/observation",
+    "input/observe_failed",
+)
 
-def recorded(backend: Backend, sink: Sink) -> Backend:
-    """The same backend, with driver-boundary inputs also passed to ``sink(kind, payload)``."""
+
+class JobPosition:
+    """Where the job is, for placing what comes from outside it (an operator's command, a device's event):
+    the state, the transitions since the job's ``start`` (its own included) and the device commands the job
+    gave since (``DEVICE_COMMAND_TOPICS``). A replay sends such an input when its job is at the same place."""
+
+    def __init__(self) -> None:
+        self.state = "idle"
+        self.transitions = 0
+        self.device_commands = 0
+
+    def saw(self, topic: str, payload: Mapping[str, object]) -> None:
+        """Follow what the daemon publishes (its transitions)."""
+        if topic != "events" or payload.get("kind") != "transition":
+            return
+        if payload.get("trigger") == "start":
+            self.transitions = 0
+            self.device_commands = 0
+        self.transitions += 1
+        self.state = str(payload.get("dest", self.state))
+
+    def device_command(self) -> None:
+        self.device_commands += 1
+
+    def fields(self) -> dict[str, object]:
+        return {
+            "at_state": self.state,
+            "at_transitions": self.transitions,
+            "at_device_commands": self.device_commands,
+        }
+
+
+def recorded(backend: Backend, sink: Sink, position: JobPosition | None = None) -> Backend:
+    """The same backend, with driver-boundary inputs also passed to ``sink(kind, payload)``: every read
+    (and every read that failed), every device command, every device event (with the job's ``position``
+    when it came), every motion plan."""
     clock = backend.clock
+    where = position if position is not None else JobPosition()
+    on_event = backend.on_event
+    motion_for = backend.motion_for
     return replace(
         backend,
-        arm=_RecordedArm(backend.arm, sink, clock),
-        gripper=_RecordedGripper(backend.gripper, sink, clock),
+        arm=_RecordedArm(backend.arm, sink, clock, where),
+        gripper=_RecordedGripper(backend.gripper, sink, clock, where),
         force=_RecordedForce(backend.force, sink, clock),
-        observer=_RecordedObserver(backend.observer, sink, clock),
+        observer=_RecordedObserver(backend.observer, sink, clock, where),
+        motion=_RecordedMotion(backend.motion, sink, clock),
+        motion_for=None
+        if motion_for is None
+        else lambda tray: _RecordedMotion(motion_for(tray), sink, clock),
+        on_event=None if on_event is None else _recorded_events(on_event, sink, clock, where),
+        health=None if backend.health is None else _RecordedHealth(backend.health, sink, clock),
     )
+
+
+def _recorded_events(
+    on_event: Callable[[EventListener], None], sink: Sink, clock: SessionClock, position: JobPosition
+) -> Callable[[EventListener], None]:
+    """``on_event`` whose events are also recorded (``input/device_event``) on the event loop, just before
+    the daemon handles them there, with the job's position and the monotonic time then."""
+
+    def register(listener: EventListener) -> None:
+        try:
+            loop: asyncio.AbstractEventLoop | None = asyncio.get_running_loop()
+        except RuntimeError:
+            loop = None
+
+        def record(event: Mapping[str, object]) -> None:
+            sink("input/device_event", {**event, **position.fields(), "t_read": clock.monotonic()})
+
+        def heard(event: Mapping[str, object]) -> None:  # possibly on a driver's thread
+            if loop is None:
+                record(event)
+            else:
+                with contextlib.suppress(RuntimeError):  # the loop is closed: the daemon is gone
+                    loop.call_soon_threadsafe(record, dict(event))
+            listener(event)
+
+        on_event(heard)
+
+    return register
 
 
 def joints_payload(js: JointState, *, t: float, exact: bool = False) -> dict[str, object]:
@@ -233,6 +315,24 @@ def _failure(e: BaseException) -> str:
     return f"{type(e).__name__}: {e}"
 
 
+def failure_fields(e: BaseException) -> dict[str, object]:
+    """A failed call's record: ``error`` (the type's name and the message), ``error_class`` (the type's
+    module and name) and what the driver error carries besides its message (``servo_id``, ``bits``,
+    ``port``), so that a replay raises the same error again."""
+    out: dict[str, object] = {
+        "error": _failure(e),
+        "error_class": f"{type(e).__module__}.{type(e).__qualname__}",
+    }
+    for key in ("servo_id", "port"):
+        value = getattr(e, key, None)
+        if isinstance(value, str | int) and not isinstance(value, bool):
+            out[f"error_{key}"] = value
+    bits = getattr(e, "bits", None)
+    if isinstance(bits, tuple) and all(isinstance(b, str) for b in bits):
+        out["error_bits"] = list(bits)
+    return out
+
+
 async def _failing_recorded(
     call: Awaitable[T], sink: Sink, clock: SessionClock, topic: str, record: Mapping[str, object]
 ) -> T:
@@ -244,22 +344,28 @@ async def _failing_recorded(
         sink(topic, {**record, "t_end": clock.monotonic(), "cancelled": True})
         raise
     except BaseException as e:
-        sink(topic, {**record, "t_end": clock.monotonic(), "error": _failure(e)})
+        sink(topic, {**record, "t_end": clock.monotonic(), **failure_fields(e)})
         raise
 
 
 class _RecordedArm:
-    def __init__(self, inner: ArmDriver, sink: Sink, clock: SessionClock) -> None:
+    def __init__(self, inner: ArmDriver, sink: Sink, clock: SessionClock, position: JobPosition) -> None:
         self._inner = inner
         self._sink = sink
         self._clock = clock
+        self._position = position
 
     @property
     def joint_names(self) -> tuple[str, ...]:
         return self._inner.joint_names
 
     async def read_joints(self) -> JointState:
-        js = await self._inner.read_joints()
+        try:
+            js = await self._inner.read_joints()
+        except (DriverError, BusLost) as e:
+            t_read = self._clock.monotonic()
+            self._sink("input/joints_failed", {"t": self._clock.now(), "t_read": t_read, **failure_fields(e)})
+            raise
         self._sink(
             "input/joints",
             {**joints_payload(js, t=self._clock.now(), exact=True), "t_read": self._clock.monotonic()},
@@ -269,6 +375,7 @@ class _RecordedArm:
     async def follow(self, trajectory: JointTrajectory) -> None:
         """Recorded once done (or failed, or cancelled): what the daemon asked of the arm and how it went,
         so that a replay can tell whether it asks the same and take as long."""
+        self._position.device_command()
         started = self._clock.monotonic()
         record: dict[str, object] = {
             "label": trajectory.label,
@@ -285,24 +392,37 @@ class _RecordedArm:
         self._sink("output/follow", {**record, "t_end": self._clock.monotonic()})
 
     async def stop(self) -> None:
+        self._position.device_command()
         self._sink("output/arm", {"action": "stop", "t_start": self._clock.monotonic()})
         await self._inner.stop()
 
     async def relax(self) -> None:
+        self._position.device_command()
         self._sink("output/arm", {"action": "relax", "t_start": self._clock.monotonic()})
         await self._inner.relax()
 
 
 class _RecordedGripper:
-    def __init__(self, inner: GripperDriver, sink: Sink, clock: SessionClock) -> None:
+    def __init__(self, inner: GripperDriver, sink: Sink, clock: SessionClock, position: JobPosition) -> None:
         self._inner = inner
         self._sink = sink
         self._clock = clock
+        self._position = position
 
     async def read(self) -> GripperState:
-        return await self._inner.read()
+        """Only the reads that failed are recorded: the job itself never reads the gripper (the telemetry
+        does), so only a failure (which faults the job) is an input a replay needs."""
+        try:
+            return await self._inner.read()
+        except (DriverError, BusLost) as e:
+            t_read = self._clock.monotonic()
+            self._sink(
+                "input/gripper_failed", {"t": self._clock.now(), "t_read": t_read, **failure_fields(e)}
+            )
+            raise
 
     async def open(self, aperture_m: float | None = None) -> None:
+        self._position.device_command()
         record: dict[str, object] = {
             "action": "open",
             "aperture_m": aperture_m,
@@ -314,6 +434,7 @@ class _RecordedGripper:
         self._sink("output/gripper", {**record, "t_end": self._clock.monotonic()})
 
     async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
+        self._position.device_command()
         started = self._clock.monotonic()
         asked = {"force_threshold_n": force_threshold_n, "min_aperture_m": min_aperture_m, "t_start": started}
         closing = self._inner.close_on_mug(force_threshold_n=force_threshold_n, min_aperture_m=min_aperture_m)
@@ -332,6 +453,7 @@ class _RecordedGripper:
         return result
 
     async def stop(self) -> None:
+        self._position.device_command()
         self._sink("output/gripper", {"action": "stop", "t_start": self._clock.monotonic()})
         await self._inner.stop()
 
@@ -365,12 +487,14 @@ class _RecordedForce:
 
 
 class _RecordedObserver:
-    def __init__(self, inner: MugObserver, sink: Sink, clock: SessionClock) -> None:
+    def __init__(self, inner: MugObserver, sink: Sink, clock: SessionClock, position: JobPosition) -> None:
         self._inner = inner
         self._sink = sink
         self._clock = clock
+        self._position = position
 
     async def observe(self) -> Observation:
+        self._position.device_command()
         started = self._clock.monotonic()
         try:
             obs = await self._inner.observe()
@@ -392,7 +516,7 @@ class _RecordedObserver:
                     "t": self._clock.now(),
                     "t_start": started,
                     "t_end": self._clock.monotonic(),
-                    "error": _failure(e),
+                    **failure_fields(e),
                 },
             )
             raise
@@ -405,6 +529,91 @@ class _RecordedObserver:
             },
         )
         return obs
+
+
+class _RecordedHealth:
+    """The devices' health, with every poll that raised recorded (``input/health_failed``)."""
+
+    def __init__(self, inner: DeviceHealth, sink: Sink, clock: SessionClock) -> None:
+        self._inner = inner
+        self._sink = sink
+        self._clock = clock
+
+    @property
+    def poll_period_s(self) -> float:
+        return self._inner.poll_period_s
+
+    async def poll(self) -> None:
+        try:
+            await self._inner.poll()
+        except (DriverError, BusLost) as e:
+            t_read = self._clock.monotonic()
+            self._sink("input/health_failed", {"t": self._clock.now(), "t_read": t_read, **failure_fields(e)})
+            raise
+
+    def problems(self) -> tuple[str, ...]:
+        return self._inner.problems()
+
+    async def clear(self) -> tuple[str, ...]:
+        return await self._inner.clear()
+
+
+class _RecordedMotion:
+    """The motion planner, with each call's arguments (digest) and result recorded (``input/motion``,
+    ``wire.motion``); called from the job's worker threads, as the planner is."""
+
+    def __init__(self, inner: MotionPlanner, sink: Sink, clock: SessionClock) -> None:
+        self.inner = inner
+        self._sink = sink
+        self._clock = clock
+
+    def _call(self, call: str, args: tuple[object, ...], run: Callable[[], T]) -> T:
+        record: dict[str, object] = {"call": call, "args_digest": args_digest(call, *args)}
+        try:
+            result = run()
+        except MotionRefused as e:
+            self._sink("input/motion", {**record, "refused": str(e), "blockers": sorted(e.blockers)})
+            raise
+        except Exception as e:
+            self._sink("input/motion", {**record, **failure_fields(e)})
+            raise
+        self._sink("input/motion", {**record, "result": result_json(call, result)})
+        return result
+
+    def plan_cycle(
+        self,
+        start_q: Sequence[float],
+        mug: MugPose,
+        slot: TraySlot,
+        on_tray: Sequence[TraySlot],
+        *,
+        counter: Sequence[MugPose] = (),
+    ) -> CyclePlan:
+        return self._call(
+            "plan_cycle",
+            (tuple(start_q), mug, slot, tuple(on_tray), tuple(counter)),
+            lambda: self.inner.plan_cycle(start_q, mug, slot, on_tray, counter=counter),
+        )
+
+    def plan_for_slot(
+        self,
+        start_q: Sequence[float],
+        slot: TraySlot,
+        counter: Sequence[MugPose],
+        on_tray: Sequence[TraySlot],
+    ) -> tuple[MugPose, CyclePlan]:
+        return self._call(
+            "plan_for_slot",
+            (tuple(start_q), slot, tuple(counter), tuple(on_tray)),
+            lambda: self.inner.plan_for_slot(start_q, slot, counter, on_tray),
+        )
+
+    def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
+        return self._call(
+            "plan_move",
+            (tuple(start_q), tuple(goal_q), label),
+            lambda: self.inner.plan_move(start_q, goal_q, label=label),
+        )
 
 
 def load_correction(config: Config) -> PositionCorrection | None:

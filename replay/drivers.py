@@ -19,20 +19,23 @@ commands put it (``diverge``).
 
 from __future__ import annotations
 
+import asyncio
 import bisect
 import contextlib
+import importlib
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import replace
+from typing import Final, TypeVar, cast
 
 import structlog
 
-import drivers.errors as driver_errors
-from daemon.backend import Backend, PlanPlacement
+from daemon.backend import Backend, EventListener, PlanPlacement, health_limits
 from daemon.clock import SessionClock
-from drivers.errors import DriverError
+from drivers.errors import BusLost, DriverError
 from drivers.interfaces import (
     ArmDriver,
+    DeviceHealth,
     ForceReading,
     ForceSensor,
     GraspResult,
@@ -42,22 +45,45 @@ from drivers.interfaces import (
     JointTrajectory,
 )
 from perception.interfaces import Detection, MugObserver, Observation
+from planning.interfaces import CyclePlan, MotionPlanner, MotionRefused, MugPose, TraySlot
 from planning.placement import PlacementPlanner, PlanOptions, PlanResult, Problem
-from replay.session import DeviceCommand, Divergence, Recorded, RecordedSession, device_command
+from replay.session import Anchor, DeviceCommand, Divergence, Recorded, RecordedSession, device_command
+from wire.motion import BadMotionRecord, args_digest, result_from_json
+
+T = TypeVar("T")
 
 log = structlog.get_logger("replay")
 
 # Reads this close together are the same instant (simulated time is exact; the wall clock never is).
 _SAME_S = 1e-7
-# Streams served by time, and those served by order (several recorded topics make one stream).
-_TIMED = ("input/joints", "input/force", "input/holding")
+# Streams served by time (a read that failed then fails now), and those served by order (several
+# recorded topics make one stream).
+_TIMED: Mapping[str, tuple[str, ...]] = {
+    "input/joints": ("input/joints", "input/joints_failed"),
+    "input/force": ("input/force",),
+    "input/holding": ("input/holding",),
+}
+# Reads of which only the failures are recorded: each served once, at the first read at or after it.
+_FAILURES: Final = ("input/health_failed", "input/gripper_failed")
 _ORDERED: Mapping[str, tuple[str, ...]] = {
     "follow": ("output/follow",),
     "open": ("output/gripper",),
     "grasp": ("input/grasp", "input/grasp_failed"),
     "observation": ("input/observation", "input/observe_failed"),
     "plan": ("plan",),
+    "motion": ("input/motion",),
 }
+# The driver errors a recording names, by module and name (``error_class``) and by name alone (older
+# recordings: ``error`` only): raised again as themselves, so that the daemon treats them as it did.
+_ERROR_MODULES: Final = (
+    "drivers.errors",
+    "drivers.dynamixel.bus",
+    "drivers.dynamixel.health",
+    "perception.errors",
+    "drivers.camera.realsense",
+)
+# How long a replayed call recorded as cancelled waits for the replay's job to cancel it too (simulated s).
+_CANCEL_WAIT_S = 1.0
 
 
 class Replayer:
@@ -74,13 +100,16 @@ class Replayer:
         self.clock = clock
         self.replaying = True
         self.divergence: Divergence | None = None
-        self.state = "idle"
+        self._state = "idle"
         self.served: dict[str, int] = {}
         self._on_diverge = on_diverge
         self._start_now: float | None = None  # the replay's now() at its job's start transition
         self._start_mono = 0.0  # and its monotonic time then
         # Timed inputs by the recorded monotonic time of their read (older recordings: their log time).
-        self._timed = {k: list(session.streams.get(k, ())) for k in _TIMED}
+        self._timed: dict[str, list[Recorded]] = {}
+        for name, topics in _TIMED.items():
+            items = [r for t in topics for r in session.streams.get(t, ())]
+            self._timed[name] = sorted(items, key=self._read_time)  # stable: the order consumed
         self._timed_t = {k: [self._read_time(r) for r in v] for k, v in self._timed.items()}
         self._ordered: dict[str, list[Recorded]] = {}
         for name, topics in _ORDERED.items():
@@ -90,6 +119,16 @@ class Replayer:
             self._ordered[name] = sorted(items, key=lambda r: r.t_ns)
         self._next = dict.fromkeys(_ORDERED, 0)
         self._cursor: dict[str, int] = {}  # per timed stream: the first record not yet consumed
+        # Health polls and gripper reads that failed, served once each at or after their time.
+        self._failures = {k: sorted(session.streams.get(k, ()), key=self._read_time) for k in _FAILURES}
+        self._failures_next = dict.fromkeys(_FAILURES, 0)
+        # Where the replay's job is (``JobPosition``): the replay's monotonic time of each transition from
+        # its start on and of the start of each device command since.
+        self.transition_times: list[float] = []
+        self.device_command_times: list[float] = []
+        self._moved: asyncio.Event | None = None
+        self.overran_s: float | None = None  # the limit a replay ran past without its job ending
+        self.events: ReplayEvents | None = None  # set by the replay backend's device events
 
     # --- time --------------------------------------------------------------------------------------------
 
@@ -101,6 +140,55 @@ class Replayer:
         """The replay's job just entered its first state: lay the recording's clock over the replay's."""
         self._start_now = self.clock.now()
         self._start_mono = self.clock.monotonic()
+
+    # --- where the job is ----------------------------------------------------------------------------------
+
+    @property
+    def state(self) -> str:
+        return self._state
+
+    @state.setter
+    def state(self, dest: str) -> None:
+        """The replay's job entered ``dest`` (every transition: the job's position moves on)."""
+        self._state = dest
+        if self.started:
+            self.transition_times.append(self.clock.monotonic())
+            self._moved_on()
+
+    def device_command(self) -> None:
+        """The replay's job gave a device command (a move, an opening, a close, a look, a stop)."""
+        if self.started:
+            self.device_command_times.append(self.clock.monotonic())
+            self._moved_on()
+
+    def _moved_on(self) -> None:
+        if self._moved is not None:
+            self._moved.set()
+            self._moved = None
+
+    def at(self, anchor: Anchor) -> float | None:
+        """The replay's monotonic time of ``anchor`` when its job has got there, else None."""
+        n, m = anchor.transitions, anchor.device_commands
+        if len(self.transition_times) < n or len(self.device_command_times) < m:
+            return None
+        base = max(
+            self.transition_times[n - 1] if n else self._start_mono,
+            self.device_command_times[m - 1] if m else self._start_mono,
+        )
+        return base + anchor.after_s
+
+    async def reach(self, anchor: Anchor) -> bool:
+        """Wait until the replay's job is where ``anchor`` says (then True), or no longer follows the
+        recording (False)."""
+        while self.replaying:
+            t = self.at(anchor)
+            if t is not None:
+                await self.clock.sleep_until(t)
+                return self.replaying
+            if self._moved is None:
+                self._moved = asyncio.Event()
+            await self._moved.wait()
+        return False
 
     def _read_time(self, r: Recorded) -> float:
         t = r.payload.get("t_read")
@@ -157,6 +245,31 @@ class Replayer:
             self.replaying = False
             log.info("replay_recording_ended", t_s=self.t_s(), cut=self.session.cut)
 
+    def has(self, stream: str) -> bool:
+        """Whether the recording holds anything of ``stream`` (older ones lack some)."""
+        items = self._timed.get(stream)
+        return bool(items) if items is not None else bool(self._ordered.get(stream))
+
+    def serving_events(self) -> bool:
+        """Whether recorded device events stand in for the cell's (from before the job starts, as the
+        recording holds none of the cell's before it either, until the replay stops following it)."""
+        return self.replaying
+
+    def failure(self, stream: str) -> Recorded | None:
+        """The recorded failure of ``stream`` (``_FAILURES``) due now: the last of those not yet served
+        recorded at or before this moment."""
+        items = self._failures[stream]
+        now = self.recorded_monotonic() + _SAME_S
+        i = self._failures_next[stream]
+        due: Recorded | None = None
+        while i < len(items) and self._read_time(items[i]) <= now:
+            due = items[i]
+            i += 1
+        self._failures_next[stream] = i
+        if due is not None:
+            self.served[stream] = self.served.get(stream, 0) + 1
+        return due
+
     def latest(self, stream: str) -> Recorded | None:
         """The input of ``stream`` the daemon consumed at this moment: of those recorded at the same time
         , the next in the order they were consumed; else the last one recorded
@@ -201,7 +314,12 @@ class Replayer:
 
 
 def replay_backend(backend: Backend, replayer: Replayer) -> Backend:
-    """``backend`` (the simulated cell) with its devices, observer and placement behind ``replayer``."""
+    """``backend`` (the simulated cell) with its devices, observer, health, device events, placement and
+    motion planning behind ``replayer``."""
+    motion_for = backend.motion_for
+    health: DeviceHealth | None = backend.health
+    if health is not None or replayer.session.streams.get("input/health_failed"):
+        health = ReplayHealth(health, replayer, health_limits(replayer.session.config).poll_period_s)
     return replace(
         backend,
         arm=ReplayArm(backend.arm, replayer),
@@ -209,20 +327,80 @@ def replay_backend(backend: Backend, replayer: Replayer) -> Backend:
         force=ReplayForce(backend.force, replayer),
         observer=ReplayObserver(backend.observer, replayer),
         placement=ReplayPlacement(replayer),
+        motion=ReplayMotion(backend.motion, replayer),
+        motion_for=None if motion_for is None else lambda tray: ReplayMotion(motion_for(tray), replayer),
+        on_event=ReplayEvents(backend.on_event, replayer).register,
+        health=health,
     )
 
 
-def recorded_failure(text: str) -> BaseException:
+def _error_classes() -> dict[str, type[BaseException]]:
+    found: dict[str, type[BaseException]] = {}
+    for module_name in _ERROR_MODULES:
+        with contextlib.suppress(ImportError):
+            module = importlib.import_module(module_name)
+            for value in vars(module).values():
+                if isinstance(value, type) and issubclass(value, DriverError | BusLost | ValueError):
+                    found.setdefault(f"{value.__module__}.{value.__qualname__}", value)
+    return found
+
+
+def recorded_failure(text: str, payload: Mapping[str, object] | None = None) -> BaseException:
     """The driver error a recorded failure names (``ServoFault: servo 3 overload``), raised again: of the
-    class it had when that class takes a message, else a ``DriverError`` of the same name."""
+    class it had (``error_class``, else the first driver error of that name) with what it carried
+    (``error_servo_id``, ``error_bits``, ``error_port``), else a ``DriverError`` of the same name."""
     name, _, message = text.partition(": ")
-    cls = getattr(driver_errors, name, None)
-    if isinstance(cls, type) and issubclass(cls, Exception):
-        with contextlib.suppress(TypeError):
-            error: BaseException = cls(message)
-            return error
+    payload = payload or {}
+    classes = _error_classes()
+    cls = classes.get(str(payload.get("error_class", "")))
+    if cls is None:
+        cls = next((c for c in classes.values() if c.__name__ == name), None)
+    if cls is not None:
+        error = cls.__new__(cls)
+        Exception.__init__(error, message)
+        servo_id, bits, port = (payload.get(f"error_{k}") for k in ("servo_id", "bits", "port"))
+        attributes: dict[str, object] = {
+            "servo_id": servo_id if isinstance(servo_id, int) else None,
+            "bits": tuple(str(b) for b in bits) if isinstance(bits, list) else (),
+            "port": port if isinstance(port, str) else "",
+            "problems": (),
+        }
+        for key, value in attributes.items():
+            with contextlib.suppress(AttributeError):
+                if not hasattr(error, key):
+                    setattr(error, key, value)
+        return error
     stand_in: type[DriverError] = type(name, (DriverError,), {})
     return stand_in(message)
+
+
+async def _bounded(call: Awaitable[T], replayer: Replayer, rec: Recorded) -> T | None:
+    """Run the cell's side of a call that failed or was cancelled in the recording only until the recorded
+    call ended (then it is cancelled: the robot stopped there); its result when it ended first."""
+    task = asyncio.ensure_future(call)
+    end = rec.payload.get("t_end")
+    if not isinstance(end, int | float) or not math.isfinite(end):
+        return await task
+    done = await replayer.clock.wait(
+        task, max(0.0, replayer.replay_monotonic(float(end)) - replayer.clock.monotonic())
+    )
+    if done:
+        return task.result()
+    task.cancel()
+    await asyncio.wait({task})  # (a cancellation of this call itself still goes through)
+    if not task.cancelled():
+        task.exception()  # retrieved: the recording says how the call ended
+    return None
+
+
+async def _ended_as_recorded(replayer: Replayer, rec: Recorded) -> None:
+    """After a served call: at its recorded end, fail as it failed; a call recorded as cancelled waits for
+    the replay's job to cancel it too (divergence when it does not)."""
+    await replayer.until_recorded(rec)
+    _raise_recorded(rec)
+    if rec.payload.get("cancelled"):
+        await replayer.clock.sleep(_CANCEL_WAIT_S)
+        replayer.diverge("device", f"{rec.kind} cancelled", f"{rec.kind} not cancelled")
 
 
 class ReplayArm:
@@ -235,12 +413,10 @@ class ReplayArm:
         return self._inner.joint_names
 
     async def read_joints(self) -> JointState:
-        live = await self._inner.read_joints()
-        if not self._r.serving():
-            return live
-        rec = self._r.latest("input/joints")
-        if rec is None:
-            return live
+        rec = self._r.latest("input/joints") if self._r.serving() else None
+        if rec is None:  # (a read changes nothing in the cell: while served, the cell is not read)
+            return await self._inner.read_joints()
+        _raise_recorded(rec)
         p = rec.payload
         return JointState(
             t=self._r.clock.monotonic(),
@@ -258,18 +434,23 @@ class ReplayArm:
             else {"label": trajectory.label, "end_rad": []},
             self._r.t_s(),
         )
+        self._r.device_command()
         rec = self._r.take("follow", asked.describe() if asked else "") if self._r.serving() else None
         if rec is None or not self._r.check(rec, asked):
             await self._inner.follow(trajectory)
             return
-        await self._inner.follow(trajectory)  # the cell moves as the robot did
-        await self._r.until_recorded(rec)
-        _raise_recorded(rec)
+        if _failed(rec):  # the cell moves as the robot did, as far as it went
+            await _bounded(self._inner.follow(trajectory), self._r, rec)
+        else:
+            await self._inner.follow(trajectory)
+        await _ended_as_recorded(self._r, rec)
 
     async def stop(self) -> None:
+        self._r.device_command()
         await self._inner.stop()
 
     async def relax(self) -> None:
+        self._r.device_command()
         await self._inner.relax()
 
 
@@ -279,28 +460,46 @@ class ReplayGripper:
         self._r = replayer
 
     async def read(self) -> GripperState:
+        """The cell's gripper (only the telemetry reads it); a read that failed then fails now."""
+        if self._r.serving():
+            failure = self._r.failure("input/gripper_failed")
+            if failure is not None:
+                _raise_recorded(failure)
         return await self._inner.read()
 
     async def open(self, aperture_m: float | None = None) -> None:
+        self._r.device_command()
         asked = device_command("output/gripper", {"action": "open", "aperture_m": aperture_m}, self._r.t_s())
         rec = self._r.take("open", asked.describe() if asked else "") if self._r.serving() else None
         if rec is None or not self._r.check(rec, asked):
             await self._inner.open(aperture_m)
             return
-        await self._inner.open(aperture_m)
-        await self._r.until_recorded(rec)
-        _raise_recorded(rec)
+        if _failed(rec):
+            await _bounded(self._inner.open(aperture_m), self._r, rec)
+        else:
+            await self._inner.open(aperture_m)
+        await _ended_as_recorded(self._r, rec)
 
     async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
+        self._r.device_command()
         asked = device_command("input/grasp", {"force_threshold_n": force_threshold_n}, self._r.t_s())
         rec = self._r.take("grasp", asked.describe() if asked else "") if self._r.serving() else None
-        live = await self._inner.close_on_mug(
-            force_threshold_n=force_threshold_n, min_aperture_m=min_aperture_m
-        )
-        if rec is None or not self._r.check(rec, asked):
-            return live
-        await self._r.until_recorded(rec)
-        _raise_recorded(rec)
+        closing = self._inner.close_on_mug(force_threshold_n=force_threshold_n, min_aperture_m=min_aperture_m)
+        if rec is None:
+            return await closing
+        if _failed(rec):
+            live = await _bounded(closing, self._r, rec)
+        else:
+            live = await closing
+        if not self._r.check(rec, asked):
+            return (
+                live
+                if live is not None
+                else await self._inner.close_on_mug(
+                    force_threshold_n=force_threshold_n, min_aperture_m=min_aperture_m
+                )
+            )
+        await _ended_as_recorded(self._r, rec)
         p = rec.payload
         return GraspResult(
             held=bool(p.get("held")),
@@ -310,6 +509,7 @@ class ReplayGripper:
         )
 
     async def stop(self) -> None:
+        self._r.device_command()
         await self._inner.stop()
 
 
@@ -319,12 +519,9 @@ class ReplayForce:
         self._r = replayer
 
     def latest(self) -> ForceReading | None:
-        live = self._inner.latest()
-        if not self._r.serving():
-            return live
-        rec = self._r.latest("input/force")
+        rec = self._r.latest("input/force") if self._r.serving() else None
         if rec is None:
-            return live
+            return self._inner.latest()
         p = rec.payload
         device_t = p.get("t_device")
         t = self._r.replay_monotonic(float(device_t)) if isinstance(device_t, int | float) else 0.0
@@ -337,11 +534,8 @@ class ReplayForce:
         )
 
     def holding(self) -> bool:
-        live = self._inner.holding()
-        if not self._r.serving():
-            return live
-        rec = self._r.latest("input/holding")
-        return live if rec is None else bool(rec.payload.get("holding"))
+        rec = self._r.latest("input/holding") if self._r.serving() else None
+        return self._inner.holding() if rec is None else bool(rec.payload.get("holding"))
 
 
 class ReplayObserver:
@@ -350,12 +544,17 @@ class ReplayObserver:
         self._r = replayer
 
     async def observe(self) -> Observation:
+        self._r.device_command()
         rec = self._r.take("observation", "a look at the counter") if self._r.serving() else None
-        live = await self._inner.observe()  # the cell's camera and detector run as they did
-        if rec is None or not self._r.replaying:
-            return live
-        await self._r.until_recorded(rec)
-        _raise_recorded(rec)
+        looking = self._inner.observe()  # the cell's camera and detector run as they did
+        if rec is None:
+            return await looking
+        live = await _bounded(looking, self._r, rec) if _failed(rec) else await looking
+        if not self._r.replaying:
+            return live if live is not None else await self._inner.observe()
+        await _ended_as_recorded(self._r, rec)
+        if live is None:
+            live = Observation(t=self._r.clock.monotonic(), detections=())
         p = rec.payload
         device_t = p.get("t_device")
         meta = p.get("meta")
@@ -393,10 +592,147 @@ class ReplayPlacement:
         return result
 
 
+class ReplayHealth:
+    """The devices' health as the recording has it: a poll that failed then fails now (the same error);
+    the cell's own after divergence (or nothing, when the cell has no devices to poll)."""
+
+    def __init__(self, inner: DeviceHealth | None, replayer: Replayer, poll_period_s: float) -> None:
+        self._inner = inner
+        self._r = replayer
+        self._period = inner.poll_period_s if inner is not None else poll_period_s
+
+    @property
+    def poll_period_s(self) -> float:
+        return self._period
+
+    async def poll(self) -> None:
+        if self._r.serving():
+            failure = self._r.failure("input/health_failed")
+            if failure is not None:
+                _raise_recorded(failure)
+            return
+        if self._inner is not None:
+            await self._inner.poll()
+
+    def problems(self) -> tuple[str, ...]:
+        return self._inner.problems() if self._inner is not None else ()
+
+    async def clear(self) -> tuple[str, ...]:
+        return await self._inner.clear() if self._inner is not None else ()
+
+
+class ReplayEvents:
+    """Device events (``Backend.on_event``): while the replay follows the recording, the recorded ones,
+    handed to the daemon by ``replay.engine`` where they fell in the job (``Replayer.reach``), and none of
+    the cell's; the cell's after divergence."""
+
+    def __init__(self, inner: Callable[[EventListener], None] | None, replayer: Replayer) -> None:
+        self._inner = inner
+        self._r = replayer
+        self.listeners: list[EventListener] = []
+        replayer.events = self
+
+    def register(self, listener: EventListener) -> None:
+        self.listeners.append(listener)
+        if self._inner is None:
+            return
+
+        def cells(event: Mapping[str, object]) -> None:  # possibly on a driver's thread
+            if not self._r.serving_events():
+                listener(event)
+
+        self._inner(cells)
+
+    def serve(self, payload: Mapping[str, object]) -> None:
+        """Hand the daemon a recorded device event now (on the event loop)."""
+        event = dict(payload)
+        event["t"] = self._r.clock.now()
+        device_t = payload.get("t_read", payload.get("t_device"))
+        if isinstance(device_t, int | float) and not isinstance(device_t, bool):
+            event["t_device"] = self._r.replay_monotonic(float(device_t))
+        self._r.served["device_event"] = self._r.served.get("device_event", 0) + 1
+        for listener in self.listeners:
+            listener(event)
+
+
+class ReplayMotion:
+    """Motion planning as the recording has it: the n-th recorded plan while the job asks for it with the
+    same arguments (``wire.motion.args_digest``); else (divergence, and after it) the planner itself. A
+    recording without plans (an older one) has the planner plan. Called from the job's worker threads."""
+
+    def __init__(self, inner: MotionPlanner, replayer: Replayer) -> None:
+        self.inner = inner
+        self._r = replayer
+
+    def _serve(self, call: str, args: tuple[object, ...], run: Callable[[], T]) -> T:
+        if not self._r.has("motion") or not self._r.serving():
+            return run()
+        rec = self._r.take("motion", f"{call} for the job's arguments")
+        if rec is None:
+            return run()
+        p = rec.payload
+        if p.get("call") != call or p.get("args_digest") != args_digest(call, *args):
+            self._r.diverge("motion", f"{p.get('call')} as recorded", f"{call} for other arguments")
+            return run()
+        refused = p.get("refused")
+        if isinstance(refused, str):
+            blockers = p.get("blockers")
+            raise MotionRefused(
+                refused, blockers=[str(b) for b in blockers] if isinstance(blockers, list) else ()
+            )
+        if "result" not in p:
+            self._r.diverge("motion", f"{call} failed ({p.get('error')})", f"{call} planned again")
+            return run()
+        try:
+            return cast("T", result_from_json(call, p["result"]))
+        except (BadMotionRecord, ValueError) as e:
+            self._r.diverge("motion", "a recorded plan", f"an unreadable one ({e})")
+            return run()
+
+    def plan_cycle(
+        self,
+        start_q: Sequence[float],
+        mug: MugPose,
+        slot: TraySlot,
+        on_tray: Sequence[TraySlot],
+        *,
+        counter: Sequence[MugPose] = (),
+    ) -> CyclePlan:
+        return self._serve(
+            "plan_cycle",
+            (tuple(start_q), mug, slot, tuple(on_tray), tuple(counter)),
+            lambda: self.inner.plan_cycle(start_q, mug, slot, on_tray, counter=counter),
+        )
+
+    def plan_for_slot(
+        self,
+        start_q: Sequence[float],
+        slot: TraySlot,
+        counter: Sequence[MugPose],
+        on_tray: Sequence[TraySlot],
+    ) -> tuple[MugPose, CyclePlan]:
+        return self._serve(
+            "plan_for_slot",
+            (tuple(start_q), slot, tuple(counter), tuple(on_tray)),
+            lambda: self.inner.plan_for_slot(start_q, slot, counter, on_tray),
+        )
+
+    def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
+        return self._serve(
+            "plan_move",
+            (tuple(start_q), tuple(goal_q), label),
+            lambda: self.inner.plan_move(start_q, goal_q, label=label),
+        )
+
+
+def _failed(rec: Recorded) -> bool:
+    return isinstance(rec.payload.get("error"), str) or bool(rec.payload.get("cancelled"))
+
+
 def _raise_recorded(rec: Recorded) -> None:
     error = rec.payload.get("error")
     if isinstance(error, str):
-        raise recorded_failure(error)
+        raise recorded_failure(error, rec.payload)
 
 
 def _list(payload: Mapping[str, object], key: str) -> Sequence[object]:

@@ -34,7 +34,7 @@ import structlog
 from daemon.app import RunOptions, ServeContext, ServeHooks, serve
 from daemon.backend import SimOptions
 from daemon.cell import open_backend
-from daemon.clock import SimulatedClock, wall_seconds
+from daemon.clock import SessionClock, SimulatedClock, wall_seconds
 from daemon.config import Config
 from daemon.errors import UsageError
 from daemon.sdnotify import SdNotifier
@@ -45,7 +45,15 @@ from replay.drivers import Replayer, replay_backend
 from replay.errors import ReplayError
 from replay.faults import FaultOutcome
 from replay.resim import STAND_INS, Resimulated, Resimulation, carried_over, continues_earlier_job
-from replay.session import SIM_BACKENDS, Divergence, RecordedSession, Trace, compare, trace_of_messages
+from replay.session import (
+    SIM_BACKENDS,
+    Divergence,
+    Recorded,
+    RecordedSession,
+    Trace,
+    compare,
+    trace_of_messages,
+)
 from validation import toml
 
 log = structlog.get_logger("replay")
@@ -115,6 +123,8 @@ class ReplayReport:
         """From when (seconds from the job's start) the world was re-simulated: model-based from there."""
         return None if self.resim is None else self.resim.from_s
 
+    overran_s: float | None = None  # the limit (s from the job's start) the replay ran past, its job unended
+
     @property
     def unfired(self) -> tuple[FaultOutcome, ...]:
         """The faults of the file that did not happen (a replay that tested less than it says)."""
@@ -151,6 +161,7 @@ class ReplayReport:
                 None if self.resimulated_from_s is None else round(self.resimulated_from_s, 6)
             ),
             "resim": None if self.resim is None else self.resim.to_json(),
+            "overran_s": self.overran_s,
         }
 
     def lines(self) -> list[str]:
@@ -170,6 +181,11 @@ class ReplayReport:
             target = f" servo {f['servo']}" if f.get("servo") is not None else ""
             out.append(f"fault fired: {f.get('kind')}{target} at {float(f.get('fired_at_s', 0.0)):.3f} s")  # type: ignore[arg-type]
         out.extend(o.line() for o in self.unfired)
+        if self.overran_s is not None:
+            out.append(
+                f"the replay ran past its limit ({self.overran_s:.1f} s from the job's start) with the job "
+                f"still in {self.replayed.final_state}, and was stopped"
+            )
         out.append(f"final state {self.replayed.final_state} (recorded: {self.recorded.final_state})")
         counts: dict[str, int] = {}
         for e in self.replayed.events:
@@ -232,6 +248,7 @@ def replay(
         served=dict(replayer.served),
         world=session.world,
         resim=resim.result,
+        overran_s=replayer.overran_s,
     )
 
 
@@ -457,8 +474,11 @@ def stand_in_world(session: RecordedSession, asked: str | None) -> str:
 
 
 async def _drive(session: RecordedSession, replayer: Replayer, ctx: ServeContext) -> None:
-    """The operator's side: the recorded commands at their times (the first starts the job), then, once
-    the job has ended and its file's tail is recorded, the end of the daemon."""
+    """The operator's side: the recorded start, the later commands where they fell in the job (at the
+    same transition and device command, as long after them: ``RecordedSession.anchor``) and the recorded
+    device events likewise (a task of their own); once the replay no longer follows the recording, the
+    commands at their times from the job's start. Then, once the job has ended and its file's tail is
+    recorded, the end of the daemon; a job still going at the limit is reported (``overran_s``)."""
     clock = ctx.clock
     if session.simulated:
         # Start when the recorded daemon did (the same simulated time after the start of its clock): the
@@ -471,35 +491,81 @@ async def _drive(session: RecordedSession, replayer: Replayer, ctx: ServeContext
         log.error("replay_start_refused", error=reply.get("error"))
         ctx.stop.set()
         return
-    for command in session.commands():
-        if command.t_ns <= session.start_ns:
-            continue
-        verb = str(command.payload.get("verb"))
-        await clock.sleep_until(
-            clock.monotonic() + max(0.0, (command.t_ns / 1e9 - _recorded_now(session, replayer)))
-        )
-        if not replayer.replaying:
-            break
-        payload = str(command.payload.get("payload", "")).encode()
-        reply = await ctx.handle(verb, payload, bool(command.payload.get("many")))
-        recorded = command.payload.get("reply")
-        if isinstance(recorded, Mapping) and bool(recorded.get("ok")) != bool(reply.get("ok")):
-            replayer.diverge(
-                "command", f"{verb} answered {_answer(recorded)}", f"{verb} answered {_answer(reply)}"
-            )
-    limit = session.trace.duration_s + _OVERRUN_S
-    if session.cut is not None:
-        # The recorded daemon ended at the cut: so does the replay (if the job is not over before), a moment
-        # after it, so that what happened at the very instant of the cut is in the replay too (only the
-        # recording's part is compared).
-        left = max(0.0, session.end_s - replayer.t_s()) + _PAST_CUT_S
-        await clock.wait(asyncio.ensure_future(ctx.job.finished.wait()), left)
-    else:
-        finished = await clock.wait(asyncio.ensure_future(ctx.job.finished.wait()), limit)
-        if not finished:
-            log.error("replay_overran", limit_s=limit)
-        await clock.sleep(ctx.config.recording.job_tail_s)
+    events = asyncio.create_task(_serve_device_events(session, replayer), name="replay-device-events")
+    try:
+        for command in session.later_commands():
+            verb = str(command.payload.get("verb"))
+            await _when_it_came(session, replayer, clock, command, verb)
+            payload = str(command.payload.get("payload", "")).encode()
+            reply = await ctx.handle(verb, payload, bool(command.payload.get("many")))
+            recorded = command.payload.get("reply")
+            if isinstance(recorded, Mapping) and bool(recorded.get("ok")) != bool(reply.get("ok")):
+                replayer.diverge(
+                    "command", f"{verb} answered {_answer(recorded)}", f"{verb} answered {_answer(reply)}"
+                )
+        if session.cut is not None or not _finished(session.trace):
+            # The recorded daemon ended at the cut, or was stopped with its job unfinished: so does the
+            # replay (if the job is not over before), a moment after it, so that what happened at the very
+            # instant of the end is in the replay too (only the recording's part is compared).
+            left = max(0.0, session.end_s - replayer.t_s()) + _PAST_CUT_S
+            await clock.wait(asyncio.ensure_future(ctx.job.finished.wait()), left)
+        else:
+            limit = session.trace.duration_s + _OVERRUN_S
+            left = max(0.0, limit - replayer.t_s())
+            finished = await clock.wait(asyncio.ensure_future(ctx.job.finished.wait()), left)
+            if not finished:
+                replayer.overran_s = limit
+                log.error("replay_overran", limit_s=limit, state=replayer.state)
+            await clock.sleep(ctx.config.recording.job_tail_s)
+    finally:
+        events.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await events
     ctx.stop.set()
+
+
+# How far past the recorded time of an operator's command the replay's job may be before the command is
+# sent anyway, as a divergence (simulated s): the job never got to where the command came.
+_ANCHOR_SLACK_S = 30.0
+
+
+async def _when_it_came(
+    session: RecordedSession, replayer: Replayer, clock: SessionClock, command: Recorded, verb: str
+) -> None:
+    """Wait until the replay's job is where the recorded job was when ``command`` came; when the replay
+    does not follow the recording (any more), until as long after the job's start as it came."""
+    offset_s = session.monotonic_of(command) - session.start_monotonic
+    if replayer.replaying:
+        anchor = session.anchor(command)
+        reaching = asyncio.ensure_future(replayer.reach(anchor))
+        if await clock.wait(reaching, max(0.0, offset_s - replayer.t_s()) + _ANCHOR_SLACK_S):
+            if reaching.result():
+                return
+        else:
+            reaching.cancel()
+            await asyncio.wait({reaching})
+            replayer.diverge("command", f"{verb} {anchor.describe()}", f"{verb} in {replayer.state}")
+    await clock.sleep_until(clock.monotonic() + max(0.0, offset_s - replayer.t_s()))
+
+
+async def _serve_device_events(session: RecordedSession, replayer: Replayer) -> None:
+    """Hand the daemon each recorded device event where it fell in the job, while the replay follows the
+    recording (the cell's own events after)."""
+    events = replayer.events
+    if events is None:
+        return
+    for r in session.device_events:
+        if not await replayer.reach(session.anchor(r)):
+            return
+        events.serve(session.device_event_payload(r))
+
+
+def _finished(trace: Trace) -> bool:
+    """Whether a recorded job ended (done, fault, estop, or stopped to idle), rather than its daemon
+    stopping with the job still going."""
+    if trace.final_state in ("done", "fault", "estop"):
+        return True
+    return trace.final_state == "idle" and len(trace.states) > 1
 
 
 def _recorded_now(session: RecordedSession, replayer: Replayer) -> float:

@@ -14,6 +14,7 @@ whatever clock either ran on.
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import json
 import math
@@ -324,6 +325,37 @@ class Recorded:
 
 
 @dataclass(frozen=True, slots=True)
+class Anchor:
+    """Where in the job an input from outside it came (an operator's command, a device's event): after
+    ``transitions`` transitions since the job's start (the start's own included) and ``device_commands``
+    device commands, ``after_s`` seconds after the later of those two (recorded monotonic time)."""
+
+    transitions: int
+    device_commands: int
+    after_s: float
+
+    def describe(self) -> str:
+        return (
+            f"{self.after_s:.3f} s after transition {self.transitions} and device command "
+            f"{self.device_commands}"
+        )
+
+
+# The device commands a job gives (``daemon.backend.DEVICE_COMMAND_TOPICS``), by their start.
+_DEVICE_COMMAND_TOPICS: Final = (
+    "output/follow",
+    "output/gripper",
+    "output/arm",
+    "input/grasp",
+    "input/grasp_failed",
+    "input/observation",
+    "input/observe_failed",
+)
+# What a device event's recorded payload carries about its recording rather than about the event.
+_EVENT_RECORD_KEYS: Final = frozenset({"at_state", "at_transitions", "at_device_commands", "t_read", "state"})
+
+
+@dataclass(frozen=True, slots=True)
 class RecordedSession:
     """One job's recording, ready to replay."""
 
@@ -340,6 +372,13 @@ class RecordedSession:
     streams: Mapping[str, tuple[Recorded, ...]]  # by topic suffix: input/joints, output/follow, ...
     trace: Trace
     mono_offset_s: float  # recorded now() minus recorded monotonic time (the clocks' fixed difference)
+    # The recorded monotonic time of each transition from the job's start on (the start's own first), and
+    # of the start of each device command the job gave since, in order: where commands and events fell.
+    transition_monos: tuple[float, ...] = ()
+    device_command_monos: tuple[float, ...] = ()
+    # The device events (``Backend.on_event``) as the job heard them, in order: recorded as such
+    # (``input/device_event``), or for an older recording taken from its ``events``.
+    device_events: tuple[Recorded, ...] = ()
 
     @property
     def simulated(self) -> bool:
@@ -367,12 +406,59 @@ class RecordedSession:
         """The operator's commands that changed something, in the order received."""
         return [r for r in self.streams.get("input/command", ()) if r.payload.get("verb") in REPLAYED_VERBS]
 
+    def starting_command(self) -> Recorded | None:
+        """The operator's ``start`` that began the job (the first one answered ok; it may be logged after the
+        start transition, as its reply comes after it), or None for a ``dishbot run --once`` job."""
+        for r in self.commands():
+            reply = r.payload.get("reply")
+            if r.payload.get("verb") == "start" and isinstance(reply, Mapping) and reply.get("ok"):
+                return r
+        return None
+
+    def later_commands(self) -> list[Recorded]:
+        """The operator's commands after the one that started the job, to be sent again in the job."""
+        commands = self.commands()
+        starting = self.starting_command()
+        if starting is None:
+            return [r for r in commands if r.t_ns > self.start_ns]
+        return commands[commands.index(starting) + 1 :]
+
+    def monotonic_of(self, r: Recorded) -> float:
+        """The recorded monotonic time of a command or a device event (when the daemon took it)."""
+        for key in ("t_read", "t_device"):
+            t = r.payload.get(key)
+            if isinstance(t, int | float) and not isinstance(t, bool) and math.isfinite(t):
+                if key == "t_device" and r.kind == "events" and not self.simulated:
+                    break  # a driver's own clock, not the daemon's: use the log time
+                return float(t)
+        return r.t_ns / 1e9 - self.mono_offset_s
+
+    def anchor(self, r: Recorded) -> Anchor:
+        """Where ``r`` (a command or a device event) fell in the job: as recorded with it (``at_*``), else
+        from the times of the transitions and device commands before it."""
+        t = self.monotonic_of(r)
+        n, m = r.payload.get("at_transitions"), r.payload.get("at_device_commands")
+        if not (isinstance(n, int) and isinstance(m, int)) or isinstance(n, bool) or isinstance(m, bool):
+            n = bisect.bisect_left(self.transition_monos, t)
+            m = bisect.bisect_left(self.device_command_monos, t)
+        n = max(0, min(n, len(self.transition_monos)))
+        m = max(0, min(m, len(self.device_command_monos)))
+        base = max(
+            self.transition_monos[n - 1] if n else self.start_monotonic,
+            self.device_command_monos[m - 1] if m else self.start_monotonic,
+        )
+        return Anchor(n, m, max(0.0, t - base))
+
+    def device_event_payload(self, r: Recorded) -> dict[str, object]:
+        """A recorded device event as the driver handed it (without what its record added)."""
+        return {k: v for k, v in r.payload.items() if k not in _EVENT_RECORD_KEYS}
+
     def start_payload(self) -> bytes:
         """The ``start`` command that began the job: as received when it came over Zenoh, else rebuilt from
         the header (a ``dishbot run --once`` job)."""
-        for r in self.commands():
-            if r.payload.get("verb") == "start" and r.t_ns <= self.start_ns:
-                return str(r.payload.get("payload", "")).encode()
+        starting = self.starting_command()
+        if starting is not None:
+            return str(starting.payload.get("payload", "")).encode()
         body: dict[str, object] = {}
         if self.job.get("mugs") is not None:
             body["mugs"] = self.job["mugs"]
@@ -427,6 +513,57 @@ class RecordedSession:
             raise ReplayError(
                 f"{path}: recorded by an older dishbot that did not keep the device commands; record it again"
             )
+        mono_offset = _mono_offset(streams.get("input/joints", []), clock)
+        start_monotonic = _start_monotonic(start, streams.get("input/joints", []), clock)
+        simulated = isinstance(clock, Mapping) and clock.get("source") == "simulated"
+        transitions: list[float] = []
+        derived_events: list[Recorded] = []
+        started = False
+        same_instant: list[float] = []  # device commands recorded so far, by their start
+        for m in messages:
+            suffix = topic_suffix(m.topic)
+            if suffix in _DEVICE_COMMAND_TOPICS:
+                t_start = m.payload.get("t_start")
+                if isinstance(t_start, int | float) and not isinstance(t_start, bool):
+                    same_instant.append(float(t_start))
+            if suffix != "events":
+                continue
+            started = started or m is start
+            kind = m.payload.get("kind")
+            if started and kind == "transition":
+                t = m.payload.get("t_device")
+                ok = isinstance(t, int | float) and not isinstance(t, bool)
+                transitions.append(float(t) if ok else m.log_time_ns / 1e9 - mono_offset)  # type: ignore[arg-type]
+            elif started and "device" in m.payload and kind != "fault_injected":
+                # An older recording's device event: its ``t_device`` is the driver's clock, which on a
+                # simulated session is the daemon's; on the wall clock its log time says when it came.
+                # It came after the transitions published before it (``events`` is in order).
+                payload = dict(m.payload)
+                t = payload.get("t_device")
+                if not (simulated and isinstance(t, int | float) and not isinstance(t, bool)):
+                    payload["t_read"] = m.log_time_ns / 1e9 - mono_offset
+                else:
+                    payload["t_read"] = float(t)
+                payload["at_transitions"] = len(transitions)
+                # ... and after the device commands begun before it, or at the same instant when recorded
+                # before it (the call that failed as the driver said so), not those that answered it.
+                at = float(payload["t_read"])  # type: ignore[arg-type]
+                payload["at_device_commands"] = sum(
+                    1 for c in same_instant if start_monotonic - 1e-9 <= c and abs(c - at) <= 1e-9
+                )
+                derived_events.append(Recorded("events", m.log_time_ns, payload))
+        commands = sorted(
+            float(t)
+            for topic in _DEVICE_COMMAND_TOPICS
+            for r in streams.get(topic, ())
+            if isinstance(t := r.payload.get("t_start"), int | float)
+            and not isinstance(t, bool)
+            and t >= start_monotonic - 1e-9
+        )
+        recorded_events = streams.get("input/device_event", [])
+        for r in derived_events:
+            t = float(r.payload["t_read"])  # type: ignore[arg-type]
+            r.payload["at_device_commands"] += bisect.bisect_left(commands, t - 1e-9)  # type: ignore[index, operator]
         return cls(
             path=path,
             read=read,
@@ -437,10 +574,13 @@ class RecordedSession:
             job=job,
             clock=clock if isinstance(clock, Mapping) else {},
             start_ns=start_ns,
-            start_monotonic=_start_monotonic(start, streams.get("input/joints", []), clock),
+            start_monotonic=start_monotonic,
             streams={k: tuple(v) for k, v in streams.items()},
             trace=trace_of(read, start_ns=start_ns),
-            mono_offset_s=_mono_offset(streams.get("input/joints", []), clock),
+            mono_offset_s=mono_offset,
+            transition_monos=tuple(transitions),
+            device_command_monos=tuple(commands),
+            device_events=tuple(r for r in (recorded_events or derived_events) if r.t_ns >= start_ns),
         )
 
 

@@ -196,12 +196,30 @@ _EVENT_PROPERTIES: dict[str, Schema] = {
     "dropped": _integer("recording_failed: messages the recording lost so far"),
 }
 
-_FAILED_PROPERTIES: Final[dict[str, Schema]] = {
+_ERROR_PROPERTIES: Final[dict[str, Schema]] = {
     "error": _string("the driver's error when the call failed: its type, a colon, its message"),
+    "error_class": _string("the error's type: its module and name (a replay raises the same again)"),
+    "error_servo_id": _integer("the servo a ServoFault names"),
+    "error_bits": _array({"type": "string"}, "the error bits a ServoFault names"),
+    "error_port": _string("the port a BusLost names"),
+}
+
+_FAILED_PROPERTIES: Final[dict[str, Schema]] = {
+    **_ERROR_PROPERTIES,
     "cancelled": _boolean("the call was cancelled (the job left the state)"),
     "t_start": _DEVICE_T,
     "t_end": _DEVICE_T,
 }
+
+# Where the job was when an input from outside it came (``daemon.backend.JobPosition``): a replay sends it
+# again when its job is at the same place.
+_POSITION_PROPERTIES: Final[dict[str, Schema]] = {
+    "at_state": _string("the job's state when it came"),
+    "at_transitions": _integer("transitions since the job's start (the start's own included) when it came"),
+    "at_device_commands": _integer("device commands (moves, openings, closes, looks, stops) the job gave"),
+}
+
+_READ_FAILED: Final = _object({"t": _WALL_T, "t_read": _DEVICE_T, **_ERROR_PROPERTIES}, ("t_read", "error"))
 
 _SCHEMAS: Final[dict[str, Schema]] = {
     "state": _object(
@@ -306,6 +324,27 @@ _SCHEMAS: Final[dict[str, Schema]] = {
         },
         ("held",),
     ),
+    "input/joints_failed": _READ_FAILED,
+    "input/gripper_failed": _READ_FAILED,
+    "input/health_failed": _READ_FAILED,
+    "input/device_event": _object(
+        {**_EVENT_PROPERTIES, **_POSITION_PROPERTIES, "t_read": _DEVICE_T},
+        ("kind", "t_read"),
+    ),
+    "input/motion": _object(
+        {
+            "call": {"type": "string", "enum": ["plan_cycle", "plan_for_slot", "plan_move"]},
+            "args_digest": _string("SHA-256 (first 32 hex digits) over the call's arguments (wire.motion)"),
+            "result": {
+                "type": "object",
+                "description": "the plan: a cycle plan, {mug, plan} or a trajectory (float64 base64 arrays)",
+            },
+            "refused": _string("MotionRefused: why no motion exists"),
+            "blockers": _array({"type": "string"}, "MotionRefused: the mugs that made it impossible"),
+            **_ERROR_PROPERTIES,
+        },
+        ("call", "args_digest"),
+    ),
     "input/grasp_failed": _object(_FAILED_PROPERTIES, ("t_start", "t_end")),
     "input/observe_failed": _object(_FAILED_PROPERTIES, ("t_start", "t_end")),
     "input/command": _object(
@@ -315,6 +354,8 @@ _SCHEMAS: Final[dict[str, Schema]] = {
             "payload": _string("the command's JSON payload as received (UTF-8, undecodable bytes replaced)"),
             "many": _boolean("the query named robots by wildcard"),
             "reply": {"type": "object", "description": "the daemon's reply"},
+            "t_device": _DEVICE_T,
+            **_POSITION_PROPERTIES,
         },
         ("t", "verb", "payload"),
     ),
