@@ -322,8 +322,8 @@ async def _run(
                 request = commands_handler.parse(verb, payload, config)
                 if request is not None:
                     recording.expect_job(job_header(request, config))
-        # The operator's commands are inputs too: a replay sends them again at the same times (``status``
-        # asks and changes nothing, so it is not kept).
+        # The operator's commands are inputs too: a replay sends them again where they came in the job
+        # (``position``, taken as the command arrives) (``status`` asks and changes nothing: not kept).
         t, t_device, at = clock.now(), clock.monotonic(), position.fields()
         reply = await commands_handler.handle(job, verb, payload, many)
         if verb != "status":

@@ -568,10 +568,6 @@ def _finished(trace: Trace) -> bool:
     return trace.final_state == "idle" and len(trace.states) > 1
 
 
-def _recorded_now(session: RecordedSession, replayer: Replayer) -> float:
-    return session.start_ns / 1e9 + replayer.t_s()
-
-
 def _answer(reply: Mapping[str, object]) -> str:
     return "ok" if reply.get("ok") else f"refused ({reply.get('error', '')})"
 

@@ -428,8 +428,6 @@ class RecordedSession:
         for key in ("t_read", "t_device"):
             t = r.payload.get(key)
             if isinstance(t, int | float) and not isinstance(t, bool) and math.isfinite(t):
-                if key == "t_device" and r.kind == "events" and not self.simulated:
-                    break  # a driver's own clock, not the daemon's: use the log time
                 return float(t)
         return r.t_ns / 1e9 - self.mono_offset_s
 
