@@ -100,6 +100,7 @@ def test_every_channel_decodes_with_the_schema_in_the_file(decoded: dict[str, li
                 "input/holding",
                 "input/grasp",
                 "input/observation",
+                "input/motion",
                 "output/follow",
                 "output/arm",
                 "output/gripper",
