@@ -381,11 +381,15 @@ async def _bounded(call: Awaitable[T], replayer: Replayer, rec: Recorded) -> T |
     end = rec.payload.get("t_end")
     if not isinstance(end, int | float) or not math.isfinite(end):
         return await task
-    done = await replayer.clock.wait(
-        task, max(0.0, replayer.replay_monotonic(float(end)) - replayer.clock.monotonic())
-    )
-    if done:
-        return task.result()
+    try:
+        done = await replayer.clock.wait(
+            task, max(0.0, replayer.replay_monotonic(float(end)) - replayer.clock.monotonic())
+        )
+    except asyncio.CancelledError:
+        task.cancel()
+        raise
+    if done:  # (how the cell's side ended matters not: the recording says how the call did)
+        return None if task.cancelled() or task.exception() is not None else task.result()
     task.cancel()
     await asyncio.wait({task})  # (a cancellation of this call itself still goes through)
     if not task.cancelled():
