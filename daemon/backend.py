@@ -19,7 +19,7 @@ import functools
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Final, Protocol, TypeVar
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -180,22 +180,12 @@ class Backend:
 
 Sink = Callable[[str, Mapping[str, object]], None]
 
-# The device commands a job gives (counted by ``JobPosition``): moves, openings, closes, looks, stops.
-DEVICE_COMMAND_TOPICS: Final = (
-    "output/follow",
-    "output/gripper",
-    "output/arm",
-    "input/grasp",
-    "input/grasp_failed",
-    "input/observation",
-    "input/observe_failed",
-)
-
 
 class JobPosition:
     """Where the job is, for placing what comes from outside it (an operator's command, a device's event):
     the state, the transitions since the job's ``start`` (its own included) and the device commands the job
-    gave since (``DEVICE_COMMAND_TOPICS``). A replay sends such an input when its job is at the same place."""
+    gave since (moves, openings, closes, looks at the counter, stops: what the recorded arm, gripper and
+    observer count). A replay sends such an input when its job is at the same place."""
 
     def __init__(self) -> None:
         self.state = "idle"

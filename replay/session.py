@@ -341,7 +341,8 @@ class Anchor:
         )
 
 
-# The device commands a job gives (``daemon.backend.DEVICE_COMMAND_TOPICS``), by their start.
+# The topics of the device commands a job gives (those ``daemon.backend.JobPosition`` counts), by their
+# start.
 _DEVICE_COMMAND_TOPICS: Final = (
     "output/follow",
     "output/gripper",
