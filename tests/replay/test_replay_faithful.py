@@ -11,7 +11,6 @@ import json
 import threading
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
 
 import pytest
 
@@ -20,6 +19,7 @@ from daemon.app import RunOptions, RunResult, ServeContext, ServeHooks, serve
 from daemon.backend import SimOptions
 from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
+from daemon.sdnotify import SdNotifier
 from drivers.dynamixel.bus import BusTimeout
 from drivers.dynamixel.health import ServoHealthFault
 from drivers.errors import BusLost, ServoFault
@@ -89,16 +89,12 @@ def _daemon_job(
     async def run() -> RunResult:
         backend = await open_backend(config, sim=SimOptions(world="kinematic", seed=0), clock=clock)
         hooks = ServeHooks(on_publish=(tap,), on_ready=ready)
-        return await serve(config, backend, associate, options, notifier=SdNotifier(), stop=stop, hooks=hooks)
+        return await serve(
+            config, backend, associate, options, notifier=SdNotifier(None), stop=stop, hooks=hooks
+        )
 
     result = clock.run(run())
     return _job_file(result.files)
-
-
-def SdNotifier() -> Any:  # noqa: N802 - the daemon's notifier, without systemd
-    from daemon.sdnotify import SdNotifier as Notifier
-
-    return Notifier(None)
 
 
 def _start_body(mugs: int) -> bytes:
