@@ -2,19 +2,25 @@
 daemon does what it did.
 
 A ``Replayer`` holds the recorded streams and a cursor in each. Each replay device wraps the simulated
-cell's device and always drives it too, so that the cell stays where the recording says the robot was;
-while the replay is *replaying* it hands the job what the recording holds instead of what the cell says:
+cell's device and drives it with every command too, so that the cell stays where the recording says the
+robot was; while the replay is *replaying* it hands the job what the recording holds instead of what the
+cell says (and does not read the cell):
 
 - joint feedback, force readings and the holding flag by time: the last one recorded at or before the
-  moment the daemon reads (the recording's clock laid over the replay's at the job's start);
-- grasp results, observations and placement plans by order: the n-th call gets the n-th recorded result,
-  after as long as it took then; a call that failed then fails the same way now;
+  moment the daemon reads (the recording's clock laid over the replay's at the job's start); a joint read
+  that failed then fails now, and so does a gripper read or a health poll (once each);
+- grasp results, observations, placement plans and motion plans by order: the n-th call gets the n-th
+  recorded result, after as long as it took then; a call that failed then fails the same way now (the
+  same driver error class, ``recorded_failure``), and the cell's side of it stops where it ended then; a
+  motion plan only while the job asks with the same arguments;
+- device events (``ReplayEvents``): the recorded ones, handed over by ``replay.engine`` where they fell in
+  the job (``Replayer.reach``: after as many transitions and device commands), the cell's own held back;
 - the device commands (moves, openings, closes) are compared with the recorded ones as they are given.
 
 The first difference — a device command other than the recorded one, a state the recording did not enter,
-an operator command answered otherwise, an injected fault, or the end of a recording cut short — ends
-replaying: from then on every device is the simulated cell's alone, started from where the recorded
-commands put it (``diverge``).
+an operator command answered otherwise, a motion plan asked for other arguments, an injected fault, or the
+end of a recording cut short — ends replaying: from then on every device is the simulated cell's alone,
+started from where the recorded commands put it (``diverge``).
 """
 
 from __future__ import annotations
