@@ -4,8 +4,8 @@ The session header rebuilds the config and the simulated cell (the same world, d
 simulated clock from the same wall-clock start); the daemon itself runs unchanged (``daemon.app.serve``:
 the job, the statechart, the planners, the telemetry, the recorder, Zenoh with ``listen``). Its devices are
 the replay's (``replay.drivers``): the recorded inputs for as long as the daemon does what it did,
-the simulated cell after. The operator's recorded commands are sent again at their times while the replay
-follows the recording. Faults (``replay.faults``) act on the simulated cell; the first one to fire
+the simulated cell after. The operator's recorded commands are sent again where they fell in the job (at
+their times after a divergence). Faults (``replay.faults``) act on the simulated cell; the first one to fire
 ends replaying, as any divergence does.
 
 The replay's trace is what its daemon publishes and records, taken as it happens (a tee on the session),
