@@ -30,7 +30,11 @@ def test_a_disk_full_mid_job_is_published_shown_in_status_and_counted_and_the_jo
 ) -> None:
     disk = SmallDisk(free=10**9)
     monkeypatch.setattr(writer, "open", disk.open, raising=False)
-    config = load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}})
+    # Small chunks: the recorder writes (and finds the disk full) within the fake cell's short job, however
+    # much each message of the job weighs (a chunk of the default 64 KiB may not fill between two mugs).
+    config = load_config(
+        overrides={"robot_id": ROBOT, "planner": {"method": "bh"}, "recording": {"chunk_size_bytes": 4096}}
+    )
     events: list[Mapping[str, object]] = []
 
     def tap(topic: str, payload: Mapping[str, object]) -> None:
