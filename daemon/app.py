@@ -321,7 +321,10 @@ async def _run(
             with contextlib.suppress(commands_handler.BadCommand):
                 request = commands_handler.parse(verb, payload, config)
                 if request is not None:
-                    recording.expect_job(job_header(request, config))
+                    header = job_header(request, config)
+                    if request.dataset is None and request.mugs is None:  # the tray goes on: say how
+                        header["carried"] = job.carried()
+                    recording.expect_job(header)
         # The operator's commands are inputs too: a replay sends them again where they came in the job
         # (``position``, taken as the command arrives) (``status`` asks and changes nothing: not kept).
         t, t_device, at = clock.now(), clock.monotonic(), position.fields()

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Final, Literal
 import numpy as np
 
 from planning.arm import ArmModel
+from replay.errors import ReplayError
 from replay.session import RecordedSession
 from sim.kinematic import SimMug
 from wire.schemas import topic_suffix
@@ -581,12 +582,24 @@ def carried_over(session: RecordedSession) -> JobContext:
         for m in seen.on("counter")
     }
     numbers = [int(m.mug_id[1:]) for m in seen.mugs if m.mug_id[:1] == "m" and m.mug_id[1:].isdigit()]
+    next_id = max(numbers, default=0) + 1
+    carried = session.job.get("carried")
+    if isinstance(carried, Mapping):  # the header says what the job carried over: exactly that
+        try:
+            on_tray = [TraySlot(**slot) for slot in carried["on_tray"]]
+            tray_mugs = [TrayMug(**mug) for mug in carried["tray_mugs"]]
+            counter = {m["mug_id"]: MugPose(**m) for m in carried.get("counter", ())} or counter
+            next_id = int(carried["next_id"])
+        except (KeyError, TypeError, ValueError) as e:
+            raise ReplayError(
+                f"{session.path}: the header's job.carried is not what a job carries: {e}"
+            ) from e
     return JobContext(
         planner=PlannerRequest().options(config.planner),
         counter=counter,
         on_tray=on_tray,
         tray_mugs=tray_mugs,
-        next_id=max(numbers, default=0) + 1,
+        next_id=next_id,
     )
 
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import dataclasses
 from collections.abc import Callable, Mapping
 from typing import Protocol
 
@@ -130,6 +131,18 @@ class Job:
             self._services.event("recording_failed", path=path, error=error, dropped=dropped)
         else:
             self._services.event("recording_restored", path=path)
+
+    def carried(self) -> dict[str, object]:
+        """What a job started now without a new counter carries over from the jobs before it (the mugs on
+        the tray as they were placed, the counter it knew, the next mug id), for its recording's header: a
+        replay of it starts from exactly that (``carry_over``)."""
+        ctx = self._ctx
+        return {
+            "on_tray": [dataclasses.asdict(slot) for slot in ctx.on_tray],
+            "tray_mugs": [dataclasses.asdict(mug) for mug in ctx.tray_mugs],
+            "counter": [dataclasses.asdict(mug) for mug in ctx.counter.values()],
+            "next_id": ctx.next_id,
+        }
 
     def status(self) -> dict[str, object]:
         """The ``state`` payload: where the chart is and how far the job got."""
