@@ -73,10 +73,13 @@ def test_a_once_job_is_one_finished_job_file_whose_header_names_what_it_ran(job:
 
 @pytest.mark.slow
 def test_every_channel_decodes_with_the_schema_in_the_file(decoded: dict[str, list[Decoded]]) -> None:
-    # The kinematic cell has no depth camera: no depth image, so no calibration (test_scene_view has them).
+    # The kinematic cell's camera is the truth camera's small frame (16 px wide): its depth image and
+    # calibration are there as the MuJoCo cell's are.
     schemas = {topic: {d.schema_name for d in items} for topic, items in decoded.items()}
     assert schemas == {
         "/tf": {"foxglove.FrameTransforms"},
+        "/camera/depth": {"foxglove.RawImage"},
+        "/camera/calibration": {"foxglove.CameraCalibration"},
         "/scene/arm": {"foxglove.SceneUpdate"},
         "/scene/cell": {"foxglove.SceneUpdate"},
         "/scene/mugs": {"foxglove.SceneUpdate"},
