@@ -343,6 +343,10 @@ def _print_summary(
     out = sys.stdout
     out.write(f"job ended in state {result.end_state}\n")
     out.write(f"detected {s.detected}, planned {s.planned}, placed {s.placed}, failed {s.failed}\n")
+    if s.out_of_reach:
+        out.write(f"out of reach {len(s.out_of_reach)} (left out before packing):\n")
+        for line in s.out_of_reach:
+            out.write(f"  {line}\n")
     out.write(f"grasp failures {s.grasp_failures}, drops {s.drops}, duration {s.duration_s:.1f} s\n")
     if s.recording_dropped:
         out.write(f"recording lost {s.recording_dropped} messages (the disk failed or was too slow)\n")

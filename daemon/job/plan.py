@@ -1,9 +1,12 @@
 """``plan``: placement planning of the counter's mugs around those already on the tray (a
-``planning.placement.PlacementPlanner``), published on ``plan``; then the first cycle is taken
-(``cycles.take_next_cycle``)."""
+``planning.placement.PlacementPlanner``), checked with the arm (``planning.placement.checked``: counter
+mugs no cycle can take are left out before packing, and every slot's cycle is planned in the order the job
+will run them, against the mugs placed before it and those still on the counter; mugs given up stay
+obstacles), published on ``plan``; then the first cycle is taken (``cycles.take_next_cycle``)."""
 
 from __future__ import annotations
 
+import asyncio
 import functools
 
 from daemon.backend import CyclePlannerSpec, plan_placement
@@ -19,17 +22,19 @@ from planning.placement import (
     InvalidProblem,
     MugType,
     PlacementPlanner,
+    PlanOptions,
     PlanResult,
     Problem,
     TrayMug,
     plan,
 )
+from planning.placement.checked import CheckedPlan, plan_checked
 
 
 class Plan(Unit):
     """Plan the tray slots and their order; ``planned`` with ``has_next_mug``."""
 
-    reads = NEXT_CYCLE_READS | {"planner", "tray_mugs", "given_up", "on_tray"}
+    reads = NEXT_CYCLE_READS | {"planner", "tray_mugs", "given_up", "on_tray", "counter"}
     writes = NEXT_CYCLE_WRITES | {"queue", "needs_plan", "summary"}
 
     def __init__(self) -> None:
@@ -40,14 +45,20 @@ class Plan(Unit):
         ctx.needs_plan = False
         try:
             problem = problem_of(services, ctx)
-            planner = placement_planner(services.config, services.backend.tray)
-            result = await services.plan_placement(planner, problem, ctx.planner)
+            checked = await checked_plan(services, ctx, problem)
         except InvalidProblem as e:
             services.event("warning", message=f"placement planning refused the problem: {e}")
             return Outcome("planned", {"has_next_mug": False})
+        result = checked.result
         ctx.queue = _slots(result, problem, ctx)
         ctx.summary.planned = len(ctx.on_tray) + len(ctx.queue)
+        ctx.summary.out_of_reach = [m.reason for m in checked.left_out]
+        for m in checked.left_out:
+            services.event("out_of_reach", mug_id=m.mug_id, reason=m.reason, detail=m.detail)
+        for mug_id, why in checked.sequenced.dropped:
+            services.event("slot_dropped", mug_id=mug_id, reason=why)
         payload = result.to_json()
+        payload["out_of_reach"] = [{"id": m.mug_id, "reason": m.reason} for m in checked.left_out]
         payload["slots"] = [
             {
                 "id": s.mug_id,
@@ -62,6 +73,29 @@ class Plan(Unit):
         payload["t"] = services.wall_time()
         services.publish("plan", payload)
         return Outcome("planned", {"has_next_mug": await take_next_cycle(services, ctx)})
+
+
+async def checked_plan(services: Services, ctx: JobContext, problem: Problem) -> CheckedPlan:
+    """``problem`` planned and checked with the arm from where it stands (``plan_checked``): the packing
+    goes through ``Services.plan_placement`` (the planning process; a replay's recorded plans), the cycle
+    planner's calls, which block, run in a thread."""
+    planner = placement_planner(services.config, services.backend.tray)
+
+    async def pack(p: Problem, options: PlanOptions) -> PlanResult:
+        return await services.plan_placement(planner, p, options)
+
+    js = await services.backend.arm.read_joints()
+    return await plan_checked(
+        problem,
+        ctx.planner,
+        services.backend.motion,
+        tuple(js.position_rad),
+        [m for m in ctx.counter.values() if m.mug_id not in ctx.given_up],
+        pack=pack,
+        off_loop=asyncio.to_thread,
+        fixed=[m for m in ctx.counter.values() if m.mug_id in ctx.given_up],
+        on_tray=tuple(ctx.on_tray),
+    )
 
 
 def placement_planner(config: Config, tray: Tray) -> PlacementPlanner:

@@ -1,0 +1,190 @@
+"""A placement the arm can build (issue 24, item 3): ``plan_with_arm`` leaves out the counter mugs no cycle
+can take (``sequence.reach``), packs the rest with the chosen method and footprint, then checks the
+assignment and the order cycle by cycle with the cycle planner (``sequence.sequence``). The result lists
+only the checked cycles, in the order they were checked; when slots had to be dropped, the mugs planned for
+them are left out and the tray is packed once more, and the round that builds more wins.
+
+Only ``planning.interfaces`` is needed from the arm's side: the caller passes its ``MotionPlanner`` (the
+daemon's, possibly in another process; a bench's ``CyclePlanner``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import time
+from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import Protocol, TypeVar
+
+from planning.interfaces import MotionPlanner, MugPose, TraySlot
+from planning.placement.context import PlanOptions
+from planning.placement.cost import Evaluator
+from planning.placement.planner import PlacedMug, PlanResult, plan
+from planning.placement.problem import Problem
+from planning.placement.seam import PlacementPlanner
+from planning.placement.sequence import LeftOut, Sequenced, reach, sequence
+
+# Packing rounds at most: the first, and one more without the mugs of the slots the first had to drop.
+ROUNDS = 2
+
+_T = TypeVar("_T")
+
+
+@dataclass(frozen=True, slots=True)
+class CheckedPlan:
+    """``result``: the placement as the arm will build it (only checked cycles, ``order`` the checked order,
+    ids as the cycles move them); ``left_out``: the counter mugs out of reach before packing; ``sequenced``:
+    the winning round's cycles and what it dropped; ``planned``: how many the packer placed in that round."""
+
+    result: PlanResult
+    left_out: tuple[LeftOut, ...]
+    sequenced: Sequenced
+    planned: int
+    rounds: int
+
+    def summary_lines(self) -> list[str]:
+        """One short line per counter mug left out (out of reach), then one per slot dropped."""
+        lines = [f"out of reach: {m.reason}" for m in self.left_out]
+        lines += [f"slot dropped: {mug}: {_first_line(why)}" for mug, why in self.sequenced.dropped]
+        return lines
+
+
+class OffLoop(Protocol):
+    """Runs a blocking call somewhere the caller's event loop is not blocked (``asyncio.to_thread``)."""
+
+    def __call__(self, fn: Callable[[], _T], /) -> Awaitable[_T]: ...
+
+
+async def plan_checked(
+    problem: Problem,
+    options: PlanOptions,
+    motion: MotionPlanner,
+    start_q: Sequence[float],
+    counter: Sequence[MugPose],
+    *,
+    pack: Callable[[Problem, PlanOptions], Awaitable[PlanResult]],
+    off_loop: OffLoop,
+    fixed: Sequence[MugPose] = (),
+    on_tray: Sequence[TraySlot] = (),
+) -> CheckedPlan:
+    """Plan ``problem`` (its counter mugs are ``counter``, same ids; ``fixed`` mugs stay on the counter as
+    obstacles; ``on_tray`` the placed mugs as the arm sees them) so that every planned cycle is checked.
+    ``pack`` packs a problem (the daemon's planning process); the cycle planner's calls, which block, go
+    through ``off_loop``, one batch at a time, never while ``pack`` runs."""
+    started = time.perf_counter()
+    poses = {m.mug_id: m for m in counter}
+    missing = [m.id for m in problem.mugs if m.id not in poses]
+    if missing:
+        raise ValueError(f"counter mugs without a pose: {', '.join(missing)}")
+    cx, cy = problem.to_world_mm(problem.tray_size_mm[0] / 2.0, problem.tray_size_mm[1] / 2.0)
+
+    def probe(mug: MugPose) -> TraySlot:
+        return TraySlot(mug.mug_id, mug.type, cx / 1000.0, cy / 1000.0)
+
+    movable = [poses[m.id] for m in problem.mugs]
+    left = tuple(await off_loop(functools.partial(reach, motion, start_q, movable, probe)))
+    gone = {m.mug_id for m in left}
+    stays = (*fixed, *(poses[m] for m in sorted(gone)))
+    pickable = [m for m in movable if m.mug_id not in gone]
+    best: tuple[PlanResult, Sequenced] | None = None
+    rounds = 0
+    excluded = set(gone)
+    while rounds < ROUNDS:
+        rounds += 1
+        packed = replace(problem, mugs=tuple(m for m in problem.mugs if m.id not in excluded))
+        result = await pack(packed, options)
+        slots = result.slots(packed)
+        checked = await off_loop(
+            functools.partial(sequence, motion, start_q, slots, pickable, on_tray, fixed=stays)
+        )
+        if best is None or len(checked.cycles) > len(best[1].cycles):
+            best = (result, checked)
+        if not checked.dropped or not packed.mugs:
+            break
+        excluded |= {mug for mug, _ in checked.dropped}
+    assert best is not None
+    result, checked = best
+    reachable = replace(problem, mugs=tuple(m for m in problem.mugs if m.id not in gone))
+    built = _as_built(reachable, options, result, checked, time.perf_counter() - started, left)
+    return CheckedPlan(built, left, checked, result.n, rounds)
+
+
+def plan_with_arm(
+    problem: Problem,
+    options: PlanOptions,
+    motion: MotionPlanner,
+    start_q: Sequence[float],
+    counter: Sequence[MugPose],
+    *,
+    fixed: Sequence[MugPose] = (),
+    on_tray: Sequence[TraySlot] = (),
+    planner: PlacementPlanner = plan,
+) -> CheckedPlan:
+    """``plan_checked`` in this thread, packing with ``planner`` (benches, tests, ``dishbot plan``)."""
+
+    async def pack(p: Problem, o: PlanOptions) -> PlanResult:
+        return planner(p, o)
+
+    return asyncio.run(
+        plan_checked(
+            problem,
+            options,
+            motion,
+            start_q,
+            counter,
+            pack=pack,
+            off_loop=_here,
+            fixed=fixed,
+            on_tray=on_tray,
+        )
+    )
+
+
+async def _here(fn: Callable[[], _T], /) -> _T:
+    return fn()
+
+
+def _as_built(
+    problem: Problem,
+    options: PlanOptions,
+    result: PlanResult,
+    checked: Sequenced,
+    wall_s: float,
+    left: Sequence[LeftOut],
+) -> PlanResult:
+    """``result`` reduced to the checked cycles in their order, its parameters recomputed; ``unplaced``
+    lists the mugs of ``problem`` (the counter's reachable mugs: those packed in the first round, as a
+    replay's planner is asked for them) not placed."""
+    spots = {p.id: p for p in result.placed}
+    index = {m.id: i for i, m in enumerate(problem.mugs)}
+    placed: list[PlacedMug] = []
+    for k, c in enumerate(checked.cycles, start=1):
+        p = spots[c.planned_for]
+        yaw = c.plan.handle_yaw_rad if c.plan.handle_yaw_rad is not None else p.handle_yaw_rad
+        placed.append(replace(p, id=c.slot.mug_id, order=k, handle_yaw_rad=yaw))
+    layout = [(index[p.id], p.x_mm, p.y_mm, p.rotated) for p in placed]
+    metrics = Evaluator(problem, options.move_cost).metrics_of_layout(layout)
+    ids = {p.id for p in placed}
+    note = (
+        f"checked with the arm: {len(placed)} of {result.n} planned cycles plan in this order"
+        f" ({checked.checks} cycles planned), {len(left)} counter mugs out of reach left out before packing"
+    )
+    return replace(
+        result,
+        wall_time_s=wall_s,
+        placed=tuple(placed),
+        unplaced=tuple(m.id for m in problem.mugs if m.id not in ids),
+        n=metrics.n,
+        A_mm2=metrics.A,
+        E_j=metrics.E,
+        t_s=wall_s + metrics.t,
+        s=metrics.s,
+        optimal=result.optimal if metrics.n == result.n else False,
+        notes=(*result.notes, note),
+    )
+
+
+def _first_line(text: str, limit: int = 110) -> str:
+    first = text.split("; ")[0]
+    return first if len(first) <= limit else first[: limit - 3] + "..."

@@ -1,0 +1,201 @@
+"""Assignment and order checked with the arm (issue 24, item 3): which counter mug fills which planned slot
+and in which order, every cycle planned by the cycle planner (its IK and its swept-volume check of the
+gripper and the held mug along every trajectory) against the mugs placed before it and the mugs still on
+the counter.
+
+Two steps, both through the ``planning.interfaces.MotionPlanner`` seam (the placement planner itself never
+loads the arm):
+
+1. ``reach``: which counter mugs no cycle can take at all, before packing. Each mug is planned once to a
+   probe slot (the tray's middle) with no other mug on the counter or the tray. A refusal before the cycle
+   reaches the tray (grasp, lift, flip) that no other mug caused leaves the mug out: out of reach (a mug
+   behind it is found by step 2, from where the arm will then stand). A mug whose probe fails over the
+   tray only is kept (the slot is the problem, not the mug).
+2. ``sequence``: the planned slots in an order the arm can build. Greedy over the placement's order (far
+   edge first): the first slot whose cycle plans, with the mug the packer gave it or else (as the job's
+   ``plan_for_slot`` does, and in its order) another counter mug of its type, is taken; its mug leaves the
+   counter, stands on the tray with the handle where the cycle leaves it, and the arm starts the next
+   cycle where this one ended. A slot refused by mugs still on the counter is tried again once one of them
+   has moved; one refused by nothing movable (out of reach, the tray's walls, mugs on the tray, mugs that
+   stay on the counter) is dropped for good. What is left when no slot plans is dropped: the plan promises
+   only the cycles it checked.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+from planning.interfaces import CyclePlan, MotionPlanner, MotionRefused, MugPose, StepKind, TraySlot
+
+# The phases of a cycle that happen over the tray: a refusal there says nothing about the mug's reach.
+_TRAY_PHASES = ("place.",)
+# A short reason stops at this many characters (the recording has the full refusal).
+_SHORT = 110
+# The target's coordinates in a refusal, which the short line already gives as the mug's.
+_POINT = re.compile(r"\([-\d.]+, [-\d.]+, [-\d.]+\) m ")
+
+
+@dataclass(frozen=True, slots=True)
+class LeftOut:
+    """A counter mug no cycle can take: ``reason`` is one short line, ``detail`` the planner's refusal."""
+
+    mug_id: str
+    reason: str
+    detail: str
+
+
+@dataclass(frozen=True, slots=True)
+class Cycle:
+    """One checked cycle: ``slot`` names the mug moved (``planned_for`` is the mug the packer gave the slot)
+    and carries the handle's yaw the cycle leaves; ``plan`` is the cycle planned at that point."""
+
+    slot: TraySlot
+    planned_for: str
+    plan: CyclePlan
+
+
+@dataclass(frozen=True, slots=True)
+class Sequenced:
+    """The slots in the order the arm builds them, the slots dropped (planned-for mug id, reason) and how
+    many cycles were planned to find out."""
+
+    cycles: tuple[Cycle, ...]
+    dropped: tuple[tuple[str, str], ...]
+    checks: int
+
+
+def reach(
+    motion: MotionPlanner,
+    start_q: Sequence[float],
+    counter: Sequence[MugPose],
+    probe: Callable[[MugPose], TraySlot],
+) -> list[LeftOut]:
+    """The counter mugs no cycle can take on their own (see the module): each planned from ``start_q`` to
+    ``probe(mug)`` with nothing else on the counter or the tray. A refusal before the tray that no other mug
+    caused leaves the mug out. In the order of ``counter``."""
+    left: list[LeftOut] = []
+    for mug in counter:
+        try:
+            motion.plan_cycle(start_q, mug, probe(mug), (), counter=())
+        except MotionRefused as e:
+            text = str(e)
+            if text.startswith(_TRAY_PHASES) or e.blockers - {mug.mug_id}:
+                continue
+            left.append(LeftOut(mug.mug_id, _short_reason(mug, text), text))
+    return left
+
+
+def sequence(
+    motion: MotionPlanner,
+    start_q: Sequence[float],
+    slots: Sequence[TraySlot],
+    counter: Sequence[MugPose],
+    on_tray: Sequence[TraySlot] = (),
+    *,
+    fixed: Sequence[MugPose] = (),
+) -> Sequenced:
+    """The slots (in the placement's order, each naming the mug planned for it) in an order whose every
+    cycle plans (see the module). ``counter`` holds the mugs that may be moved (every one, planned or not,
+    is an obstacle until it is moved), ``fixed`` mugs that stay on the counter (obstacles only),
+    ``on_tray`` the mugs already placed."""
+    q = tuple(float(v) for v in start_q)
+    remaining = [(s, s.mug_id) for s in slots]
+    movable = {m.mug_id: m for m in counter}
+    placed = list(on_tray)
+    cycles: list[Cycle] = []
+    dropped: list[tuple[str, str]] = []
+    waiting: dict[str, frozenset[str]] = {}  # planned-for id -> counter mugs that blocked its last try
+    checks = [0]
+    while remaining:
+        progress = False
+        for i, (slot, planned_for) in enumerate(remaining):
+            blockers = waiting.get(planned_for)
+            if blockers is not None and blockers <= movable.keys():
+                continue  # nothing that blocked it has moved since
+            try:
+                mug, plan = _fill(motion, q, slot, movable, placed, fixed, checks)
+            except MotionRefused as e:
+                on_counter = e.blockers & movable.keys()
+                if not on_counter:
+                    dropped.append((planned_for, str(e)))
+                    del remaining[i]
+                    progress = True
+                    break
+                waiting[planned_for] = frozenset(on_counter)
+                continue
+            del remaining[i]
+            waiting.pop(planned_for, None)
+            if mug.mug_id != slot.mug_id:
+                # The mug taken had a slot of its own (same type): the slot's planned mug takes it over.
+                remaining = [
+                    (replace(s, mug_id=slot.mug_id), p) if s.mug_id == mug.mug_id else (s, p)
+                    for s, p in remaining
+                ]
+            done = replace(slot, mug_id=mug.mug_id, handle_yaw_rad=plan.handle_yaw_rad)
+            cycles.append(Cycle(done, planned_for, plan))
+            placed.append(done)
+            del movable[mug.mug_id]
+            q = _end_q(plan, q)
+            progress = True
+            break
+        if not progress:
+            for slot, planned_for in remaining:
+                stuck = ", ".join(sorted(waiting.get(planned_for, frozenset())))
+                dropped.append((planned_for, f"slot for {slot.mug_id}: blocked by {stuck}, which stay"))
+            break
+    return Sequenced(tuple(cycles), tuple(dropped), checks[0])
+
+
+def _fill(
+    motion: MotionPlanner,
+    q: tuple[float, ...],
+    slot: TraySlot,
+    movable: dict[str, MugPose],
+    placed: Sequence[TraySlot],
+    fixed: Sequence[MugPose],
+    checks: list[int],
+) -> tuple[MugPose, CyclePlan]:
+    """The cycle filling ``slot``: its own mug, else the other movable mugs of its type nearest the arm
+    first (``CyclePlanner.plan_for_slot``'s order, so the job repeats the choice); every other counter mug
+    and the fixed ones are obstacles."""
+    named = [m for m in movable.values() if m.mug_id == slot.mug_id]
+    others = sorted(
+        (m for m in movable.values() if m.type == slot.type and m.mug_id != slot.mug_id),
+        key=lambda m: (math.hypot(m.x_m, m.y_m), m.mug_id),
+    )
+    reasons: list[MotionRefused] = []
+    for mug in [*named, *others]:
+        obstacles = tuple(m for m in movable.values() if m.mug_id != mug.mug_id) + tuple(fixed)
+        checks[0] += 1
+        try:
+            plan = motion.plan_cycle(
+                q, mug, replace(slot, mug_id=mug.mug_id), tuple(placed), counter=obstacles
+            )
+        except MotionRefused as e:
+            reasons.append(e)
+            continue
+        return mug, plan
+    if not reasons:
+        raise MotionRefused(f"slot for {slot.mug_id}: no {slot.type} mug left on the counter")
+    why = "; ".join(str(e) for e in reasons)
+    raise MotionRefused.combining(f"slot for {slot.mug_id}: {why}", reasons)
+
+
+def _end_q(plan: CyclePlan, q: tuple[float, ...]) -> tuple[float, ...]:
+    """Where the arm stands when the cycle ends (its last move's last pose)."""
+    moves = [s.trajectory for s in plan.steps if s.kind is StepKind.MOVE and s.trajectory is not None]
+    if not moves:
+        return q
+    return tuple(float(v) for v in moves[-1].positions[-1])
+
+
+def _short_reason(mug: MugPose, refusal: str) -> str:
+    """``m3 at (0.081, 0.356) m: side_grasp.approach: (0.081, 0.356, 0.060) m unreachable: no solution
+    within the joint limits...`` (one short line: the first reason of the refusal)."""
+    where = f"{mug.mug_id} at ({mug.x_m:.3f}, {mug.y_m:.3f}) m"
+    first = _POINT.sub("", refusal.split("; ")[0])
+    text = f"{where}: {first}"
+    return text if len(text) <= _SHORT else text[: _SHORT - 3] + "..."
