@@ -50,6 +50,17 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser.add_argument(
         "--time-limit", default="1.0", metavar="SEC", help="budget for auto and exact (default 1.0)"
     )
+    parser.add_argument(
+        "--layouts",
+        default="0",
+        metavar="N",
+        help=(
+            "instead of the method tables, check the placing order with the arm on N random counter layouts "
+            "per dataset (seeded; mug-shaped footprints): cycles planned, placed as the job would place "
+            "them, and order-induced collisions with and without the check (default 0: the method tables)"
+        ),
+    )
+    parser.add_argument("--seed", default="0", help="seed of the random counter layouts (default 0)")
     add_json_flag(parser)
     parser.set_defaults(handler=run)
 
@@ -78,6 +89,24 @@ def run(args: argparse.Namespace) -> int:
     datasets = [
         int(d) for d in _parse_list(args.datasets, tuple(str(n) for n in thesis.DATASETS), "--datasets")
     ]
+    for flag, text in (("--layouts", args.layouts), ("--seed", args.seed)):
+        if not text.isdigit():
+            raise UsageError(f"{flag}: expected a whole number, 0 or more, got {text!r}")
+    if int(args.layouts):
+        from bench.placement_order import order_table
+
+        layouts = Progress("bench placement", len(datasets) * int(args.layouts), enabled=not args.json)
+        order_columns, order_rows, order_extra = order_table(
+            datasets, int(args.layouts), int(args.seed), lambda note: layouts.next(note)
+        )
+        emit(
+            "placement order checked with the arm",
+            order_columns,
+            order_rows,
+            as_json=args.json,
+            extra=order_extra,
+        )
+        return 0
     rows: list[list[object]] = []
     targets = {
         "auto_optimal_within_limit": True,

@@ -7,8 +7,9 @@ runs one loading job on it exactly as ``dishbot run --once`` does — perception
 placement planner, the cycle planner, the real Dynamixel and FSR drivers on the in-process transport — and
 the bench reads the outcome from the job's summary and the world's ground truth: mugs detected, planned,
 placed (standing on the tray, upright or inverted as planned), tray collisions (the thesis's tolerance test
-asks for none, Table 5.19), simulated time per placed mug (the thesis's Gazebo runs took about 55 s, Table
-5.26), simulated and wall time and their ratio. The cell runs on a simulated clock at full speed, as
+asks for none, Table 5.19) and how many of them were the gripper touching a mug it was not handling,
+simulated time per placed mug (the thesis's Gazebo runs took about 55 s, Table 5.26), simulated and wall
+time and their ratio. The cell runs on a simulated clock at full speed, as
 ``dishbot run --sim --once`` does.
 """
 
@@ -56,6 +57,9 @@ class SimRun:
     end_state: str
     sim_time_s: float
     wall_time_s: float
+    # Of the tray collisions: the gripper touching a mug other than the one it handles (the rest are mugs
+    # touching mugs).
+    gripper_contacts: int = 0
 
     @property
     def sim_s_per_mug(self) -> float:
@@ -170,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
             r.placed,
             r.on_tray,
             r.tray_collisions,
+            r.gripper_contacts,
             r.grasp_failures,
             r.drops,
             r.end_state,
@@ -188,6 +193,7 @@ def run(args: argparse.Namespace) -> int:
         "placed",
         "on_tray",
         "tray_collisions",
+        "gripper_contacts",
         "grasp_failures",
         "drops",
         "end_state",
@@ -199,6 +205,7 @@ def run(args: argparse.Namespace) -> int:
     extra = {
         "fsr debounce s": args.fsr_debounce,
         "target tray_collisions": 0,
+        "target gripper_contacts": 0,
         "target x_real_time": ">= 5",
         "thesis (Gazebo, Table 5.26) s per mug": thesis.THESIS_GAZEBO_SECONDS_PER_MUG,
         "thesis best placed (ds1, ds2, ds3)": [thesis.DATASETS[n].thesis_best_placed for n in datasets],
@@ -260,6 +267,7 @@ async def run_dataset(
             placed=summary.placed,
             on_tray=on_tray,
             tray_collisions=len(collisions),
+            gripper_contacts=sum(1 for c in collisions if c.kind == "gripper_mug"),
             grasp_failures=summary.grasp_failures,
             drops=summary.drops,
             end_state=summary.end_state or "timeout",

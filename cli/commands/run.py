@@ -343,9 +343,9 @@ def _print_summary(
     out = sys.stdout
     out.write(f"job ended in state {result.end_state}\n")
     out.write(f"detected {s.detected}, planned {s.planned}, placed {s.placed}, failed {s.failed}\n")
-    if s.out_of_reach:
-        out.write(f"out of reach {len(s.out_of_reach)} (left out before packing):\n")
-        for line in s.out_of_reach:
+    if s.left_out:
+        out.write(f"left out of the plan {len(s.left_out)}:\n")
+        for line in s.left_out:
             out.write(f"  {line}\n")
     out.write(f"grasp failures {s.grasp_failures}, drops {s.drops}, duration {s.duration_s:.1f} s\n")
     if s.recording_dropped:

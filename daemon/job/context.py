@@ -34,8 +34,9 @@ class JobSummary:
     grasp_failures: int = 0
     drops: int = 0
     recording_dropped: int = 0  # messages the recording lost since the job started (a full disk, say)
-    # One short line per counter mug no cycle can take, left out before packing (the last plan's).
-    out_of_reach: list[str] = field(default_factory=list)
+    # The last plan's mugs left on the counter, one short line each: out of reach (left out before packing)
+    # or their slot dropped (no order lets the arm fill it).
+    left_out: list[str] = field(default_factory=list)
     started_at: float | None = None
     ended_at: float | None = None
     end_state: str = ""
@@ -58,7 +59,7 @@ class JobSummary:
             "grasp_failures": self.grasp_failures,
             "drops": self.drops,
             "recording_dropped": self.recording_dropped,
-            "out_of_reach": list(self.out_of_reach),
+            "left_out": list(self.left_out),
             "duration_s": round(self.duration_s, 3),
             "end_state": self.end_state,
         }

@@ -52,10 +52,10 @@ class Plan(Unit):
         result = checked.result
         ctx.queue = _slots(result, problem, ctx)
         ctx.summary.planned = len(ctx.on_tray) + len(ctx.queue)
-        ctx.summary.out_of_reach = [m.reason for m in checked.left_out]
+        ctx.summary.left_out = checked.summary_lines()
         for m in checked.left_out:
             services.event("out_of_reach", mug_id=m.mug_id, reason=m.reason, detail=m.detail)
-        for mug_id, why in checked.sequenced.dropped:
+        for mug_id, why in checked.dropped:
             services.event("slot_dropped", mug_id=mug_id, reason=why)
         payload = result.to_json()
         payload["out_of_reach"] = [{"id": m.mug_id, "reason": m.reason} for m in checked.left_out]

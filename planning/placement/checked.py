@@ -42,11 +42,13 @@ class CheckedPlan:
     sequenced: Sequenced
     planned: int
     rounds: int
+    # (mug id, why) of every mug whose slot a round dropped and which the result leaves on the counter.
+    dropped: tuple[tuple[str, str], ...] = ()
 
     def summary_lines(self) -> list[str]:
         """One short line per counter mug left out (out of reach), then one per slot dropped."""
         lines = [f"out of reach: {m.reason}" for m in self.left_out]
-        lines += [f"slot dropped: {mug}: {_first_line(why)}" for mug, why in self.sequenced.dropped]
+        lines += [f"slot dropped: {mug}: {_first_line(why)}" for mug, why in self.dropped]
         return lines
 
 
@@ -90,6 +92,7 @@ async def plan_checked(
     best: tuple[PlanResult, Sequenced] | None = None
     rounds = 0
     excluded = set(gone)
+    dropped: dict[str, str] = {}
     while rounds < ROUNDS:
         rounds += 1
         packed = replace(problem, mugs=tuple(m for m in problem.mugs if m.id not in excluded))
@@ -98,6 +101,8 @@ async def plan_checked(
         checked = await off_loop(
             functools.partial(sequence, motion, start_q, slots, pickable, on_tray, fixed=stays)
         )
+        for mug, why in checked.dropped:
+            dropped.setdefault(mug, why)
         if best is None or len(checked.cycles) > len(best[1].cycles):
             best = (result, checked)
         if not checked.dropped or not packed.mugs:
@@ -107,7 +112,9 @@ async def plan_checked(
     result, checked = best
     reachable = replace(problem, mugs=tuple(m for m in problem.mugs if m.id not in gone))
     built = _as_built(reachable, options, result, checked, time.perf_counter() - started, left)
-    return CheckedPlan(built, left, checked, result.n, rounds)
+    placed = {p.id for p in built.placed}
+    still = tuple((mug, why) for mug, why in dropped.items() if mug not in placed)
+    return CheckedPlan(built, left, checked, result.n, rounds, still)
 
 
 def plan_with_arm(

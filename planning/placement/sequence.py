@@ -59,7 +59,7 @@ class Cycle:
 
 @dataclass(frozen=True, slots=True)
 class Sequenced:
-    """The slots in the order the arm builds them, the slots dropped (planned-for mug id, reason) and how
+    """The slots in the order the arm builds them, the slots dropped (the mug each named then, reason) and how
     many cycles were planned to find out."""
 
     cycles: tuple[Cycle, ...]
@@ -120,7 +120,7 @@ def sequence(
             except MotionRefused as e:
                 on_counter = e.blockers & movable.keys()
                 if not on_counter:
-                    dropped.append((planned_for, str(e)))
+                    dropped.append((slot.mug_id, str(e)))
                     del remaining[i]
                     progress = True
                     break
@@ -144,7 +144,9 @@ def sequence(
         if not progress:
             for slot, planned_for in remaining:
                 stuck = ", ".join(sorted(waiting.get(planned_for, frozenset())))
-                dropped.append((planned_for, f"slot for {slot.mug_id}: blocked by {stuck}, which stay"))
+                dropped.append(
+                    (slot.mug_id, f"slot for {slot.mug_id}: blocked by {stuck}, which stay on the counter")
+                )
             break
     return Sequenced(tuple(cycles), tuple(dropped), checks[0])
 
@@ -175,7 +177,8 @@ def _fill(
                 q, mug, replace(slot, mug_id=mug.mug_id), tuple(placed), counter=obstacles
             )
         except MotionRefused as e:
-            reasons.append(e)
+            # Straight from above the open gripper meets the mug itself: not a mug that has to move first.
+            reasons.append(MotionRefused(str(e), blockers=e.blockers - {mug.mug_id}))
             continue
         return mug, plan
     if not reasons:

@@ -94,7 +94,9 @@ def test_a_whole_job_places_every_mug_and_ends_done() -> None:
     assert (final["state"], final["mugs_placed"], final["mugs_total"]) == ("done", 3, 3)
     motion = job.backend.motion
     assert isinstance(motion, FakeMotion)
-    assert [len(o) for o in motion.obstacles] == [2, 1, 0]  # the other counter mugs, for collision checks
+    # The other counter mugs, for collision checks: the plan's reach probes (alone), its check of each
+    # cycle in order, then the job's own cycles.
+    assert [len(o) for o in motion.obstacles] == [0, 0, 0, 2, 1, 0, 2, 1, 0]
     # Where each placed mug's handle points (the plan's prediction) goes with it onto the tray.
     placed = [p for t, p in published if t == "events" and p["kind"] == "mug_placed"]
     assert [e["handle_yaw_rad"] for e in placed] == [0.0, 0.1, 0.2]
@@ -138,35 +140,43 @@ def test_a_mug_dropped_while_carrying_is_detected_by_force_and_recovered() -> No
     assert (job.summary.drops, job.summary.placed) == (1, 1)
 
 
-def test_a_mug_the_arm_cannot_reach_is_skipped_and_counted_failed() -> None:
+def test_a_mug_the_arm_cannot_reach_is_left_out_of_the_plan_and_said_so() -> None:
     world = make_world(3)
     job, published = _run(world, _start_and_finish, refuse=("true2",))
     assert sorted(world.placed) == ["true0", "true1"]
-    assert (job.summary.failed, job.chart.state) == (1, "done")
-    refused = [p for t, p in published if t == "events" and p["kind"] == "motion_refused"]
-    assert [r["reason"] for r in refused] == ["m3 at (-0.200, 0.320) is out of reach"]
+    s = job.summary
+    assert (s.planned, s.placed, s.failed, job.chart.state) == (2, 2, 0, "done")
+    assert s.left_out == ["out of reach: m3 at (-0.200, 0.320) m: m3 at (-0.200, 0.320) is out of reach"]
+    events = [p for t, p in published if t == "events"]
+    assert [(e["mug_id"], e["detail"]) for e in events if e["kind"] == "out_of_reach"] == [
+        ("m3", "m3 at (-0.200, 0.320) is out of reach")
+    ]
+    assert not [e for e in events if e["kind"] == "motion_refused"]  # the plan promised only what it can
 
 
-def test_a_mug_blocked_by_another_counter_mug_waits_for_it_to_go_and_is_placed_after() -> None:
+def test_a_mug_blocked_by_another_counter_mug_is_planned_after_it() -> None:
     world = make_world(3)
     _run(world, _start_and_finish)
     order = list(world.placed)  # the placement's order, undisturbed
     world = make_world(3)
     job, published = _run(world, _start_and_finish, blocked_by={order[0]: order[1]})
-    assert world.placed == [order[1], order[0], order[2]]  # tried again as soon as the way was clear
-    assert (job.summary.placed, job.summary.failed, job.chart.state) == (3, 0, "done")
+    assert world.placed == [order[1], order[0], order[2]]  # the plan's check put the blocker first
+    assert (job.summary.planned, job.summary.placed, job.summary.failed, job.chart.state) == (3, 3, 0, "done")
     kinds = [p["kind"] for t, p in published if t == "events"]
-    assert "motion_refused" in kinds
+    assert "motion_refused" not in kinds  # the job never tried the blocked one first
     assert "mug_given_up" not in kinds
 
 
-def test_mugs_blocking_each_other_are_given_up_once_nothing_else_can_move() -> None:
+def test_mugs_blocking_each_other_are_left_out_of_the_plan() -> None:
     world = make_world(3)
     job, published = _run(world, _start_and_finish, blocked_by={"true0": "true1", "true1": "true0"})
     assert world.placed == ["true2"]
-    assert (job.summary.placed, job.summary.failed, job.chart.state) == (1, 2, "done")
-    given_up = [p["mug_id"] for t, p in published if t == "events" and p["kind"] == "mug_given_up"]
-    assert len(given_up) == 2
+    s = job.summary
+    assert (s.planned, s.placed, s.failed, job.chart.state) == (1, 1, 0, "done")
+    assert len(s.left_out) == 2
+    assert all(line.startswith("slot dropped: ") for line in s.left_out)
+    dropped = [p["mug_id"] for t, p in published if t == "events" and p["kind"] == "slot_dropped"]
+    assert len(dropped) == 2
 
 
 def test_pause_stops_the_arm_mid_move_and_resume_rejoins_the_move() -> None:

@@ -210,8 +210,8 @@ class FakeMotion:
         if true_id in self.refuse:
             raise MotionRefused(f"{mug.mug_id} at ({mug.x_m:.3f}, {mug.y_m:.3f}) is out of reach")
         blocker = self.blocked_by.get(true_id)
-        if blocker in self.w.counter:
-            in_front = [m.mug_id for m in others if self._true(m) == blocker]
+        in_front = [m.mug_id for m in others if self._true(m) == blocker] if blocker in self.w.counter else []
+        if in_front:  # blocked only by an obstacle it was given, as the cycle planner is
             raise MotionRefused(
                 f"{mug.mug_id}: the gripper would hit the mug in front of it", blockers=in_front
             )

@@ -1,0 +1,92 @@
+"""Assignment and order checked with the arm (``planning.placement.sequence``, ``checked``), with the real
+cycle planner in the robot cell: a mug out of reach is left out before packing with one short line, a slot
+whose mug is behind another counter mug is filled after that mug has moved whatever order it was planned in,
+a mug given up stays an obstacle, and every cycle of a checked plan plans again as the job asks for it
+(``plan_for_slot``, the slot's own mug first) in the checked order."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+
+from daemon.config import load_config
+from description.thesis import MUG_TYPES
+from planning.arm import ArmModel
+from planning.arm.grasp import handle_facing_away_rad
+from planning.interfaces import MugPose, TraySlot
+from planning.motion import CyclePlanner
+from planning.placement import PlanOptions, cell_dataset_problem
+from planning.placement.checked import plan_with_arm
+from planning.placement.sequence import reach, sequence
+
+START_Q = (0.0, -1.4, 2.0, 1.0, -math.pi / 2)
+
+
+def _mug(mug_id: str, kind: str, x: float, y: float) -> MugPose:
+    return MugPose(mug_id, kind, x, y, handle_yaw_rad=handle_facing_away_rad(x, y))
+
+
+FRONT = _mug("m1", "small", 0.376, 0.415)  # between the arm and BEHIND
+BEHIND = _mug("m7", "big", 0.376, 0.529)  # its approach passes through FRONT
+SLOT_7 = TraySlot("m7", "big", 0.55, 0.08)
+SLOT_1 = TraySlot("m1", "small", 0.55, -0.08)
+
+
+@pytest.fixture(scope="module")
+def planner() -> CyclePlanner:
+    return CyclePlanner(ArmModel.load(), load_config().cell, MUG_TYPES)
+
+
+def test_a_mug_out_of_reach_is_left_out_with_one_short_line(planner: CyclePlanner) -> None:
+    far = _mug("m9", "big", 0.10, 0.80)
+    left = reach(planner, START_Q, [FRONT, far], lambda m: TraySlot(m.mug_id, m.type, 0.5, 0.0))
+    assert [m.mug_id for m in left] == ["m9"]
+    (m,) = left
+    assert m.reason.startswith("m9 at (0.100, 0.800) m: side_grasp.approach: ")
+    assert "\n" not in m.reason
+    assert len(m.reason) <= 110
+    assert "out of reach" in m.detail
+
+
+def test_a_mug_behind_another_is_moved_after_it_whatever_the_planned_order(planner: CyclePlanner) -> None:
+    done = sequence(planner, START_Q, [SLOT_7, SLOT_1], [FRONT, BEHIND])
+    assert [c.slot.mug_id for c in done.cycles] == ["m1", "m7"]
+    assert done.dropped == ()
+    # Each cycle names its mug and leaves its handle where the cycle says.
+    assert all(c.slot.handle_yaw_rad == c.plan.handle_yaw_rad for c in done.cycles)
+
+
+def test_a_mug_given_up_stays_an_obstacle(planner: CyclePlanner) -> None:
+    done = sequence(planner, START_Q, [SLOT_7], [BEHIND], fixed=[FRONT])
+    assert done.cycles == ()
+    ((mug_id, why),) = done.dropped
+    assert mug_id == "m7"
+    assert "mug m1" in why
+    # Without it on the counter the same slot is filled.
+    assert [c.slot.mug_id for c in sequence(planner, START_Q, [SLOT_7], [BEHIND]).cycles] == ["m7"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("footprint", ["mug", "rect"])
+def test_every_checked_cycle_plans_as_the_job_asks_for_it(planner: CyclePlanner, footprint: str) -> None:
+    config = load_config()
+    problem = dataclasses.replace(cell_dataset_problem(config.cell, 1), footprint_kind=footprint)
+    counter = [_mug(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs]
+    checked = plan_with_arm(problem, PlanOptions(), planner, START_Q, counter)
+    result = checked.result
+    assert [p.order for p in result.placed] == list(range(1, result.n + 1))
+    assert sorted([p.id for p in result.placed] + list(result.unplaced)) == sorted(m.id for m in problem.mugs)
+    # The job: each slot in the plan's order, planned with the counter as it then stands.
+    left = {m.mug_id: m for m in counter}
+    on_tray: list[TraySlot] = []
+    q: tuple[float, ...] = START_Q
+    for slot in result.slots(problem):
+        mug, cycle = planner.plan_for_slot(q, slot, list(left.values()), on_tray)
+        assert mug.mug_id == slot.mug_id  # no swap needed: the check chose this mug
+        del left[mug.mug_id]
+        on_tray.append(dataclasses.replace(slot, handle_yaw_rad=cycle.handle_yaw_rad))
+        moves = [s.trajectory for s in cycle.steps if s.trajectory is not None]
+        q = tuple(float(v) for v in moves[-1].positions[-1])
+    assert result.n >= 10  # the rectangle optimum on dataset 1; mug-shaped packs more
