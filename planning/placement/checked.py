@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import functools
+import re
 import time
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, replace
@@ -29,6 +30,8 @@ from planning.placement.sequence import LeftOut, Sequenced, reach, sequence
 ROUNDS = 2
 
 _T = TypeVar("_T")
+# A refusal that says the arm cannot get there (IK, joint limits, beyond the side-grasp ring).
+_REACH = re.compile(r"unreachable|out of reach")
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,8 +49,12 @@ class CheckedPlan:
     dropped: tuple[tuple[str, str], ...] = ()
 
     def summary_lines(self) -> list[str]:
-        """One short line per counter mug left out (out of reach), then one per slot dropped."""
-        lines = [f"out of reach: {m.reason}" for m in self.left_out]
+        """One short line per counter mug left out before packing (out of reach, or no cycle takes it for
+        another reason, e.g. its flip would hit the tray's wall), then one per slot dropped."""
+        lines = [
+            f"{'out of reach' if _REACH.search(m.detail) else 'no cycle takes it'}: {m.reason}"
+            for m in self.left_out
+        ]
         lines += [f"slot dropped: {mug}: {_first_line(why)}" for mug, why in self.dropped]
         return lines
 
