@@ -167,6 +167,26 @@ def test_a_mug_blocked_by_another_counter_mug_is_planned_after_it() -> None:
     assert "mug_given_up" not in kinds
 
 
+def test_a_mug_given_up_stays_an_obstacle_when_the_job_replans() -> None:
+    world = make_world(3)
+    _run(world, _start_and_finish)
+    order = list(world.placed)  # the placement's order, undisturbed
+    world = make_world(3)
+    world.always_fail = {order[0]}  # no grasp of the first mug holds: it is given up and the rest replanned
+    job, published = _run(world, _start_and_finish, blocked_by={order[1]: order[0]})
+    assert world.placed == [order[2]]  # the mug behind the one given up is not tried: it stays blocked
+    s = job.summary
+    assert (s.placed, s.failed, job.chart.state) == (1, 1, "done")
+    assert len(s.left_out) == 1
+    assert s.left_out[0].startswith("slot dropped: ")
+    events = [p for t, p in published if t == "events"]
+    assert [e["kind"] for e in events if e["kind"] in ("mug_given_up", "slot_dropped")] == [
+        "mug_given_up",
+        "slot_dropped",
+    ]
+    assert not [e for e in events if e["kind"] == "motion_refused"]
+
+
 def test_mugs_blocking_each_other_are_left_out_of_the_plan() -> None:
     world = make_world(3)
     job, published = _run(world, _start_and_finish, blocked_by={"true0": "true1", "true1": "true0"})
