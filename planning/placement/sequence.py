@@ -8,7 +8,8 @@ loads the arm):
 
 1. ``reach``: which counter mugs no cycle can take at all, before packing. Each mug is planned once to a
    probe slot (the tray's middle) with no other mug on the counter or the tray. A refusal before the cycle
-   reaches the tray (grasp, lift, flip) that no other mug caused leaves the mug out: out of reach (a mug
+   reaches the tray (grasp, lift, flip) in every alternative the planner tried, that no other mug caused,
+   leaves the mug out: out of reach (a mug
    behind it is found by step 2, from where the arm will then stand). A mug whose probe fails over the
    tray only is kept (the slot is the problem, not the mug).
 2. ``sequence``: the planned slots in an order the arm can build. Greedy over the placement's order (far
@@ -30,8 +31,9 @@ from dataclasses import dataclass, replace
 
 from planning.interfaces import CyclePlan, MotionPlanner, MotionRefused, MugPose, StepKind, TraySlot
 
-# The phases of a cycle that happen over the tray: a refusal there says nothing about the mug's reach.
-_TRAY_PHASES = ("place.",)
+# A phase of the cycle over the tray: a refusal there, of the cycle or of one of its alternatives (the
+# wrist turned or level for the regrasp and the place), says nothing about the mug's reach.
+_TRAY_PHASE = re.compile(r"(^|: )place\.[a-z_]+: ")
 # A short reason stops at this many characters (the recording has the full refusal).
 _SHORT = 110
 # The target's coordinates in a refusal, which the short line already gives as the mug's.
@@ -82,7 +84,7 @@ def reach(
             motion.plan_cycle(start_q, mug, probe(mug), (), counter=())
         except MotionRefused as e:
             text = str(e)
-            if text.startswith(_TRAY_PHASES) or e.blockers - {mug.mug_id}:
+            if _TRAY_PHASE.search(text) or e.blockers - {mug.mug_id}:
                 continue
             left.append(LeftOut(mug.mug_id, _short_reason(mug, text), text))
     return left
