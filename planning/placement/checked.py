@@ -30,6 +30,9 @@ from planning.placement.sequence import LeftOut, Sequenced, reach, sequence
 ROUNDS = 2
 
 _T = TypeVar("_T")
+# How the notes of a checked plan start.
+_CHECKED = "checked with the arm: "
+_DROPPED = "slot dropped: "
 # A refusal that says the arm cannot get there (IK, joint limits, beyond the side-grasp ring).
 _REACH = re.compile(r"unreachable|out of reach")
 
@@ -104,6 +107,8 @@ async def plan_checked(
         rounds += 1
         packed = replace(problem, mugs=tuple(m for m in problem.mugs if m.id not in excluded))
         result = await pack(packed, options)
+        for mug, why in _dropped_notes(result.notes):  # a plan checked before (a replay's recorded one)
+            dropped.setdefault(mug, why)
         slots = result.slots(packed)
         checked = await off_loop(
             functools.partial(sequence, motion, start_q, slots, pickable, on_tray, fixed=stays)
@@ -118,10 +123,20 @@ async def plan_checked(
     assert best is not None
     result, checked = best
     reachable = replace(problem, mugs=tuple(m for m in problem.mugs if m.id not in gone))
-    built = _as_built(reachable, options, result, checked, time.perf_counter() - started, left)
-    placed = {p.id for p in built.placed}
+    placed = {c.slot.mug_id for c in checked.cycles}
     still = tuple((mug, why) for mug, why in dropped.items() if mug not in placed)
+    built = _as_built(reachable, options, result, checked, time.perf_counter() - started, left, still)
     return CheckedPlan(built, left, checked, result.n, rounds, still)
+
+
+def _dropped_notes(notes: Sequence[str]) -> list[tuple[str, str]]:
+    """The (mug id, why) a checked plan's notes list as dropped (``_as_built`` writes them)."""
+    out = []
+    for n in notes:
+        if n.startswith(_DROPPED):
+            mug, _, why = n.removeprefix(_DROPPED).partition(": ")
+            out.append((mug, why))
+    return out
 
 
 def plan_with_arm(
@@ -166,10 +181,12 @@ def _as_built(
     checked: Sequenced,
     wall_s: float,
     left: Sequence[LeftOut],
+    dropped: Sequence[tuple[str, str]],
 ) -> PlanResult:
     """``result`` reduced to the checked cycles in their order, its parameters recomputed; ``unplaced``
     lists the mugs of ``problem`` (the counter's reachable mugs: those packed in the first round, as a
-    replay's planner is asked for them) not placed."""
+    replay's planner is asked for them) not placed. The notes say how the check went and list the slots
+    dropped (``slot dropped: <mug>: <why>``), so that a replay served this plan says the same."""
     spots = {p.id: p for p in result.placed}
     index = {m.id: i for i, m in enumerate(problem.mugs)}
     placed: list[PlacedMug] = []
@@ -181,7 +198,7 @@ def _as_built(
     metrics = Evaluator(problem, options.move_cost).metrics_of_layout(layout)
     ids = {p.id for p in placed}
     note = (
-        f"checked with the arm: {len(placed)} of {result.n} planned cycles plan in this order"
+        f"{_CHECKED}{len(placed)} of {result.n} planned cycles plan in this order"
         f" ({checked.checks} cycles planned), {len(left)} counter mugs out of reach left out before packing"
     )
     return replace(
@@ -195,7 +212,11 @@ def _as_built(
         t_s=wall_s + metrics.t,
         s=metrics.s,
         optimal=result.optimal if metrics.n == result.n else False,
-        notes=(*result.notes, note),
+        notes=(
+            *(n for n in result.notes if not n.startswith((_DROPPED, _CHECKED))),
+            note,
+            *(f"{_DROPPED}{mug}: {why}" for mug, why in dropped),
+        ),
     )
 
 

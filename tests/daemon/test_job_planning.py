@@ -224,7 +224,7 @@ def test_a_deferred_slot_is_planned_again_when_a_mug_of_its_type_came() -> None:
 
 
 @pytest.mark.slow
-def test_slots_no_motion_reaches_are_planned_once_in_a_whole_job_and_then_given_up() -> None:
+def test_mugs_no_motion_reaches_are_left_out_of_the_plan_and_never_tried() -> None:
     world = make_world(5)  # small true0, true2 and true4, big true1 and true3; a big slot is planned first
     published: list[tuple[str, dict[str, Any]]] = []
     backend = make_backend(world, refuse=("true3",))  # big true3 is out of reach ...
@@ -245,10 +245,14 @@ def test_slots_no_motion_reaches_are_planned_once_in_a_whole_job_and_then_given_
     asyncio.run(go())
     assert (job.chart.state, sorted(world.placed)) == ("done", ["true0", "true2", "true4"])
     events = [p for t, p in published if t == "events"]
-    given_up = [e["mug_id"] for e in events if e["kind"] == "mug_given_up"]
-    assert len(given_up) == 2
+    assert not [e for e in events if e["kind"] in ("mug_given_up", "motion_refused")]
     assert [e["dest"] for e in events if e["kind"] == "transition"].count("detect") == 4
-    # Each big mug's slot was planned once, though more mugs were placed after: nothing that blocked them
-    # changed.
+    # The plan's check left big true3 out (out of reach) and dropped the slot of big true1 behind it: the
+    # job never planned a cycle for either.
+    out = [e["mug_id"] for e in events if e["kind"] == "out_of_reach"]
+    dropped = [e["mug_id"] for e in events if e["kind"] == "slot_dropped"]
+    assert (len(out), len(dropped)) == (1, 1)
     slots = Counter(c for c in backend.motion.calls if c.startswith("slot:"))
-    assert [slots[f"slot:{m}"] for m in given_up] == [1, 1]
+    assert [slots[f"slot:{m}"] for m in out + dropped] == [0, 0]
+    assert (job.summary.planned, job.summary.placed, job.summary.failed) == (3, 3, 0)
+    assert len(job.summary.left_out) == 2
