@@ -169,7 +169,7 @@ def _work(packer: MugPacker, ctx: Context) -> list[tuple[list[int], Scan]]:
     work = [(s, scan) for s in (large_first, large_first[::-1], alternating) for scan in SCANS]
     rows = [scan for scan in SCANS if scan[0] == 0 and scan[1] != 0]
     placements = len(work) * len(large_first)
-    while placements + len(rows) * len(large_first) <= PLACEMENT_BUDGET:
+    while large_first and placements + len(rows) * len(large_first) <= PLACEMENT_BUDGET:  # none: no end
         s = list(large_first)
         ctx.rng.shuffle(s)
         work += [(s, scan) for scan in rows]

@@ -311,3 +311,11 @@ def test_the_planned_handle_yaw_is_the_one_the_motion_planner_predicts() -> None
         assert abs(math.remainder(cycle.handle_yaw_rad - p.handle_yaw_rad, math.tau)) < math.radians(2)
         checked += 1
     assert checked >= 4
+
+
+def test_no_counter_mug_to_place_is_an_empty_plan() -> None:
+    # Every counter mug out of reach (or placed): the mug-shaped planner has nothing to pack. Its list of
+    # seeded shuffles once never ended for an empty class sequence.
+    problem = replace(dataset_problem(1), mugs=(), footprint_kind="mug")
+    result = plan(problem, PlanOptions())
+    assert (result.n, result.placed, result.unplaced) == (0, (), ())
