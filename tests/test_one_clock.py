@@ -97,6 +97,9 @@ ALLOWED: Final[dict[tuple[str, str], str]] = {
     ),
     ("planning/placement/context.py", "Context.out_of_time"): "the same compute budget",
     ("planning/placement/context.py", "Context.elapsed"): "the same compute budget",
+    ("planning/placement/checked.py", "plan_checked"): (
+        "measures how long packing and the arm's check took together (the plan's elapsed_s), nothing else"
+    ),
     ("planning/placement/mugshaped.py", "run"): (
         "the mug packer's compute budget (CPU time of its thread): how long it may search on this machine"
     ),
