@@ -30,6 +30,7 @@ import bisect
 import contextlib
 import importlib
 import math
+import threading
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import Final, TypeVar, cast
@@ -60,6 +61,9 @@ T = TypeVar("T")
 
 log = structlog.get_logger("replay")
 
+# How far ahead of the next recorded motion plan a call's own plan is looked for (calls made together and
+# recorded as they finished).
+_MOTION_WINDOW = 64
 # Reads this close together are the same instant (simulated time is exact; the wall clock never is).
 _SAME_S = 1e-7
 # Streams served by time (a read that failed then fails now), and those served by order (several
@@ -124,6 +128,8 @@ class Replayer:
                 items = [r for r in items if r.payload.get("action") == "open"]
             self._ordered[name] = sorted(items, key=lambda r: r.t_ns)
         self._next = dict.fromkeys(_ORDERED, 0)
+        self._motion_taken: set[int] = set()  # motion records served out of order (``take_motion``)
+        self._motion_lock = threading.Lock()  # motion plans are asked from the job's worker threads
         self._cursor: dict[str, int] = {}  # per timed stream: the first record not yet consumed
         # Health polls and gripper reads that failed, served once each at or after their time.
         self._failures = {k: sorted(session.streams.get(k, ()), key=self._read_time) for k in _FAILURES}
@@ -305,6 +311,37 @@ class Replayer:
         self._next[stream] = i + 1
         self.served[stream] = self.served.get(stream, 0) + 1
         return items[i]
+
+    def take_motion(self, call: str, digest: str, got: str) -> Recorded | None:
+        """The recorded plan for a motion planner call: the first one not yet served, among the next
+        ``_MOTION_WINDOW``, asked with the same arguments (the job's plan check plans several cycles at once,
+        so the calls are recorded in the order they finished, which need not be the order they are asked in
+        now); else the next one, whose arguments then differ (a divergence for the caller to name)."""
+        with self._motion_lock:
+            items = self._ordered["motion"]
+            start = self._next["motion"]
+            chosen: int | None = None
+            for i in range(start, min(len(items), start + _MOTION_WINDOW)):
+                p = items[i].payload
+                if i not in self._motion_taken and p.get("call") == call and p.get("args_digest") == digest:
+                    chosen = i
+                    break
+            if chosen is None:
+                chosen = start
+                while chosen in self._motion_taken:
+                    chosen += 1
+            if chosen >= len(items):
+                if self.session.cut is not None:
+                    self.recording_ended()
+                else:
+                    self.diverge("motion", "nothing more recorded", got)
+                return None
+            self._motion_taken.add(chosen)
+            while self._next["motion"] in self._motion_taken:
+                self._motion_taken.discard(self._next["motion"])
+                self._next["motion"] += 1
+            self.served["motion"] = self.served.get("motion", 0) + 1
+            return items[chosen]
 
     def check(self, recorded: Recorded, asked: DeviceCommand | None) -> bool:
         """Whether the daemon asks a device for what it asked then; divergence when not."""
@@ -677,11 +714,12 @@ class ReplayMotion:
     def _serve(self, call: str, args: tuple[object, ...], run: Callable[[], T]) -> T:
         if not self._r.has("motion") or not self._r.serving():
             return run()
-        rec = self._r.take("motion", f"{call} for the job's arguments")
+        digest = args_digest(call, *args)
+        rec = self._r.take_motion(call, digest, f"{call} for the job's arguments")
         if rec is None:
             return run()
         p = rec.payload
-        if p.get("call") != call or p.get("args_digest") != args_digest(call, *args):
+        if p.get("call") != call or p.get("args_digest") != digest:
             self._r.diverge("motion", f"{p.get('call')} as recorded", f"{call} for other arguments")
             return run()
         refused = p.get("refused")
