@@ -32,7 +32,7 @@ def copy_recording(
     messages = list(read.messages)
     header = messages[0].payload
     assert messages[0].topic == HEADER_TOPIC
-    with Recorder(target, chunk_size=64 * 1024) as rec:
+    with Recorder(target, chunk_size=64 * 1024, lossless=True) as rec:  # a copy drops nothing
         rec.write_header(
             _mapping(header["config"]),
             _mapping(header["scene"]),
