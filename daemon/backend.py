@@ -548,27 +548,15 @@ class _RecordedHealth:
         return await self._inner.clear()
 
 
-class _RecordedMotion:
-    """The motion planner, with each call's arguments (digest) and result recorded (``input/motion``,
-    ``wire.motion``); called from the job's worker threads, as the planner is."""
+class MotionCalls:
+    """A motion planner in front of another (``inner``): each of its three calls, with the arguments that
+    name it, goes through ``_call(call, args, run)``, where ``run()`` asks the inner planner (the recorder
+    records them, a replay serves recorded plans)."""
 
-    def __init__(self, inner: MotionPlanner, sink: Sink, clock: SessionClock) -> None:
-        self.inner = inner
-        self._sink = sink
-        self._clock = clock
+    inner: MotionPlanner
 
     def _call(self, call: str, args: tuple[object, ...], run: Callable[[], T]) -> T:
-        record: dict[str, object] = {"call": call, "args_digest": args_digest(call, *args)}
-        try:
-            result = run()
-        except MotionRefused as e:
-            self._sink("input/motion", {**record, "refused": str(e), "blockers": sorted(e.blockers)})
-            raise
-        except Exception as e:
-            self._sink("input/motion", {**record, **failure_fields(e)})
-            raise
-        self._sink("input/motion", {**record, "result": result_json(call, result)})
-        return result
+        raise NotImplementedError
 
     def plan_cycle(
         self,
@@ -604,6 +592,29 @@ class _RecordedMotion:
             (tuple(start_q), tuple(goal_q), label),
             lambda: self.inner.plan_move(start_q, goal_q, label=label),
         )
+
+
+class _RecordedMotion(MotionCalls):
+    """The motion planner, with each call's arguments (digest) and result recorded (``input/motion``,
+    ``wire.motion``); called from the job's worker threads, as the planner is."""
+
+    def __init__(self, inner: MotionPlanner, sink: Sink, clock: SessionClock) -> None:
+        self.inner = inner
+        self._sink = sink
+        self._clock = clock
+
+    def _call(self, call: str, args: tuple[object, ...], run: Callable[[], T]) -> T:
+        record: dict[str, object] = {"call": call, "args_digest": args_digest(call, *args)}
+        try:
+            result = run()
+        except MotionRefused as e:
+            self._sink("input/motion", {**record, "refused": str(e), "blockers": sorted(e.blockers)})
+            raise
+        except Exception as e:
+            self._sink("input/motion", {**record, **failure_fields(e)})
+            raise
+        self._sink("input/motion", {**record, "result": result_json(call, result)})
+        return result
 
 
 def load_correction(config: Config) -> PositionCorrection | None:

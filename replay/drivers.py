@@ -37,7 +37,7 @@ from typing import Final, TypeVar, cast
 
 import structlog
 
-from daemon.backend import Backend, EventListener, PlanPlacement, health_limits
+from daemon.backend import Backend, EventListener, MotionCalls, PlanPlacement, health_limits
 from daemon.clock import SessionClock
 from drivers.errors import BusLost, DriverError
 from drivers.interfaces import (
@@ -52,7 +52,7 @@ from drivers.interfaces import (
     JointTrajectory,
 )
 from perception.interfaces import Detection, MugObserver, Observation
-from planning.interfaces import CyclePlan, MotionPlanner, MotionRefused, MugPose, TraySlot
+from planning.interfaces import MotionPlanner, MotionRefused
 from planning.placement import PlacementPlanner, PlanOptions, PlanResult, Problem
 from replay.session import Anchor, DeviceCommand, Divergence, Recorded, RecordedSession, device_command
 from wire.motion import BadMotionRecord, args_digest, result_from_json
@@ -702,7 +702,7 @@ class ReplayEvents:
             listener(event)
 
 
-class ReplayMotion:
+class ReplayMotion(MotionCalls):
     """Motion planning as the recording has it: the n-th recorded plan while the job asks for it with the
     same arguments (``wire.motion.args_digest``); else (divergence, and after it) the planner itself. A
     recording without plans (an older one) has the planner plan. Called from the job's worker threads."""
@@ -711,7 +711,7 @@ class ReplayMotion:
         self.inner = inner
         self._r = replayer
 
-    def _serve(self, call: str, args: tuple[object, ...], run: Callable[[], T]) -> T:
+    def _call(self, call: str, args: tuple[object, ...], run: Callable[[], T]) -> T:
         if not self._r.has("motion") or not self._r.serving():
             return run()
         digest = args_digest(call, *args)
@@ -736,41 +736,6 @@ class ReplayMotion:
         except (BadMotionRecord, ValueError) as e:
             self._r.diverge("motion", "a recorded plan", f"an unreadable one ({e})")
             return run()
-
-    def plan_cycle(
-        self,
-        start_q: Sequence[float],
-        mug: MugPose,
-        slot: TraySlot,
-        on_tray: Sequence[TraySlot],
-        *,
-        counter: Sequence[MugPose] = (),
-    ) -> CyclePlan:
-        return self._serve(
-            "plan_cycle",
-            (tuple(start_q), mug, slot, tuple(on_tray), tuple(counter)),
-            lambda: self.inner.plan_cycle(start_q, mug, slot, on_tray, counter=counter),
-        )
-
-    def plan_for_slot(
-        self,
-        start_q: Sequence[float],
-        slot: TraySlot,
-        counter: Sequence[MugPose],
-        on_tray: Sequence[TraySlot],
-    ) -> tuple[MugPose, CyclePlan]:
-        return self._serve(
-            "plan_for_slot",
-            (tuple(start_q), slot, tuple(counter), tuple(on_tray)),
-            lambda: self.inner.plan_for_slot(start_q, slot, counter, on_tray),
-        )
-
-    def plan_move(self, start_q: Sequence[float], goal_q: Sequence[float], *, label: str) -> JointTrajectory:
-        return self._serve(
-            "plan_move",
-            (tuple(start_q), tuple(goal_q), label),
-            lambda: self.inner.plan_move(start_q, goal_q, label=label),
-        )
 
 
 def _failed(rec: Recorded) -> bool:
