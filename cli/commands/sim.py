@@ -66,7 +66,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     rig.add_argument(
         "--world",
         default="mujoco",
-        help="the simulated world: mujoco (the only one with a depth camera to publish; the default)",
+        help="the simulated world: mujoco (physics, the default) or kinematic (no dynamics: the kinematic "
+        "cell's world, drawn for the camera by MuJoCo's renderer)",
     )
     counter = rig.add_mutually_exclusive_group()
     counter.add_argument("--dataset", type=int, help="the thesis dataset on the counter (default 1)")
@@ -157,11 +158,10 @@ def _rig(args: argparse.Namespace) -> int:
     from daemon.clock import RealClock
     from daemon.config import load_config, to_toml
     from daemon.security import check_endpoint, check_key
+    from sim.rig import RIG_WORLDS
 
-    if args.world != "mujoco":
-        raise UsageError(
-            f"--world {args.world}: the rig needs a world with a depth camera to publish; use --world mujoco"
-        )
+    if args.world not in RIG_WORLDS:
+        raise UsageError(f"--world {args.world}: choose one of {', '.join(RIG_WORLDS)}")
     if not 0.5 <= args.camera_hz <= 30.0:
         raise UsageError(f"--camera-hz {args.camera_hz:g} is out of range; allowed [0.5, 30]")
     try:
@@ -210,6 +210,7 @@ def _rig(args: argparse.Namespace) -> int:
                     counter,
                     directory=directory,
                     clock=clock,
+                    world=args.world,
                     seed=args.seed,
                     start_pose_rad=base.sim.start_q_rad,
                     on_collision=collided,
@@ -217,11 +218,13 @@ def _rig(args: argparse.Namespace) -> int:
             )
         except (OSError, ValueError) as e:
             raise UsageError(f"sim rig: {e}") from e
-        header = f"{RIG_MARK} ({len(counter)} mugs): `dishbot run --config {target}` drives it.\n"
+        header = (
+            f"{RIG_MARK} ({args.world}, {len(counter)} mugs): `dishbot run --config {target}` drives it.\n"
+        )
         target.write_text(header + to_toml(config_data), encoding="utf-8")
         print(
             f"rig ready: {len(counter)} mugs; servos {rig.servo_port}, fsr {rig.fsr_port}, camera on "
-            f"{args.listen} key {args.camera_key}; config {target}",
+            f"{args.listen} key {args.camera_key}; config {target}; world {args.world}",
             flush=True,
         )
         _publish(session, args.camera_key, rig.render, clock=clock, period_s=1.0 / args.camera_hz, stop=stop)

@@ -1,6 +1,6 @@
 """``dishbot sim rig``: the simulated cell as separate devices, driven by ``dishbot run`` through the hardware
 backend exactly as the robot is (the real dynamixel-sdk and FSR reader on the rig's pseudo-terminals, the
-depth camera's frames over real Zenoh on loopback)."""
+depth camera's frames over real Zenoh on loopback), in the MuJoCo world and in the kinematic one."""
 
 from __future__ import annotations
 
@@ -45,7 +45,8 @@ def ready_line(process: subprocess.Popen[str]) -> str:
 
 
 @pytest.mark.slow
-def test_dishbot_run_drives_the_rig_through_the_hardware_backend(tmp_path: Path) -> None:
+@pytest.mark.parametrize("world", ["mujoco", "kinematic"])
+def test_dishbot_run_drives_the_rig_through_the_hardware_backend(tmp_path: Path, world: str) -> None:
     rig_endpoint = f"tcp/127.0.0.1:{free_port()}"
     config_path = tmp_path / "rig" / "robot.toml"
     config_path.parent.mkdir()
@@ -53,6 +54,8 @@ def test_dishbot_run_drives_the_rig_through_the_hardware_backend(tmp_path: Path)
     rig = subprocess.Popen(
         [
             *RIG,
+            "--world",
+            world,
             "--mugs",
             str(first_mug(tmp_path)),
             "--listen",
@@ -116,7 +119,7 @@ def run_cli(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, s
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--world", "kinematic"], "--world kinematic: the rig needs a world with a depth camera to publish"),
+        (["--world", "gazebo"], "--world gazebo: choose one of mujoco, kinematic"),
         (["--camera-hz", "100"], "--camera-hz 100 is out of range; allowed [0.5, 30]"),
         (["--listen", "127.0.0.1:7460"], "--listen: '127.0.0.1:7460' is not a Zenoh endpoint"),
         (["--camera-key", "cam/*"], "--camera-key: 'cam/*' is not a plain Zenoh key (no wildcards)"),
