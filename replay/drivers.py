@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import bisect
+import collections
 import contextlib
 import importlib
 import math
@@ -61,9 +62,6 @@ T = TypeVar("T")
 
 log = structlog.get_logger("replay")
 
-# How far ahead of the next recorded motion plan a call's own plan is looked for (calls made together and
-# recorded as they finished).
-_MOTION_WINDOW = 64
 # Reads this close together are the same instant (simulated time is exact; the wall clock never is).
 _SAME_S = 1e-7
 # Streams served by time (a read that failed then fails now), and those served by order (several
@@ -129,6 +127,12 @@ class Replayer:
             self._ordered[name] = sorted(items, key=lambda r: r.t_ns)
         self._next = dict.fromkeys(_ORDERED, 0)
         self._motion_taken: set[int] = set()  # motion records served out of order (``take_motion``)
+        self._motion_last = -1  # the latest (in the recording) motion record served
+        # The motion records not yet served, by call and arguments digest.
+        self._motion_by_args: dict[tuple[str, str], collections.deque[int]] = {}
+        for i, r in enumerate(self._ordered["motion"]):
+            key = (str(r.payload.get("call")), str(r.payload.get("args_digest")))
+            self._motion_by_args.setdefault(key, collections.deque()).append(i)
         self._motion_lock = threading.Lock()  # motion plans are asked from the job's worker threads
         self._cursor: dict[str, int] = {}  # per timed stream: the first record not yet consumed
         # Health polls and gripper reads that failed, served once each at or after their time.
@@ -313,21 +317,19 @@ class Replayer:
         return items[i]
 
     def take_motion(self, call: str, digest: str, got: str) -> Recorded | None:
-        """The recorded plan for a motion planner call: the first one not yet served, among the next
-        ``_MOTION_WINDOW``, asked with the same arguments (the job's plan check plans several cycles at once,
-        so the calls are recorded in the order they finished, which need not be the order they are asked in
-        now); else the next one, whose arguments then differ (a divergence for the caller to name)."""
+        """The recorded plan for a motion planner call: the first one not yet served that was asked with the
+        same arguments, wherever it is in the recording (the job's plan check plans several cycles at once,
+        so the calls are recorded in the order they finished; and a plan check served the recorded final
+        plan asks only the calls of its last packing round: the recorded rounds before it are never asked
+        again). Else the next one not yet served after the last one served, whose arguments then differ (a
+        divergence for the caller to name)."""
         with self._motion_lock:
             items = self._ordered["motion"]
-            start = self._next["motion"]
-            chosen: int | None = None
-            for i in range(start, min(len(items), start + _MOTION_WINDOW)):
-                p = items[i].payload
-                if i not in self._motion_taken and p.get("call") == call and p.get("args_digest") == digest:
-                    chosen = i
-                    break
-            if chosen is None:
-                chosen = start
+            same = self._motion_by_args.get((call, digest))
+            if same:
+                chosen = same.popleft()
+            else:
+                chosen = max(self._next["motion"], self._motion_last + 1)
                 while chosen in self._motion_taken:
                     chosen += 1
             if chosen >= len(items):
@@ -336,7 +338,12 @@ class Replayer:
                 else:
                     self.diverge("motion", "nothing more recorded", got)
                 return None
+            if not same:
+                p = items[chosen].payload
+                with contextlib.suppress(KeyError, ValueError):
+                    self._motion_by_args[(str(p.get("call")), str(p.get("args_digest")))].remove(chosen)
             self._motion_taken.add(chosen)
+            self._motion_last = max(self._motion_last, chosen)
             while self._next["motion"] in self._motion_taken:
                 self._motion_taken.discard(self._next["motion"])
                 self._next["motion"] += 1
@@ -418,8 +425,8 @@ def recorded_failure(text: str, payload: Mapping[str, object] | None = None) -> 
 
 
 async def _bounded(call: Awaitable[T], replayer: Replayer, rec: Recorded) -> T | None:
-    """Run the cell's side of a call that failed or was cancelled in the recording only until the recorded
-    call ended (then it is cancelled: the robot stopped there); its result when it ended first."""
+    """Run the cell's side of a served call only until the recorded call ended (then it is cancelled: the
+    robot stopped there, or had done); its result when it ended first."""
     task = asyncio.ensure_future(call)
     end = rec.payload.get("t_end")
     if not isinstance(end, int | float) or not math.isfinite(end):
@@ -486,10 +493,10 @@ class ReplayArm:
         if rec is None or not self._r.check(rec, asked):
             await self._inner.follow(trajectory)
             return
-        if _failed(rec):  # the cell moves as the robot did, as far as it went
-            await _bounded(self._inner.follow(trajectory), self._r, rec)
-        else:
-            await self._inner.follow(trajectory)
+        # The cell moves as the robot did, as far as it went, until the recorded move ended: a stand-in
+        # slower than the robot (MuJoCo's arm for a kinematic or a robot's recording) must not make the
+        # job read the recording's later inputs while it still follows.
+        await _bounded(self._inner.follow(trajectory), self._r, rec)
         await _ended_as_recorded(self._r, rec)
 
     async def stop(self) -> None:
@@ -521,10 +528,7 @@ class ReplayGripper:
         if rec is None or not self._r.check(rec, asked):
             await self._inner.open(aperture_m)
             return
-        if _failed(rec):
-            await _bounded(self._inner.open(aperture_m), self._r, rec)
-        else:
-            await self._inner.open(aperture_m)
+        await _bounded(self._inner.open(aperture_m), self._r, rec)  # as long as the recorded opening
         await _ended_as_recorded(self._r, rec)
 
     async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
@@ -534,10 +538,7 @@ class ReplayGripper:
         closing = self._inner.close_on_mug(force_threshold_n=force_threshold_n, min_aperture_m=min_aperture_m)
         if rec is None:
             return await closing
-        if _failed(rec):
-            live = await _bounded(closing, self._r, rec)
-        else:
-            live = await closing
+        live = await _bounded(closing, self._r, rec)  # as long as the recorded close
         if not self._r.check(rec, asked):
             return (
                 live
