@@ -8,7 +8,8 @@ world *the recording saw* at that instant (``world_at``), whatever backend wrote
   own ids (the ``detections`` the job published after each look at the counter); before its first look,
   as that first look found them;
 - **mugs on the tray** where the job put them (its ``mug_placed`` events, brim down as every placed mug
-  stands); for a job that continued an earlier job's tray, those the header's scene has on the tray;
+  stands); for a job that continued an earlier job's tray, those the header says it carried over (its
+  ``job.carried`` tray slots: where the earlier jobs placed them; an older header's scene, else none);
 - **the arm** at its last recorded joint angles (``input/joints``);
 - **the gripper** holding what the force sensor's holding flag said (``input/holding``), and which mug:
   the job's current mug (``state``). A mug the gripper let go of since the camera last saw it (set down
@@ -131,7 +132,7 @@ def world_at(session: RecordedSession, t_s: float, *, arm: ArmModel | None = Non
     catalogue = session.config.mug_catalogue()
     sizes = {name: (spec.diameter_mm / 1000.0, spec.height_mm / 1000.0) for name, spec in catalogue.items()}
     until_ns = session.start_ns + round(t_s * 1e9)
-    mugs: dict[str, WorldMug] = {m.mug_id: m for m in _header_tray(session)}
+    mugs: dict[str, WorldMug] = {m.mug_id: m for m in _header_tray(session, sizes)}
     names: tuple[str, ...] = ()
     q: tuple[float, ...] = ()
     holding = False
@@ -191,10 +192,19 @@ def world_at(session: RecordedSession, t_s: float, *, arm: ArmModel | None = Non
     )
 
 
-def _header_tray(session: RecordedSession) -> list[WorldMug]:
-    """The mugs an earlier job left on the tray, as the header's scene has them (a simulated scene that
-    says where each mug is; the tray is empty otherwise). The scene names them by the simulated world's
-    ids; one the job uses for another mug is renamed ``earlier-<id>``."""
+def _header_tray(session: RecordedSession, sizes: Mapping[str, tuple[float, float]]) -> list[WorldMug]:
+    """The mugs an earlier job left on the tray, where the header says they stand.
+
+    A job that went on with an earlier job's tray has it in its header's ``job.carried``: the tray's slots
+    as the earlier jobs placed them, by the job's ids (each mug stands brim down on its slot's axis, its
+    handle where the slot says, else along +x, +y for a rotated slot), whatever backend wrote it. An older
+    recording without ``job.carried`` has only its scene: a simulated scene that says where each mug is,
+    by the simulated world's ids (one the job uses for another mug is renamed ``earlier-<id>``); the tray
+    is empty otherwise."""
+    carried = session.job.get("carried")
+    slots = carried.get("on_tray") if isinstance(carried, Mapping) else None
+    if isinstance(slots, list):
+        return [_carried_mug(slot, sizes) for slot in slots if isinstance(slot, Mapping)]
     taken = {
         str(d.get("id"))
         for m in session.read.messages
@@ -207,20 +217,45 @@ def _header_tray(session: RecordedSession) -> list[WorldMug]:
     for m in scene_mugs if isinstance(scene_mugs, list) else []:
         if isinstance(m, Mapping) and m.get("where") == "tray":
             mug_id = str(m.get("id", ""))
+            kind, x, y = str(m.get("type", "")), _float(m, "x_m"), _float(m, "y_m")
+            upside_down = bool(m.get("upside_down", True))
             out.append(
                 WorldMug(
                     mug_id=f"earlier-{mug_id}" if mug_id in taken else mug_id,
-                    type=str(m.get("type", "")),
-                    x_m=_float(m, "x_m"),
-                    y_m=_float(m, "y_m"),
+                    type=kind,
+                    x_m=x,
+                    y_m=y,
                     handle_yaw_rad=_float(m, "handle_yaw_rad"),
-                    upside_down=bool(m.get("upside_down", True)),
+                    upside_down=upside_down,
                     where="tray",
                     source="header",
                     at_s=0.0,
+                    **_standing(x, y, upside_down, sizes.get(kind, (0.0, 0.0))[1]),
                 )
             )
     return out
+
+
+def _carried_mug(slot: Mapping[str, object], sizes: Mapping[str, tuple[float, float]]) -> WorldMug:
+    """The mug on one of the header's carried tray slots (``planning.interfaces.TraySlot`` as JSON)."""
+    kind, x, y = str(slot.get("type", "")), _float(slot, "x_m"), _float(slot, "y_m")
+    handle = slot.get("handle_yaw_rad")
+    if isinstance(handle, int | float) and math.isfinite(handle):
+        yaw = float(handle)
+    else:
+        yaw = math.pi / 2.0 if slot.get("rotated") else 0.0
+    return WorldMug(
+        mug_id=str(slot.get("mug_id", "")),
+        type=kind,
+        x_m=x,
+        y_m=y,
+        handle_yaw_rad=yaw,
+        upside_down=True,  # every mug goes into the dishwasher's tray brim down
+        where="tray",
+        source="header",
+        at_s=0.0,
+        **_standing(x, y, True, sizes.get(kind, (0.0, 0.0))[1]),
+    )
 
 
 def _after_look(
