@@ -90,6 +90,9 @@ _ERROR_MODULES: Final = (
     "perception.errors",
     "drivers.camera.realsense",
 )
+# How long (wall seconds) a worker thread computing for the job waits for the event loop to hand over the
+# device events that came meanwhile, and for the job to move on when the recording's computation was cut.
+_COMPUTING_WAIT_S = 2.0
 # How long a replayed call recorded as cancelled waits for the replay's job to cancel it too (simulated s).
 _CANCEL_WAIT_S = 1.0
 
@@ -143,6 +146,11 @@ class Replayer:
         self.transition_times: list[float] = []
         self.device_command_times: list[float] = []
         self._moved: asyncio.Event | None = None
+        # The job's moves (transitions, device commands, the divergence), for worker threads to wait on.
+        self._moves = 0
+        self._moves_changed = threading.Condition()
+        self._loop: asyncio.AbstractEventLoop | None = None  # the replay's event loop, from the job's start
+        self.events_delivered = 0  # recorded device events handed to the daemon, in recorded order
         self.overran_s: float | None = None  # the limit a replay ran past without its job ending
         self.events: ReplayEvents | None = None  # set by the replay backend's device events
 
@@ -156,6 +164,7 @@ class Replayer:
         """The replay's job just entered its first state: lay the recording's clock over the replay's."""
         self._start_now = self.clock.now()
         self._start_mono = self.clock.monotonic()
+        self._loop = asyncio.get_running_loop()
 
     # --- where the job is ----------------------------------------------------------------------------------
 
@@ -172,8 +181,11 @@ class Replayer:
             self._moved_on()
 
     def device_command(self) -> None:
-        """The replay's job gave a device command (a move, an opening, a close, a look, a stop)."""
+        """The replay's job gave a device command (a move, an opening, a close, a look, a stop). The device
+        events the recording has where the job is now, before its next device command, come first: the
+        job may get to that command sooner than the robot did (a stop the stand-in needs no time for)."""
         if self.started:
+            self._deliver_before_command(len(self.device_command_times))
             self.device_command_times.append(self.clock.monotonic())
             self._moved_on()
 
@@ -181,6 +193,85 @@ class Replayer:
         if self._moved is not None:
             self._moved.set()
             self._moved = None
+        with self._moves_changed:
+            self._moves += 1
+            self._moves_changed.notify_all()
+
+    # --- device events that came while the job computed ----------------------------------------------------
+
+    def deliver_events_while_computing(self, before_ns: int | None) -> None:
+        """From a worker thread computing for the job (a motion plan): hand the daemon now the recorded
+        device events that came while the robot computed, those anchored where the job is now and recorded
+        before ``before_ns`` (None: before the job moved on), in order. Simulated time stands still while
+        the job's thread computes, so their recorded offsets from the anchor would only come after the
+        computation: after what the robot did once it was done (a plan published, a move begun)."""
+        loop = self._loop
+        if loop is None or not self.replaying:
+            return
+        events, i = self.session.device_events, self.events_delivered
+        if i >= len(events) or (before_ns is not None and events[i].t_ns >= before_ns):
+            return  # nothing came meanwhile (most plans): no need to wake the loop
+        if _on(loop):  # asked on the event loop itself (a plan made inline): nothing to wait for
+            self._deliver_anchored_here(before_ns)
+            return
+        done = threading.Event()
+
+        def deliver() -> None:
+            try:
+                self._deliver_anchored_here(before_ns)
+            finally:
+                done.set()
+
+        try:
+            loop.call_soon_threadsafe(deliver)
+        except RuntimeError:  # the loop is closed: the replay is over
+            return
+        done.wait(_COMPUTING_WAIT_S)
+
+    def _deliver_before_command(self, m: int) -> None:
+        """Hand the daemon the device events anchored where the job is now that the recording has before
+        its ``m``-th device command (from 0)."""
+        monos = self.session.device_command_monos
+        if not self.replaying or self.events is None or m >= len(monos):
+            return
+        events = self.session.device_events
+        while self.events_delivered < len(events):
+            r = events[self.events_delivered]
+            a = self.session.anchor(r)
+            here = (a.transitions, a.device_commands) == (len(self.transition_times), m)
+            if not here or self.session.monotonic_of(r) >= monos[m]:
+                return
+            self.events_delivered += 1
+            self.events.serve(self.session.device_event_payload(r))
+
+    def _deliver_anchored_here(self, before_ns: int | None) -> None:
+        events = self.session.device_events
+        while self.replaying and self.events is not None and self.events_delivered < len(events):
+            r = events[self.events_delivered]
+            if before_ns is not None and r.t_ns >= before_ns:
+                return
+            a = self.session.anchor(r)
+            if (a.transitions, a.device_commands) != (
+                len(self.transition_times),
+                len(self.device_command_times),
+            ):
+                return
+            self.events_delivered += 1
+            self.events.serve(self.session.device_event_payload(r))
+
+    def moves(self) -> int:
+        """How often the replay's job has moved on so far (for ``wait_moved_on``)."""
+        with self._moves_changed:
+            return self._moves
+
+    def wait_moved_on(self, since: int, timeout_s: float) -> bool:
+        """From a worker thread: wait until the replay's job has moved on (a transition, a device command)
+        or the replay diverged since ``moves()`` was ``since``; whether it did within ``timeout_s`` wall
+        seconds. On the event loop itself only whether it has."""
+        with self._moves_changed:
+            if self._loop is not None and _on(self._loop):
+                return self._moves != since
+            return self._moves_changed.wait_for(lambda: self._moves != since, timeout_s)
 
     def at(self, anchor: Anchor) -> float | None:
         """The replay's monotonic time of ``anchor`` when its job has got there, else None."""
@@ -241,6 +332,9 @@ class Replayer:
         self.replaying = False
         self.divergence = Divergence(self.t_s(), self.state, what, expected, got)
         log.info("replay_diverged", **self.divergence.to_json())
+        with self._moves_changed:
+            self._moves += 1
+            self._moves_changed.notify_all()
         if self._on_diverge is not None:
             self._on_diverge(self.divergence)
 
@@ -324,31 +418,45 @@ class Replayer:
         again). Else the next one not yet served after the last one served, whose arguments then differ (a
         divergence for the caller to name)."""
         with self._motion_lock:
+            chosen = self._choose_motion(call, digest)
             items = self._ordered["motion"]
-            same = self._motion_by_args.get((call, digest))
-            if same:
-                chosen = same.popleft()
-            else:
-                chosen = max(self._next["motion"], self._motion_last + 1)
-                while chosen in self._motion_taken:
-                    chosen += 1
-            if chosen >= len(items):
-                if self.session.cut is not None:
-                    self.recording_ended()
-                else:
-                    self.diverge("motion", "nothing more recorded", got)
-                return None
-            if not same:
-                p = items[chosen].payload
-                with contextlib.suppress(KeyError, ValueError):
-                    self._motion_by_args[(str(p.get("call")), str(p.get("args_digest")))].remove(chosen)
-            self._motion_taken.add(chosen)
-            self._motion_last = max(self._motion_last, chosen)
-            while self._next["motion"] in self._motion_taken:
-                self._motion_taken.discard(self._next["motion"])
-                self._next["motion"] += 1
-            self.served["motion"] = self.served.get("motion", 0) + 1
-            return items[chosen]
+            if chosen < len(items):
+                self._motion_taken.add(chosen)
+                self._motion_last = max(self._motion_last, chosen)
+                while self._next["motion"] in self._motion_taken:
+                    self._motion_taken.discard(self._next["motion"])
+                    self._next["motion"] += 1
+                self.served["motion"] = self.served.get("motion", 0) + 1
+                return items[chosen]
+        if self.session.cut is not None:
+            self.recording_ended()
+            return None
+        # The recorded job asked no more plans: was it interrupted while this one was being made (a device
+        # fault, a stop)? Then what interrupted it comes now, and the job moves on without this plan.
+        since = self.moves()
+        self.deliver_events_while_computing(None)
+        if self.replaying and self.wait_moved_on(since, _COMPUTING_WAIT_S) and self.replaying:
+            raise MotionRefused(
+                f"{call}: the recorded job was interrupted while this plan was being made (not recorded)"
+            )
+        self.diverge("motion", "nothing more recorded", got)
+        return None
+
+    def _choose_motion(self, call: str, digest: str) -> int:
+        """The index of the motion record to serve (``take_motion``), taken out of the index by arguments;
+        the number of records when none is left. Under ``_motion_lock``."""
+        items = self._ordered["motion"]
+        same = self._motion_by_args.get((call, digest))
+        if same:
+            return same.popleft()
+        chosen = max(self._next["motion"], self._motion_last + 1)
+        while chosen in self._motion_taken:
+            chosen += 1
+        if chosen < len(items):
+            p = items[chosen].payload
+            with contextlib.suppress(KeyError, ValueError):
+                self._motion_by_args[(str(p.get("call")), str(p.get("args_digest")))].remove(chosen)
+        return chosen
 
     def check(self, recorded: Recorded, asked: DeviceCommand | None) -> bool:
         """Whether the daemon asks a device for what it asked then; divergence when not."""
@@ -719,6 +827,8 @@ class ReplayMotion(MotionCalls):
         rec = self._r.take_motion(call, digest, f"{call} for the job's arguments")
         if rec is None:
             return run()
+        # What came while the robot made this plan comes before the job has it.
+        self._r.deliver_events_while_computing(rec.t_ns)
         p = rec.payload
         if p.get("call") != call or p.get("args_digest") != digest:
             self._r.diverge("motion", f"{p.get('call')} as recorded", f"{call} for other arguments")
@@ -737,6 +847,14 @@ class ReplayMotion(MotionCalls):
         except (BadMotionRecord, ValueError) as e:
             self._r.diverge("motion", "a recorded plan", f"an unreadable one ({e})")
             return run()
+
+
+def _on(loop: asyncio.AbstractEventLoop) -> bool:
+    """Whether this thread runs ``loop``."""
+    try:
+        return asyncio.get_running_loop() is loop
+    except RuntimeError:
+        return False
 
 
 def _failed(rec: Recorded) -> bool:

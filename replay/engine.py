@@ -567,9 +567,14 @@ async def _serve_device_events(session: RecordedSession, replayer: Replayer) -> 
     events = replayer.events
     if events is None:
         return
-    for r in session.device_events:
+    for i, r in enumerate(session.device_events):
+        if i < replayer.events_delivered:
+            continue  # handed over while the job computed (``Replayer.deliver_events_while_computing``)
         if not await replayer.reach(session.anchor(r)):
             return
+        if i < replayer.events_delivered:
+            continue
+        replayer.events_delivered = i + 1
         events.serve(session.device_event_payload(r))
 
 
