@@ -151,6 +151,9 @@ class Replayer:
         self._moves_changed = threading.Condition()
         self._loop: asyncio.AbstractEventLoop | None = None  # the replay's event loop, from the job's start
         self.events_delivered = 0  # recorded device events handed to the daemon, in recorded order
+        # The stand-in is not the recording's own cell (a robot's recording, another simulated world): its
+        # side of a served call is cut where the recorded call ended.
+        self.other_cell = False
         self.overran_s: float | None = None  # the limit a replay ran past without its job ending
         self.events: ReplayEvents | None = None  # set by the replay backend's device events
 
@@ -180,14 +183,35 @@ class Replayer:
             self.transition_times.append(self.clock.monotonic())
             self._moved_on()
 
-    def device_command(self) -> None:
-        """The replay's job gave a device command (a move, an opening, a close, a look, a stop). The device
-        events the recording has where the job is now, before its next device command, come first: the
-        job may get to that command sooner than the robot did (a stop the stand-in needs no time for)."""
-        if self.started:
-            self._deliver_before_command(len(self.device_command_times))
-            self.device_command_times.append(self.clock.monotonic())
-            self._moved_on()
+    def device_command(self) -> int:
+        """The replay's job gave a device command (a move, an opening, a close, a look, a stop); its number
+        in the job (from 0; -1 before the job's start). The device events the recording has where the job
+        is now, before its next device command, come first: the job may get to that command sooner than the
+        robot did (a stop the stand-in needs no time for)."""
+        if not self.started:
+            return -1
+        m = len(self.device_command_times)
+        self._deliver_before_command(m)
+        self.device_command_times.append(self.clock.monotonic())
+        self._moved_on()
+        return m
+
+    async def as_long_as_recorded(self, m: int) -> None:
+        """After the job's ``m``-th device command, one the recording keeps no end of (a stop), while the
+        replay follows the recording: the job goes on no sooner than the recorded job did after it (at its
+        next transition or device command). The stand-in stops at once; a robot's stop can take a while,
+        and what the drivers reported meanwhile comes before what the job did next."""
+        if m < 0 or not self.serving():
+            return
+        commands, transitions = self.session.device_command_monos, self.session.transition_monos
+        if m >= len(commands):
+            return
+        after = [t for t in commands[m + 1 : m + 2] if t >= commands[m]]
+        n = bisect.bisect_right(transitions, commands[m])
+        if n < len(transitions):
+            after.append(transitions[n])
+        if after:
+            await self.clock.sleep_until(self.replay_monotonic(min(after)))
 
     def _moved_on(self) -> None:
         if self._moved is not None:
@@ -227,6 +251,12 @@ class Replayer:
         except RuntimeError:  # the loop is closed: the replay is over
             return
         done.wait(_COMPUTING_WAIT_S)
+
+    def deliver_before_next_command(self) -> None:
+        """Hand the daemon the device events the recording has where the job is now, before its next
+        device command (a failed call's faults, which the drivers report as it fails)."""
+        if self.started:
+            self._deliver_before_command(len(self.device_command_times))
 
     def _deliver_before_command(self, m: int) -> None:
         """Hand the daemon the device events anchored where the job is now that the recording has before
@@ -559,6 +589,8 @@ async def _ended_as_recorded(replayer: Replayer, rec: Recorded) -> None:
     """After a served call: at its recorded end, fail as it failed; a call recorded as cancelled waits for
     the replay's job to cancel it too (divergence when it does not)."""
     await replayer.until_recorded(rec)
+    if _failed(rec):  # what the drivers reported as the call failed comes before the job's reaction to it
+        replayer.deliver_before_next_command()
     _raise_recorded(rec)
     if rec.payload.get("cancelled"):
         await replayer.clock.sleep(_CANCEL_WAIT_S)
@@ -601,15 +633,19 @@ class ReplayArm:
         if rec is None or not self._r.check(rec, asked):
             await self._inner.follow(trajectory)
             return
-        # The cell moves as the robot did, as far as it went, until the recorded move ended: a stand-in
-        # slower than the robot (MuJoCo's arm for a kinematic or a robot's recording) must not make the
-        # job read the recording's later inputs while it still follows.
-        await _bounded(self._inner.follow(trajectory), self._r, rec)
+        # The cell moves as the robot did, as far as it went; a stand-in for another cell only until the
+        # recorded move ended: one slower than the robot (MuJoCo's arm for a kinematic or a robot's
+        # recording) must not make the job read the recording's later inputs while it still follows.
+        if _failed(rec) or self._r.other_cell:
+            await _bounded(self._inner.follow(trajectory), self._r, rec)
+        else:
+            await self._inner.follow(trajectory)
         await _ended_as_recorded(self._r, rec)
 
     async def stop(self) -> None:
-        self._r.device_command()
+        m = self._r.device_command()
         await self._inner.stop()
+        await self._r.as_long_as_recorded(m)
 
     async def relax(self) -> None:
         self._r.device_command()
@@ -636,7 +672,10 @@ class ReplayGripper:
         if rec is None or not self._r.check(rec, asked):
             await self._inner.open(aperture_m)
             return
-        await _bounded(self._inner.open(aperture_m), self._r, rec)  # as long as the recorded opening
+        if _failed(rec) or self._r.other_cell:
+            await _bounded(self._inner.open(aperture_m), self._r, rec)  # as long as the recorded opening
+        else:
+            await self._inner.open(aperture_m)
         await _ended_as_recorded(self._r, rec)
 
     async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
@@ -646,7 +685,10 @@ class ReplayGripper:
         closing = self._inner.close_on_mug(force_threshold_n=force_threshold_n, min_aperture_m=min_aperture_m)
         if rec is None:
             return await closing
-        live = await _bounded(closing, self._r, rec)  # as long as the recorded close
+        if _failed(rec) or self._r.other_cell:
+            live = await _bounded(closing, self._r, rec)  # as long as the recorded close
+        else:
+            live = await closing
         if not self._r.check(rec, asked):
             return (
                 live
@@ -665,8 +707,9 @@ class ReplayGripper:
         )
 
     async def stop(self) -> None:
-        self._r.device_command()
+        m = self._r.device_command()
         await self._inner.stop()
+        await self._r.as_long_as_recorded(m)
 
 
 class ReplayForce:

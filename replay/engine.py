@@ -407,6 +407,7 @@ async def _replay(
         raise ReplayError(f"{session.path}: the {stand_in} stand-in cannot be built: {e}") from e
     resim = Resimulation(session, backend, world=stand_in, from_header=from_header)
     replayer = Replayer(session, clock, on_diverge=lambda d: resim.take_over(d.t_s))
+    replayer.other_cell = stand_in != session.world
     backend = replay_backend(backend, replayer)
     recorded_states = session.trace.states
     entered = 0
