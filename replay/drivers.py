@@ -198,11 +198,12 @@ class Replayer:
 
     async def as_long_as_recorded(self, m: int) -> None:
         """After the job's ``m``-th device command, one the recording keeps no end of (a stop), while the
-        replay follows the recording: the job goes on no sooner than the recorded job did after it (at its
-        next transition or device command). The stand-in stops at once; a robot's stop can take a while,
-        and what the drivers reported meanwhile comes before what the job did next."""
-        if m < 0 or not self.serving():
-            return
+        replay follows the recording in a stand-in for another cell: the job goes on no sooner than the
+        recorded job did after it (at its next transition or device command). The stand-in stops at once;
+        a robot's stop can take a while, and what the drivers reported meanwhile comes before what the job
+        did next."""
+        if m < 0 or not self.other_cell or not self.serving():
+            return  # (the recording's own simulated cell stops as it did)
         commands, transitions = self.session.device_command_monos, self.session.transition_monos
         if m >= len(commands):
             return
