@@ -64,6 +64,9 @@ log = structlog.get_logger("replay")
 
 # Reads this close together are the same instant (simulated time is exact; the wall clock never is).
 _SAME_S = 1e-7
+# How far ahead of a wall-clock recording's read time the next joint sample not served yet may be and still
+# be the one the robot's job read (it read later than the replay, its computation taking time).
+_WALL_READ_S = 0.1
 # Streams served by time (a read that failed then fails now), and those served by order (several
 # recorded topics make one stream).
 _TIMED: Mapping[str, tuple[str, ...]] = {
@@ -138,6 +141,7 @@ class Replayer:
             self._motion_by_args.setdefault(key, collections.deque()).append(i)
         self._motion_lock = threading.Lock()  # motion plans are asked from the job's worker threads
         self._cursor: dict[str, int] = {}  # per timed stream: the first record not yet consumed
+        self._last_served: dict[str, int] = {}  # per timed stream: the latest record served so far
         # Health polls and gripper reads that failed, served once each at or after their time.
         self._failures = {k: sorted(session.streams.get(k, ()), key=self._read_time) for k in _FAILURES}
         self._failures_next = dict.fromkeys(_FAILURES, 0)
@@ -424,6 +428,19 @@ class Replayer:
             i = bisect.bisect_right(times, now) - 1
             if i < 0:
                 return None
+            last = self._last_served.get(stream, -1)
+            if (
+                stream == "input/joints"
+                and not self.session.simulated
+                and i <= last
+                and last + 1 < len(times)
+                and times[last + 1] - now <= _WALL_READ_S
+            ):
+                # On the wall clock each recorded read was one read: a sample served already was another
+                # read's. The robot's job read a little later than the replay's (its computation took
+                # time, the replay's takes none): the next sample not served yet is the one it read.
+                i = last + 1
+        self._last_served[stream] = max(i, self._last_served.get(stream, -1))
         self.served[stream] = self.served.get(stream, 0) + 1
         return self._timed[stream][i]
 
