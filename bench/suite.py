@@ -111,7 +111,8 @@ def run_suite(root: Path, *, marker: str | None = None, paths: Sequence[str] = (
         proc = subprocess.run(command, cwd=root, env=env, stdout=2, check=False)
         wall = time.perf_counter() - start
         cpu = _children_cpu_s() - cpu_before
-        if not times_file.is_file():
+        # 3: pytest's internal error, 4: its usage error (a bad -m expression, say); 2: interrupted.
+        if proc.returncode in (2, 3, 4) or not times_file.is_file():
             raise UsageError(f"pytest could not run the suite (exit {proc.returncode}): its message is above")
         doc: dict[str, Any] = json.loads(times_file.read_text(encoding="utf-8"))
     tests = tuple(

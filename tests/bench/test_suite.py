@@ -11,6 +11,7 @@ import pytest
 
 from bench.suite import SuiteRun, TimedTest, as_json, as_tables, by_directory, counts, run_suite, slowest
 from cli.main import main
+from daemon.errors import UsageError
 
 # A small suite with one test of each outcome, a slow one, and a test module at the top.
 SUITE = {
@@ -205,3 +206,15 @@ def test_bench_suite_runs_the_suite_in_a_child_pytest_and_reports_it(
     out, err = capfd.readouterr()
     assert out == ""  # pytest's own output goes to stderr: stdout is the report's
     assert "1 failed" in err
+
+
+@pytest.mark.slow
+def test_a_marker_expression_pytest_refuses_is_a_usage_error(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    write_suite(tmp_path)
+    with pytest.raises(
+        UsageError, match=r"^pytest could not run the suite \(exit 4\): its message is above$"
+    ):
+        run_suite(tmp_path, marker="not (slow")
+    assert "Wrong expression passed to '-m'" in capfd.readouterr().err
