@@ -14,6 +14,7 @@ import argparse
 import json
 import os
 import resource
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -165,7 +166,7 @@ def summary(suite: SuiteRun) -> dict[str, Any]:
     fast = [t for t in tests if not t.slow]
     slow = [t for t in tests if t.slow]
     return {
-        "command": " ".join(suite.command),
+        "command": shlex.join(suite.command),
         "exit_status": suite.exit_status,
         "wall_s": round(suite.wall_s, 1),
         "cpu_s": round(suite.cpu_s, 1),

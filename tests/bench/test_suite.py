@@ -161,7 +161,7 @@ def test_tests_count_by_outcome_and_time_by_their_top_folder() -> None:
 def test_the_report_gives_the_not_slow_time_beside_the_slow_and_what_lies_outside_the_tests() -> None:
     doc = json.loads(as_json(RUN))
     assert doc["benchmark"] == "bench suite"
-    assert doc["command"] == "pytest -m not slow"
+    assert doc["command"] == "pytest -m 'not slow'"
     assert (doc["tests"], doc["passed"], doc["failed"], doc["error"], doc["skipped"]) == (5, 2, 1, 1, 1)
     assert (doc["not_slow_tests"], doc["not_slow_time_s"]) == (4, 5.0)
     assert (doc["slow_tests"], doc["slow_time_s"]) == (1, 3.0)
@@ -169,7 +169,7 @@ def test_the_report_gives_the_not_slow_time_beside_the_slow_and_what_lies_outsid
     assert (doc["wall_s"], doc["cpu_s"], doc["load_start"], doc["load_end"]) == (10.0, 4.0, 1.5, 2.5)
     assert [s["test"] for s in doc["slowest"]][:1] == ["tests/replay/test_a.py::test_1"]
     text = as_tables(RUN)
-    assert text.startswith("bench suite: pytest -m not slow (from the repository root)\n")
+    assert text.startswith("bench suite: pytest -m 'not slow' (from the repository root)\n")
     assert "time by folder" in text
     assert "the 10 slowest tests" in text
 
