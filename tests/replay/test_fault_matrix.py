@@ -246,6 +246,13 @@ BOTH_CELLS = (
         ("servo_fault", "fault:voltage"),
     ),
     Kind(
+        "4 servo silent once (10 ms), bridged by the retries",
+        _file(kind="servo_silent", servo=4, at_state="flip.transit", duration_s=0.01),
+        "done",
+        (),
+        ("servo_fault", "fault"),
+    ),
+    Kind(
         "4 servo silent for good",
         _file(kind="servo_silent", servo=4, at_state="flip.transit"),
         "fault",
