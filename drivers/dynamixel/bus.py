@@ -574,8 +574,10 @@ class DynamixelBus:
             speed = p.from_le(data[2:6], signed=True)
             position = p.from_le(data[6:10], signed=True)
             volts, temp = p.from_le(data[18:20]), data[20]
-        values = {"overheating": float(temp), "input_voltage": volts_from_ticks(volts)}
-        errors = self._check_error(servo_id, status.error, raise_shutdown=check, values=values)
+        errors: tuple[str, ...] = ()
+        if status.error or servo_id in self._faulted:
+            values = {"overheating": float(temp), "input_voltage": volts_from_ticks(volts)}
+            errors = self._check_error(servo_id, status.error, raise_shutdown=check, values=values)
         return ServoReading(
             servo_id=servo_id,
             position_rad=spec.rad_from_ticks(position),
