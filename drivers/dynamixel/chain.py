@@ -241,14 +241,14 @@ class ServoChain:
         def transaction() -> None:
             self._events = events
             self.bus.waits = _SimulatedWaits(self.clock, turns)
+            outcome: tuple[str, object]
             try:
-                result = fn(self.bus)
+                outcome = ("done", fn(self.bus))
             except BaseException as e:
-                turns.finish(("error", e))
-            else:
-                turns.finish(("done", result))
-            finally:
-                self._events = None
+                outcome = ("error", e)
+            # Before the loop has its turn back: the next transaction may start at once.
+            self._events = None
+            turns.finish(outcome)
 
         self._executor.submit(transaction)
         try:

@@ -94,13 +94,9 @@ class SimServo:
             self.spec.reg(name)
             raise
         self.table[address : address + size] = (value & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
-        self.changed(frozenset((name,)))
-
-    def changed(self, names: frozenset[str]) -> None:
-        """The registers ``names`` were written: forget what was worked out from the table."""
         if self.packets:
             self.packets.clear()
-        if not _CONDITION_REGISTERS.isdisjoint(names):
+        if name in _CONDITION_REGISTERS:
             self.live = None
 
 
@@ -566,7 +562,10 @@ class ServoChainSimulator(SimulatedDevice):
         saved = bytes(servo.table) if checked else b""
         servo.table[address : address + len(data)] = data
         servo.synced = None  # the host may have written over the present registers too
-        servo.changed(written)
+        if servo.packets:
+            servo.packets.clear()
+        if not _CONDITION_REGISTERS.isdisjoint(written):
+            servo.live = None
         if "baud_rate" in written or "id" in written:
             self._heard = None
         if checked and (
