@@ -165,3 +165,28 @@ def test_a_caller_cancelled_while_the_bus_waits_leaves_the_bus_to_the_next_one()
         assert clock.monotonic() == t0
 
     run(body)
+
+
+def test_an_idle_servo_answers_what_changed_since_its_last_answer_at_once() -> None:
+    """The simulator reuses an idle servo's status packet only while nothing changed: a fault hook, a write
+    or the plant moving shows in the very next answer."""
+
+    async def body(
+        clock: SimulatedClock, sim: ServoChainSimulator, chain: ServoChain, events: list[DeviceEvent]
+    ) -> None:
+        first = await chain.call(read_all)
+        assert await chain.call(read_all) == first  # at rest, nothing changed: the same readings
+        sim.set_present_voltage(3, 11.1)
+        again = await chain.call(read_all)
+        assert again[3].voltage_v == 11.1
+        assert {i: r for i, r in again.items() if i != 3} == {i: r for i, r in first.items() if i != 3}
+        sim.overheat(5)
+        hot = await chain.call(lambda bus: bus.read_states([5], check=False))
+        assert "overheating" in hot[5].errors
+        await chain.call(lambda bus: bus.write_register(2, "torque_enable", 1))
+        await chain.call(lambda bus: bus.write_goals({2: (0.3, 1.0)}))
+        await clock.sleep(0.05)
+        moved = await chain.call(lambda bus: bus.read_states([2]))
+        assert moved[2].position_rad > first[2].position_rad
+
+    run(body)
