@@ -67,6 +67,8 @@ def test_finished_file_opens_with_the_standard_mcap_reader(make_recording: Recor
         doc = json.loads(schema.data)
         assert {k: v["type"] for k, v in doc["properties"].items()} == {
             "t": "number",
+            "t_device": "number",
+            "t_read": "number",
             "force_n": "number",
             "raw": "integer",
             "seq": "integer",
