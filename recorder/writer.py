@@ -47,6 +47,7 @@ import structlog
 from mcap.writer import CompressionType, Writer
 
 from recorder.errors import RecordingError
+from wire.messages import encode
 from wire.schemas import HEADER_TOPIC, is_telemetry, schema_bytes, schema_name
 
 log = structlog.get_logger(__name__)
@@ -360,13 +361,17 @@ class Recorder:
         with self._lock:
             return tuple(self._paths)
 
-    def write(self, topic: str, payload: Mapping[str, object], *, log_time_ns: int) -> bool:
+    def write(
+        self, topic: str, payload: Mapping[str, object], *, log_time_ns: int, data: bytes | None = None
+    ) -> bool:
         """Queue one message; False (counted as dropped) when the queue is full or the disk has failed.
+        ``data``: the payload's bytes as ``wire.messages.encode`` wrote them (for Zenoh), recorded as they
+        are instead of encoding the payload again.
 
         Raises ``RecordingError`` for a closed recorder, an empty topic, a negative time or a payload that
         is not a JSON object (NaN and infinities included: they are not JSON).
         """
-        return self._enqueue(topic, payload, log_time_ns=log_time_ns, flush_now=False)
+        return self._enqueue(topic, payload, log_time_ns=log_time_ns, flush_now=False, data=data)
 
     def write_header(
         self,
@@ -471,9 +476,16 @@ class Recorder:
         return stats
 
     def _enqueue(
-        self, topic: str, payload: Mapping[str, object], *, log_time_ns: int, flush_now: bool
+        self,
+        topic: str,
+        payload: Mapping[str, object],
+        *,
+        log_time_ns: int,
+        flush_now: bool,
+        data: bytes | None = None,
     ) -> bool:
-        data = _encode(topic, payload)
+        if data is None or not topic:
+            data = _encode(topic, payload)
         _check_time(topic, log_time_ns)
         with self._lock:
             if self._closed:
@@ -839,7 +851,7 @@ def _encode(topic: str, payload: Mapping[str, object]) -> bytes:
             f"recording payload for {topic!r} must be a JSON object, got {type(payload).__name__}"
         )
     try:
-        return json.dumps(payload, separators=(",", ":"), allow_nan=False).encode()
+        return encode(payload)
     except (TypeError, ValueError) as e:
         raise RecordingError(f"recording payload for {topic!r} is not JSON: {e}") from e
 

@@ -329,9 +329,11 @@ class _Tee:
         recording = ctx.recording
         write = recording.write
 
-        def tee(topic: str, payload: Mapping[str, object], *, log_time_ns: int) -> bool:
+        def tee(
+            topic: str, payload: Mapping[str, object], *, log_time_ns: int, data: bytes | None = None
+        ) -> bool:
             self.messages.append(RecordedMessage(topic, log_time_ns, dict(payload)))
-            return write(topic, payload, log_time_ns=log_time_ns)
+            return write(topic, payload, log_time_ns=log_time_ns, data=data)
 
         recording.write = tee  # type: ignore[method-assign]
 

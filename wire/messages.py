@@ -25,6 +25,7 @@ too, keeping the producer's key order).
 from __future__ import annotations
 
 import math
+import os
 import re
 from collections.abc import Mapping
 from typing import Annotated, Any, Final, Literal, TypeVar
@@ -542,12 +543,16 @@ HEADER_TOPIC: Final = "session/header"
 
 
 def _fallback(value: object) -> object:
-    """What JSON cannot hold natively (numpy scalars, paths) is written as its ``str``."""
-    if hasattr(value, "item"):  # a numpy scalar: its Python value
-        item = value.item()
-        if isinstance(item, bool | int | float | str):
-            return item
-    return str(value)
+    """What JSON has no type for but a payload may hold: a numpy scalar (its Python value), a path (its
+    text); anything else is refused (``TypeError``)."""
+    item = getattr(value, "item", None)
+    if callable(item):
+        plain = item()
+        if isinstance(plain, bool | int | float | str):
+            return plain
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    raise TypeError(f"Object of type {type(value).__name__} is not JSON serializable")
 
 
 _ENCODER: Final = msgspec.json.Encoder(enc_hook=_fallback)

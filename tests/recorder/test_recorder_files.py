@@ -249,9 +249,10 @@ def test_recorder_rejects_bad_settings_before_creating_the_file(
         ),
         (
             "dishbot/r1/x",
-            {"b": b"raw"},
+            {"o": object()},
             0,
-            "recording payload for 'dishbot/r1/x' is not JSON: Object of type bytes is not JSON serializable",
+            "recording payload for 'dishbot/r1/x' is not JSON: "
+            "Object of type object is not JSON serializable",
         ),
     ],
 )
