@@ -47,7 +47,7 @@ import structlog
 from mcap.writer import CompressionType, Writer
 
 from recorder.errors import RecordingError
-from wire.messages import encode
+from wire.messages import Message, decode, encode, message_type, topic_suffix
 from wire.schemas import HEADER_TOPIC, is_telemetry, schema_bytes, schema_name
 
 log = structlog.get_logger(__name__)
@@ -94,7 +94,9 @@ class Deriver(Protocol):
 
     def wants(self, topic: str) -> bool: ...
 
-    def derive(self, topic: str, payload: Mapping[str, object], log_time_ns: int) -> Sequence[Derived]: ...
+    def derive(
+        self, topic: str, payload: Mapping[str, object] | Message, log_time_ns: int
+    ) -> Sequence[Derived]: ...
 
     def opening(self, log_time_ns: int) -> Sequence[Derived]: ...
 
@@ -581,7 +583,7 @@ class Recorder:
         if deriver is None or not deriver.wants(item.topic):
             return ()
         try:
-            return deriver.derive(item.topic, json.loads(item.data), item.log_time_ns)
+            return deriver.derive(item.topic, _decoded(item.topic, item.data), item.log_time_ns)
         except Exception as e:  # a bad message or a bug there must not stop the recording
             self._warn_once(f"derive:{item.topic}", "recording_derive_failed", topic=item.topic, error=str(e))
             return ()
@@ -854,6 +856,23 @@ def _encode(topic: str, payload: Mapping[str, object]) -> bytes:
         return encode(payload)
     except (TypeError, ValueError) as e:
         raise RecordingError(f"recording payload for {topic!r} is not JSON: {e}") from e
+
+
+# Open by nature (wire.messages): a deriver gets their JSON object, every key of it.
+_OPEN_TOPICS: Final = frozenset({"events", "log"})
+
+
+def _decoded(topic: str, data: bytes) -> Mapping[str, object] | Message:
+    """A recorded message for a deriver: its declared type when it has one (decoded straight from the
+    bytes), else its JSON object."""
+    suffix = topic_suffix(topic)
+    kind = None if suffix in _OPEN_TOPICS else message_type(topic)
+    if kind is None:
+        doc = json.loads(data)
+        if not isinstance(doc, dict):
+            raise ValueError(f"{suffix}: not a JSON object")
+        return doc
+    return decode(data, kind, name=suffix)
 
 
 def _check_time(topic: str, log_time_ns: object) -> None:

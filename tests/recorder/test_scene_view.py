@@ -101,11 +101,15 @@ def test_one_entity_per_detected_mug_coloured_by_type_and_marked_when_upside_dow
 
 def test_the_grasped_mug_moves_with_the_gripper_then_stays_where_it_was_set_down() -> None:
     view = scene_view(load_config())
-    q: dict[str, Any] = {"names": list(JOINTS), "position_rad": [0.3, -0.8, 1.6, 0.4, -1.57]}
+    q: dict[str, Any] = {"t": 0.0, "names": list(JOINTS), "position_rad": [0.3, -0.8, 1.6, 0.4, -1.57]}
     view.derive("dishbot/r1/joints", q, T)
-    view.derive("dishbot/r1/state", {"state": "side_grasp.close", "current_mug": "m1"}, T)
+    view.derive(
+        "dishbot/r1/state",
+        {"state": "side_grasp.close", "mugs_total": 1, "mugs_placed": 0, "current_mug": "m1", "t": 0.0},
+        T,
+    )
     view.derive("dishbot/r1/detections", {"t": 0.0, "mugs": [detection("m1", "big", 0.3, 0.45)]}, T)
-    out = by_topic(view.derive("dishbot/r1/gripper", {"aperture_m": 0.09, "holding": True}, T + 1))
+    out = by_topic(view.derive("dishbot/r1/gripper", {"t": 0.0, "aperture_m": 0.09, "holding": True}, T + 1))
     (carried,) = out["/scene/mugs"].entities
     assert carried.frame_id == "gripper_link"
     assert carried.frame_locked
@@ -115,9 +119,9 @@ def test_the_grasped_mug_moves_with_the_gripper_then_stays_where_it_was_set_down
     world_gripper = arm.world_from("gripper_link", dict(zip(JOINTS, q["position_rad"], strict=True)))
     p = carried.cylinders[0].pose.position
     assert (world_gripper @ np.array([p.x, p.y, p.z, 1.0]))[:3] == pytest.approx([0.3, 0.45, 0.053])
-    moved: dict[str, Any] = {"names": list(JOINTS), "position_rad": [-0.9, -0.8, 1.6, 0.4, -1.57]}
+    moved: dict[str, Any] = {"t": 0.0, "names": list(JOINTS), "position_rad": [-0.9, -0.8, 1.6, 0.4, -1.57]}
     view.derive("dishbot/r1/joints", moved, T + 2)
-    out = by_topic(view.derive("dishbot/r1/gripper", {"aperture_m": 0.12, "holding": False}, T + 3))
+    out = by_topic(view.derive("dishbot/r1/gripper", {"t": 0.0, "aperture_m": 0.12, "holding": False}, T + 3))
     (loose,) = out["/scene/mugs"].entities
     assert loose.frame_id == "world"
     assert loose.texts[0].text == "m1 (set down)"
