@@ -546,7 +546,7 @@ def _fallback(value: object) -> object:
     """What JSON has no type for but a payload may hold: a numpy scalar (its Python value), a path (its
     text); anything else is refused (``TypeError``)."""
     item = getattr(value, "item", None)
-    if callable(item):
+    if callable(item) and getattr(value, "ndim", 0) == 0:
         plain = item()
         if isinstance(plain, bool | int | float | str):
             return plain

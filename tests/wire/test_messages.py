@@ -179,6 +179,9 @@ def test_a_message_encodes_in_declared_order_leaving_out_what_it_does_not_carry(
 
 def test_the_encoder_writes_numpy_scalars_as_numbers_and_refuses_what_json_cannot_hold() -> None:
     assert encode({"a": np.float64(0.5), "b": np.int64(3), "c": Path("x")}) == b'{"a":0.5,"b":3,"c":"x"}'
+    assert encode({"b": np.bool_(True), "f": np.float32(0.5), "t": (2, 3)}) == b'{"b":true,"f":0.5,"t":[2,3]}'
+    with pytest.raises(TypeError, match="Object of type ndarray is not JSON serializable"):
+        encode({"a": np.array([1.0, 2.0])})
     with pytest.raises(ValueError, match="Out of range float"):
         encode({"a": None, "b": [1.0, float("nan")]})
     with pytest.raises(ValueError, match="Out of range float"):
