@@ -30,6 +30,7 @@ from recorder import HEADER_TOPIC, read_messages
 from recorder.errors import RecordingError
 from recorder.reader import RecordedMessage, RecordingRead
 from replay.errors import ReplayError
+from wire.messages import TOPICS, BadMessage, Message, convert
 from wire.schemas import topic_suffix
 
 # The backends a replay can rebuild, by the name the session header's scene gives.
@@ -322,6 +323,9 @@ class Recorded:
     kind: str
     t_ns: int
     payload: Mapping[str, object]
+    # The payload as its declared message (``wire.messages``), for the driver-boundary topics a replay
+    # serves; None for the open ones (device events) and the plan (``PlanResult.from_json`` reads it).
+    message: Message | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -352,6 +356,9 @@ _DEVICE_COMMAND_TOPICS: Final = (
     "input/observation",
     "input/observe_failed",
 )
+# Recorded inputs kept as their payloads only: device events are open (a driver's own keys), a plan is read
+# by ``PlanResult.from_json``, a command by the replay engine.
+_UNTYPED: Final = frozenset({"input/device_event", "plan", "input/command"})
 # What a device event's recorded payload carries about its recording rather than about the event.
 _EVENT_RECORD_KEYS: Final = frozenset({"at_state", "at_transitions", "at_device_commands", "t_read", "state"})
 
@@ -507,7 +514,12 @@ class RecordedSession:
         for m in messages[1:]:
             suffix = topic_suffix(m.topic)
             if suffix.startswith(("input/", "output/")) or suffix == "plan":
-                streams.setdefault(suffix, []).append(Recorded(suffix, m.log_time_ns, m.payload))
+                declared = None if suffix in _UNTYPED else TOPICS.get(suffix)
+                try:
+                    message = None if declared is None else convert(m.payload, declared, name=suffix)
+                except BadMessage as e:
+                    raise ReplayError(f"{path}: {e}") from None
+                streams.setdefault(suffix, []).append(Recorded(suffix, m.log_time_ns, m.payload, message))
         if "output/follow" not in streams and "input/joints" in streams:
             raise ReplayError(
                 f"{path}: recorded by an older dishbot that did not keep the device commands; record it again"

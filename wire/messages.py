@@ -344,9 +344,14 @@ ErrorBits = Annotated[list[str], doc("the error bits a ServoFault names")]
 ErrorPort = Annotated[str, doc("the port a BusLost names")]
 
 
-class Failure(Message, kw_only=True):
-    """The fields of a driver call that raised (``daemon.backend.failure_fields``)."""
+Cancelled = Annotated[bool, doc("the call was cancelled (the job left the state)")]
 
+
+class Failure(Message, kw_only=True):
+    """The fields of a driver call that raised or was cancelled (``daemon.backend.failure_fields``), as the
+    calls' messages carry them."""
+
+    cancelled: Cancelled | U = UNSET
     error: ErrorText | U = UNSET
     error_class: ErrorClass | U = UNSET
     error_servo_id: ErrorServo | U = UNSET
@@ -400,9 +405,6 @@ class ReadFailed(Message, kw_only=True):
     error_servo_id: ErrorServo | U = UNSET
     error_bits: ErrorBits | U = UNSET
     error_port: ErrorPort | U = UNSET
-
-
-Cancelled = Annotated[bool, doc("the call was cancelled (the job left the state)")]
 
 
 class CallFailed(Message, kw_only=True):
