@@ -316,8 +316,8 @@ class SceneView:
         current = state.current_mug
         s.current_mug = current if isinstance(current, str) and current else None
         text = (
-            f"{s.state}  placed {state.mugs_placed}/{_or0(state.mugs_planned)}"
-            f"  failed {_or0(state.mugs_failed)}"
+            f"{s.state}  placed {state.mugs_placed}/{_count(state.mugs_planned)}"
+            f"  failed {_count(state.mugs_failed)}"
         )
         if s.current_mug:
             text += f"  mug {s.current_mug}"
@@ -783,6 +783,11 @@ def _as(payload: Mapping[str, object] | Message, kind: type[M], name: str) -> M:
     if isinstance(payload, Message):
         raise BadMessage(f"{name}: a {type(payload).__name__}, not a {kind.__name__}")
     return convert(payload, kind, name=name)
+
+
+def _count(value: int | UnsetType) -> int:
+    """An optional count, 0 when the message leaves it out."""
+    return 0 if isinstance(value, UnsetType) else value
 
 
 def _or0(value: float | UnsetType) -> float:

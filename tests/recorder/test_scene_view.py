@@ -258,3 +258,17 @@ def test_the_foxglove_layout_in_docs_shows_channels_the_recordings_have() -> Non
             topic, field = re.match(r"^([^.]+)\.(\w+)", path["value"]).groups()  # type: ignore[union-attr]
             assert topic.startswith("dishbot/dishbot/")  # the default robot_id
             assert field in schema_for(topic)["properties"]  # type: ignore[operator]
+
+
+def test_the_status_label_shows_the_counts_as_the_state_message_has_them() -> None:
+    view = scene_view(load_config())
+    state = {"state": "flip.turn", "mugs_total": 5, "mugs_planned": 4, "mugs_placed": 1, "t": 0.0}
+    out = by_topic(view.derive("dishbot/r1/state", {**state, "mugs_failed": 0, "current_mug": "m3"}, T))
+    assert out["/scene/status"].entities[0].texts[0].text == "flip.turn  placed 1/4  failed 0  mug m3"
+    # counts the message leaves out are shown as 0; a message that is not a state is refused, naming the field
+    out = by_topic(
+        view.derive("dishbot/r1/state", {"state": "done", "mugs_total": 5, "mugs_placed": 4, "t": 1.0}, T)
+    )
+    assert out["/scene/status"].entities[0].texts[0].text == "done  placed 4/0  failed 0"
+    with pytest.raises(ValueError, match="state: mugs_placed: missing"):
+        view.derive("dishbot/r1/state", {"state": "done", "mugs_total": 5, "t": 1.0}, T)
