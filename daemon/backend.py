@@ -62,6 +62,7 @@ from planning.interfaces import CyclePlan, MotionPlanner, MotionRefused, MugPose
 from planning.motion import DynamicsMoveCost, check_reachable
 from planning.motion.planner import CyclePlanner
 from planning.placement import PlacementPlanner, PlanOptions, PlanResult, Problem, plan
+from wire.messages import BadMessage, Event, convert
 from wire.motion import args_digest, result_json
 
 if TYPE_CHECKING:
@@ -194,13 +195,19 @@ class JobPosition:
 
     def saw(self, topic: str, payload: Mapping[str, object]) -> None:
         """Follow what the daemon publishes (its transitions)."""
-        if topic != "events" or payload.get("kind") != "transition":
+        if topic != "events":
             return
-        if payload.get("trigger") == "start":
+        try:
+            event = convert(payload, Event, name=topic)
+        except BadMessage:
+            return
+        if event.kind != "transition":
+            return
+        if event.trigger == "start":
             self.transitions = 0
             self.device_commands = 0
         self.transitions += 1
-        self.state = str(payload.get("dest", self.state))
+        self.state = event.dest if isinstance(event.dest, str) else self.state
 
     def device_command(self) -> None:
         self.device_commands += 1
