@@ -81,12 +81,12 @@ def test_pictures_are_written(tmp_path: Path, capsys: pytest.CaptureFixture[str]
         (
             json.dumps({**EXAMPLE, "tray": {"size_mm": [475, -5]}}),
             [],
-            "{path}: tray.size_mm[1]: must be positive, got -5",
+            "{path}: tray.size_mm[1]: -5 is out of range; allowed (0, 10000] mm",
         ),
         (
             json.dumps({**EXAMPLE, "tray": {"size_mm": ["wide", 520]}}),
             [],
-            "{path}: tray.size_mm[0]: expected a number, got a string ('wide')",
+            "{path}: tray.size_mm[0]: expected a number in (0, 10000] mm, got 'wide'",
         ),
         (
             json.dumps({**EXAMPLE, "tray": {"size_mm": [100, 100]}}),
