@@ -37,7 +37,7 @@ from typing import Final, TypeVar, cast
 
 import structlog
 
-from daemon.backend import Backend, EventListener, MotionCalls, PlanPlacement, health_limits
+from daemon.backend import Backend, EventListener, MotionCalls, PlanPlacement
 from daemon.clock import SessionClock
 from drivers.errors import BusLost, DriverError
 from drivers.interfaces import (
@@ -381,7 +381,7 @@ def replay_backend(backend: Backend, replayer: Replayer) -> Backend:
     motion_for = backend.motion_for
     health: DeviceHealth | None = backend.health
     if health is not None or replayer.session.streams.get("input/health_failed"):
-        health = ReplayHealth(health, replayer, health_limits(replayer.session.config).poll_period_s)
+        health = ReplayHealth(health, replayer, replayer.session.config.hardware.health.poll_period_s)
     return replace(
         backend,
         arm=ReplayArm(backend.arm, replayer),
