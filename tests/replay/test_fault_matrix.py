@@ -382,8 +382,9 @@ def outcome(run: FaultRun) -> tuple[str, tuple[str, ...], str]:
     return run.result.end_state, kinds, str(faults[0]["reason"]) if faults else ""
 
 
-@pytest.mark.parametrize("world", ["kinematic", pytest.param("mujoco", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("world", ["kinematic", "mujoco"])
 @pytest.mark.parametrize("kind", BOTH_CELLS, ids=[k.name for k in BOTH_CELLS])
+@pytest.mark.slow
 def test_each_fault_kind_ends_alike_on_both_cells(kind: Kind, world: str, tmp_path: Path) -> None:
     run = run_with_faults(tmp_path, kind.text, world=world, mugs=kind.mugs)
     assert [o.fired for o in run.injector.outcomes()] == [True], run.injector.outcomes()
