@@ -25,8 +25,10 @@ METHODS = ("auto", "exact", "bh", "sa", "ga", "psop-n", "psop-i", "psok-n", "pso
 class PlacedMug:
     """A planned spot: footprint corner in tray coordinates; ``order`` is the 1-based placing order;
     ``brim_mm`` the brim centre (tray coordinates) and ``handle_yaw_rad`` where the handle will point (tray
-    frame, 0 = +x), None only in plans recorded before they were reported."""
+    frame, 0 = +x), None only in plans recorded before they were reported. As a recorded plan's ``placed``
+    entry it is read by ``PlanResult.from_json``, passing over keys it does not declare."""
 
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
     id: str
     type: str
     x_mm: int
@@ -124,10 +126,7 @@ class PlanResult:
             cost_function=m.cost_function,
             seed=m.seed,
             wall_time_s=m.wall_time_s,
-            placed=tuple(
-                PlacedMug(p.id, p.type, p.x_mm, p.y_mm, p.rotated, p.order, p.brim_mm, p.handle_yaw_rad)
-                for p in m.placed
-            ),
+            placed=m.placed,
             unplaced=m.unplaced,
             n=m.n,
             A_mm2=m.A,
@@ -144,21 +143,9 @@ class PlanResult:
 
 
 # --- a recorded plan's shape: what ``PlanResult.to_json`` writes, and the plan message adds -------------
-# Keys it does not declare are passed over: the published message adds its own (``slots``,
-# ``out_of_reach``, ``gap``), and a later version may add more.
-
-
-@dataclass(frozen=True, slots=True)
-class _PlacedEntry:
-    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
-    id: str
-    type: str
-    x_mm: int
-    y_mm: int
-    rotated: bool
-    order: int
-    brim_mm: tuple[float, float] | None = None  # absent in plans recorded before they were reported
-    handle_yaw_rad: float | None = None
+# Its own names for three of the result's fields (``A``, ``E``, and ``t`` or ``t_plan_s``), so it is a
+# shape of its own. Keys it does not declare are passed over: the published message adds its own
+# (``slots``, ``out_of_reach``, ``gap``), and a later version may add more.
 
 
 @dataclass(frozen=True, slots=True)
@@ -170,7 +157,7 @@ class _PlanMessage:
     cost_function: str
     seed: int
     wall_time_s: float
-    placed: tuple[_PlacedEntry, ...]
+    placed: tuple[PlacedMug, ...]
     unplaced: tuple[str, ...]
     n: int
     A: float

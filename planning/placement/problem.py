@@ -23,6 +23,9 @@ from validation import FINITE, NON_EMPTY, UNKNOWN_KEYS_IGNORED, Invalid, OneOf, 
 FOOTPRINTS = ("rect", "mug")
 # Not from the thesis (it leaves V_a open): a conservative mean end-effector speed for the low-cost arm.
 DEFAULT_ARM_SPEED_M_S = 0.1
+# World-frame positions and yaws: any finite number (of millimetres, of radians).
+WorldMm = Annotated[float, FINITE]
+Yaw = Annotated[float, FINITE]
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,13 +42,15 @@ class MugType:
 @dataclass(frozen=True, slots=True)
 class CounterMug:
     """A mug waiting on the counter; ``x_mm``/``y_mm`` is its brim centre in the world frame, and
-    ``handle_yaw_rad`` where its handle points (world yaw), None when unknown."""
+    ``handle_yaw_rad`` where its handle points (world yaw), None when unknown. It is also the shape of a
+    problem file's ``mugs`` entry (keys it does not declare are passed over)."""
 
-    id: str
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
+    id: Annotated[str, NON_EMPTY]
     type: str
-    x_mm: float
-    y_mm: float
-    handle_yaw_rad: float | None = None
+    x_mm: WorldMm
+    y_mm: WorldMm
+    handle_yaw_rad: Yaw | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -177,8 +182,6 @@ MugSize = Annotated[float, above(0, 1_000, unit="mm")]
 Tolerance = Annotated[float, within(0, 1_000, unit="mm")]
 MugMass = Annotated[float, above(0, 100, unit="kg")]
 ArmSpeed = Annotated[float, above(0, 100, unit="m/s")]
-WorldMm = Annotated[float, FINITE]  # world-frame positions: any finite number of millimetres
-Yaw = Annotated[float, FINITE]
 
 
 def _whole(name: str, value: float) -> int:
@@ -217,16 +220,6 @@ class _MugTypeTable:
 
 
 @dataclass(frozen=True, slots=True)
-class _CounterMugTable:
-    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
-    id: Annotated[str, NON_EMPTY]
-    type: str
-    x_mm: WorldMm
-    y_mm: WorldMm
-    handle_yaw_rad: Yaw | None = None
-
-
-@dataclass(frozen=True, slots=True)
 class _TrayMugTable:
     unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
     id: Annotated[str, NON_EMPTY]
@@ -251,7 +244,7 @@ class _ArmTable:
 @dataclass(frozen=True, slots=True)
 class _ProblemFile:
     tray: _TrayTable
-    mugs: tuple[_CounterMugTable, ...]
+    mugs: tuple[CounterMug, ...]
     tolerance_mm: Tolerance = thesis.TOLERANCE_MM
     allow_rotation: bool = False
     footprint: Annotated[str, OneOf(FOOTPRINTS)] = "rect"
@@ -282,7 +275,7 @@ def _parse(obj: object) -> Problem:
     return Problem(
         tray_size_mm=(int(f.tray.size_mm[0]), int(f.tray.size_mm[1])),
         tray_origin_mm=f.tray.origin_mm or (0.0, 0.0),
-        mugs=tuple(CounterMug(m.id, m.type, m.x_mm, m.y_mm, m.handle_yaw_rad) for m in f.mugs),
+        mugs=f.mugs,
         mug_types=types,
         placed=tuple(
             TrayMug(q.id, q.type, int(q.x_mm), int(q.y_mm), q.rotated, q.handle_yaw_rad) for q in f.placed
