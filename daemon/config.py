@@ -5,9 +5,11 @@ allowed range (``ConfigError``, exit 2) instead of deep inside a running job. Ea
 choices are declared once, on the fields of its dataclass (``Annotated[float, within(0.01, 600.0)]``), and
 checked by the one validator (``validation.convert``, msgspec underneath) with its one wording; a rule
 between fields is the section's own ``__post_init__``. The result is a tree of frozen dataclasses, and the
-description types where the config describes the cell (``Config.cell`` is the one
-``description.cell.CellLayout``, ``Config.mug_types`` the catalogue's ``MugSpec`` entries), so they travel
-to the planners and worlds as they are. ``Config.to_dict()`` gives the effective values back in the file's
+lower layers' own types where the config describes what they own (``Config.cell`` is the one
+``description.cell.CellLayout``, ``Config.mug_types`` the catalogue's ``MugSpec`` entries,
+``hardware.fsr`` the FSR reader's ``FsrSettings``, ``hardware.health`` the servo health watch's
+``HealthLimits``, ``camera.frames`` the observer's ``FrameLimits``), so they travel to the planners, worlds
+and drivers as they are. ``Config.to_dict()`` gives the effective values back in the file's
 layout (for ``dishbot config show`` and the recording's session header).
 """
 
