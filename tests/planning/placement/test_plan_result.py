@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import copy
 from typing import Any
 
 import pytest
@@ -10,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from planning.placement import PlanOptions, PlanResult, dataset_problem, plan
+from tests.planning.placement.edit import DELETE, edited
 from validation import Invalid
 
 
@@ -45,27 +45,11 @@ def test_a_plan_recorded_before_later_fields_existed_still_reads() -> None:
     assert all(p.brim_mm is None and p.handle_yaw_rad is None for p in result.placed)
 
 
-def _with(path: str, value: object) -> dict[str, Any]:
-    doc = copy.deepcopy(DOC)
-    *parents, last = path.split(".")
-    node: Any = doc
-    for key in parents:
-        node = node[int(key)] if key.isdigit() else node[key]
-    if value is _DELETE:
-        del node[int(last) if last.isdigit() else last]
-    else:
-        node[int(last) if last.isdigit() else last] = value
-    return doc
-
-
-_DELETE = object()
-
-
 @pytest.mark.parametrize(
     ("path", "value", "message"),
     [
-        ("method", _DELETE, "plan.method: missing"),
-        ("t", _DELETE, "plan.t: missing"),
+        ("method", DELETE, "plan.method: missing"),
+        ("t", DELETE, "plan.t: missing"),
         ("n", "six", "plan.n: expected an integer, got 'six'"),
         ("n", 6.0, "plan.n: expected an integer, got 6"),
         ("seed", True, "plan.seed: expected an integer, got true"),
@@ -75,14 +59,14 @@ _DELETE = object()
         ("unplaced", [3], "plan.unplaced[0]: expected a string, got 3"),
         ("placed.0", 3, "plan.placed[0]: expected a table, got 3"),
         ("placed.0.x_mm", None, "plan.placed[0].x_mm: expected an integer, got None"),
-        ("placed.0.order", _DELETE, "plan.placed[0].order: missing"),
+        ("placed.0.order", DELETE, "plan.placed[0].order: missing"),
         ("placed.0.brim_mm", [1.0], "plan.placed[0].brim_mm: expected 2 values, got 1"),
         ("placed.0.rotated", 0, "plan.placed[0].rotated: expected true or false, got 0"),
     ],
 )
 def test_a_bad_recorded_plan_names_the_field(path: str, value: object, message: str) -> None:
     with pytest.raises(ValueError, match=r".") as e:
-        PlanResult.from_json(_with(path, value))
+        PlanResult.from_json(edited(DOC, path, value))
     assert isinstance(e.value, Invalid)
     assert str(e.value) == message
 

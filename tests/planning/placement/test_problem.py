@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from planning.placement import InvalidProblem, Problem
+from tests.planning.placement.edit import DELETE, edited
 
 EXAMPLE: dict[str, Any] = {
     "tray": {"size_mm": [475, 520], "origin_mm": [250, -260]},
@@ -36,22 +37,6 @@ def test_documented_example_parses_and_round_trips() -> None:
     assert Problem.from_json(p.to_json()) == p
 
 
-def _with(path: str, value: object) -> dict[str, Any]:
-    doc = copy.deepcopy(EXAMPLE)
-    *parents, last = path.split(".")
-    node: Any = doc
-    for key in parents:
-        node = node[int(key)] if key.isdigit() else node[key]
-    if value is _DELETE:
-        del node[int(last) if last.isdigit() else last]
-    else:
-        node[int(last) if last.isdigit() else last] = value
-    return doc
-
-
-_DELETE = object()
-
-
 @pytest.mark.parametrize(
     ("path", "value", "message"),
     [
@@ -63,7 +48,7 @@ _DELETE = object()
             "tray.size_mm[1]: expected a number in (0, 10000] mm, got 'wide'",
         ),
         ("tray.size_mm", [475], "tray.size_mm: expected 2 values, got 1"),
-        ("tray", _DELETE, "tray: missing"),
+        ("tray", DELETE, "tray: missing"),
         (
             "mug_types.big.diameter_mm",
             -3,
@@ -90,18 +75,18 @@ _DELETE = object()
         ("placed.0.x_mm", 470, "placed[0]: footprint [470, 580] x [0, 84] mm leaves the tray (475 x 520 mm)"),
         ("placed.0.x_mm", 2.5, "placed[0].x_mm: expected whole millimetres, got 2.5"),
         ("placed.0.x_mm", -1, "placed[0].x_mm: -1 is out of range; allowed [0, 10000] mm"),
-        ("placed.0.id", _DELETE, "placed[0].id: missing"),
+        ("placed.0.id", DELETE, "placed[0].id: missing"),
         ("placed.0.id", "", "placed[0].id: expected a non-empty string, got ''"),
         ("tray.size_mm", [475, 520.5], "tray.size_mm[1]: expected whole millimetres, got 520.5"),
         ("tray.size_mm", [475, 20_000], "tray.size_mm[1]: 20000 is out of range; allowed (0, 10000] mm"),
         ("tray.origin_mm", [0, math.inf], "tray.origin_mm[1]: expected a finite number, got inf"),
         ("mugs.0.x_mm", math.nan, "mugs[0].x_mm: expected a finite number, got nan"),
-        ("mugs.0.type", _DELETE, "mugs[0].type: missing"),
+        ("mugs.0.type", DELETE, "mugs[0].type: missing"),
         ("mugs.0.type", 3, "mugs[0].type: expected a string, got 3"),
-        ("mugs", _DELETE, "mugs: missing"),
+        ("mugs", DELETE, "mugs: missing"),
         ("mug_types", {}, "mug_types: must name at least one mug type"),
         ("mug_types.big.height_mm", 80.5, "mug_types.big.height_mm: expected whole millimetres, got 80.5"),
-        ("mug_types.big.mass_kg", _DELETE, "mug_types.big.mass_kg: missing"),
+        ("mug_types.big.mass_kg", DELETE, "mug_types.big.mass_kg: missing"),
         ("mug_types.big", [91, 120], "mug_types.big: expected a table, got a list"),
         ("tolerance_mm", 2.5, "tolerance_mm: expected whole millimetres, got 2.5"),
         ("footprint", "round", "footprint: 'round' is not one of rect, mug"),
@@ -121,7 +106,7 @@ _DELETE = object()
 )
 def test_bad_input_names_the_field(path: str, value: object, message: str) -> None:
     with pytest.raises(InvalidProblem) as e:
-        Problem.from_json(_with(path, value))
+        Problem.from_json(edited(EXAMPLE, path, value))
     assert str(e.value) == message
 
 
@@ -198,7 +183,7 @@ _paths = st.sampled_from(
 @given(path=_paths, value=_json)
 def test_any_json_in_any_place_is_a_problem_or_one_line_naming_a_field(path: str, value: object) -> None:
     try:
-        Problem.from_json(_with(path, value))
+        Problem.from_json(edited(EXAMPLE, path, value))
         text = ""
     except InvalidProblem as e:
         text = str(e)
