@@ -64,7 +64,8 @@ def run(ctx: Context, rect_method: Callable[[Context], Candidate]) -> Candidate:
     offer(start)
     rect_n = len(start)
     packer = MugPacker(problem)
-    deadline = time.thread_time() + SAFETY_FACTOR * ctx.options.time_limit_s
+    now = time.thread_time  # CPU time of this thread: other jobs on the machine do not change the result
+    deadline = now() + SAFETY_FACTOR * ctx.options.time_limit_s
     budget = PACKS_BASE + PACKS_PER_MUG * len(problem.mugs)
     packed = 0
     by_scan: dict[Scan, int] = {}
@@ -75,7 +76,7 @@ def run(ctx: Context, rect_method: Callable[[Context], Candidate]) -> Candidate:
         nonlocal packed, stopped
         if packed >= budget:
             return False
-        if time.thread_time() > deadline:
+        if now() > deadline:
             stopped = True
             return False
         spots = packer.pack(sequence, scan)
