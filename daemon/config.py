@@ -110,7 +110,7 @@ class PlannerConfig:
     allow_rotation: bool
     energy_model: Annotated[str, OneOf(_ENERGY_MODELS)]
     # "rect" (the thesis's rectangles) or "mug" (brim disc plus handle)
-    footprint: Annotated[str, OneOf(FOOTPRINTS)] = "rect"
+    footprint: Annotated[str, OneOf(FOOTPRINTS)] = "mug"
 
 
 @dataclass(frozen=True, slots=True)

@@ -454,13 +454,15 @@ def test_device_faults_on_a_backend_without_a_simulated_cell_are_refused_at_atta
 def test_mug_moved_names_the_mug_by_the_jobs_id_and_a_move_it_cannot_make_does_not_fire(
     tmp_path: Path,
 ) -> None:
-    # The job picks its m2 first: while it lifts it, its m1 is moved; m2 is in the gripper, not on the
-    # counter; and 0.9 m would put a mug off the counter.
+    # The job picks its m2 first (the rectangle plan's order: the scenario pins the footprint): while it
+    # lifts it, its m1 is moved; m2 is in the gripper, not on the counter; and 0.9 m would put a mug off the
+    # counter.
     run = run_with_faults(
         tmp_path,
         '[[fault]]\nkind = "mug_moved"\nmug = "m1"\nat_state = "side_grasp.lift"\ndx_m = -0.03\n\n'
         '[[fault]]\nkind = "mug_moved"\nmug = "m2"\nat_state = "side_grasp.lift"\ndx_m = 0.03\n\n'
         '[[fault]]\nkind = "mug_moved"\nat_state = "side_grasp.lift"\ndx_m = 0.9\n',
+        config=robot_config(planner={"method": "bh", "footprint": "rect"}),
     )
     looks = [p["mugs"] for t, p in run.recorded if t.endswith("/detections")]
     assert all(isinstance(look, list) for look in looks)
