@@ -5,12 +5,12 @@
    mug outlines; it is the start, so the result never holds fewer mugs than it, except where the arm
    would turn a handle out of its rectangle: such a mug is dropped from the start (said in the notes; on
    datasets 4 and 5 one small mug in a near corner of the full-size tray, and the packer beats the start
-   by four mugs there).
-2. The mug packer (``mugpack``) fills the tray with outlines for a fixed list of class sequences (largest
-   mugs first, smallest first, alternating, then seeded shuffles) and scans, so a seed repeats a run
-   exactly; ``SAFETY_FACTOR`` times the time limit in CPU time of the planning thread (not wall time, so
-   other jobs on the machine do not change the result) stops it early on a slow machine (said in the
-   notes).
+   by six mugs there).
+2. The mug packer (``mugpack``) fills the tray with outlines: the class sequences largest first and
+   smallest first under every scan, then seeded shuffles under the scans that packed the most (and the
+   slanted rows from the arm's side), up to a fixed number of packings, so a seed repeats a run exactly;
+   ``SAFETY_FACTOR`` times the time limit in CPU time of the planning thread (not wall time, so other jobs
+   on the machine do not change the result) stops it early on a slow machine (said in the notes).
 3. Each packing's spots go to counter mugs of their class with the least move energy (Hungarian method),
    and the layouts are compared: more mugs first, then the run's fitness (the thesis's costs).
 
