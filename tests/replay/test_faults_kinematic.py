@@ -16,6 +16,7 @@ import pytest
 
 from daemon.app import ServeContext
 from daemon.clock import SimulatedClock
+from daemon.config import Config
 from daemon.errors import UsageError
 from daemon.sim_backend import KinematicCounter
 from drivers.sim.camera import FaultyCamera
@@ -63,6 +64,12 @@ def injected(run: FaultRun, kind: str, state: str) -> Mapping[str, object]:
     event = run.event("fault_injected")
     assert (event["fault"], event["state"], event["index"]) == (kind, state, 1)
     return run.injector.fired[0]
+
+
+def rect_plan_config() -> Config:
+    """The scenarios that name which counter mug the job picks first were written for the rectangle plan's
+    order (m2, then m1); the mug-shaped plan (the default footprint) picks them the other way round."""
+    return robot_config(planner={"method": "bh", "footprint": "rect"})
 
 
 def test_an_arm_servo_overload_in_the_turn_faults_the_job_naming_the_servo(tmp_path: Path) -> None:
@@ -289,10 +296,12 @@ def test_a_camera_hang_for_good_faults_at_the_frame_timeout(tmp_path: Path) -> N
 
 def test_a_slipping_mug_really_falls_and_is_recovered(tmp_path: Path) -> None:
     run = run_with_faults(
-        tmp_path, '[[fault]]\nkind = "mug_slip"\nat_state = "flip.transit"\nafter_s = 0.5\n'
+        tmp_path,
+        '[[fault]]\nkind = "mug_slip"\nat_state = "flip.transit"\nafter_s = 0.5\n',
+        config=rect_plan_config(),
     )
     fired = injected(run, "mug_slip", "flip.transit")
-    assert fired["world_mug"] == "m2"  # the world's mug that was carried
+    assert fired["world_mug"] == "m2"  # the world's mug that was carried (first in the rectangle plan)
     # ... named in the event by the job's id, as the job's own events name it
     assert fired["mug"] == run.event("mug_dropped")["mug_id"]
     assert run.event("mug_dropped")["state"] == "flip.transit"
@@ -304,7 +313,9 @@ def test_a_slipping_mug_really_falls_and_is_recovered(tmp_path: Path) -> None:
 
 def test_a_mug_moved_while_the_arm_works_elsewhere_is_moved_in_the_world(tmp_path: Path) -> None:
     run = run_with_faults(
-        tmp_path, '[[fault]]\nkind = "mug_moved"\nat_state = "side_grasp.lift"\ndx_m = 0.05\ndy_m = -0.01\n'
+        tmp_path,
+        '[[fault]]\nkind = "mug_moved"\nat_state = "side_grasp.lift"\ndx_m = 0.05\ndy_m = -0.01\n',
+        config=rect_plan_config(),  # m2 is picked first, m1 waits on the counter
     )
     fired = injected(run, "mug_moved", "side_grasp.lift")
     assert (fired["world_mug"], fired["dx_m"], fired["dy_m"]) == ("m1", 0.05, -0.01)
@@ -462,7 +473,7 @@ def test_mug_moved_names_the_mug_by_the_jobs_id_and_a_move_it_cannot_make_does_n
         '[[fault]]\nkind = "mug_moved"\nmug = "m1"\nat_state = "side_grasp.lift"\ndx_m = -0.03\n\n'
         '[[fault]]\nkind = "mug_moved"\nmug = "m2"\nat_state = "side_grasp.lift"\ndx_m = 0.03\n\n'
         '[[fault]]\nkind = "mug_moved"\nat_state = "side_grasp.lift"\ndx_m = 0.9\n',
-        config=robot_config(planner={"method": "bh", "footprint": "rect"}),
+        config=rect_plan_config(),
     )
     looks = [p["mugs"] for t, p in run.recorded if t.endswith("/detections")]
     assert all(isinstance(look, list) for look in looks)
