@@ -2,7 +2,8 @@
 can take (``sequence.reach``), packs the rest with the chosen method and footprint, then checks the
 assignment and the order cycle by cycle with the cycle planner (``sequence.sequence``). The result lists
 only the checked cycles, in the order they were checked; when slots had to be dropped, the mugs planned for
-them are left out and the tray is packed once more, and the round that builds more wins.
+them are left out and the tray is packed once more (mug-shaped footprints: first a round with rectangles and
+the same mugs), and the round that builds more wins.
 
 Only ``planning.interfaces`` is needed from the arm's side: the caller passes its ``MotionPlanner`` (the
 daemon's, possibly in another process; a bench's ``CyclePlanner``).
