@@ -109,7 +109,8 @@ async def plan_checked(
     # mugs: their footprints leave the gripper more room around the mugs on the tray (a replan after a mug
     # came to the counter dropped its only slot, which the rectangle layout had room for).
     rect_next = False
-    while rounds < ROUNDS + (problem.footprint_kind == "mug"):
+    limit = ROUNDS + 1 if problem.footprint_kind == "mug" else ROUNDS
+    while rounds < limit:
         rounds += 1
         packed = replace(problem, mugs=tuple(m for m in problem.mugs if m.id not in excluded))
         if rect_next:
