@@ -20,6 +20,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "bench.remote",
     "bench.replay",
     "bench.soak",
+    "bench.suite",
 )
 
 

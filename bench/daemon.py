@@ -352,27 +352,28 @@ def _client(
 
     from daemon.job import StartRequest
     from daemon.zenoh_session import key, session_config
+    from wire.messages import Joints, State, decode
 
     state_ms: list[float] = []
     joints_ms: list[float] = []
     states: set[str] = set()
     lock = threading.Lock()
 
-    def latency(into: list[float]) -> Callable[[zenoh.Sample], None]:
+    def latency(into: list[float], kind: type[State | Joints]) -> Callable[[zenoh.Sample], None]:
         def on_sample(sample: zenoh.Sample) -> None:
             received = time.time()
-            payload = json.loads(sample.payload.to_bytes())
+            message = decode(sample.payload.to_bytes(), kind)
             with lock:
-                into.append((received - float(payload["t"])) * 1000.0)
-                if "state" in payload:
-                    states.add(payload["state"])
+                into.append((received - float(message.t)) * 1000.0)
+                if isinstance(message, State):
+                    states.add(message.state)
 
         return on_sample
 
     with zenoh.open(session_config(listen=[], connect=[endpoint])) as session:
         subscribers = [
-            session.declare_subscriber(key(ROBOT, "state"), latency(state_ms)),
-            session.declare_subscriber(key(ROBOT, "joints"), latency(joints_ms)),
+            session.declare_subscriber(key(ROBOT, "state"), latency(state_ms, State)),
+            session.declare_subscriber(key(ROBOT, "joints"), latency(joints_ms, Joints)),
         ]
         time.sleep(_CLIENT_SETTLE_S)  # until the daemon-side probe runs
         _query(session, "start", StartRequest())

@@ -27,6 +27,7 @@ import structlog
 from cli.commands.output import add_json_flag, emit
 from cli.progress import Progress
 from daemon.errors import UsageError
+from wire.messages import BadMessage, Event, convert
 
 log = structlog.get_logger("bench.soak")
 
@@ -226,8 +227,9 @@ def soak(jobs: int, seed: int, record_dir: Path, *, progress: Progress | None = 
     def on_publish(topic: str, payload: Mapping[str, object]) -> None:
         if current:
             current[0].on_publish(topic, payload)
-        if topic == "events" and payload.get("kind") == "fault":
-            reason = str(payload.get("reason", ""))
+        event = _event(payload) if topic == "events" else None
+        if event is not None and event.kind == "fault":
+            reason = event.reason if isinstance(event.reason, str) else ""
             last_fault[0] = reason
             if "internal error" in reason:
                 out.crashes.append(reason)
@@ -317,3 +319,11 @@ def soak(jobs: int, seed: int, record_dir: Path, *, progress: Progress | None = 
         if read.truncated:
             out.unreadable.append(f"{path.name}: not finished ({read.cut_reason})")
     return out
+
+
+def _event(payload: Mapping[str, object]) -> Event | None:
+    """An ``events`` payload as its declared message (None when it is not one)."""
+    try:
+        return convert(payload, Event, name="events")
+    except BadMessage:
+        return None

@@ -17,14 +17,17 @@ from typing import Final, NamedTuple
 
 from cli.extras import missing_extra
 from cli.logs import LEVELS, configure_cli_logging
-from daemon.errors import ConfigError, UsageError
 
 
 class Verb(NamedTuple):
-    """A top-level verb: the module whose ``register(subparsers)`` adds it, and its line in ``--help``."""
+    """A top-level verb: the module whose ``register(subparsers)`` adds it, its line in ``--help``, and
+    whether it can log. A verb that cannot (``logs=False``) never imports structlog, so the command line
+    leaves it unconfigured and the verb starts without it (tests/daemon/test_cli_imports.py checks that
+    such a verb imports no structlog: nothing it runs could log to stdout unconfigured)."""
 
     module: str
     help: str
+    logs: bool = True
 
 
 # Every verb in the order ``dishbot --help`` lists them, as its module registers them (the listing is
@@ -33,15 +36,16 @@ class Verb(NamedTuple):
 # code. Named, not imported: the benchmarks are the top layer, which nothing imports statically.
 VERBS: Final[dict[str, Verb]] = {
     "bench": Verb("bench.cli", "run a benchmark and print its table (or --json)"),
-    "config": Verb("cli.commands.config_cmd", "show the effective configuration"),
+    "config": Verb("cli.commands.config_cmd", "show the effective configuration", logs=False),
     "statechart": Verb(
         "cli.commands.statechart_cmd",
         "print the statechart (states, events, guards) as a Mermaid stateDiagram",
+        logs=False,
     ),
     "record": Verb(
         "cli.commands.record", "inspect session recordings (MCAP): summary and outcome, or a picture"
     ),
-    "plan": Verb("cli.commands.plan", "plan the mugs' tray positions and placing order"),
+    "plan": Verb("cli.commands.plan", "plan the mugs' tray positions and placing order", logs=False),
     "run": Verb(
         "cli.commands.run",
         "run the daemon (simulated cell with --sim); --once runs one loading job and exits",
@@ -156,7 +160,11 @@ def parse(argv: Sequence[str] | None = None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse(argv)
-    configure_cli_logging(args.log_level)
+    # Here, not at the top: ``--help`` exits in ``parse`` without the validator these errors build on.
+    from daemon.errors import ConfigError, UsageError
+
+    if VERBS[args.command].logs:
+        configure_cli_logging(args.log_level)
     handler: Handler = args.handler
     try:
         return handler(args)

@@ -48,8 +48,6 @@ from drivers.serial_port import OpenSerial
 from drivers.stack import (
     ARM_JOINTS,
     DeviceStack,
-    FsrSettings,
-    HealthLimits,
     StackSpec,
     arm_joints,
     gripper_spec,
@@ -62,11 +60,11 @@ from planning.interfaces import CyclePlan, MotionPlanner, MotionRefused, MugPose
 from planning.motion import DynamicsMoveCost, check_reachable
 from planning.motion.planner import CyclePlanner
 from planning.placement import PlacementPlanner, PlanOptions, PlanResult, Problem, plan
+from wire.messages import BadMessage, Event, convert
 from wire.motion import args_digest, result_json
 
 if TYPE_CHECKING:
     from perception.calibration import CameraModel
-    from perception.observer import FrameLimits
     from recorder.foxglove_scene import SceneView
 
 log = structlog.get_logger("daemon.backend")
@@ -194,13 +192,19 @@ class JobPosition:
 
     def saw(self, topic: str, payload: Mapping[str, object]) -> None:
         """Follow what the daemon publishes (its transitions)."""
-        if topic != "events" or payload.get("kind") != "transition":
+        if topic != "events":
             return
-        if payload.get("trigger") == "start":
+        try:
+            event = convert(payload, Event, name=topic)
+        except BadMessage:
+            return
+        if event.kind != "transition":
+            return
+        if event.trigger == "start":
             self.transitions = 0
             self.device_commands = 0
         self.transitions += 1
-        self.state = str(payload.get("dest", self.state))
+        self.state = event.dest if isinstance(event.dest, str) else self.state
 
     def device_command(self) -> None:
         self.device_commands += 1
@@ -783,20 +787,6 @@ class SimOptions:
     fsr_debounce_s: float = 0.03
 
 
-def health_limits(config: Config) -> HealthLimits:
-    """The servos' voltage and temperature limits of ``[hardware.health]`` (the MuJoCo cell's servos are
-    judged by the same)."""
-    h = config.hardware.health
-    return HealthLimits(
-        voltage_min_v=h.voltage_min_v,
-        voltage_max_v=h.voltage_max_v,
-        voltage_warn_margin_v=h.voltage_warn_margin_v,
-        temperature_warn_c=h.temperature_warn_c,
-        temperature_limit_c=h.temperature_limit_c,
-        poll_period_s=h.poll_period_s,
-    )
-
-
 def hardware_stack_spec(config: Config, arm: ArmModel) -> StackSpec:
     """The device stack of ``[hardware]``: each joint's servo with the URDF's limits, the gripper (its
     measured aperture map, or the arm model's gripper geometry when none is given), the FSR and the bus."""
@@ -816,24 +806,14 @@ def hardware_stack_spec(config: Config, arm: ArmModel) -> StackSpec:
             gripper = dataclasses.replace(
                 gripper, aperture_map=hw.gripper.aperture_map, open_aperture_m=max(apertures)
             )
-        fsr = hw.fsr
         return StackSpec(
             bus=BusConfig(hw.servo_port, hw.baudrate, 1 if hw.protocol == 1 else 2),
             joints=joints,
             gripper=gripper,
-            fsr=FsrSettings(
-                fsr.port,
-                threshold_n=fsr.threshold_n,
-                release_n=fsr.release_n,
-                gain=fsr.gain,
-                debounce_s=fsr.debounce_s,
-                stale_after_s=fsr.stale_after_s,
-            ),
+            fsr=hw.fsr,
             retries=hw.retries,
             read_timeout_s=hw.read_timeout_s,
-            health=health_limits(config),
-            corrupt_rate_max=hw.health.corrupt_rate_max,
-            corrupt_window=hw.health.corrupt_window,
+            health=hw.health,
         )
     except ValueError as e:
         raise UsageError(f"hardware: {e}") from e
@@ -991,14 +971,6 @@ async def _hardware_observer(
             )
         )
     factory = cell_observer_factory(
-        config.cell, config.mug_catalogue(), clock=clock, limits=frame_limits(config)
+        config.cell, config.mug_catalogue(), clock=clock, limits=config.camera.frames
     )
     return factory(camera)
-
-
-def frame_limits(config: Config) -> FrameLimits:
-    """What a camera frame must meet, from ``[camera]``: its timeout, its age limit, the retries."""
-    from perception.observer import FrameLimits
-
-    c = config.camera
-    return FrameLimits(timeout_s=c.frame_timeout_s, max_age_s=c.max_frame_age_s, retries=c.frame_retries)

@@ -307,14 +307,18 @@ class SimulatedClock:
                 ready = select(wait)
                 if ready or self._paced_wait(target) > 0:
                     return ready  # input from outside (or woken early): time stays where it is
+        held = self.held
         outside = self._catch_up(select)
         if outside is not None:
             return outside
-        ready = select(0)  # what a helper handed back as it caught up (a callback) comes at this time
-        if ready:
-            return ready
+        if self.held != held:
+            ready = select(0)  # what a helper handed back as it caught up (a callback) comes at this time
+            if ready:
+                return ready
         self._advance(target)
-        return select(0)
+        # No second look for I/O: nothing on this thread wrote any since the look above (the world's
+        # steppers write to no device), and input from outside is taken at the next look, at this time.
+        return []
 
     def _catch_up(
         self, select: Callable[[float | None], list[tuple[selectors.SelectorKey, int]]]

@@ -5,9 +5,11 @@ allowed range (``ConfigError``, exit 2) instead of deep inside a running job. Ea
 choices are declared once, on the fields of its dataclass (``Annotated[float, within(0.01, 600.0)]``), and
 checked by the one validator (``validation.convert``, msgspec underneath) with its one wording; a rule
 between fields is the section's own ``__post_init__``. The result is a tree of frozen dataclasses, and the
-description types where the config describes the cell (``Config.cell`` is the one
-``description.cell.CellLayout``, ``Config.mug_types`` the catalogue's ``MugSpec`` entries), so they travel
-to the planners and worlds as they are. ``Config.to_dict()`` gives the effective values back in the file's
+lower layers' own types where the config describes what they own (``Config.cell`` is the one
+``description.cell.CellLayout``, ``Config.mug_types`` the catalogue's ``MugSpec`` entries,
+``hardware.fsr`` the FSR reader's ``FsrSettings``, ``hardware.health`` the servo health watch's
+``HealthLimits``, ``camera.frames`` the observer's ``FrameLimits``), so they travel to the planners, worlds
+and drivers as they are. ``Config.to_dict()`` gives the effective values back in the file's
 layout (for ``dishbot config show`` and the recording's session header).
 """
 
@@ -30,7 +32,10 @@ from description.camera import MAX_FOVY_DEG, MIN_FOVY_DEG, CameraSpec
 from description.cell import CellLayout, Tray
 from description.errors import InvalidCell
 from description.thesis import JOINT_SERVOS, MugSpec, mug_catalogue
+from drivers.dynamixel.config import HealthLimits
 from drivers.dynamixel.tables import BAUD_CODES_1, BAUD_CODES_2, MODELS
+from drivers.fsr.settings import FsrSettings
+from perception.frames import FrameAge, FrameLimits, FrameRetries, FrameTimeout
 from planning.placement import FOOTPRINTS, METHODS
 from recorder.settings import RecordingConfig
 from statechart.chart import JOB_LEAVES, JOB_STATES, top_level
@@ -83,14 +88,12 @@ class FoxgloveConfig:
 @dataclass(frozen=True, slots=True)
 class CameraConfig:
     """The depth camera's calibration file (``dishbot calibrate`` writes it), overriding the pose in
-    ``[camera]``, and what a frame must meet: arrive within ``frame_timeout_s``, be at most
-    ``max_frame_age_s`` old, else be tried again up to ``frame_retries`` times before the job faults. The
-    camera itself (image size, field of view, pose) is part of the cell: ``Config.cell.camera``."""
+    ``[camera]``, and what a frame must meet (the observer's own ``FrameLimits``: ``frame_timeout_s``,
+    ``max_frame_age_s`` and ``frame_retries`` in the file). The camera itself (image size, field of view,
+    pose) is part of the cell: ``Config.cell.camera``."""
 
     calibration_file: Path | None
-    frame_timeout_s: Annotated[float, within(0.05, 60.0)] = 2.0
-    max_frame_age_s: Annotated[float, within(0.01, 60.0)] = 1.0
-    frame_retries: Annotated[int, within(0, 10)] = 2
+    frames: FrameLimits = field(default_factory=FrameLimits)
 
 
 @dataclass(frozen=True, slots=True)
@@ -107,7 +110,7 @@ class PlannerConfig:
     allow_rotation: bool
     energy_model: Annotated[str, OneOf(_ENERGY_MODELS)]
     # "rect" (the thesis's rectangles) or "mug" (brim disc plus handle)
-    footprint: Annotated[str, OneOf(FOOTPRINTS)] = "rect"
+    footprint: Annotated[str, OneOf(FOOTPRINTS)] = "mug"
 
 
 @dataclass(frozen=True, slots=True)
@@ -189,54 +192,6 @@ class HardwareGripperConfig:
 
 
 @dataclass(frozen=True, slots=True)
-class FsrConfig:
-    """The FSR Arduino's port and the reader's calibration (``dishbot fsr calibrate`` prints these)."""
-
-    port: Annotated[str, NON_EMPTY]
-    gain: Annotated[float, within(0.001, 1000.0)]
-    threshold_n: Annotated[float, within(0.05, 50.0)]
-    release_n: Annotated[float, within(0.0, 50.0)]
-    debounce_s: Annotated[float, within(0.0, 1.0)]
-    stale_after_s: Annotated[float, within(0.02, 5.0)]
-
-    def __post_init__(self) -> None:
-        if self.release_n >= self.threshold_n:
-            raise Invalid(
-                f"release_n: {self.release_n:g} must be below threshold_n {self.threshold_n:g} "
-                "(the hysteresis of the grasp detection)"
-            )
-
-
-@dataclass(frozen=True, slots=True)
-class HealthConfig:
-    """How the servos' health is watched: every ``poll_period_s`` their supply voltage (a warning
-    ``voltage_warn_margin_v`` inside ``voltage_min_v``..``voltage_max_v``, a fault outside) and temperature
-    (a warning from ``temperature_warn_c``, a fault past ``temperature_limit_c``); and when the bus calls a
-    servo's answers too corrupt (more than ``corrupt_rate_max`` of its last ``corrupt_window``)."""
-
-    poll_period_s: Annotated[float, within(0.05, 60.0)]
-    voltage_min_v: Annotated[float, within(0.0, 30.0)]
-    voltage_max_v: Annotated[float, within(0.0, 30.0)]
-    voltage_warn_margin_v: Annotated[float, within(0.0, 5.0)]
-    temperature_warn_c: Annotated[float, within(0.0, 100.0)]
-    temperature_limit_c: Annotated[float, within(0.0, 100.0)]
-    corrupt_rate_max: Annotated[float, within(0.0, 1.0)]
-    corrupt_window: Annotated[int, within(1, 10_000)]
-
-    def __post_init__(self) -> None:
-        if not self.voltage_min_v + 2 * self.voltage_warn_margin_v < self.voltage_max_v:
-            raise Invalid(
-                f"voltage_max_v: {self.voltage_max_v:g} must be above voltage_min_v {self.voltage_min_v:g} "
-                f"by more than twice voltage_warn_margin_v {self.voltage_warn_margin_v:g}"
-            )
-        if not self.temperature_warn_c < self.temperature_limit_c:
-            raise Invalid(
-                f"temperature_warn_c: {self.temperature_warn_c:g} must be below temperature_limit_c "
-                f"{self.temperature_limit_c:g}"
-            )
-
-
-@dataclass(frozen=True, slots=True)
 class ZenohCameraConfig:
     """A depth camera whose node publishes frames on Zenoh (``camera = "zenoh"``, ``daemon.zenoh_camera``):
     the node's endpoint and the key its frames come on."""
@@ -261,11 +216,11 @@ class HardwareConfig:
     read_timeout_s: float
     servos: tuple[ServoConfig, ...]
     gripper: HardwareGripperConfig
-    fsr: FsrConfig
+    fsr: FsrSettings
     camera: str
     camera_serial: str
     zenoh_camera: ZenohCameraConfig
-    health: HealthConfig
+    health: HealthLimits
 
     def servo(self, joint: str) -> ServoConfig:
         for servo in self.servos:
@@ -311,9 +266,9 @@ class Config:
         out["camera"] = {
             **_plain(self.cell.camera),
             "calibration_file": _plain(self.camera.calibration_file),
-            "frame_timeout_s": self.camera.frame_timeout_s,
-            "max_frame_age_s": self.camera.max_frame_age_s,
-            "frame_retries": self.camera.frame_retries,
+            "frame_timeout_s": self.camera.frames.timeout_s,
+            "max_frame_age_s": self.camera.frames.max_age_s,
+            "frame_retries": self.camera.frames.retries,
         }
         out["recording"]["compression"] = self.recording.compression or "none"
         out["mug_types"] = {m["name"]: {k: v for k, v in m.items() if k != "name"} for m in out["mug_types"]}
@@ -377,9 +332,9 @@ class _CameraTable:
     yaw_rad: Annotated[float, within(-2 * math.pi, 2 * math.pi)]
     pitch_rad: Annotated[float, within(-math.pi / 2, math.pi / 2)]
     calibration_file: str
-    frame_timeout_s: Annotated[float, within(0.05, 60.0)]
-    max_frame_age_s: Annotated[float, within(0.01, 60.0)]
-    frame_retries: Annotated[int, within(0, 10)]
+    frame_timeout_s: FrameTimeout
+    max_frame_age_s: FrameAge
+    frame_retries: FrameRetries
 
 
 @dataclass(frozen=True, slots=True)
@@ -417,11 +372,11 @@ class _HardwareTable:
     read_timeout_s: Annotated[float, within(0.001, 1.0)]
     servos: dict[str, Any]
     gripper: HardwareGripperConfig
-    fsr: FsrConfig
+    fsr: FsrSettings
     camera: Annotated[str, OneOf(_CAMERAS)]
     camera_serial: str
     zenoh_camera: ZenohCameraConfig
-    health: HealthConfig
+    health: HealthLimits
 
 
 def default_text() -> str:
@@ -554,9 +509,7 @@ def _camera(data: Mapping[str, Any]) -> tuple[CameraSpec, CameraConfig]:
         raise ConfigError(str(e)) from e
     camera = CameraConfig(
         calibration_file=_path_or_none(t.calibration_file),
-        frame_timeout_s=t.frame_timeout_s,
-        max_frame_age_s=t.max_frame_age_s,
-        frame_retries=t.frame_retries,
+        frames=FrameLimits(t.frame_timeout_s, t.max_frame_age_s, t.frame_retries),
     )
     return spec, camera
 

@@ -29,8 +29,6 @@ from daemon.backend import (
     SimOptions,
     cycle_planner,
     device_event_payload,
-    frame_limits,
-    health_limits,
 )
 from daemon.clock import SessionClock
 from daemon.config import Config
@@ -110,8 +108,8 @@ async def open_kinematic_backend(
         detection_noise_m=config.sim.detection_noise_m,
         seed=config.sim.seed if options.seed is None else options.seed,
         catalogue=catalogue,
-        frame_limits=frame_limits(config),
-        health=health_limits(config),
+        frame_limits=config.camera.frames,
+        health=config.hardware.health,
         arm=arm,
         q0=np.asarray(config.sim.start_q_rad, dtype=np.float64),
     )
@@ -194,7 +192,7 @@ async def open_mujoco_backend(
     except ValueError as e:
         raise UsageError(str(e)) from e
     cameras: list[FaultyCamera] = []
-    make_observer = cell_observer_factory(layout, catalogue, clock=clock, limits=frame_limits(config))
+    make_observer = cell_observer_factory(layout, catalogue, clock=clock, limits=config.camera.frames)
 
     def observer_factory(camera: Camera) -> MugObserver:
         cameras.append(FaultyCamera(camera, clock=clock))
@@ -212,7 +210,7 @@ async def open_mujoco_backend(
             holding_threshold_n=config.grasp.force_threshold_n / 2.0,
             fsr_debounce_s=options.fsr_debounce_s,
             observer_factory=observer_factory,
-            health=health_limits(config),
+            health=config.hardware.health,
         )
     except ValueError as e:  # a transport the clock cannot drive
         raise UsageError(str(e)) from e

@@ -29,6 +29,7 @@ import structlog
 import zenoh
 
 from daemon.security import NAMESPACE, ZenohConfig, node_settings
+from wire.messages import encode as wire_encode
 
 log = structlog.get_logger("daemon.zenoh")
 
@@ -45,7 +46,9 @@ _RETRY = {"period_init_ms": 500, "period_max_ms": 4000, "period_increase_factor"
 class RecordSink(Protocol):
     """What the session records to: ``recorder.Recorder`` fits."""
 
-    def write(self, topic: str, payload: Mapping[str, object], *, log_time_ns: int) -> bool: ...
+    def write(
+        self, topic: str, payload: Mapping[str, object], *, log_time_ns: int, data: bytes | None = None
+    ) -> bool: ...
 
 
 def session_config(
@@ -180,9 +183,10 @@ class ZenohSession:
         self._recorder, self._now_ns = recorder, now_ns
 
     def publish(self, topic: str, payload: Mapping[str, object]) -> None:
-        """Publish on ``dishbot/<id>/<topic>`` and record it; safe from any thread."""
-        data = encode(payload)
-        self._record(self.key(topic), payload)
+        """Publish on ``dishbot/<id>/<topic>`` and record it, the same bytes to both (encoded once, by
+        ``wire.messages.encode``); safe from any thread."""
+        data = wire_encode(payload)
+        self._record(self.key(topic), payload, data)
         with self._put_lock:
             if self._closed:  # a late message (a recorder's health report at shutdown): recorded only
                 return
@@ -194,12 +198,12 @@ class ZenohSession:
 
     def record(self, topic: str, payload: Mapping[str, object]) -> None:
         """Record without publishing (driver-boundary inputs), under ``dishbot/<id>/<topic>``."""
-        self._record(self.key(topic), payload)
+        self._record(self.key(topic), payload, None)
 
-    def _record(self, topic: str, payload: Mapping[str, object]) -> None:
+    def _record(self, topic: str, payload: Mapping[str, object], data: bytes | None) -> None:
         recorder, now_ns = self._recorder, self._now_ns
         if recorder is not None and now_ns is not None:
-            recorder.write(topic, payload, log_time_ns=now_ns())
+            recorder.write(topic, payload, log_time_ns=now_ns(), data=data)
 
     def serve(
         self, loop: asyncio.AbstractEventLoop, handler: CommandHandler, *, verbs: Sequence[str]

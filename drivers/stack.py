@@ -26,24 +26,14 @@ from drivers.dynamixel import (
     ServoChain,
     tables,
 )
-from drivers.dynamixel.health import ChainHealth, HealthLimits
+from drivers.dynamixel.config import HealthLimits
+from drivers.dynamixel.health import ChainHealth
 from drivers.fsr.reader import FsrReader
+from drivers.fsr.settings import FsrSettings
 from drivers.interfaces import Clock
 from drivers.serial_port import OpenSerial, open_pyserial
 
 ARM_JOINTS = ("shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn")
-
-
-@dataclass(frozen=True, slots=True)
-class FsrSettings:
-    """The FSR Arduino's port and the reader's grasp detection (``dishbot fsr calibrate`` prints these)."""
-
-    port: str
-    threshold_n: float
-    release_n: float | None = None
-    gain: float = 1.0
-    debounce_s: float = 0.03
-    stale_after_s: float = 0.2
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,8 +49,6 @@ class StackSpec:
     read_timeout_s: float = 0.02
     # The servos' supply and temperature limits, and when the bus calls their answers too corrupt.
     health: HealthLimits = field(default_factory=HealthLimits)
-    corrupt_rate_max: float = 0.2
-    corrupt_window: int = 50
     # How the ports are opened: None is pyserial on the device files (the robot, pseudo-terminals); an
     # in-process simulator's opener carries the same bytes without a tty.
     open_bus: OpenSerial | None = None
@@ -155,8 +143,8 @@ async def open_device_stack(
             clock=clock,
             retries=spec.retries,
             read_timeout_s=spec.read_timeout_s,
-            corrupt_rate_max=spec.corrupt_rate_max,
-            corrupt_window=spec.corrupt_window,
+            corrupt_rate_max=spec.health.corrupt_rate_max,
+            corrupt_window=spec.health.corrupt_window,
             on_event=on_event,
             open_serial=spec.open_bus,
             inline=spec.inline_bus,

@@ -2,8 +2,8 @@
 
 The observer is where a failing camera is caught: a capture that does not return in time, a frame older
 than allowed, a frame that cannot be a depth image (wrong shape, NaN depth, no valid pixels, no table in
-view). Each is retried a bounded number of times (``FrameLimits``); then ``observe`` raises ``CameraFault``
-naming the last reason, and the job faults with it.
+view). Each is retried a bounded number of times (``FrameLimits``, in ``perception.frames``); then
+``observe`` raises ``CameraFault`` naming the last reason, and the job faults with it.
 """
 
 from __future__ import annotations
@@ -12,7 +12,6 @@ import asyncio
 import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import Executor
-from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -25,28 +24,10 @@ from drivers.errors import DriverError
 from drivers.interfaces import Camera, Clock, RGBDFrame
 from perception.detector import DepthMugDetector
 from perception.errors import CameraFault, FrameError
+from perception.frames import FrameLimits as FrameLimits  # where the cells and tests find it
 from perception.interfaces import Detection, Observation
 
 log = structlog.get_logger(__name__)
-
-
-@dataclass(frozen=True, slots=True)
-class FrameLimits:
-    """What a frame must meet (``[camera]`` in the config): ``timeout_s`` to arrive, at most ``max_age_s``
-    old when it does (by the frame's ``t`` on the observer's clock), and ``retries`` further attempts after
-    a frame that failed either or could not be used."""
-
-    timeout_s: float = 2.0
-    max_age_s: float = 1.0
-    retries: int = 2
-
-    def __post_init__(self) -> None:
-        if not self.timeout_s > 0.0:
-            raise ValueError(f"frame timeout_s {self.timeout_s}: must be positive")
-        if not self.max_age_s > 0.0:
-            raise ValueError(f"frame max_age_s {self.max_age_s}: must be positive")
-        if self.retries < 0:
-            raise ValueError(f"frame retries {self.retries}: must be 0 or more")
 
 
 class CameraObserver:

@@ -227,8 +227,11 @@ class SessionRecording:
         with self._lock:
             self._expected = dict(job)
 
-    def write(self, topic: str, payload: Mapping[str, object], *, log_time_ns: int) -> bool:
-        """Record one message, first opening a new file when this message starts one."""
+    def write(
+        self, topic: str, payload: Mapping[str, object], *, log_time_ns: int, data: bytes | None = None
+    ) -> bool:
+        """Record one message, first opening a new file when this message starts one; ``data`` are its
+        bytes when already encoded (``Recorder.write``)."""
         with self._lock:
             if self._opening:  # a log record of the first file's opening, on this thread: after the header
                 self._early.append((topic, dict(payload), log_time_ns))
@@ -239,7 +242,7 @@ class SessionRecording:
                 if recorder is None:
                     return False
             self._route(topic, payload, log_time_ns)
-        return recorder.write(topic, payload, log_time_ns=log_time_ns)
+        return recorder.write(topic, payload, log_time_ns=log_time_ns, data=data)
 
     def close(self) -> RecorderStats | None:
         """Finish the current file (blocking: from the event loop, call it in a thread)."""

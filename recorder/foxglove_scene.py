@@ -27,8 +27,9 @@ import functools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Final, Protocol
+from typing import Final, Protocol, TypeVar
 
+import msgspec
 import numpy as np
 import structlog
 from foxglove import Schema
@@ -73,6 +74,21 @@ from recorder.foxglove_arm import (
     pose_of,
 )
 from recorder.writer import ChannelSpec, Derived
+from wire.messages import (
+    UNSET,
+    BadMessage,
+    DepthPreview,
+    Detections,
+    Event,
+    Gripper,
+    Joints,
+    Message,
+    Plan,
+    Slot,
+    State,
+    UnsetType,
+    convert,
+)
 from wire.schemas import topic_suffix
 
 log = structlog.get_logger(__name__)
@@ -184,7 +200,7 @@ class _State:
     loose: dict[str, _Mug] = field(default_factory=dict)  # set down by the gripper (the flip area)
     placed: dict[str, _Mug] = field(default_factory=dict)
     carried: tuple[_Mug, Matrix] | None = None  # the mug and its pose in the gripper frame
-    slots: list[Mapping[str, object]] = field(default_factory=list)
+    slots: list[Slot] = field(default_factory=list)
     last_depth_ns: int | None = None
     depth_size: tuple[int, int] | None = None  # the last depth image's width and height
 
@@ -227,23 +243,30 @@ class SceneView:
     def wants(self, topic: str) -> bool:
         return topic_suffix(topic) in _SOURCES
 
-    def derive(self, topic: str, payload: Mapping[str, object], log_time_ns: int) -> Sequence[Derived]:
+    def derive(
+        self, topic: str, payload: Mapping[str, object] | Message, log_time_ns: int
+    ) -> Sequence[Derived]:
+        """What one recorded message changes in the views. ``payload``: the decoded message, or its JSON
+        object (``events`` and ``log`` as objects: their text shows every key, declared or not);
+        ``BadMessage`` when it is not the message its topic carries."""
         kind = topic_suffix(topic)
         t = log_time_ns
         if kind == "joints":
-            return self._joints(payload, t)
+            return self._joints(_as(payload, Joints, kind), t)
         if kind == "gripper":
-            return self._gripper_sample(payload, t)
+            return self._gripper_sample(_as(payload, Gripper, kind), t)
         if kind == "state":
-            return self._state(payload, t)
+            return self._state(_as(payload, State, kind), t)
         if kind == "detections":
-            return self._detections(payload, t)
+            return self._detections(_as(payload, Detections, kind), t)
         if kind == "plan":
-            return self._plan(payload, t)
+            return self._plan(_as(payload, Plan, kind), t)
         if kind == "events":
-            return self._event(payload, t)
+            plain = payload if isinstance(payload, Mapping) else msgspec.to_builtins(payload)
+            return self._event(_as(payload, Event, kind), plain, t)
         if kind == "log":
-            return [_derived(LOG, _log_message(payload, t), t)]
+            plain = payload if isinstance(payload, Mapping) else msgspec.to_builtins(payload)
+            return [_derived(LOG, _log_message(plain, t), t)]
         return []
 
     def opening(self, log_time_ns: int) -> Sequence[Derived]:
@@ -267,20 +290,17 @@ class SceneView:
 
     # --- per source ----------------------------------------------------------------------------------------
 
-    def _joints(self, payload: Mapping[str, object], t: int) -> list[Derived]:
-        names = payload.get("names")
-        positions = payload.get("position_rad")
-        if not isinstance(names, list) or not isinstance(positions, list) or len(names) != len(positions):
+    def _joints(self, joints: Joints, t: int) -> list[Derived]:
+        names, positions = joints.names, joints.position_rad
+        if len(names) != len(positions):
             raise ValueError("joints payload needs names and position_rad of the same length")
-        self._s.positions.update({str(n): float(q) for n, q in zip(names, positions, strict=True)})
+        self._s.positions.update({n: float(q) for n, q in zip(names, positions, strict=True)})
         self._s.have_joints = True
         return [_derived(TF, self._transforms(t), t)]
 
-    def _gripper_sample(self, payload: Mapping[str, object], t: int) -> list[Derived]:
-        aperture = payload.get("aperture_m")
-        if isinstance(aperture, int | float):
-            self._s.aperture_m = float(aperture)
-        holding = bool(payload.get("holding", False))
+    def _gripper_sample(self, gripper: Gripper, t: int) -> list[Derived]:
+        self._s.aperture_m = float(gripper.aperture_m)
+        holding = gripper.holding
         if holding == self._s.holding:
             return []
         self._s.holding = holding
@@ -290,14 +310,14 @@ class SceneView:
             self._set_down()
         return [_derived(MUGS, self._mugs_scene(t), t)]
 
-    def _state(self, payload: Mapping[str, object], t: int) -> list[Derived]:
+    def _state(self, state: State, t: int) -> list[Derived]:
         s = self._s
-        s.state = str(payload.get("state", ""))
-        current = payload.get("current_mug")
+        s.state = state.state
+        current = state.current_mug
         s.current_mug = current if isinstance(current, str) and current else None
         text = (
-            f"{s.state}  placed {payload.get('mugs_placed', 0)}/{payload.get('mugs_planned', 0)}"
-            f"  failed {payload.get('mugs_failed', 0)}"
+            f"{s.state}  placed {state.mugs_placed}/{_count(state.mugs_planned)}"
+            f"  failed {_count(state.mugs_failed)}"
         )
         if s.current_mug:
             text += f"  mug {s.current_mug}"
@@ -306,55 +326,50 @@ class SceneView:
         s.status_text = text
         return [_derived(STATUS, self._status_scene(t), t)]
 
-    def _detections(self, payload: Mapping[str, object], t: int) -> list[Derived]:
+    def _detections(self, detections: Detections, t: int) -> list[Derived]:
         s = self._s
-        mugs = payload.get("mugs")
-        if not isinstance(mugs, list):
-            raise ValueError("detections payload needs a list of mugs")
         s.counter = {}
         carried = s.carried[0].mug_id if s.carried is not None else None
-        for i, m in enumerate(mugs):
-            if not isinstance(m, Mapping):
-                continue
-            mug_id = str(m.get("id") or f"unnamed-{i}")
+        for i, m in enumerate(detections.mugs):
+            mug_id = (m.id if m.id is not UNSET else "") or f"unnamed-{i}"
             if mug_id == carried:
                 continue
+            upside_down = m.upside_down is True
             s.counter[mug_id] = _Mug(
                 mug_id,
-                str(m.get("type", "")),
+                m.type,
                 self._upright_pose(
-                    str(m.get("type", "")),
-                    _number(m, "x_m"),
-                    _number(m, "y_m"),
-                    _number(m, "handle_yaw_rad"),
-                    upside_down=bool(m.get("upside_down", False)),
+                    m.type,
+                    float(m.x_m),
+                    float(m.y_m),
+                    _or0(m.handle_yaw_rad),
+                    upside_down=upside_down,
                 ),
-                bool(m.get("upside_down", False)),
-                bool(m.get("handle_seen", True)),
+                upside_down,
+                m.handle_seen is not False,
             )
             s.loose.pop(mug_id, None)
         out = [_derived(MUGS, self._mugs_scene(t), t)]
-        preview = payload.get("depth_preview")
-        if isinstance(preview, Mapping) and self._depth_due(t):
+        preview = detections.depth_preview
+        if preview is not UNSET and self._depth_due(t):
             image = _depth_image(preview, t)
-            s.depth_size = (int(_number(preview, "width")), int(_number(preview, "height")))
+            s.depth_size = (preview.width, preview.height)
             s.last_depth_ns = t
             out.append(_derived(DEPTH, image, t))
             if self._camera is not None:
                 out.append(_derived(CALIBRATION, self._calibration(t), t))
         return out
 
-    def _plan(self, payload: Mapping[str, object], t: int) -> list[Derived]:
-        slots = payload.get("slots")
-        self._s.slots = [s for s in slots if isinstance(s, Mapping)] if isinstance(slots, list) else []
+    def _plan(self, plan: Plan, t: int) -> list[Derived]:
+        self._s.slots = list(plan.slots)
         return [_derived(PLAN, self._plan_scene(t), t)]
 
-    def _event(self, payload: Mapping[str, object], t: int) -> list[Derived]:
+    def _event(self, event: Event, payload: Mapping[str, object], t: int) -> list[Derived]:
         s = self._s
-        kind = str(payload.get("kind", ""))
+        kind = event.kind
         out = [_derived(EVENTS, _event_message(payload, t), t)]
         if kind == "mug_placed":
-            mug_id = str(payload.get("mug_id", ""))
+            mug_id = event.mug_id if event.mug_id is not UNSET else ""
             mug = s.counter.pop(mug_id, None) or s.loose.pop(mug_id, None)
             if s.carried is not None and s.carried[0].mug_id == mug_id:
                 mug = mug or s.carried[0]
@@ -365,18 +380,18 @@ class SceneView:
                 mug_type,
                 self._upright_pose(
                     mug_type,
-                    _number(payload, "x_m"),
-                    _number(payload, "y_m"),
-                    _number(payload, "handle_yaw_rad"),
+                    _or0(event.x_m),
+                    _or0(event.y_m),
+                    _or0(event.handle_yaw_rad),
                     upside_down=True,
                 ),
                 True,
-                "handle_yaw_rad" in payload,
+                event.handle_yaw_rad is not UNSET,
             )
             out.append(_derived(MUGS, self._mugs_scene(t), t))
         elif kind == "scene_set":
-            scene = payload.get("scene")
-            tray = scene.get("tray") if isinstance(scene, Mapping) else None
+            scene = event.scene if event.scene is not UNSET else {}
+            tray = scene.get("tray")
             if isinstance(tray, Mapping):
                 origin, size = tray.get("origin_m"), tray.get("size_mm")
                 if isinstance(origin, list) and isinstance(size, list):
@@ -618,14 +633,14 @@ class SceneView:
         stamp = _stamp(t)
         entities = []
         for order, slot in enumerate(self._s.slots, start=1):
-            shape = self._shape(str(slot.get("type", "")))
-            x, y = _number(slot, "x_m"), _number(slot, "y_m")
+            shape = self._shape(slot.type)
+            x, y = float(slot.x_m), float(slot.y_m)
             r, g, b = shape.colour
             entities.append(
                 SceneEntity(
                     timestamp=stamp,
                     frame_id=WORLD,
-                    id=f"slot/{slot.get('id', order)}",
+                    id=f"slot/{slot.id}",
                     lifetime=_FOREVER,
                     cylinders=[
                         CylinderPrimitive(
@@ -636,7 +651,7 @@ class SceneView:
                             color=Color(r=r, g=g, b=b, a=0.35),
                         )
                     ],
-                    texts=[_label((x, y, 0.01), f"{order}: {slot.get('id', '')}")],
+                    texts=[_label((x, y, 0.01), f"{order}: {slot.id}")],
                 )
             )
         return SceneUpdate(deletions=[_delete_all(stamp)], entities=entities)
@@ -701,11 +716,9 @@ def _camera(model: CameraModel) -> tuple[tuple[Vec3, Quat], tuple[int, int, floa
     )
 
 
-def _depth_image(preview: Mapping[str, object], t: int) -> RawImage:
-    width, height = int(_number(preview, "width")), int(_number(preview, "height"))
-    if preview.get("encoding") != "uint16_mm_le_base64":
-        raise ValueError(f"depth preview encoding {preview.get('encoding')!r} is not uint16_mm_le_base64")
-    data = base64.b64decode(str(preview["data"]))
+def _depth_image(preview: DepthPreview, t: int) -> RawImage:
+    width, height = preview.width, preview.height
+    data = base64.b64decode(preview.data)
     if len(data) != 2 * width * height:
         raise ValueError(f"depth preview has {len(data)} bytes for {width}x{height} pixels")
     return RawImage(
@@ -760,12 +773,26 @@ def describe_event(event: Mapping[str, object]) -> str:
     return f"{text}{' ' + rest if rest else ''}{f' [{state}]' if state else ''}"
 
 
-def _number(mapping: Mapping[str, object], key: str, default: float = 0.0) -> float:
-    """A numeric field of a payload; ``ValueError`` naming it when it is there but not a number."""
-    value = mapping.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(f"{key} is {value!r}, not a number")
-    return float(value)
+M = TypeVar("M", bound=Message)
+
+
+def _as(payload: Mapping[str, object] | Message, kind: type[M], name: str) -> M:
+    """A source message as its declared type (``BadMessage`` naming the field when it is not one)."""
+    if isinstance(payload, kind):
+        return payload
+    if isinstance(payload, Message):
+        raise BadMessage(f"{name}: a {type(payload).__name__}, not a {kind.__name__}")
+    return convert(payload, kind, name=name)
+
+
+def _count(value: int | UnsetType) -> int:
+    """An optional count, 0 when the message leaves it out."""
+    return 0 if isinstance(value, UnsetType) else value
+
+
+def _or0(value: float | UnsetType) -> float:
+    """An optional number, 0 when the message leaves it out."""
+    return 0.0 if isinstance(value, UnsetType) else float(value)
 
 
 def _derived(topic: str, message: _Message, t: int) -> Derived:

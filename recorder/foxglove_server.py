@@ -150,6 +150,11 @@ class LiveServer(ServerListener):
         log.info("foxglove_commands_offered", services=names)
         return names
 
+    def declared(self) -> frozenset[str]:
+        """The topics whose channels exist (and are advertised to every client that connects from now)."""
+        with self._lock:
+            return frozenset(self._channels)
+
     def send(self, channel: ChannelSpec, data: bytes, log_time_ns: int) -> None:
         """Log one message to the connected clients (called on the recorder's thread)."""
         with self._lock:

@@ -12,6 +12,8 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Final
 
+from wire.messages import UNSET, BadMessage, Event, UnsetType, convert
+
 _DEVICE_FAULTS: Final = frozenset({"servo_fault", "bus_lost", "fsr_lost", "fsr_stale", "tray_collision"})
 _MAX_DEVICE_FAULTS = 20
 
@@ -30,43 +32,49 @@ class JobOutcome:
     _last_trouble: dict[str, str] = field(default_factory=dict)
 
     @classmethod
-    def of(cls, events: Iterable[Mapping[str, object]]) -> JobOutcome:
+    def of(cls, events: Iterable[Event | Mapping[str, object]]) -> JobOutcome:
         outcome = cls()
         for event in events:
             outcome.add(event)
         return outcome
 
-    def add(self, event: Mapping[str, object]) -> None:
-        """Fold one event in; a ``start`` transition begins a new job (what came before is forgotten)."""
-        kind = event.get("kind")
-        mug = str(event.get("mug_id") or "")
+    def add(self, event: Event | Mapping[str, object]) -> None:
+        """Fold one event in (a decoded one, or its payload; one that is not an event is left out); a
+        ``start`` transition begins a new job (what came before is forgotten)."""
+        if not isinstance(event, Event):
+            try:
+                event = convert(event, Event, name="events")
+            except BadMessage:
+                return
+        kind = event.kind
+        mug = _text(event.mug_id)
         if kind == "transition":
-            if event.get("trigger") == "start":
+            if event.trigger == "start":
                 self._reset()
-            dest = event.get("dest")
-            if dest in ("done", "fault", "estop") or (dest == "idle" and event.get("trigger") == "stop"):
+            dest = event.dest
+            if dest in ("done", "fault", "estop") or (dest == "idle" and event.trigger == "stop"):
                 self.end_state = str(dest)
         elif kind == "mug_placed" and mug:
             self.placed.append(mug)
             self.given_up.pop(mug, None)
         elif kind == "mug_given_up" and mug:
-            reason = str(event.get("reason") or "no reason given")
+            reason = _text(event.reason) or "no reason given"
             trouble = self._last_trouble.get(mug)
             self.given_up[mug] = f"{reason} ({trouble})" if trouble and trouble not in reason else reason
         elif kind == "motion_refused" and mug:
-            self._last_trouble[mug] = f"last refusal: {event.get('reason', '')}"
+            self._last_trouble[mug] = f"last refusal: {_text(event.reason)}"
         elif kind == "grasp_failed" and mug:
             self.grasp_failures[mug] = self.grasp_failures.get(mug, 0) + 1
-            self._last_trouble[mug] = f"last attempt: grasp failed in {event.get('state', '?')}"
+            self._last_trouble[mug] = f"last attempt: grasp failed in {_text(event.state) or '?'}"
         elif kind == "mug_dropped" and mug:
             self.drops[mug] = self.drops.get(mug, 0) + 1
-            self._last_trouble[mug] = f"last attempt: dropped in {event.get('state', '?')}"
+            self._last_trouble[mug] = f"last attempt: dropped in {_text(event.state) or '?'}"
         elif kind == "fault":
-            self.faults.append(str(event.get("reason") or "no reason given"))
+            self.faults.append(_text(event.reason) or "no reason given")
         elif kind in _DEVICE_FAULTS and len(self.device_faults) < _MAX_DEVICE_FAULTS:
-            where = event.get("device") or event.get("port") or ""
-            error = event.get("error") or event.get("b") or ""
-            self.device_faults.append(" ".join(str(p) for p in (kind, where, error) if p))
+            where = _text(event.device) or _text(event.port)
+            error = _text(event.error) or _text(event.b)
+            self.device_faults.append(" ".join(p for p in (kind, where, error) if p))
 
     def failed_lines(self) -> list[str]:
         """One line per mug given up: ``m10: no motion reaches it (last refusal: ...)``."""
@@ -92,3 +100,7 @@ class JobOutcome:
         self.device_faults.clear()
         self.end_state = None
         self._last_trouble.clear()
+
+
+def _text(value: str | UnsetType) -> str:
+    return "" if value is UNSET else str(value)

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Final
 
 from recorder.reader import RecordingRead
+from wire.messages import Event, Gripper, Joints, SessionHeader, State
 from wire.schemas import HEADER_TOPIC, topic_suffix
 
 if TYPE_CHECKING:
@@ -77,31 +78,28 @@ class SessionSeries:
         for m in rec:
             t = (m.log_time_ns - t0) / 1e9
             kind = topic_suffix(m.topic)
-            p = m.payload
-            if kind == "state" and isinstance(p.get("state"), str):
-                state = str(p["state"]).split(".", 1)[0]
+            if kind == "state" and (st := m.decoded(State)) is not None:
+                state = st.state.split(".", 1)[0]
                 if not s.states or s.states[-1][1] != state:
                     s.states.append((t, state))
-            elif kind == "gripper":
-                force = p.get("force_n")
-                aperture = p.get("aperture_m")
+            elif kind == "gripper" and (g := m.decoded(Gripper)) is not None:
                 s.force_t.append(t)
-                s.force_n.append(float(force) if isinstance(force, int | float) else float("nan"))
-                s.aperture_m.append(float(aperture) if isinstance(aperture, int | float) else float("nan"))
-            elif kind == "joints" and isinstance(q := p.get("position_rad"), list):
-                positions = [float(v) for v in q]
-                if not s.joint_names and isinstance(names := p.get("names"), list):
-                    s.joint_names = [str(n) for n in names]
+                s.force_n.append(float(g.force_n) if isinstance(g.force_n, int | float) else float("nan"))
+                s.aperture_m.append(float(g.aperture_m))
+            elif kind == "joints" and (js := m.decoded(Joints)) is not None:
+                positions = [float(v) for v in js.position_rad]
+                if not s.joint_names:
+                    s.joint_names = list(js.names)
                 if s.joints and len(positions) != len(s.joints[-1]):
                     continue
                 s.joints_t.append(t)
                 s.joints.append(positions)
-            elif kind == "events":
-                event = str(p.get("kind", ""))
-                if event in EVENT_MARKS or event in _DEVICE_FAULTS:
-                    s.events.append((t, event, str(p.get("mug_id") or "")))
-                elif event == INJECTED:
-                    s.injected.append((t, str(p.get("fault") or "fault")))
+            elif kind == "events" and (e := m.decoded(Event)) is not None:
+                mug = e.mug_id if isinstance(e.mug_id, str) else ""
+                if e.kind in EVENT_MARKS or e.kind in _DEVICE_FAULTS:
+                    s.events.append((t, e.kind, mug))
+                elif e.kind == INJECTED:
+                    s.injected.append((t, e.fault if isinstance(e.fault, str) and e.fault else "fault"))
         s.end_s = ((rec.end_ns or t0) - t0) / 1e9
         return s
 
@@ -226,9 +224,9 @@ def _label(ax: Axes, t: float, y: float, text: str, end: float, *, colour: str =
 
 
 def _title(rec: RecordingRead) -> str:
-    header = rec.header or {}
-    file = header.get("file")
-    kind = file.get("kind") if isinstance(file, dict) else None
+    header = next((m.decoded(SessionHeader) for m in rec if m.topic == HEADER_TOPIC), None)
+    file = header.file if header is not None and isinstance(header.file, dict) else {}
+    kind = file.get("kind")
     duration = ((rec.end_ns or 0) - (rec.start_ns or 0)) / 1e9
     text = f"{rec.path.name}{f' ({kind})' if kind else ''}, {duration:.1f} s"
     if rec.being_written:

@@ -19,7 +19,7 @@ import struct
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Final
+from typing import Final, TypeVar
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
@@ -28,7 +28,10 @@ from mcap.stream_reader import get_chunk_data_stream
 
 from recorder.errors import RecordingError
 from recorder.writer import MESSAGE_ENCODING
+from wire.messages import BadMessage, Message, convert, topic_suffix
 from wire.schemas import HEADER_TOPIC
+
+M = TypeVar("M", bound=Message)
 
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 
@@ -43,6 +46,14 @@ class RecordedMessage:
     topic: str
     log_time_ns: int
     payload: dict[str, object]
+
+    def decoded(self, kind: type[M]) -> M | None:
+        """The payload as the declared message ``kind`` (``wire.messages``); None when it is not one (a
+        malformed message, which readers of a recording leave out rather than stop at)."""
+        try:
+            return convert(self.payload, kind, name=topic_suffix(self.topic))
+        except BadMessage:
+            return None
 
 
 @dataclass(frozen=True, slots=True)

@@ -47,6 +47,7 @@ import structlog
 from mcap.writer import CompressionType, Writer
 
 from recorder.errors import RecordingError
+from wire.messages import Message, decode, encode, message_type, topic_suffix
 from wire.schemas import HEADER_TOPIC, is_telemetry, schema_bytes, schema_name
 
 log = structlog.get_logger(__name__)
@@ -93,7 +94,9 @@ class Deriver(Protocol):
 
     def wants(self, topic: str) -> bool: ...
 
-    def derive(self, topic: str, payload: Mapping[str, object], log_time_ns: int) -> Sequence[Derived]: ...
+    def derive(
+        self, topic: str, payload: Mapping[str, object] | Message, log_time_ns: int
+    ) -> Sequence[Derived]: ...
 
     def opening(self, log_time_ns: int) -> Sequence[Derived]: ...
 
@@ -360,13 +363,17 @@ class Recorder:
         with self._lock:
             return tuple(self._paths)
 
-    def write(self, topic: str, payload: Mapping[str, object], *, log_time_ns: int) -> bool:
+    def write(
+        self, topic: str, payload: Mapping[str, object], *, log_time_ns: int, data: bytes | None = None
+    ) -> bool:
         """Queue one message; False (counted as dropped) when the queue is full or the disk has failed.
+        ``data``: the payload's bytes as ``wire.messages.encode`` wrote them (for Zenoh), recorded as they
+        are instead of encoding the payload again.
 
         Raises ``RecordingError`` for a closed recorder, an empty topic, a negative time or a payload that
         is not a JSON object (NaN and infinities included: they are not JSON).
         """
-        return self._enqueue(topic, payload, log_time_ns=log_time_ns, flush_now=False)
+        return self._enqueue(topic, payload, log_time_ns=log_time_ns, flush_now=False, data=data)
 
     def write_header(
         self,
@@ -471,9 +478,16 @@ class Recorder:
         return stats
 
     def _enqueue(
-        self, topic: str, payload: Mapping[str, object], *, log_time_ns: int, flush_now: bool
+        self,
+        topic: str,
+        payload: Mapping[str, object],
+        *,
+        log_time_ns: int,
+        flush_now: bool,
+        data: bytes | None = None,
     ) -> bool:
-        data = _encode(topic, payload)
+        if data is None or not topic:
+            data = _encode(topic, payload)
         _check_time(topic, log_time_ns)
         with self._lock:
             if self._closed:
@@ -569,7 +583,7 @@ class Recorder:
         if deriver is None or not deriver.wants(item.topic):
             return ()
         try:
-            return deriver.derive(item.topic, json.loads(item.data), item.log_time_ns)
+            return deriver.derive(item.topic, _decoded(item.topic, item.data), item.log_time_ns)
         except Exception as e:  # a bad message or a bug there must not stop the recording
             self._warn_once(f"derive:{item.topic}", "recording_derive_failed", topic=item.topic, error=str(e))
             return ()
@@ -839,9 +853,26 @@ def _encode(topic: str, payload: Mapping[str, object]) -> bytes:
             f"recording payload for {topic!r} must be a JSON object, got {type(payload).__name__}"
         )
     try:
-        return json.dumps(payload, separators=(",", ":"), allow_nan=False).encode()
+        return encode(payload)
     except (TypeError, ValueError) as e:
         raise RecordingError(f"recording payload for {topic!r} is not JSON: {e}") from e
+
+
+# Open by nature (wire.messages): a deriver gets their JSON object, every key of it.
+_OPEN_TOPICS: Final = frozenset({"events", "log"})
+
+
+def _decoded(topic: str, data: bytes) -> Mapping[str, object] | Message:
+    """A recorded message for a deriver: its declared type when it has one (decoded straight from the
+    bytes), else its JSON object."""
+    suffix = topic_suffix(topic)
+    kind = None if suffix in _OPEN_TOPICS else message_type(topic)
+    if kind is None:
+        doc = json.loads(data)
+        if not isinstance(doc, dict):
+            raise ValueError(f"{suffix}: not a JSON object")
+        return doc
+    return decode(data, kind, name=suffix)
 
 
 def _check_time(topic: str, log_time_ns: object) -> None:

@@ -32,13 +32,13 @@ import contextlib
 import importlib
 import math
 import threading
-from collections.abc import Awaitable, Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import replace
 from typing import Final, TypeVar, cast
 
 import structlog
 
-from daemon.backend import Backend, EventListener, MotionCalls, PlanPlacement, health_limits
+from daemon.backend import Backend, EventListener, MotionCalls, PlanPlacement
 from daemon.clock import SessionClock
 from drivers.errors import BusLost, DriverError
 from drivers.interfaces import (
@@ -55,7 +55,25 @@ from drivers.interfaces import (
 from perception.interfaces import Detection, MugObserver, Observation
 from planning.interfaces import MotionPlanner, MotionRefused
 from planning.placement import PlacementPlanner, PlanOptions, PlanResult, Problem
+from replay.errors import ReplayError
 from replay.session import Anchor, DeviceCommand, Divergence, Recorded, RecordedSession, device_command
+from wire.messages import (
+    UNSET,
+    CallFailed,
+    Failure,
+    Follow,
+    Force,
+    Grasp,
+    GripperCommand,
+    Holding,
+    InputJoints,
+    Message,
+    Motion,
+    ReadFailed,
+    UnsetType,
+)
+from wire.messages import Detection as RecordedDetection
+from wire.messages import Observation as RecordedObservation
 from wire.motion import BadMotionRecord, args_digest, result_from_json
 
 T = TypeVar("T")
@@ -129,7 +147,7 @@ class Replayer:
         for name, topics in _ORDERED.items():
             items = [r for t in topics for r in session.streams.get(t, ())]
             if name == "open":
-                items = [r for r in items if r.payload.get("action") == "open"]
+                items = [r for r in items if _as(r, GripperCommand).action == "open"]
             self._ordered[name] = sorted(items, key=lambda r: r.t_ns)
         self._next = dict.fromkeys(_ORDERED, 0)
         self._motion_taken: set[int] = set()  # motion records served out of order (``take_motion``)
@@ -137,8 +155,8 @@ class Replayer:
         # The motion records not yet served, by call and arguments digest.
         self._motion_by_args: dict[tuple[str, str], collections.deque[int]] = {}
         for i, r in enumerate(self._ordered["motion"]):
-            key = (str(r.payload.get("call")), str(r.payload.get("args_digest")))
-            self._motion_by_args.setdefault(key, collections.deque()).append(i)
+            m = _as(r, Motion)
+            self._motion_by_args.setdefault((m.call, m.args_digest), collections.deque()).append(i)
         self._motion_lock = threading.Lock()  # motion plans are asked from the job's worker threads
         self._cursor: dict[str, int] = {}  # per timed stream: the first record not yet consumed
         self._last_served: dict[str, int] = {}  # per timed stream: the latest record served so far
@@ -333,8 +351,9 @@ class Replayer:
         return False
 
     def _read_time(self, r: Recorded) -> float:
-        t = r.payload.get("t_read")
-        if isinstance(t, int | float):
+        m = r.message
+        t = m.t_read if isinstance(m, InputJoints | Force | Holding | ReadFailed) else UNSET
+        if not isinstance(t, UnsetType):
             return float(t)
         return r.t_ns / 1e9 - self.session.mono_offset_s
 
@@ -352,11 +371,11 @@ class Replayer:
         """The replay's monotonic time for a recorded one (a device time or the end of a call)."""
         return recorded_monotonic - self.session.start_monotonic + self._start_mono
 
-    async def until_recorded(self, recorded: Recorded, key: str = "t_end") -> None:
+    async def until_recorded(self, recorded: Recorded) -> None:
         """Wait until the moment a recorded call ended, as the replay's clock lays it."""
-        end = recorded.payload.get(key)
-        if isinstance(end, int | float) and math.isfinite(end):
-            await self.clock.sleep_until(self.replay_monotonic(float(end)))
+        end = _t_end(recorded)
+        if end is not None and math.isfinite(end):
+            await self.clock.sleep_until(self.replay_monotonic(end))
 
     # --- following the recording ---------------------------------------------------------------------------
 
@@ -501,9 +520,9 @@ class Replayer:
         while chosen in self._motion_taken:
             chosen += 1
         if chosen < len(items):
-            p = items[chosen].payload
+            p = _as(items[chosen], Motion)
             with contextlib.suppress(KeyError, ValueError):
-                self._motion_by_args[(str(p.get("call")), str(p.get("args_digest")))].remove(chosen)
+                self._motion_by_args[(p.call, p.args_digest)].remove(chosen)
         return chosen
 
     def check(self, recorded: Recorded, asked: DeviceCommand | None) -> bool:
@@ -525,7 +544,7 @@ def replay_backend(backend: Backend, replayer: Replayer) -> Backend:
     motion_for = backend.motion_for
     health: DeviceHealth | None = backend.health
     if health is not None or replayer.session.streams.get("input/health_failed"):
-        health = ReplayHealth(health, replayer, health_limits(replayer.session.config).poll_period_s)
+        health = ReplayHealth(health, replayer, replayer.session.config.hardware.health.poll_period_s)
     return replace(
         backend,
         arm=ReplayArm(backend.arm, replayer),
@@ -551,20 +570,20 @@ def _error_classes() -> dict[str, type[BaseException]]:
     return found
 
 
-def recorded_failure(text: str, payload: Mapping[str, object] | None = None) -> BaseException:
+def recorded_failure(text: str, failure: Failure | None = None) -> BaseException:
     """The driver error a recorded failure names (``ServoFault: servo 3 overload``), raised again: of the
     class it had (``error_class``, else the first driver error of that name) with what it carried
     (``error_servo_id``, ``error_bits``, ``error_port``), else a ``DriverError`` of the same name."""
     name, _, message = text.partition(": ")
-    payload = payload or {}
+    failure = failure or Failure()
     classes = _error_classes()
-    cls = classes.get(str(payload.get("error_class", "")))
+    cls = classes.get(failure.error_class) if isinstance(failure.error_class, str) else None
     if cls is None:
         cls = next((c for c in classes.values() if c.__name__ == name), None)
     if cls is not None:
         error = cls.__new__(cls)
         Exception.__init__(error, message)
-        servo_id, bits, port = (payload.get(f"error_{k}") for k in ("servo_id", "bits", "port"))
+        servo_id, bits, port = failure.error_servo_id, failure.error_bits, failure.error_port
         attributes: dict[str, object] = {
             "servo_id": servo_id if isinstance(servo_id, int) else None,
             "bits": tuple(str(b) for b in bits) if isinstance(bits, list) else (),
@@ -584,8 +603,8 @@ async def _bounded(call: Awaitable[T], replayer: Replayer, rec: Recorded) -> T |
     """Run the cell's side of a served call only until the recorded call ended (then it is cancelled: the
     robot stopped there, or had done); its result when it ended first."""
     task = asyncio.ensure_future(call)
-    end = rec.payload.get("t_end")
-    if not isinstance(end, int | float) or not math.isfinite(end):
+    end = _t_end(rec)
+    if end is None or not math.isfinite(end):
         return await task
     try:
         done = await replayer.clock.wait(
@@ -610,7 +629,7 @@ async def _ended_as_recorded(replayer: Replayer, rec: Recorded) -> None:
     if _failed(rec):  # what the drivers reported as the call failed comes before the job's reaction to it
         replayer.deliver_before_next_command()
     _raise_recorded(rec)
-    if rec.payload.get("cancelled"):
+    if _failure(rec).cancelled is True:
         await replayer.clock.sleep(_CANCEL_WAIT_S)
         replayer.diverge("device", f"{rec.kind} cancelled", f"{rec.kind} not cancelled")
 
@@ -629,13 +648,13 @@ class ReplayArm:
         if rec is None:  # (a read changes nothing in the cell: while served, the cell is not read)
             return await self._inner.read_joints()
         _raise_recorded(rec)
-        p = rec.payload
+        p = _as(rec, InputJoints)
         return JointState(
             t=self._r.clock.monotonic(),
-            names=tuple(str(n) for n in _list(p, "names")),
-            position_rad=_floats(p, "position_rad"),
-            velocity_rad_s=_floats(p, "velocity_rad_s"),
-            load=_floats(p, "load"),
+            names=tuple(p.names),
+            position_rad=_floats(p.position_rad),
+            velocity_rad_s=_floats(p.velocity_rad_s),
+            load=_floats(p.load),
         )
 
     async def follow(self, trajectory: JointTrajectory) -> None:
@@ -716,12 +735,14 @@ class ReplayGripper:
                 )
             )
         await _ended_as_recorded(self._r, rec)
-        p = rec.payload
+        p = rec.message
+        if not isinstance(p, Grasp):  # recorded as cancelled, and the replay's job was not: nothing held
+            return GraspResult(held=False, force_n=0.0, aperture_m=0.0, reason="")
         return GraspResult(
-            held=bool(p.get("held")),
-            force_n=_float(p, "force_n"),
-            aperture_m=_float(p, "aperture_m"),
-            reason=str(p.get("reason", "")),
+            held=p.held,
+            force_n=_float(p.force_n),
+            aperture_m=_float(p.aperture_m),
+            reason=p.reason if isinstance(p.reason, str) else "",
         )
 
     async def stop(self) -> None:
@@ -739,20 +760,19 @@ class ReplayForce:
         rec = self._r.latest("input/force") if self._r.serving() else None
         if rec is None:
             return self._inner.latest()
-        p = rec.payload
-        device_t = p.get("t_device")
-        t = self._r.replay_monotonic(float(device_t)) if isinstance(device_t, int | float) else 0.0
-        raw, seq = p.get("raw"), p.get("seq")
+        p = _as(rec, Force)
+        device_t = p.t_device
+        t = self._r.replay_monotonic(float(device_t)) if not isinstance(device_t, UnsetType) else 0.0
         return ForceReading(
             t=t,
-            force_n=_float(p, "force_n"),
-            raw=raw if isinstance(raw, int) else 0,
-            seq=seq if isinstance(seq, int) else 0,
+            force_n=float(p.force_n),
+            raw=p.raw if isinstance(p.raw, int) else 0,
+            seq=p.seq if isinstance(p.seq, int) else 0,
         )
 
     def holding(self) -> bool:
         rec = self._r.latest("input/holding") if self._r.serving() else None
-        return self._inner.holding() if rec is None else bool(rec.payload.get("holding"))
+        return self._inner.holding() if rec is None else _as(rec, Holding).holding
 
 
 class ReplayObserver:
@@ -772,14 +792,15 @@ class ReplayObserver:
         await _ended_as_recorded(self._r, rec)
         if live is None:
             live = Observation(t=self._r.clock.monotonic(), detections=())
-        p = rec.payload
-        device_t = p.get("t_device")
-        meta = p.get("meta")
+        p = rec.message
+        if not isinstance(p, RecordedObservation):  # recorded as cancelled, and the replay's job was not
+            return Observation(t=live.t, detections=(), depth_preview=live.depth_preview, meta={})
+        device_t, meta = p.t_device, p.meta
         return Observation(
-            t=self._r.replay_monotonic(float(device_t)) if isinstance(device_t, int | float) else live.t,
-            detections=tuple(_detection(d) for d in _list(p, "mugs") if isinstance(d, Mapping)),
+            t=self._r.replay_monotonic(float(device_t)) if not isinstance(device_t, UnsetType) else live.t,
+            detections=tuple(_detection(d) for d in p.mugs),
             depth_preview=live.depth_preview,
-            meta={str(k): str(v) for k, v in meta.items()} if isinstance(meta, Mapping) else {},
+            meta={str(k): str(v) for k, v in meta.items()} if not isinstance(meta, UnsetType) else {},
         )
 
 
@@ -890,21 +911,18 @@ class ReplayMotion(MotionCalls):
             return run()
         # What came while the robot made this plan comes before the job has it.
         self._r.deliver_events_while_computing(rec.t_ns)
-        p = rec.payload
-        if p.get("call") != call or p.get("args_digest") != digest:
-            self._r.diverge("motion", f"{p.get('call')} as recorded", f"{call} for other arguments")
+        p = _as(rec, Motion)
+        if p.call != call or p.args_digest != digest:
+            self._r.diverge("motion", f"{p.call} as recorded", f"{call} for other arguments")
             return run()
-        refused = p.get("refused")
-        if isinstance(refused, str):
-            blockers = p.get("blockers")
-            raise MotionRefused(
-                refused, blockers=[str(b) for b in blockers] if isinstance(blockers, list) else ()
-            )
-        if "result" not in p:
-            self._r.diverge("motion", f"{call} failed ({p.get('error')})", f"{call} planned again")
+        if isinstance(p.refused, str):
+            raise MotionRefused(p.refused, blockers=p.blockers if isinstance(p.blockers, list) else ())
+        if isinstance(p.result, UnsetType):
+            error = p.error if isinstance(p.error, str) else None
+            self._r.diverge("motion", f"{call} failed ({error})", f"{call} planned again")
             return run()
         try:
-            return cast("T", result_from_json(call, p["result"]))
+            return cast("T", result_from_json(call, p.result))
         except (BadMotionRecord, ValueError) as e:
             self._r.diverge("motion", "a recorded plan", f"an unreadable one ({e})")
             return run()
@@ -918,38 +936,80 @@ def _on(loop: asyncio.AbstractEventLoop) -> bool:
         return False
 
 
+M = TypeVar("M", bound=Message)
+
+# The recorded calls that may have failed, and so carry the error fields (``wire.messages.Failure``).
+_CALLS = (Follow, GripperCommand, Grasp, CallFailed, RecordedObservation, ReadFailed, InputJoints, Motion)
+
+
+def _as(rec: Recorded, kind: type[M]) -> M:
+    """A recorded input as its declared message (``RecordedSession.load`` decoded it)."""
+    if not isinstance(rec.message, kind):
+        raise ReplayError(f"{rec.kind}: recorded as {type(rec.message).__name__}, not {kind.__name__}")
+    return rec.message
+
+
+def _failure(rec: Recorded) -> Failure:
+    """How a recorded call failed: its error fields and whether it was cancelled (none for a call that
+    did not fail)."""
+    m = rec.message
+    if isinstance(m, Follow | GripperCommand | CallFailed):
+        return Failure(
+            error=m.error,
+            error_class=m.error_class,
+            error_servo_id=m.error_servo_id,
+            error_bits=m.error_bits,
+            error_port=m.error_port,
+            cancelled=m.cancelled,
+        )
+    if isinstance(m, ReadFailed | Motion):
+        return Failure(
+            error=m.error,
+            error_class=m.error_class,
+            error_servo_id=m.error_servo_id,
+            error_bits=m.error_bits,
+            error_port=m.error_port,
+        )
+    return Failure()
+
+
+def _t_end(rec: Recorded) -> float | None:
+    m = rec.message
+    end = (
+        m.t_end
+        if isinstance(m, Follow | GripperCommand | Grasp | CallFailed | RecordedObservation)
+        else UNSET
+    )
+    return None if isinstance(end, UnsetType) else float(end)
+
+
 def _failed(rec: Recorded) -> bool:
-    return isinstance(rec.payload.get("error"), str) or bool(rec.payload.get("cancelled"))
+    failure = _failure(rec)
+    return isinstance(failure.error, str) or failure.cancelled is True
 
 
 def _raise_recorded(rec: Recorded) -> None:
-    error = rec.payload.get("error")
-    if isinstance(error, str):
-        raise recorded_failure(error, rec.payload)
+    failure = _failure(rec)
+    if isinstance(failure.error, str):
+        raise recorded_failure(failure.error, failure)
 
 
-def _list(payload: Mapping[str, object], key: str) -> Sequence[object]:
-    value = payload.get(key)
-    return value if isinstance(value, list) else []
+def _floats(values: list[int | float] | UnsetType) -> tuple[float, ...]:
+    return () if isinstance(values, UnsetType) else tuple(float(v) for v in values)
 
 
-def _floats(payload: Mapping[str, object], key: str) -> tuple[float, ...]:
-    return tuple(float(v) for v in _list(payload, key) if isinstance(v, int | float))
+def _float(value: int | float | UnsetType) -> float:
+    return 0.0 if isinstance(value, UnsetType) else float(value)
 
 
-def _float(payload: Mapping[str, object], key: str) -> float:
-    value = payload.get(key)
-    return float(value) if isinstance(value, int | float) else 0.0
-
-
-def _detection(d: Mapping[str, object]) -> Detection:
+def _detection(d: RecordedDetection) -> Detection:
     return Detection(
-        type=str(d.get("type", "")),
-        x_m=_float(d, "x_m"),
-        y_m=_float(d, "y_m"),
-        upside_down=bool(d.get("upside_down")),
-        handle_yaw_rad=_float(d, "handle_yaw_rad"),
-        confidence=_float(d, "confidence"),
-        mug_id=str(d.get("id", "")),
-        handle_seen=bool(d.get("handle_seen", True)),
+        type=d.type,
+        x_m=float(d.x_m),
+        y_m=float(d.y_m),
+        upside_down=d.upside_down is True,
+        handle_yaw_rad=_float(d.handle_yaw_rad),
+        confidence=_float(d.confidence),
+        mug_id=d.id if isinstance(d.id, str) else "",
+        handle_seen=d.handle_seen is not False,
     )

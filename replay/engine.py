@@ -336,9 +336,11 @@ class _Tee:
 
         forward = self._forward
 
-        def tee(topic: str, payload: Mapping[str, object], *, log_time_ns: int) -> bool:
+        def tee(
+            topic: str, payload: Mapping[str, object], *, log_time_ns: int, data: bytes | None = None
+        ) -> bool:
             self.messages.append(RecordedMessage(topic, log_time_ns, dict(payload)))
-            return write(topic, payload, log_time_ns=log_time_ns) if forward else True
+            return write(topic, payload, log_time_ns=log_time_ns, data=data) if forward else True
 
         recording.write = tee  # type: ignore[method-assign]
 

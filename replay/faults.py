@@ -44,6 +44,8 @@ from daemon.errors import UsageError
 from drivers.sim.camera import CameraFault
 from statechart.chart import LEAVES, STATES, top_level
 from validation import OneOf, above, convert, number_range, show, toml, within
+from wire.messages import BadMessage, Detections, Event
+from wire.messages import convert as as_message
 
 if TYPE_CHECKING:
     import zenoh
@@ -522,14 +524,19 @@ class FaultInjector:
         """Count state entries (``transition`` events on ``events``) for the ``at_state`` faults: an entry
         from outside the state; a resume after a pause goes back into a state and is not one."""
         if topic == "detections":
-            self._seen_by_job = _job_mugs(payload)
+            with contextlib.suppress(BadMessage):  # (not detections: nothing seen)
+                self._seen_by_job = _job_mugs(as_message(payload, Detections, name=topic))
             return
-        if topic != "events" or payload.get("kind") != "transition" or self._ctx is None:
+        if topic != "events" or self._ctx is None:
             return
-        if payload.get("trigger") == "resume":
+        try:
+            event = as_message(payload, Event, name=topic)
+        except BadMessage:
             return
-        dest = str(payload.get("dest", ""))
-        source = str(payload.get("source", ""))
+        if event.kind != "transition" or event.trigger == "resume":
+            return
+        dest = event.dest if isinstance(event.dest, str) else ""
+        source = event.source if isinstance(event.source, str) else ""
         entered = {dest}
         if top_level(source) != top_level(dest) or source == dest:
             entered.add(top_level(dest))
@@ -844,17 +851,9 @@ def _nearest(where: tuple[float, float], candidates: Mapping[str, tuple[float, f
     return best
 
 
-def _job_mugs(payload: Mapping[str, object]) -> dict[str, tuple[float, float]]:
-    """The mugs a ``detections`` payload names, by the job's id: where they were seen."""
-    mugs = payload.get("mugs")
-    out: dict[str, tuple[float, float]] = {}
-    if isinstance(mugs, list):
-        for m in mugs:
-            if isinstance(m, Mapping) and isinstance(m.get("id"), str):
-                x, y = m.get("x_m"), m.get("y_m")
-                if isinstance(x, int | float) and isinstance(y, int | float):
-                    out[str(m["id"])] = (float(x), float(y))
-    return out
+def _job_mugs(detections: Detections) -> dict[str, tuple[float, float]]:
+    """The mugs a ``detections`` message names, by the job's id: where they were seen."""
+    return {m.id: (float(m.x_m), float(m.y_m)) for m in detections.mugs if isinstance(m.id, str)}
 
 
 _RECORD_KEYS: Final = ("kind", "index", "fired_at_s", "ended_at_s")

@@ -30,6 +30,18 @@ from recorder import HEADER_TOPIC, read_messages
 from recorder.errors import RecordingError
 from recorder.reader import RecordedMessage, RecordingRead
 from replay.errors import ReplayError
+from wire.messages import (
+    TOPICS,
+    UNSET,
+    BadMessage,
+    Command,
+    Event,
+    InputJoints,
+    Message,
+    State,
+    UnsetType,
+    convert,
+)
 from wire.schemas import topic_suffix
 
 # The backends a replay can rebuild, by the name the session header's scene gives.
@@ -195,24 +207,23 @@ def trace_of_messages(
         t_s = (m.log_time_ns - start_ns) / 1e9
         if not started:  # the trace begins with the start transition (what came before it, such as the
             # scene being set up, may be in the file before or not, as the file was opened)
-            started = (
-                suffix == "events"
-                and m.payload.get("kind") == "transition"
-                and m.payload.get("trigger") == "start"
-            )
+            started = suffix == "events" and _is_start(m.decoded(Event))
             if not started:
                 continue
         if suffix == "events":
-            kind = str(m.payload.get("kind", ""))
+            event = m.decoded(Event)
+            if event is None:  # not an event: nothing of it in the trace
+                continue
             detail = {k: v for k, v in m.payload.items() if k not in ("kind", "t", "state", "t_device")}
-            events.append(TraceEvent(kind, t_s, str(m.payload.get("state", "")), detail))
-            if kind == "transition":
-                dest = str(m.payload.get("dest", ""))
+            events.append(TraceEvent(event.kind, t_s, _text(event.state), detail))
+            if event.kind == "transition":
+                dest = _text(event.dest)
                 states.append(dest)
                 times.append(t_s)
                 final = dest
         elif suffix == "state" and not final:
-            final = str(m.payload.get("state", ""))
+            state = m.decoded(State)
+            final = state.state if state is not None else ""
         else:
             command = device_command(suffix, m.payload, t_s)
             if command is not None:
@@ -230,13 +241,18 @@ def trace_of_messages(
 def job_start(messages: Sequence[RecordedMessage]) -> RecordedMessage | None:
     """The job's ``start`` transition."""
     for m in messages:
-        if (
-            topic_suffix(m.topic) == "events"
-            and m.payload.get("kind") == "transition"
-            and m.payload.get("trigger") == "start"
-        ):
+        if topic_suffix(m.topic) == "events" and _is_start(m.decoded(Event)):
             return m
     return None
+
+
+def _is_start(event: Event | None) -> bool:
+    """Whether an event is the job's ``start`` transition."""
+    return event is not None and event.kind == "transition" and event.trigger == "start"
+
+
+def _text(value: str | UnsetType) -> str:
+    return "" if isinstance(value, UnsetType) else value
 
 
 def job_start_ns(messages: Sequence[RecordedMessage]) -> int | None:
@@ -322,6 +338,9 @@ class Recorded:
     kind: str
     t_ns: int
     payload: Mapping[str, object]
+    # The payload as its declared message (``wire.messages``), for the driver-boundary topics a replay
+    # serves; None for the open ones (device events) and the plan (``PlanResult.from_json`` reads it).
+    message: Message | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -352,6 +371,9 @@ _DEVICE_COMMAND_TOPICS: Final = (
     "input/observation",
     "input/observe_failed",
 )
+# Recorded inputs kept as their payloads only: device events are open (a driver's own keys), a plan is read
+# by ``PlanResult.from_json``.
+_UNTYPED: Final = frozenset({"input/device_event", "plan"})
 # What a device event's recorded payload carries about its recording rather than about the event.
 _EVENT_RECORD_KEYS: Final = frozenset({"at_state", "at_transitions", "at_device_commands", "t_read", "state"})
 
@@ -405,14 +427,20 @@ class RecordedSession:
 
     def commands(self) -> list[Recorded]:
         """The operator's commands that changed something, in the order received."""
-        return [r for r in self.streams.get("input/command", ()) if r.payload.get("verb") in REPLAYED_VERBS]
+        return [
+            r
+            for r in self.streams.get("input/command", ())
+            if isinstance(r.message, Command) and r.message.verb in REPLAYED_VERBS
+        ]
 
     def starting_command(self) -> Recorded | None:
         """The operator's ``start`` that began the job (the first one answered ok; it may be logged after the
         start transition, as its reply comes after it), or None for a ``dishbot run --once`` job."""
         for r in self.commands():
-            reply = r.payload.get("reply")
-            if r.payload.get("verb") == "start" and isinstance(reply, Mapping) and reply.get("ok"):
+            command = r.message
+            assert isinstance(command, Command)  # (commands() keeps only those)
+            reply = command.reply
+            if command.verb == "start" and not isinstance(reply, UnsetType) and reply.get("ok"):
                 return r
         return None
 
@@ -456,8 +484,8 @@ class RecordedSession:
         """The ``start`` command that began the job: as received when it came over Zenoh, else rebuilt from
         the header (a ``dishbot run --once`` job)."""
         starting = self.starting_command()
-        if starting is not None:
-            return str(starting.payload.get("payload", "")).encode()
+        if starting is not None and isinstance(starting.message, Command):
+            return starting.message.payload.encode()
         body: dict[str, object] = {}
         if self.job.get("mugs") is not None:
             body["mugs"] = self.job["mugs"]
@@ -507,7 +535,12 @@ class RecordedSession:
         for m in messages[1:]:
             suffix = topic_suffix(m.topic)
             if suffix.startswith(("input/", "output/")) or suffix == "plan":
-                streams.setdefault(suffix, []).append(Recorded(suffix, m.log_time_ns, m.payload))
+                declared = None if suffix in _UNTYPED else TOPICS.get(suffix)
+                try:
+                    message = None if declared is None else convert(m.payload, declared, name=suffix)
+                except BadMessage as e:
+                    raise ReplayError(f"{path}: {e}") from None
+                streams.setdefault(suffix, []).append(Recorded(suffix, m.log_time_ns, m.payload, message))
         # (A job that ended before its first move has no follow, but its other device commands.)
         if "input/joints" in streams and not any(k.startswith("output/") for k in streams):
             raise ReplayError(
@@ -610,8 +643,9 @@ def _shown(value: object) -> str:
 def _start_monotonic(start: RecordedMessage, joints: Sequence[Recorded], clock: object) -> float:
     """The monotonic time of the job's start: as the transition says (``t_device``), else from its log time
     and the clocks' difference."""
-    t = start.payload.get("t_device")
-    if isinstance(t, int | float):
+    event = start.decoded(Event)
+    t = event.t_device if event is not None else UNSET
+    if not isinstance(t, UnsetType):
         return float(t)
     return start.log_time_ns / 1e9 - _mono_offset(joints, clock)
 
@@ -624,8 +658,8 @@ def _mono_offset(joints: Sequence[Recorded], clock: object) -> float:
         if isinstance(start, int | float):
             return float(start)
     diffs = [
-        r.t_ns / 1e9 - float(r.payload["t_read"])  # type: ignore[arg-type]
+        r.t_ns / 1e9 - float(r.message.t_read)
         for r in joints
-        if isinstance(r.payload.get("t_read"), int | float)
+        if isinstance(r.message, InputJoints) and not isinstance(r.message.t_read, UnsetType)
     ]
     return statistics.median(diffs) if diffs else math.nan

@@ -9,8 +9,9 @@ registers as the firmware sets them, a silent servo, corrupt packets, a pulled a
 through the same bytes and drivers in either world, and is met as on the robot.
 
 On the in-process transport and a simulated clock the bus transactions run inline on the event loop's thread
-(``ServoChain(inline=True)``): no thread hop, no simulated time; on a pseudo-terminal the devices are served
-by their own threads in wall-clock time.
+(``ServoChain(inline=True)``): no thread hop, and no simulated time while every servo answers; a transaction
+that waits on a servo (a silent one, a lost or garbled answer) waits its status timeouts in simulated time,
+as on the robot. On a pseudo-terminal the devices are served by their own threads in wall-clock time.
 """
 
 from __future__ import annotations
@@ -90,6 +91,7 @@ async def open_cell_devices(
         fsr=FsrSettings(fsr_sim.device_path, threshold_n=holding_threshold_n, debounce_s=fsr_debounce_s),
         # The simulated servos on a pty answer from a Python thread sharing the GIL with the world and the
         # event loop, not from firmware: give a status packet 50 ms (a real chain needs under 20 ms).
+        # In-process the same timeout passes in simulated time when an answer is withheld (a silent servo).
         retries=3,
         read_timeout_s=0.05,
         open_bus=servo_sim.open_serial,

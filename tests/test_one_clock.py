@@ -57,12 +57,13 @@ WALL_CLOCK: Final = {
 # (module, function qualname) -> why the wall clock is right there. A module name alone allows it all.
 ALLOWED: Final[dict[tuple[str, str], str]] = {
     ("daemon/clock.py", "*"): "the clock seam itself: the wall clock's one reader",
-    ("drivers/dynamixel/bus.py", "DynamixelBus._exchange.io"): (
-        "the select() timeout for a status packet: a wait on the device, in wall time like dynamixel-sdk's "
-        "own packet timeouts; in-process the answer is there before it starts"
+    ("drivers/dynamixel/bus.py", "WallWaits.now"): (
+        "the bus's waits on a serial adapter (a status packet's timeout), in wall time like dynamixel-sdk's "
+        "own packet timeouts; on a simulated clock ServoChain gives the bus waits in simulated time"
     ),
-    ("drivers/dynamixel/bus.py", "DynamixelBus.reboot"): "a rebooting servo's settle time, on the bus thread",
-    ("drivers/dynamixel/bus.py", "DynamixelBus._reopen"): "a re-enumerating USB adapter, on the bus thread",
+    ("drivers/dynamixel/bus.py", "WallWaits.sleep"): (
+        "a rebooting servo's settle time, a re-enumerating USB adapter, on the bus thread"
+    ),
     ("drivers/sim/servo_chain.py", "ServoChainSimulator._wire_delay"): (
         "the pty transport's wire time: a chain on a pty answers in wall-clock time"
     ),

@@ -5,8 +5,9 @@ dataclass whose fields carry their ranges and choices (``Annotated[float, within
 ``Annotated[str, OneOf(METHODS)]``); ``convert`` checks a decoded TOML or JSON value against it and builds it.
 The checking is msgspec's (``msgspec.convert``, strict: no string is taken for a number, no ``true`` for 1);
 this module adds what msgspec leaves to its callers: unknown keys refused (msgspec ignores them on
-dataclasses), choices from lists known only at run time, and one error wording, naming the field by its
-dotted path in the file::
+dataclasses; a shape whose format has always let them through says so with ``UNKNOWN_KEYS_IGNORED``),
+choices from lists known only at run time, and one error wording, naming the field by its dotted path in
+the file::
 
     planner.time_limit_s: 900 is out of range; allowed [0.01, 600]
     planner.method: 'fastest' is not one of auto, ffd, ...
@@ -23,6 +24,7 @@ import dataclasses
 import functools
 import math
 import re
+import sys
 import types
 from collections.abc import Hashable, Mapping, Sequence
 from typing import Any, Final, TypeVar, cast
@@ -48,6 +50,16 @@ def above(lo: float, hi: float, *, unit: str = "") -> msgspec.Meta:
 
 # A string with at least one character.
 NON_EMPTY: Final = msgspec.Meta(min_length=1)
+
+# Any number but infinity and NaN, for a quantity with no natural bound (a position, an angle).
+FINITE: Final = msgspec.Meta(
+    ge=-sys.float_info.max, le=sys.float_info.max, extra={"expected": "a finite number"}
+)
+
+# ``unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED`` on a shape lets keys it does not declare through
+# unread, where the format always has (a recording's message, which later versions extend; the tables
+# inside a placement problem); every other shape refuses them.
+UNKNOWN_KEYS_IGNORED: Final = "ignored"
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -78,7 +90,7 @@ def convert(
     try:
         return msgspec.convert(data, kind, strict=True)
     except msgspec.ValidationError as e:
-        raise error(prefix + _worded(str(e), data, info, name, missing)) from None
+        raise error(prefix + _worded(str(e), data, info, name, missing, root)) from None
 
 
 @functools.cache
@@ -145,8 +157,9 @@ def _check_keys(data: object, info: Any, name: str, missing: str, root: str = ""
     if fields is not None:
         if not isinstance(data, Mapping):
             return None  # msgspec words it ("expected a table")
+        ignored = getattr(info.cls, "unknown_keys", None) == UNKNOWN_KEYS_IGNORED
         for key in data:
-            if key not in fields:
+            if key not in fields and not ignored:
                 where = name or root
                 known = ", ".join(sorted(fields))
                 return f"{_join(name, str(key))}: unknown key in {where} (known keys: {known})"
@@ -258,7 +271,7 @@ _OWN_RULE: Final = re.compile(
 )
 
 
-def _worded(message: str, data: object, info: Any, name: str, missing: str) -> str:
+def _worded(message: str, data: object, info: Any, name: str, missing: str, root: str) -> str:
     match = _AT.match(message)
     assert match is not None
     what, path = match["what"], match["path"] or ""
@@ -278,34 +291,35 @@ def _worded(message: str, data: object, info: Any, name: str, missing: str) -> s
     expected = extra.get("expected")
     unit = f" {extra['unit']}" if extra.get("unit") else ""
     field = _type_at(info, keys)
+    shown = where or root  # the value itself is wrong: the whole file, command or table
     if (m := _MISSING.match(what)) is not None:
         return f"{_join(where, m['field'])}: {missing}"
     if expected is not None:  # the declaration words what it takes itself
-        return f"{where}: expected {expected}, got {show(value)}"
+        return f"{shown}: expected {expected}, got {show(value)}"
     if (_BOUND.match(what) or _TOO_BIG.match(what)) and isinstance(value, int | float):
         lo, hi, open_low = _bounds(field)
-        shown = "nan" if isinstance(value, float) and math.isnan(value) else show(value)
-        return f"{where}: {shown} is out of range; allowed {number_range(lo, hi, open_low=open_low)}{unit}"
+        what_is = "nan" if isinstance(value, float) and math.isnan(value) else show(value)
+        return f"{shown}: {what_is} is out of range; allowed {number_range(lo, hi, open_low=open_low)}{unit}"
     if (m := _LENGTH.match(what)) is not None:
-        return f"{where}: expected {m['n']} values, got {m['got']}"
+        return f"{shown}: expected {m['n']} values, got {m['got']}"
     if _ARRAY_LENGTH.match(what) is not None and _is_list(value):
         low, high = getattr(field, "min_length", None), getattr(field, "max_length", None)
         wanted = f"{low or 0}-{high}" if high is not None else f"at least {low}"
-        return f"{where}: expected {wanted} values, got {len(value)}"  # type: ignore[arg-type]
+        return f"{shown}: expected {wanted} values, got {len(value)}"  # type: ignore[arg-type]
     if _STR_LENGTH.match(what) is not None:
-        return f"{where}: expected a non-empty string, got {show(value)}"
+        return f"{shown}: expected a non-empty string, got {show(value)}"
     if _STR_TOO_LONG.match(what) is not None and isinstance(value, str):
-        return f"{where}: expected at most {field.max_length} characters, got {len(value)}"
+        return f"{shown}: expected at most {field.max_length} characters, got {len(value)}"
     if (m := _ENUM.match(what)) is not None:
         values = getattr(field, "values", ())
-        return f"{where}: {show(value)} is not one of {', '.join(str(v) for v in values)}"
+        return f"{shown}: {show(value)} is not one of {', '.join(str(v) for v in values)}"
     if _TYPE.match(what) is not None:
-        return f"{where}: expected {_expected(field)}{unit}, got {show(value)}"
+        return f"{shown}: expected {_expected(field)}{unit}, got {show(value)}"
     own = _OWN_RULE.match(what)
     fields = _fields(field)
     if own is not None and fields is not None and own["field"] in fields:
         return f"{_join(where, own['field'])}{own['index']}: {own['text']}"  # a type's rule, naming its field
-    return f"{where or 'the value'}: {what}"
+    return f"{shown}: {what}"
 
 
 def _value_at(data: object, keys: Sequence[str | int]) -> object:
@@ -398,4 +412,15 @@ def _expected(info: Any) -> str:
     return "another type"
 
 
-__all__ = ["Above", "In", "Invalid", "NonEmpty", "OneOf", "convert", "number_range", "show"]
+__all__ = [
+    "FINITE",
+    "NON_EMPTY",
+    "UNKNOWN_KEYS_IGNORED",
+    "Invalid",
+    "OneOf",
+    "above",
+    "convert",
+    "number_range",
+    "show",
+    "within",
+]

@@ -1,1 +1,2 @@
-"""The wire contract: topics, schema names and JSON Schemas of every message published and recorded."""
+"""The wire contract: one declared message per Zenoh key and MCAP topic (``wire.messages``), with its encoder,
+decoder and generated JSON Schema (``wire.schemas``)."""

@@ -16,12 +16,18 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Final, TypeVar
 
 from cli.commands.client import Target, Unreachable, add_target_flags, client_session, target
 from daemon.errors import UsageError
+from wire.messages import Gripper, Joints, Message, State, UnsetType
+
+T = TypeVar("T")
+
+# The topics the panel shows, newest sample each, as their declared messages.
+_SHOWN: Final[dict[str, type[Message]]] = {"state": State, "joints": Joints, "gripper": Gripper}
 
 # Zenoh is imported when the verb runs: `dishbot monitor --help` loads none of it.
 if TYPE_CHECKING:
@@ -59,7 +65,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 class RobotView:
     """What the monitor knows of one robot: newest samples, and whether its liveliness token is there."""
 
-    values: dict[str, dict[str, Any]] = field(default_factory=dict)
+    values: dict[str, Message] = field(default_factory=dict)  # the newest state, joints and gripper
     alive: bool | None = None  # None: no token seen either way yet
     changed_at: float | None = None  # wall time the token last appeared or dropped
     last_state: str | None = None
@@ -79,24 +85,27 @@ class Watch:
         return self.robots.setdefault(robot_id, RobotView())
 
     def on_sample(self, sample: zenoh.Sample) -> None:
+        from wire.messages import BadMessage, Event, decode
+
         _, robot_id, topic = str(sample.key_expr).split("/", 2)
+        data = sample.payload.to_bytes()
+        kind = _SHOWN.get(topic)
         try:
-            payload = json.loads(sample.payload.to_bytes())
-        except ValueError:
-            return
-        if not isinstance(payload, dict):
+            message = decode(data, kind, name=topic) if kind is not None else None
+            event = decode(data, Event, name=topic) if topic == "events" else None
+        except BadMessage:  # not what the topic carries: nothing to show of it
             return
         with self.lock:
             view = self.robot(robot_id)
-            view.values[topic] = payload
-            if topic == "state" and payload.get("state") != view.last_state:
-                view.last_state = payload.get("state")
-                self.add_line(
-                    robot_id, f"state {view.last_state}  placed {payload.get('mugs_placed')}", False
-                )
-            elif topic == "events" and payload.get("kind") != "transition":
+            if message is not None:
+                view.values[topic] = message
+            if isinstance(message, State) and message.state != view.last_state:
+                view.last_state = message.state
+                self.add_line(robot_id, f"state {message.state}  placed {message.mugs_placed}", False)
+            elif event is not None and event.kind != "transition":
+                payload = json.loads(data)  # every key of the event, declared or not
                 detail = {k: v for k, v in payload.items() if k not in ("kind", "t", "state")}
-                self.add_line(robot_id, f"event {payload.get('kind')} {json.dumps(detail)}", True)
+                self.add_line(robot_id, f"event {event.kind} {json.dumps(detail)}", True)
 
     def on_alive(self, sample: zenoh.Sample) -> None:
         robot_id = str(sample.key_expr).split("/")[1]
@@ -196,7 +205,7 @@ def screen(watch: Watch, t: Target, *, linked: bool) -> str:
 
 
 def panel(
-    values: dict[str, dict[str, Any]],
+    values: Mapping[str, Message],
     robot: str,
     endpoint: str,
     *,
@@ -204,50 +213,51 @@ def panel(
     since: float | None = None,
 ) -> str:
     """The monitor's text panel for one robot's newest state, joints and gripper samples (≤ 80 columns)."""
-    state = values.get("state", {})
-    joints = values.get("joints", {})
-    gripper = values.get("gripper", {})
+    state, joints, gripper = values.get("state"), values.get("joints"), values.get("gripper")
     lines = [f"dishbot {robot} @ {endpoint}"]
     if alive is False:
         when = "" if since is None else f" at {time.strftime('%H:%M:%S', time.localtime(since))}"
         lines.append(f"daemon GONE{when}: its liveliness token dropped")
-        if state:
-            lines.append(f"last state {state.get('state')} (no longer current)")
+        if isinstance(state, State):
+            lines.append(f"last state {state.state} (no longer current)")
         return "\n".join(fit(line) for line in lines)
-    if not state:
+    if not isinstance(state, State):
         lines.append("waiting for the daemon ...")
         return "\n".join(lines)
     lines.append(
-        f"state   {state.get('state')}   mug {state.get('current_mug') or '-'}   "
-        f"placed {state.get('mugs_placed')}/{state.get('mugs_planned')}  seen {state.get('mugs_total')}  "
-        f"failed {state.get('mugs_failed')}"
+        f"state   {state.state}   mug {_shown(state.current_mug) or '-'}   "
+        f"placed {state.mugs_placed}/{_shown(state.mugs_planned)}  seen {state.mugs_total}  "
+        f"failed {_shown(state.mugs_failed)}"
     )
-    names = joints.get("names", [])
-    positions = joints.get("position_rad", [])
-    if names:
-        cells = [f"{n} {p:+.3f}" for n, p in zip(names, positions, strict=False)]
+    if isinstance(joints, Joints) and joints.names:
+        cells = [f"{n} {p:+.3f}" for n, p in zip(joints.names, joints.position_rad, strict=False)]
         lines += wrapped("joints  ", cells)
-    if gripper:
-        force = gripper.get("force_n")
+    if isinstance(gripper, Gripper):
+        force = _shown(gripper.force_n)
         force_text = "-" if force is None else f"{force:.2f} N"
         lines.append(
-            f"gripper aperture {gripper.get('aperture_m', 0.0) * 1000:.1f} mm  force {force_text}  "
-            f"{'holding' if gripper.get('holding') else 'empty'}"
+            f"gripper aperture {gripper.aperture_m * 1000:.1f} mm  force {force_text}  "
+            f"{'holding' if gripper.holding else 'empty'}"
         )
     return "\n".join(fit(line) for line in lines)
 
 
 def robot_line(robot_id: str, view: RobotView) -> str:
     """One robot in the fleet view."""
-    state = view.values.get("state", {})
+    state = view.values.get("state")
     if view.alive is False:
-        return f"{robot_id:<12} GONE  last state {state.get('state', '-')}"
-    if not state:
+        return f"{robot_id:<12} GONE  last state {state.state if isinstance(state, State) else '-'}"
+    if not isinstance(state, State):
         return f"{robot_id:<12} alive, no state yet"
     return (
-        f"{robot_id:<12} {state.get('state')}  placed {state.get('mugs_placed')}/{state.get('mugs_planned')}"
-        f"  failed {state.get('mugs_failed')}  mug {state.get('current_mug') or '-'}"
+        f"{robot_id:<12} {state.state}  placed {state.mugs_placed}/{_shown(state.mugs_planned)}"
+        f"  failed {_shown(state.mugs_failed)}  mug {_shown(state.current_mug) or '-'}"
     )
+
+
+def _shown(value: T | UnsetType) -> T | None:
+    """A field the message may leave out, as the panel shows it (None when left out)."""
+    return None if isinstance(value, UnsetType) else value
 
 
 def wrapped(prefix: str, cells: Sequence[str]) -> list[str]:

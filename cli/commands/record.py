@@ -137,18 +137,20 @@ class RecordingSummary:
     @classmethod
     def of(cls, rec: RecordingRead) -> RecordingSummary:
         from recorder.outcome import JobOutcome
-        from wire.schemas import topic_suffix
+        from wire.messages import UNSET, Event, SessionHeader
+        from wire.schemas import HEADER_TOPIC, topic_suffix
 
-        header = rec.header or {}
-        config = _table(header.get("config"))
-        scene = _table(header.get("scene"))
-        job = _table(header.get("job"))
-        file = _table(header.get("file"))
+        header = next((m.decoded(SessionHeader) for m in rec if m.topic == HEADER_TOPIC), None)
+        if header is None:
+            header = SessionHeader(config={}, scene={})
+        config, scene = header.config, header.scene
+        job = _table(header.job) if header.job is not UNSET else {}
+        file = header.file if header.file is not UNSET else {}
         start, end = rec.start_ns, rec.end_ns
         cut_after_s = None
         if rec.cut_after_ns is not None and start is not None:
             cut_after_s = round((rec.cut_after_ns - start) / 1e9, 3)
-        events = [m.payload for m in rec if topic_suffix(m.topic) == "events"]
+        events = [e for m in rec if topic_suffix(m.topic) == "events" and (e := m.decoded(Event)) is not None]
         kind = file.get("kind")
         outcome = JobOutcome.of(events).to_json() if kind == "job" or (kind is None and events) else None
         mugs = job.get("mugs")

@@ -398,23 +398,27 @@ class MugProgress:
     def __call__(self, topic: str, payload: Mapping[str, object]) -> None:
         if topic != "state" or self._ended:
             return
-        t = payload.get("t")
-        simulated_s = None
-        if isinstance(t, int | float):
-            self._t0 = t if self._t0 is None else self._t0
-            simulated_s = t - self._t0 if self._simulated else None
-        counts = {k: v if isinstance(v, int) else 0 for k, v in payload.items() if k.startswith("mugs_")}
-        planned, total = counts.get("mugs_planned", 0), counts.get("mugs_total", 0)
-        finished = counts.get("mugs_placed", 0) + counts.get("mugs_failed", 0)
-        state = str(payload.get("state", "")).split(".", 1)[0]
-        mug = payload.get("current_mug")
+        from wire.messages import UNSET, BadMessage, State, convert
+
+        try:
+            message = convert(payload, State, name=topic)
+        except BadMessage:
+            return
+        t = message.t
+        self._t0 = t if self._t0 is None else self._t0
+        simulated_s = t - self._t0 if self._simulated else None
+        planned = message.mugs_planned if message.mugs_planned is not UNSET else 0
+        failed = message.mugs_failed if message.mugs_failed is not UNSET else 0
+        total, placed = message.mugs_total, message.mugs_placed
+        finished = placed + failed
+        state = message.state.split(".", 1)[0]
+        mug = message.current_mug if message.current_mug is not UNSET else None
         if mug is not None and mug != self._mug:
             self.progress.total = max(planned or total, finished + 1)
-            self.progress.step(finished + 1, str(mug), simulated_s=simulated_s)
+            self.progress.step(finished + 1, mug, simulated_s=simulated_s)
         self._mug = mug
         if state in self._ENDS and self._t0 is not None:
             self._ended = True
-            placed = counts.get("mugs_placed", 0)
             self.progress.done(f"{state}: {placed} of {planned or total} placed", simulated_s=simulated_s)
 
 

@@ -11,8 +11,9 @@ adapter is closed, reopened once and, when that fails, reported as :class:`BusLo
 lost every access fails at once, so the daemon faults within a control tick, not after a round of waits).
 
 The bus's own waits (for a status packet, a rebooting servo, a re-enumerating adapter) are waits on the
-device, in wall-clock time like dynamixel-sdk's packet timeouts; on a simulated clock they take no simulated
-time (the in-process simulator has answered before the wait starts). Event times come from the ``Clock``.
+device, made through ``DynamixelBus.waits`` (``DeviceWaits``): in wall-clock time like dynamixel-sdk's packet
+timeouts by default; on a simulated clock ``ServoChain`` makes them pass in simulated time, so a servo that
+is silent for a moment is bridged by the retries as on the robot. Event times come from the ``Clock``.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import termios
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Final, TypeVar
+from typing import Any, Final, Protocol, TypeVar
 
 import serial
 import structlog
@@ -122,6 +123,34 @@ class ServoCounters:
 EventSink = Callable[[DeviceEvent], None]
 
 
+class DeviceWaits(Protocol):
+    """How the bus waits on its device: the time its timeouts are measured in, a wait for bytes to read,
+    and a pause (a rebooting servo, a re-enumerating adapter)."""
+
+    def now(self) -> float:
+        """Seconds on the clock the waits run on."""
+        ...
+
+    def readable(self, fd: int, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` for ``fd`` to have bytes to read; whether it has."""
+        ...
+
+    def sleep(self, seconds: float) -> None: ...
+
+
+class WallWaits:
+    """Waits on the wall clock, as on a serial adapter: ``select`` on the port, ``time.sleep``."""
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def readable(self, fd: int, timeout_s: float) -> bool:
+        return bool(select.select([fd], [], [], max(0.0, timeout_s))[0])
+
+    def sleep(self, seconds: float) -> None:
+        time.sleep(seconds)
+
+
 class DynamixelBus:
     """A serial Dynamixel bus on dynamixel-sdk. Not thread-safe: one thread owns it.
 
@@ -161,6 +190,8 @@ class DynamixelBus:
         self._faulted: dict[int, tuple[str, ...]] = {}
         self._lost = False
         self._log = log.bind(port=config.port)
+        # How waits on the device pass; the owner of the bus may swap it between transactions.
+        self.waits: DeviceWaits = WallWaits()
 
     # ------------------------------------------------------------------------------------------ lifecycle
 
@@ -313,7 +344,14 @@ class DynamixelBus:
             raise BusTimeout(
                 f"servo {servo_id} did not acknowledge the reboot on {self.config.port}", servo_id=servo_id
             )
-        time.sleep(settle_s)
+        self.waits.sleep(settle_s)
+
+    def answers_at_once(self) -> bool:
+        """Whether the open port's device answers everything written to it before the write returns, and
+        withholds nothing now (an in-process simulator with no silent, dropping or garbling servo and its
+        cable plugged in): then a transaction never waits on the device. False on a real port."""
+        probe = getattr(getattr(self._port, "ser", None), "answers_at_once", None)
+        return bool(probe()) if callable(probe) else False
 
     # ------------------------------------------------------------------------------------------ hot path
 
@@ -418,17 +456,19 @@ class DynamixelBus:
         framer = p.Framer(self.config.protocol)
         timeout = self.read_timeout_s + len(expected) * 0.002
 
+        waits = self.waits
+
         def io() -> None:
             port = self._port
             port.clearPort()
             port.writePort(packet)
             fd = port.ser.fileno()
-            deadline = time.monotonic() + timeout
+            deadline = waits.now() + timeout
             while len(got) < len(expected):
-                remaining = deadline - time.monotonic()
+                remaining = deadline - waits.now()
                 if remaining <= 0:
                     return
-                if not select.select([fd], [], [], remaining)[0]:
+                if not waits.readable(fd, remaining):
                     return
                 data = port.ser.read(port.ser.in_waiting or 1)
                 if not data:
@@ -534,8 +574,10 @@ class DynamixelBus:
             speed = p.from_le(data[2:6], signed=True)
             position = p.from_le(data[6:10], signed=True)
             volts, temp = p.from_le(data[18:20]), data[20]
-        values = {"overheating": float(temp), "input_voltage": volts_from_ticks(volts)}
-        errors = self._check_error(servo_id, status.error, raise_shutdown=check, values=values)
+        errors: tuple[str, ...] = ()
+        if status.error or servo_id in self._faulted:
+            values = {"overheating": float(temp), "input_voltage": volts_from_ticks(volts)}
+            errors = self._check_error(servo_id, status.error, raise_shutdown=check, values=values)
         return ServoReading(
             servo_id=servo_id,
             position_rad=spec.rad_from_ticks(position),
@@ -556,6 +598,8 @@ class DynamixelBus:
     ) -> tuple[str, ...]:
         """Decode a status error byte; raise ServoFault on a shutdown fault (``raise_shutdown=False``: only
         report it), else return the names."""
+        if not error and servo_id not in self._faulted:
+            return ()  # the common answer: nothing to report, nothing to clear
         names = faults.error_names(self.config.protocol, error)
         if "alert" in names:
             status = self._read_hardware_error(servo_id)
@@ -676,7 +720,7 @@ class DynamixelBus:
             except BusLost as e:
                 last = e
                 if attempt + 1 < attempts:
-                    time.sleep(0.05)
+                    self.waits.sleep(0.05)
         raise BusLost(
             f"servo bus {self.config.port} is gone ({last}); plug the USB adapter back in to reconnect",
             port=self.config.port,

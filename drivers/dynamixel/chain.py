@@ -6,11 +6,15 @@ transaction reach the listener on the event loop when the transaction returns, b
 order they happened and at the same point of the job however the threads were scheduled (which keeps a
 simulated run deterministic).
 
-``inline=True`` runs each transaction on the event loop's own thread instead. That is for an in-process
-cable on a simulated clock only (the simulated cell): the simulator has answered before the driver starts
-reading, so a transaction never waits on a device, and no simulated time passes while one runs either way.
-It saves the thread hop of every transaction (tens of thousands a job), with the same events in the same
-order.
+``inline=True`` is for an in-process cable on a simulated clock only (the simulated cells). While the
+simulator answers everything at once (``DynamixelBus.answers_at_once``: no servo silent, dropping or
+garbling answers), each transaction runs on the event loop's own thread: it never waits on a device and
+takes no simulated time, and it saves the thread hop of every transaction (tens of thousands a job). When a
+fault withholds answers, the transaction runs on a thread of its own that takes turns with the loop: the
+loop waits while it runs, and each wait of the bus (a status packet's timeout before a retry, a pause) lets
+that much simulated time pass on the loop, so the world moves and faults begin and end meanwhile, as they
+would while the robot's bus waits. A servo silent for a moment is then bridged by the retries; one that
+stays silent faults once they are spent. Transactions keep their order either way, with the same events.
 """
 
 from __future__ import annotations
@@ -18,11 +22,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import select
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from types import TracebackType
-from typing import TypeVar
+from typing import TypeVar, cast
 
 from drivers.dynamixel.bus import DeviceEvent, DynamixelBus, ServoCounters
 from drivers.dynamixel.config import BusConfig
@@ -60,6 +65,90 @@ class _Events:
         if self._listener is not None:
             for event in kept:
                 self._listener(event)
+
+
+class _InstantWaits:
+    """The bus's waits while the in-process simulator answers at once: what has not arrived will not, and
+    no time passes (the clock's)."""
+
+    def __init__(self, clock: Clock) -> None:
+        self._clock = clock
+
+    def now(self) -> float:
+        return self._clock.monotonic()
+
+    def readable(self, fd: int, timeout_s: float) -> bool:
+        return bool(select.select([fd], [], [], 0)[0])
+
+    def sleep(self, seconds: float) -> None:
+        return None
+
+
+class _Turns:
+    """A transaction on its own thread taking turns with the event loop: the thread runs while the loop
+    waits for its next outcome; a wait of the bus (``park``) hands the turn back until the loop has let
+    that much simulated time pass (``resume``). ``abandon`` lets the rest run without waiting."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._outcome: tuple[str, object] | None = None  # ("wait", until) | ("done", result) | ("error", e)
+        self._abandoned = False
+
+    # --- the transaction's thread ----------------------------------------------------------------------
+
+    def park(self, until: float) -> None:
+        with self._cond:
+            if self._abandoned:
+                return
+            self._outcome = ("wait", until)
+            self._cond.notify_all()
+            self._cond.wait_for(lambda: self._outcome is None)
+
+    def finish(self, outcome: tuple[str, object]) -> None:
+        with self._cond:
+            self._outcome = outcome
+            self._cond.notify_all()
+
+    # --- the loop's thread -----------------------------------------------------------------------------
+
+    def next_outcome(self) -> tuple[str, object]:
+        """Block until the transaction waits or ends (it runs meanwhile): what it did."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._outcome is not None)
+            assert self._outcome is not None
+            return self._outcome
+
+    def resume(self) -> None:
+        with self._cond:
+            self._outcome = None
+            self._cond.notify_all()
+
+    def abandon(self) -> None:
+        with self._cond:
+            self._abandoned = True
+            if self._outcome is not None and self._outcome[0] == "wait":
+                self._outcome = None
+                self._cond.notify_all()
+
+
+class _SimulatedWaits:
+    """The bus's waits on the clock's simulated time, for a transaction taking turns with the loop."""
+
+    def __init__(self, clock: Clock, turns: _Turns) -> None:
+        self._clock = clock
+        self._turns = turns
+
+    def now(self) -> float:
+        return self._clock.monotonic()
+
+    def readable(self, fd: int, timeout_s: float) -> bool:
+        if select.select([fd], [], [], 0)[0]:
+            return True
+        self._turns.park(self._clock.monotonic() + timeout_s)
+        return bool(select.select([fd], [], [], 0)[0])
+
+    def sleep(self, seconds: float) -> None:
+        self._turns.park(self._clock.monotonic() + seconds)
 
 
 class ServoChain:
@@ -104,6 +193,8 @@ class ServoChain:
             open_serial=open_serial,
         )
         self._executor: ThreadPoolExecutor | None = None
+        self._instant = _InstantWaits(clock)
+        self._turn: asyncio.Lock | None = None  # inline: one transaction at a time, in submission order
 
     def _forward(self, event: DeviceEvent) -> None:
         events = self._events
@@ -116,13 +207,18 @@ class ServoChain:
         if not self._open or self._loop is None:
             raise RuntimeError("the servo chain is not open; use `async with ServoChain(...)`")
         events = _Events(self._loop, self._on_event)
-        if self.inline:  # on the loop's thread
-            self._events = events
-            try:
-                return fn(self.bus)
-            finally:
-                self._events = None
-                events.deliver()
+        if self.inline:
+            assert self._turn is not None
+            async with self._turn:
+                if self.bus.answers_at_once():  # on the loop's thread, taking no time
+                    self._events = events
+                    self.bus.waits = self._instant
+                    try:
+                        return fn(self.bus)
+                    finally:
+                        self._events = None
+                        events.deliver()
+                return await self._taking_turns(fn, events)
 
         def transaction(bus: DynamixelBus) -> T:
             self._events = events
@@ -136,6 +232,47 @@ class ServoChain:
         finally:
             events.deliver()
 
+    async def _taking_turns(self, fn: Callable[[DynamixelBus], T], events: _Events) -> T:
+        """Run ``fn(bus)`` on the bus thread taking turns with the loop: the loop is held while it runs, and
+        its waits on the device pass in the clock's time (``_Turns``)."""
+        assert self._executor is not None
+        turns = _Turns()
+
+        def transaction() -> None:
+            self._events = events
+            self.bus.waits = _SimulatedWaits(self.clock, turns)
+            outcome: tuple[str, object]
+            try:
+                outcome = ("done", fn(self.bus))
+            except BaseException as e:
+                outcome = ("error", e)
+            # Before the loop has its turn back: the next transaction may start at once.
+            self._events = None
+            turns.finish(outcome)
+
+        self._executor.submit(transaction)
+        try:
+            while True:
+                kind, value = turns.next_outcome()
+                if kind == "wait":
+                    assert isinstance(value, float)
+                    try:
+                        await self.clock.sleep_until(value)
+                    except BaseException:
+                        # Cancelled while the bus waits: the rest of the transaction runs without waiting,
+                        # so the bus is left between transactions for the next caller.
+                        turns.abandon()
+                        turns.next_outcome()
+                        raise
+                    turns.resume()
+                    continue
+                if kind == "error":
+                    assert isinstance(value, BaseException)
+                    raise value
+                return cast(T, value)  # what fn returned
+        finally:
+            events.deliver()
+
     def counters(self) -> dict[int, ServoCounters]:
         """A snapshot of the per-servo timeout/corrupt/retry/fault counters (for status publishing)."""
         return {i: dataclasses.replace(c) for i, c in self.bus.counters.items()}
@@ -146,8 +283,8 @@ class ServoChain:
 
     async def open(self) -> None:
         self._loop = asyncio.get_running_loop()
-        if not self.inline:
-            self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynamixel-bus")
+        self._turn = asyncio.Lock()
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynamixel-bus")
         self._open = True
         try:
             await self.call(lambda bus: bus.open())

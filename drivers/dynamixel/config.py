@@ -1,13 +1,16 @@
-"""Frozen, validated configuration of the servo bus, the arm joints and the gripper."""
+"""Frozen, validated configuration of the servo bus, the arm joints, the gripper and the servos' health
+limits (light: checking a config file imports this module, not the bus)."""
 
 from __future__ import annotations
 
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Annotated
 
 from drivers.dynamixel.protocol import MAX_ID, Protocol
 from drivers.dynamixel.tables import BAUD_CODES_1, BAUD_CODES_2, ModelSpec, model
+from validation import Invalid, within
 
 
 @dataclass(frozen=True, slots=True)
@@ -139,3 +142,33 @@ def thesis_joints(
         JointSpec(name, first_id + i, servo, lo, hi)
         for i, ((name, servo), (lo, hi)) in enumerate(zip(arm, limits, strict=True))
     )
+
+
+@dataclass(frozen=True, slots=True)
+class HealthLimits:
+    """How the servos' health is judged (``[hardware.health]`` in the config is this type): every
+    ``poll_period_s`` their supply voltage (a warning ``voltage_warn_margin_v`` inside
+    ``voltage_min_v``..``voltage_max_v``, a fault outside) and temperature (a warning from
+    ``temperature_warn_c``, a fault past ``temperature_limit_c``); and when the bus calls a servo's answers
+    too corrupt (more than ``corrupt_rate_max`` of its last ``corrupt_window``)."""
+
+    poll_period_s: Annotated[float, within(0.05, 60.0)] = 1.0
+    voltage_min_v: Annotated[float, within(0.0, 30.0)] = 10.0
+    voltage_max_v: Annotated[float, within(0.0, 30.0)] = 14.0
+    voltage_warn_margin_v: Annotated[float, within(0.0, 5.0)] = 0.5
+    temperature_warn_c: Annotated[float, within(0.0, 100.0)] = 60.0
+    temperature_limit_c: Annotated[float, within(0.0, 100.0)] = 70.0
+    corrupt_rate_max: Annotated[float, within(0.0, 1.0)] = 0.2
+    corrupt_window: Annotated[int, within(1, 10_000)] = 50
+
+    def __post_init__(self) -> None:
+        if not self.voltage_min_v + 2 * self.voltage_warn_margin_v < self.voltage_max_v:
+            raise Invalid(
+                f"voltage_max_v: {self.voltage_max_v:g} must be above voltage_min_v {self.voltage_min_v:g} "
+                f"by more than twice voltage_warn_margin_v {self.voltage_warn_margin_v:g}"
+            )
+        if not self.temperature_warn_c < self.temperature_limit_c:
+            raise Invalid(
+                f"temperature_warn_c: {self.temperature_warn_c:g} must be below temperature_limit_c "
+                f"{self.temperature_limit_c:g}"
+            )

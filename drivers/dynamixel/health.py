@@ -2,11 +2,11 @@
 check ``reset`` runs to clear what a servo can be cleared of.
 
 ``ChainHealth.poll`` reads every servo once (one bulk or sync read, error bytes included) and compares its
-supply voltage and temperature with :class:`HealthLimits`: near a limit is a ``servo_warning``, past it a
-``servo_fault`` (reasons ``voltage`` and ``overheat``; the events name the servo, the value and the limit),
-as is the input voltage error bit a servo raises against its own voltage window. While any servo is past a
-limit the poll raises :class:`ServoHealthFault`. Leaving a level takes the value back by a small hysteresis
-so a reading on a limit's edge does not flap.
+supply voltage and temperature with ``HealthLimits`` (``drivers.dynamixel.config``): near a limit is a
+``servo_warning``, past it a ``servo_fault`` (reasons ``voltage`` and ``overheat``; the events name the
+servo, the value and the limit), as is the input voltage error bit a servo raises against its own voltage
+window. While any servo is past a limit the poll raises :class:`ServoHealthFault`. Leaving a level takes
+the value back by a small hysteresis so a reading on a limit's edge does not flap.
 
 ``ChainHealth.clear`` is the device side of ``reset``: the bus reopened if it was lost, every servo asked
 for its status and, when it reports a shutdown error, cleared as its protocol allows (the e-Manual's way:
@@ -27,6 +27,7 @@ import structlog
 from drivers.dynamixel import faults
 from drivers.dynamixel.bus import DynamixelBus, ServoReading
 from drivers.dynamixel.chain import ServoChain
+from drivers.dynamixel.config import HealthLimits as HealthLimits  # where the sims and tests find it
 from drivers.dynamixel.tables import volts_from_ticks
 from drivers.errors import BusLost, ServoFault
 
@@ -43,31 +44,6 @@ HYSTERESIS_V: Final = 0.2
 class ServoHealthFault(ServoFault):
     """A servo's supply voltage or temperature is past its configured limit, or it reports the input
     voltage error."""
-
-
-@dataclass(frozen=True, slots=True)
-class HealthLimits:
-    """What the poll judges against: the supply window (a warning ``voltage_warn_margin_v`` inside either
-    end) and the temperature warning and limit; ``poll_period_s`` is the daemon's polling period."""
-
-    voltage_min_v: float = 10.0
-    voltage_max_v: float = 14.0
-    voltage_warn_margin_v: float = 0.5
-    temperature_warn_c: float = 60.0
-    temperature_limit_c: float = 70.0
-    poll_period_s: float = 1.0
-
-    def __post_init__(self) -> None:
-        if not self.voltage_min_v + 2 * self.voltage_warn_margin_v < self.voltage_max_v:
-            raise ValueError(
-                f"voltage_min_v {self.voltage_min_v:g} and voltage_max_v {self.voltage_max_v:g} leave no "
-                f"room inside the warning margins of {self.voltage_warn_margin_v:g} V"
-            )
-        if not self.temperature_warn_c < self.temperature_limit_c:
-            raise ValueError(
-                f"temperature_warn_c {self.temperature_warn_c:g} must be below temperature_limit_c "
-                f"{self.temperature_limit_c:g}"
-            )
 
 
 @dataclass(frozen=True, slots=True)

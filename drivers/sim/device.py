@@ -87,7 +87,7 @@ class SimulatedDevice:
     def start_in_process(self, clock: Clock) -> Self:
         """On an in-process cable; a device that streams does so on ``clock``, as a task of the running
         event loop (the clock's)."""
-        cable = InProcessCable(self._name, self._received)
+        cable = InProcessCable(self._name, self._received, prompt=self._answers_at_once)
         self._link = cable
         self._open_serial = cable.open_serial
         self._prepare()
@@ -138,6 +138,11 @@ class SimulatedDevice:
 
     def _received(self, data: bytes) -> None:
         raise NotImplementedError
+
+    def _answers_at_once(self) -> bool:
+        """In-process: whether everything the host writes now is answered in full before its write returns
+        (a device that answers requests, with nothing withheld); by default it is not."""
+        return False
 
     async def _run_on(self, clock: Clock) -> None:
         """What the device does over time by itself (nothing, unless a subclass streams)."""

@@ -68,6 +68,11 @@ class InProcessPort:
         self._check_open()
         return self._read_fd
 
+    def answers_at_once(self) -> bool:
+        """Whether the device has answered whatever is written before the write returns, and withholds
+        nothing now (``InProcessCable``'s ``prompt``): a host never needs to wait for it."""
+        return not self._hung_up and self._cable.prompt()
+
     def reset_input_buffer(self) -> None:
         with contextlib.suppress(BlockingIOError):
             while os.read(self._read_fd, 65536):
@@ -108,11 +113,15 @@ class InProcessPort:
 
 class InProcessCable:
     """A simulated serial cable named ``inprocess:<name>``; ``received`` is the simulator's input, called
-    on the host's thread with every write."""
+    on the host's thread with every write; ``prompt`` says whether the device answers everything written
+    to it now before the write returns (default: it says nothing, so a host waits as on a real port)."""
 
-    def __init__(self, name: str, received: Callable[[bytes], None]) -> None:
+    def __init__(
+        self, name: str, received: Callable[[bytes], None], *, prompt: Callable[[], bool] | None = None
+    ) -> None:
         self.device_path = INPROCESS_PREFIX + name
         self._received = received
+        self.prompt: Callable[[], bool] = prompt or _never
         self._lock = threading.Lock()
         self._port: InProcessPort | None = None
         self._plugged = True
@@ -171,6 +180,10 @@ class InProcessCable:
 
     def close(self) -> None:
         self.unplug()
+
+
+def _never() -> bool:
+    return False
 
 
 __all__ = ["INPROCESS_PREFIX", "InProcessCable", "InProcessPort"]

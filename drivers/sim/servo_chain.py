@@ -10,8 +10,11 @@ torque cut where the Shutdown register says so), fall silent or send corrupt byt
 seeded fraction of all of them), and unplug the whole adapter.
 
 On a pseudo-terminal (``start()``) the chain answers from its own thread; in-process
-(``start_in_process(clock)``) it answers on the host's thread as the host writes, with no wire time (on a
-simulated clock a bus transaction then takes no simulated time).
+(``start_in_process(clock)``) it answers on the host's thread as the host writes, with no wire time, and
+tells the host whether it withholds anything now (``InProcessPort.answers_at_once``: a silent servo, a lost
+or garbled answer), so a host on a simulated clock can let its timeouts pass in simulated time then
+(``drivers.dynamixel.ServoChain``). A servo's present registers are synced from the plant when read, and
+left as they are when the plant reports what they were synced from.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Self
+from typing import Final, Self
 
 import structlog
 
@@ -57,24 +60,50 @@ class SimServo:
     # A load the servo cannot hold (``keep_overloaded``): it trips again whenever it is driven. Heat and the
     # supply are registers (present temperature and voltage against the servo's limits), not conditions.
     conditions: set[str] = field(default_factory=set)
+    # What the present registers were last synced from: the plant's (position, velocity, load) and the
+    # error bits; None after anything else wrote the table (see ``ServoChainSimulator._sync_from_plant``).
+    synced: tuple[float, float, float, int] | None = None
+    live: int | None = None  # the error bits of the present conditions; None: to be worked out again
+    # Status packets answered since the table last changed, by (address, length, error bits): an idle
+    # servo's answer is the same bytes again.
+    packets: dict[tuple[int, int, int], bytes] = field(default_factory=dict)
+    layout: dict[str, tuple[int, int, bool]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # (address, size, signed) by name: the simulator looks registers up several times per packet.
+        self.layout = {name: (r.address, r.size, r.signed) for name, r in self.spec.registers.items()}
 
     @property
     def servo_id(self) -> int:
-        return self.table[self.spec.registers["id"].address]  # one byte on both protocols
+        return self.table[self.layout["id"][0]]  # one byte on both protocols
 
     def get(self, name: str) -> int:
-        reg = self.spec.registers.get(name) or self.spec.reg(name)  # reg() says which name is unknown
-        address = reg.address
-        if reg.size == 1 and not reg.signed:
+        try:
+            address, size, signed = self.layout[name]
+        except KeyError:
+            self.spec.reg(name)  # says which name is unknown
+            raise
+        if size == 1 and not signed:
             return self.table[address]
-        return int.from_bytes(self.table[address : address + reg.size], "little", signed=reg.signed)
+        return int.from_bytes(self.table[address : address + size], "little", signed=signed)
 
     def set(self, name: str, value: int) -> None:
-        reg = self.spec.reg(name)
-        size = reg.size
-        self.table[reg.address : reg.address + size] = (value & ((1 << (8 * size)) - 1)).to_bytes(
-            size, "little"
-        )
+        try:
+            address, size, _signed = self.layout[name]
+        except KeyError:
+            self.spec.reg(name)
+            raise
+        self.table[address : address + size] = (value & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
+        if self.packets:
+            self.packets.clear()
+        if name in _CONDITION_REGISTERS:
+            self.live = None
+
+
+# The registers the live error conditions (supply voltage, heat) are read from.
+_CONDITION_REGISTERS: Final = frozenset(
+    {"present_voltage", "present_temperature", "min_voltage", "max_voltage", "temperature_limit"}
+)
 
 
 class ServoChainSimulator(SimulatedDevice):
@@ -115,6 +144,9 @@ class ServoChainSimulator(SimulatedDevice):
         self._corrupt_rate = 0.0
         self._corrupt_only: int | None = None
         self._rng = random.Random(0)
+        # The servos that hear the host at its baud rate, by id, for the host's baud rate (None: not worked
+        # out since an id or a baud rate changed).
+        self._heard: tuple[int | None, list[SimServo], dict[int, SimServo]] | None = None
         self.packets_seen = 0
         self.packets_corrupted = 0
 
@@ -303,24 +335,43 @@ class ServoChainSimulator(SimulatedDevice):
             except Exception:  # the simulator must keep serving whatever the host sends
                 log.exception("sim_packet_failed", servo_id=frame.servo_id, code=frame.code)
 
-    def _listening(self) -> list[SimServo]:
-        """Servos whose baud rate matches the host's; the others hear only noise."""
-        host = self._link.host_baudrate() if self._link is not None else None
+    def _answers_at_once(self) -> bool:
+        """No servo withholds or garbles an answer now (silent, dropping, corrupting), no noise waits on the
+        line and the adapter is plugged in: every servo the host addresses has answered before its write
+        returns (in-process)."""
+        link = self._link
+        if link is None or not link.plugged or self._silent_all or self._corrupt_rate > 0.0 or self._garbage:
+            return False
+        return not any(s.silent or s.drop_next or s.corrupt_next or s.corrupt_every for s in self._servos)
+
+    def _listening(self) -> tuple[list[SimServo], dict[int, SimServo]]:
+        """Servos whose baud rate matches the host's (the others hear only noise), and the same by id."""
         if self._silent_all:
-            return []
-        if host is None:
-            return list(self._servos)
-        return [s for s in self._servos if _baud(self.protocol, s.get("baud_rate")) == host]
+            return [], {}
+        host = self._link.host_baudrate() if self._link is not None else None
+        heard = self._heard
+        if heard is None or heard[0] != host:
+            servos = (
+                list(self._servos)
+                if host is None
+                else [s for s in self._servos if _baud(self.protocol, s.get("baud_rate")) == host]
+            )
+            heard = self._heard = (host, servos, {s.servo_id: s for s in servos})
+        return heard[1], heard[2]
 
     def _handle(self, frame: p.Frame) -> None:
         link = self._link
         if link is None:
             return
         with self._lock:
-            servos = self._listening()
-            replies = self._dispatch(frame, servos)
+            servos, by_id = self._listening()
+            replies = self._dispatch(frame, servos, by_id)
             garbage, self._garbage = self._garbage, b""
-        if garbage:
+        # In-process every answer is there at once: the bytes go out in one write, as they would follow
+        # each other on the wire. On a pty each waits for its own wire time.
+        batch = self.in_process
+        out = bytearray(garbage)
+        if garbage and not batch:
             link.write(garbage)
         for servo, packet in replies:
             dropped = servo.drop_next > 0
@@ -328,7 +379,7 @@ class ServoChainSimulator(SimulatedDevice):
             if servo.silent or dropped:
                 # Daisy-chained reads wait for the previous answer; a silent servo stalls the rest.
                 if frame.code in (p.BULK_READ, p.SYNC_READ):
-                    return
+                    break
                 continue
             servo.answers += 1
             every = servo.corrupt_every and servo.answers % servo.corrupt_every == 0
@@ -337,8 +388,13 @@ class ServoChainSimulator(SimulatedDevice):
                     servo.corrupt_next -= 1
                 self.packets_corrupted += 1
                 packet = packet[:-2] + bytes((packet[-2] ^ 0x10,)) + packet[-1:]
-            self._wire_delay(servo, len(packet))
-            link.write(packet)
+            if batch:
+                out += packet
+            else:
+                self._wire_delay(servo, len(packet))
+                link.write(packet)
+        if batch and out:
+            link.write(bytes(out))
 
     def _corrupts(self, servo: SimServo) -> bool:
         """Whether the random line noise hits this status packet."""
@@ -352,8 +408,11 @@ class ServoChainSimulator(SimulatedDevice):
         if self.wire_timing and not self.in_process:
             time.sleep(servo.get("return_delay") * 2e-6 + nbytes * 10 / self.baudrate)
 
-    def _dispatch(self, frame: p.Frame, servos: list[SimServo]) -> list[tuple[SimServo, bytes]]:
-        by_id = {s.servo_id: s for s in servos}
+    def _dispatch(
+        self, frame: p.Frame, servos: list[SimServo], by_id: dict[int, SimServo] | None = None
+    ) -> list[tuple[SimServo, bytes]]:
+        if by_id is None:
+            by_id = {s.servo_id: s for s in servos}
         code, params = frame.code, frame.params
         if frame.servo_id == p.BROADCAST_ID:
             if code == p.SYNC_WRITE:
@@ -431,7 +490,12 @@ class ServoChainSimulator(SimulatedDevice):
         if length == 0 or address + length > len(servo.table):
             return self._status(servo, self._range_error())
         self._sync_from_plant(servo)
-        return self._status(servo, 0, bytes(servo.table[address : address + length]))
+        key = (address, length, self._error_byte(servo))
+        packet = servo.packets.get(key)
+        if packet is None:
+            data = bytes(servo.table[address : address + length])
+            packet = servo.packets[key] = self._status(servo, 0, data)
+        return packet
 
     def _sync_write(self, params: bytes, by_id: dict[int, SimServo]) -> None:
         head = 2 if self.protocol == 1 else 4
@@ -494,10 +558,19 @@ class ServoChainSimulator(SimulatedDevice):
             return 7  # access error: EEPROM is locked while the torque is on
         before_torque = servo.get("torque_enable")
         limp_before = self.protocol == 1 and servo.get("torque_limit") == 0
-        saved = bytes(servo.table)
+        checked = "goal_position" in written or "id" in written
+        saved = bytes(servo.table) if checked else b""
         servo.table[address : address + len(data)] = data
-        if ("goal_position" in written and not 0 <= servo.get("goal_position") <= spec.max_tick) or (
-            "id" in written and servo.get("id") > p.MAX_ID
+        servo.synced = None  # the host may have written over the present registers too
+        if servo.packets:
+            servo.packets.clear()
+        if not _CONDITION_REGISTERS.isdisjoint(written):
+            servo.live = None
+        if "baud_rate" in written or "id" in written:
+            self._heard = None
+        if checked and (
+            ("goal_position" in written and not 0 <= servo.get("goal_position") <= spec.max_tick)
+            or ("id" in written and servo.get("id") > p.MAX_ID)
         ):
             servo.table[:] = saved
             return self._range_error()
@@ -571,6 +644,11 @@ class ServoChainSimulator(SimulatedDevice):
 
     def _live_conditions(self, servo: SimServo) -> int:
         """The error bits the present voltage and temperature raise against the servo's own limits."""
+        if servo.live is None:
+            servo.live = self._work_out_conditions(servo)
+        return servo.live
+
+    def _work_out_conditions(self, servo: SimServo) -> int:
         volts = servo.get("present_voltage")
         names = []
         if not servo.get("min_voltage") <= volts <= servo.get("max_voltage"):
@@ -589,8 +667,15 @@ class ServoChainSimulator(SimulatedDevice):
         self._shut_down_for(servo, live)
 
     def _sync_from_plant(self, servo: SimServo) -> None:
+        """Bring the present registers up to the plant's state. A servo whose plant state (and error bits)
+        are what the table was last synced from, with nothing written since, already reads right: the
+        registers are not rewritten (a servo at rest, or read twice at one simulated instant)."""
         spec = servo.spec
         position, velocity, load = self.plant.present(servo.servo_id)
+        state = (position, velocity, load, servo.hardware_error)
+        if servo.synced == state:
+            return
+        servo.synced = state
         servo.set("present_position", spec.ticks_from_rad(position))
         servo.set(
             "present_speed" if self.protocol == 1 else "present_velocity", spec.velocity_to_ticks(velocity)

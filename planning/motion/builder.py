@@ -11,6 +11,7 @@ import math
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Required, TypedDict, Unpack
 
 import numpy as np
 
@@ -37,6 +38,32 @@ class Motion:
     path: JointPath
     payload_kg: float
     payload_lateral_m: float = 0.0
+
+
+class Carrying(TypedDict, total=False):
+    """What a move (``joint_move``, ``line``, ``arc``) carries through the world: the gripper's opening
+    ``aperture`` (required), the mug it holds (``held``) and that mug's ``mass``, and the mugs it may touch
+    (``ignore``)."""
+
+    aperture: Required[float]
+    held: HeldMug | None
+    mass: float
+    ignore: Ignore
+
+
+@dataclass(frozen=True, slots=True)
+class _Checks:
+    """How one segment is timed and checked: what it carries (``Carrying``) through the ``world`` it must not
+    hit, and whether it runs at fine speed along a tool path of ``length`` metres (a straight line) or at
+    joint speed."""
+
+    world: CollisionWorld
+    aperture: float
+    held: HeldMug | None = None
+    mass: float = 0.0
+    ignore: Ignore = ""
+    fine: bool = False
+    length: float = 0.0
 
 
 class Builder:
@@ -74,38 +101,14 @@ class Builder:
         self.motions.append(Motion(Step(phase, kind, aperture_m=aperture_m), still, 0.0))
 
     def joint_move(
-        self,
-        phase: str,
-        goal: GraspTarget,
-        world: CollisionWorld,
-        *,
-        aperture: float,
-        held: HeldMug | None = None,
-        mass: float = 0.0,
+        self, phase: str, goal: GraspTarget, world: CollisionWorld, **carrying: Unpack[Carrying]
     ) -> None:
         """A move in joint space to the IK solution of ``goal`` nearest the present joint angles."""
         q_goal = self._solve(goal, self.q, phase)
-        self._add(
-            phase,
-            np.array([self.q, q_goal]),
-            world,
-            aperture=aperture,
-            held=held,
-            mass=mass,
-            fine=False,
-            length=0.0,
-        )
+        self._add(phase, np.array([self.q, q_goal]), _Checks(world, **carrying))
 
     def line(
-        self,
-        phase: str,
-        goal: GraspTarget,
-        world: CollisionWorld,
-        *,
-        aperture: float,
-        held: HeldMug | None = None,
-        mass: float = 0.0,
-        ignore: Ignore = "",
+        self, phase: str, goal: GraspTarget, world: CollisionWorld, **carrying: Unpack[Carrying]
     ) -> None:
         """A straight Cartesian move of the grasp point at fine speed, orientation per ``goal.kind``."""
         start_p, _ = self.scene.arm.fk(self.q)
@@ -115,28 +118,9 @@ class Builder:
         targets = [
             GraspTarget(point(start_p + (end_p - start_p) * f), goal.kind) for f in np.linspace(0, 1, n)[1:]
         ]
-        self._follow(
-            phase,
-            targets,
-            world,
-            aperture=aperture,
-            held=held,
-            mass=mass,
-            fine=True,
-            length=length,
-            ignore=ignore,
-        )
+        self._follow(phase, targets, _Checks(world, **carrying, fine=True, length=length))
 
-    def arc(
-        self,
-        phase: str,
-        goal: GraspTarget,
-        world: CollisionWorld,
-        *,
-        aperture: float,
-        held: HeldMug | None = None,
-        mass: float = 0.0,
-    ) -> None:
+    def arc(self, phase: str, goal: GraspTarget, world: CollisionWorld, **carrying: Unpack[Carrying]) -> None:
         """Carry along the arc between the bearings, radius and height blended. The arc turns the way the
         shoulder can: the shorter way unless that passes the shoulder-turn limit."""
         arm = self.scene.arm
@@ -155,7 +139,7 @@ class Builder:
         for f in np.linspace(0, 1, n)[1:]:
             a, r, z = a0 + span * f, r0 + (r1 - r0) * f, z0 + (z1 - z0) * f
             targets.append(GraspTarget((r * math.cos(a), r * math.sin(a), z), goal.kind))
-        self._follow(phase, targets, world, aperture=aperture, held=held, mass=mass, fine=False, length=0.0)
+        self._follow(phase, targets, _Checks(world, **carrying))
 
     def back_off(
         self,
@@ -205,19 +189,8 @@ class Builder:
             raise MotionRefused.combining(f"{phase}: {first}", reasons)
         raise MotionRefused.combining(f"{phase}: {first}; straight from above: {last}", reasons)
 
-    def _follow(
-        self,
-        phase: str,
-        targets: Sequence[GraspTarget],
-        world: CollisionWorld,
-        *,
-        aperture: float,
-        held: HeldMug | None,
-        mass: float,
-        fine: bool,
-        length: float,
-        ignore: Ignore = "",
-    ) -> None:
+    def _follow(self, phase: str, targets: Sequence[GraspTarget], checks: _Checks) -> None:
+        """Through ``targets`` by IK from each to the next (refused where the arm would jump)."""
         qs = [self.q]
         for t in targets:
             q = self._solve(t, qs[-1], phase)
@@ -227,17 +200,7 @@ class Builder:
                     f"{phase}: the arm would jump {jump:.2f} rad between close waypoints near {fmt_point(t)}"
                 )
             qs.append(q)
-        self._add(
-            phase,
-            np.array(qs),
-            world,
-            aperture=aperture,
-            held=held,
-            mass=mass,
-            fine=fine,
-            length=length,
-            ignore=ignore,
-        )
+        self._add(phase, np.array(qs), checks)
 
     def _solve(self, target: GraspTarget, seed: JointValues, phase: str) -> FloatArray:
         """IK for a target, first moved by the calibration correction (if any) so the real arm gets there."""
@@ -251,31 +214,22 @@ class Builder:
             raise MotionRefused(f"{phase}: ({x:.3f}, {y:.3f}, {z:.3f}) m unreachable: {result.reason}")
         return np.asarray(result.q)
 
-    def _add(
-        self,
-        phase: str,
-        waypoints: FloatArray,
-        world: CollisionWorld,
-        *,
-        aperture: float,
-        held: HeldMug | None,
-        mass: float,
-        fine: bool,
-        length: float,
-        ignore: Ignore = "",
-    ) -> None:
-        trajectory, path = self.scene.path(waypoints, phase, tool_length_m=length, fine=fine)
+    def _add(self, phase: str, waypoints: FloatArray, checks: _Checks) -> None:
+        """The move through ``waypoints``, timed and checked for collisions, appended (nothing when it
+        would take no time)."""
+        c = checks
+        trajectory, path = self.scene.path(waypoints, phase, tool_length_m=c.length, fine=c.fine)
         if path.duration == 0.0:
             return
-        ids = {ignore} if isinstance(ignore, str) else ignore
+        ids = {c.ignore} if isinstance(c.ignore, str) else c.ignore
         skip = frozenset(f"mug {i}" for i in ids if i)
-        if held is not None:
-            skip = skip | {held.name}
-        hit = world.first_collision(trajectory.positions, aperture_m=aperture, held=held, ignore=skip)
+        if c.held is not None:
+            skip = skip | {c.held.name}
+        hit = c.world.first_collision(trajectory.positions, aperture_m=c.aperture, held=c.held, ignore=skip)
         if hit is not None:
             raise MotionRefused(f"{phase}: {hit}", blockers=hit.mug_ids)
-        lateral = held.lateral if held is not None else 0.0
-        self.motions.append(Motion(Step(phase, StepKind.MOVE, trajectory), path, mass, lateral))
+        lateral = c.held.lateral if c.held is not None else 0.0
+        self.motions.append(Motion(Step(phase, StepKind.MOVE, trajectory), path, c.mass, lateral))
         self.q = trajectory.positions[-1].copy()
 
 

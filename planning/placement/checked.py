@@ -2,7 +2,8 @@
 can take (``sequence.reach``), packs the rest with the chosen method and footprint, then checks the
 assignment and the order cycle by cycle with the cycle planner (``sequence.sequence``). The result lists
 only the checked cycles, in the order they were checked; when slots had to be dropped, the mugs planned for
-them are left out and the tray is packed once more, and the round that builds more wins.
+them are left out and the tray is packed once more (mug-shaped footprints: first a round with rectangles and
+the same mugs), and the round that builds more wins.
 
 Only ``planning.interfaces`` is needed from the arm's side: the caller passes its ``MotionPlanner`` (the
 daemon's, possibly in another process; a bench's ``CyclePlanner``).
@@ -26,7 +27,8 @@ from planning.placement.problem import Problem
 from planning.placement.seam import PlacementPlanner
 from planning.placement.sequence import LeftOut, Sequenced, reach, sequence
 
-# Packing rounds at most: the first, and one more without the mugs of the slots the first had to drop.
+# Packing rounds at most: the first, and one more without the mugs of the slots the first had to drop (with
+# mug-shaped footprints a rectangle round comes between them, see ``plan_checked``).
 ROUNDS = 2
 
 _T = TypeVar("_T")
@@ -103,9 +105,16 @@ async def plan_checked(
     rounds = 0
     excluded = set(gone)
     dropped: dict[str, str] = {}
-    while rounds < ROUNDS:
+    # A mug-shaped round that dropped slots is followed by one with the thesis's rectangles and the same
+    # mugs: their footprints leave the gripper more room around the mugs on the tray (a replan after a mug
+    # came to the counter dropped its only slot, which the rectangle layout had room for).
+    rect_next = False
+    limit = ROUNDS + 1 if problem.footprint_kind == "mug" else ROUNDS
+    while rounds < limit:
         rounds += 1
         packed = replace(problem, mugs=tuple(m for m in problem.mugs if m.id not in excluded))
+        if rect_next:
+            packed = replace(packed, footprint_kind="rect")
         result = await pack(packed, options)
         for mug, why in _dropped_notes(result.notes):  # a plan checked before (a replay's recorded one)
             dropped.setdefault(mug, why)
@@ -119,7 +128,9 @@ async def plan_checked(
             best = (result, checked)
         if not checked.dropped or not packed.mugs:
             break
-        excluded |= {mug for mug, _ in checked.dropped}
+        rect_next = problem.footprint_kind == "mug" and rounds == 1
+        if not rect_next:
+            excluded |= {mug for mug, _ in checked.dropped}
     assert best is not None
     result, checked = best
     reachable = replace(problem, mugs=tuple(m for m in problem.mugs if m.id not in gone))

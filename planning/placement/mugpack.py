@@ -31,16 +31,26 @@ GRID_MM = 2
 # Counter mugs whose handle angles (to the slot's bearing) fall in one bin of this width share a class:
 # detected yaws differ by noise, and a class per mug would multiply the packer's work.
 CLASS_BIN_RAD = math.radians(2.0)
-# A scan: (primary axis, slant, secondary direction). Corners are taken by the primary coordinate plus
-# slant times the secondary one, low first (rows from the arm's side, or from the right), then by the
-# secondary coordinate in the given direction. Slant 0 is the thesis's bottom-left / left-bottom fill; a
-# slanted row lets a row of brims step along the handles of the row before it.
+# A scan: (primary axis, slant, secondary direction). Axes 0 and 1 are the tray's x and y: corners are taken
+# by the primary coordinate plus slant times the secondary one, low first (rows from the arm's side, or from
+# the right), then by the secondary coordinate in the given direction. Slant 0 is the thesis's bottom-left /
+# left-bottom fill; a slanted row lets a row of brims step along the handles of the row before it. The arm
+# turns every handle along the slot's bearing, so two scans follow the arm's polar coordinates (of the brim
+# centre, from the arm base; a bearing counts as ``BEARING_MM`` mm per radian): axis 2 fills arcs from the
+# arm outwards (distance plus slant times bearing, then the bearing in the given direction), so a row's
+# handles all point away from it into the gaps of the next arc; axis 3 fills radial columns from one side
+# (the bearing in the given direction plus slant times distance, then the distance), handles along each
+# column.
 Scan = tuple[int, float, int]
-# (With a slant the secondary direction hardly ever breaks a tie, so only the unslanted scans take both.)
+# (With a slant the secondary direction hardly ever breaks a tie, so only the unslanted tray scans take both.)
 SLANTS = (0.15, -0.15, 0.3, -0.3, 0.6, -0.6, 1.0, -1.0)
+POLAR_SLANTS = (0.0, 0.15, -0.15, 0.3, -0.3, 0.6, -0.6)
 SCANS: tuple[Scan, ...] = tuple(
-    [(a, 0.0, d) for a in (0, 1) for d in (1, -1)] + [(a, k, 1) for k in SLANTS for a in (0, 1)]
+    [(a, 0.0, d) for a in (0, 1) for d in (1, -1)]
+    + [(a, k, 1) for k in SLANTS for a in (0, 1)]
+    + [(a, k, d) for a in (2, 3) for k in POLAR_SLANTS for d in (1, -1)]
 )
+BEARING_MM = 500.0
 # (class, corner x, corner y) of a placed mug, tray coordinates
 Spot = tuple[int, int, int]
 
@@ -93,7 +103,8 @@ class MugPacker:
             for k in range(len(fixed.cx)):
                 free &= keeps_clear(bodies.gap_to(fixed, k), self.clearance)
             gx, gy = np.meshgrid(xs, ys, indexing="ij")
-            ranks = {s: _ranks(gx, gy, s) for s in SCANS}
+            polar = self._polar(type_name, xs, ys)
+            ranks = {s: _ranks(gx, gy, s, polar) for s in SCANS}
             stacked = np.stack([getattr(bodies, f) for f in Bodies.__dataclass_fields__])
             self.classes.append(MugClass(type_name, rel, xs, ys, bodies, stacked, free, ranks))
 
@@ -117,6 +128,16 @@ class MugPacker:
         if spread > 0:
             outline = replace(outline, half_thickness=outline.half_thickness + outline.handle_to * spread)
         return Bodies.build(outline, cx.astype(float), cy.astype(float), yaw)
+
+    def _polar(
+        self, type_name: str, xs: npt.NDArray[np.int64], ys: npt.NDArray[np.int64]
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """The distance (mm) and bearing (rad) from the arm base of the brim centre at every grid corner."""
+        p = self.problem
+        r = (p.mug_types[type_name].diameter_mm + p.tolerance_mm) / 2.0
+        cx, cy = np.meshgrid(xs + r, ys + r, indexing="ij")
+        wx, wy = cx + p.tray_origin_mm[0] - p.arm_base_mm[0], cy + p.tray_origin_mm[1] - p.arm_base_mm[1]
+        return np.hypot(wx, wy), np.arctan2(wy, wx)
 
     def pack(self, sequence: Sequence[int], scan: Scan) -> list[Spot]:
         """Places the classes of ``sequence`` one after the other at the first free corner of ``scan``;
@@ -197,10 +218,25 @@ def _axis(limit: int, step: int) -> npt.NDArray[np.int64]:
     return values
 
 
-def _ranks(gx: npt.NDArray[np.int64], gy: npt.NDArray[np.int64], scan: Scan) -> npt.NDArray[np.int64]:
+def _ranks(
+    gx: npt.NDArray[np.int64],
+    gy: npt.NDArray[np.int64],
+    scan: Scan,
+    polar: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]],
+) -> npt.NDArray[np.int64]:
+    """Each corner's place in ``scan`` (0 first); ``polar``: the brim centre's distance (mm) and bearing
+    (rad) from the arm base at each corner."""
     axis, slant, direction = scan
-    primary, secondary = (gx, gy) if axis == 0 else (gy, gx)
-    order = np.lexsort(((direction * secondary).ravel(), (primary + slant * secondary).ravel()))
+    if axis in (0, 1):
+        primary, secondary = (gx, gy) if axis == 0 else (gy, gx)
+        order = np.lexsort(((direction * secondary).ravel(), (primary + slant * secondary).ravel()))
+    else:
+        distance, bearing = polar
+        if axis == 2:
+            keys = (direction * bearing, distance + slant * BEARING_MM * bearing)
+        else:
+            keys = (distance, direction * BEARING_MM * bearing + slant * distance)
+        order = np.lexsort((keys[0].ravel(), keys[1].ravel()))
     ranks = np.empty(order.size, np.int64)
     ranks[order] = np.arange(order.size)
     return ranks.reshape(gx.shape)

@@ -6,9 +6,9 @@ own context) and so never writes to stdout, which ``dishbot plan --json`` reserv
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import ClassVar
 
 from planning.interfaces import TraySlot
 from planning.placement.context import Candidate, Context, PlanOptions
@@ -16,6 +16,7 @@ from planning.placement.errors import InvalidProblem
 from planning.placement.order import execution_order
 from planning.placement.problem import Problem
 from planning.placement.sorts import Sort, sorted_order
+from validation import UNKNOWN_KEYS_IGNORED, Invalid, convert
 
 METHODS = ("auto", "exact", "bh", "sa", "ga", "psop-n", "psop-i", "psok-n", "psok-i")
 
@@ -24,8 +25,10 @@ METHODS = ("auto", "exact", "bh", "sa", "ga", "psop-n", "psop-i", "psok-n", "pso
 class PlacedMug:
     """A planned spot: footprint corner in tray coordinates; ``order`` is the 1-based placing order;
     ``brim_mm`` the brim centre (tray coordinates) and ``handle_yaw_rad`` where the handle will point (tray
-    frame, 0 = +x), None only in plans recorded before they were reported."""
+    frame, 0 = +x), None only in plans recorded before they were reported. As a recorded plan's ``placed``
+    entry it is read by ``PlanResult.from_json``, passing over keys it does not declare."""
 
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
     id: str
     type: str
     x_mm: int
@@ -110,75 +113,71 @@ class PlanResult:
         }
 
     @classmethod
-    def from_json(cls, doc: Mapping[str, object]) -> PlanResult:
-        """The plan ``to_json`` wrote (a recording's ``plan`` message); ``ValueError`` naming the field that
-        is missing or of the wrong type."""
-        placed = []
-        for i, item in enumerate(_field(doc, "placed", list)):
-            if not isinstance(item, Mapping):
-                raise ValueError(f"plan.placed.{i} is {item!r}, not an object")
-            placed.append(
-                PlacedMug(
-                    _field(item, "id", str),
-                    _field(item, "type", str),
-                    _field(item, "x_mm", int),
-                    _field(item, "y_mm", int),
-                    _field(item, "rotated", bool),
-                    _field(item, "order", int),
-                    _brim(item, i),
-                    None if item.get("handle_yaw_rad") is None else _field(item, "handle_yaw_rad", float),
-                )
-            )
-        optimal = doc.get("optimal")
-        bound = doc.get("upper_bound")
+    def from_json(cls, doc: object) -> PlanResult:
+        """The plan ``to_json`` wrote (a recording's ``plan`` message), checked by the one validator against
+        its declared shape (``_PlanMessage``); ``ValueError`` (``validation.Invalid``), one line naming the
+        field that is missing or of the wrong type, otherwise."""
+        m = convert(doc, _PlanMessage, name="plan")
         return cls(
-            method=_field(doc, "method", str),
-            heuristic=_field(doc, "heuristic", str),
-            sort=None if doc.get("sort") is None else _field(doc, "sort", str),
-            fitness=_field(doc, "fitness", str),
-            cost_function=_field(doc, "cost_function", str),
-            seed=_field(doc, "seed", int),
-            wall_time_s=_field(doc, "wall_time_s", float),
-            placed=tuple(placed),
-            unplaced=tuple(str(u) for u in _field(doc, "unplaced", list)),
-            n=_field(doc, "n", int),
-            A_mm2=_field(doc, "A", float),
-            E_j=_field(doc, "E", float),
-            t_s=_field(doc, "t_plan_s" if "t_plan_s" in doc else "t", float),
-            s=_field(doc, "s", int),
-            cost=_field(doc, "cost", float),
-            optimal=optimal if isinstance(optimal, bool) else None,
-            upper_bound=bound if isinstance(bound, int) and not isinstance(bound, bool) else None,
-            status=str(doc.get("status", "feasible")),
-            evaluations=_field(doc, "evaluations", int) if "evaluations" in doc else 0,
-            notes=tuple(str(n) for n in _field(doc, "notes", list)) if "notes" in doc else (),
+            method=m.method,
+            heuristic=m.heuristic,
+            sort=m.sort,
+            fitness=m.fitness,
+            cost_function=m.cost_function,
+            seed=m.seed,
+            wall_time_s=m.wall_time_s,
+            placed=m.placed,
+            unplaced=m.unplaced,
+            n=m.n,
+            A_mm2=m.A,
+            E_j=m.E,
+            t_s=m.t_plan_s if m.t_plan_s is not None else m.t or 0.0,  # one of them is set
+            s=m.s,
+            cost=m.cost,
+            optimal=m.optimal,
+            upper_bound=m.upper_bound,
+            status=m.status,
+            evaluations=m.evaluations,
+            notes=m.notes,
         )
 
 
-F = TypeVar("F", str, int, float, bool, list)  # type: ignore[type-arg]
+# --- a recorded plan's shape: what ``PlanResult.to_json`` writes, and the plan message adds -------------
+# Its own names for three of the result's fields (``A``, ``E``, and ``t`` or ``t_plan_s``), so it is a
+# shape of its own. Keys it does not declare are passed over: the published message adds its own
+# (``slots``, ``out_of_reach``, ``gap``), and a later version may add more.
 
 
-def _brim(item: Mapping[str, object], i: int) -> tuple[float, float] | None:
-    value = item.get("brim_mm")
-    if value is None:
-        return None
-    if (
-        not isinstance(value, list)
-        or len(value) != 2
-        or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
-    ):
-        raise ValueError(f"plan.placed.{i}.brim_mm is {value!r}, not [x, y]")
-    return float(value[0]), float(value[1])
+@dataclass(frozen=True, slots=True)
+class _PlanMessage:
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
+    method: str
+    heuristic: str
+    fitness: str
+    cost_function: str
+    seed: int
+    wall_time_s: float
+    placed: tuple[PlacedMug, ...]
+    unplaced: tuple[str, ...]
+    n: int
+    A: float
+    E: float
+    s: int
+    cost: float
+    sort: str | None = None
+    # The plan's time estimate: ``t`` as ``to_json`` writes it, ``t_plan_s`` in the published message
+    # (whose ``t`` is the time of publication).
+    t: float | None = None
+    t_plan_s: float | None = None
+    optimal: bool | None = None
+    upper_bound: int | None = None
+    status: str = "feasible"
+    evaluations: int = 0
+    notes: tuple[str, ...] = ()
 
-
-def _field(doc: Mapping[str, object], key: str, kind: type[F]) -> F:
-    """``doc[key]`` as ``kind`` (an int will do for a float; a bool is never a number)."""
-    value = doc.get(key)
-    if kind is float and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)  # type: ignore[return-value]
-    if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
-        raise ValueError(f"plan.{key} is {value!r}, not {kind.__name__}")
-    return value
+    def __post_init__(self) -> None:
+        if self.t is None and self.t_plan_s is None:
+            raise Invalid("t: missing")
 
 
 _DEFAULT_OPTIONS = PlanOptions()

@@ -12,15 +12,20 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Annotated, ClassVar
 
 from description import thesis
 from planning.placement.errors import InvalidProblem
+from validation import FINITE, NON_EMPTY, UNKNOWN_KEYS_IGNORED, Invalid, OneOf, above, convert, show, within
 
 # "rect": the thesis's rectangle around brim and handle; "mug": the brim disc plus the handle at the yaw the
 # arm gives it (``planning.placement.shapes``).
 FOOTPRINTS = ("rect", "mug")
 # Not from the thesis (it leaves V_a open): a conservative mean end-effector speed for the low-cost arm.
 DEFAULT_ARM_SPEED_M_S = 0.1
+# World-frame positions and yaws: any finite number (of millimetres, of radians).
+WorldMm = Annotated[float, FINITE]
+Yaw = Annotated[float, FINITE]
 
 
 @dataclass(frozen=True, slots=True)
@@ -37,13 +42,15 @@ class MugType:
 @dataclass(frozen=True, slots=True)
 class CounterMug:
     """A mug waiting on the counter; ``x_mm``/``y_mm`` is its brim centre in the world frame, and
-    ``handle_yaw_rad`` where its handle points (world yaw), None when unknown."""
+    ``handle_yaw_rad`` where its handle points (world yaw), None when unknown. It is also the shape of a
+    problem file's ``mugs`` entry (keys it does not declare are passed over)."""
 
-    id: str
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
+    id: Annotated[str, NON_EMPTY]
     type: str
-    x_mm: float
-    y_mm: float
-    handle_yaw_rad: float | None = None
+    x_mm: WorldMm
+    y_mm: WorldMm
+    handle_yaw_rad: Yaw | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,8 +135,10 @@ class Problem:
         return math.remainder(math.atan2(wy - by, wx - bx) + relative_rad, math.tau)
 
     @classmethod
-    def from_json(cls, obj: Mapping[str, object]) -> Problem:
-        """Parse and validate the ``dishbot plan`` problem format; ``InvalidProblem`` names the bad field."""
+    def from_json(cls, obj: object) -> Problem:
+        """The ``dishbot plan`` problem format (a decoded JSON value), checked by the one validator against
+        its declared shape (below) and then as a whole; ``InvalidProblem``, one line naming the field,
+        otherwise."""
         return _parse(obj)
 
     def to_json(self) -> dict[str, object]:
@@ -161,122 +170,122 @@ class Problem:
         }
 
 
-def _parse(obj: Mapping[str, object]) -> Problem:
-    if not isinstance(obj, Mapping):
-        raise InvalidProblem(f"problem: expected a JSON object, got {_kind(obj)}")
-    known = {"tray", "tolerance_mm", "allow_rotation", "footprint", "mug_types", "mugs", "placed", "arm"}
-    for key in obj:
-        if key not in known:
-            raise InvalidProblem(f"{key}: unknown field (known: {', '.join(sorted(known))})")
-    tray = _mapping(obj, "tray", required=True)
-    size = _pair(tray, "size_mm", "tray.size_mm", integer=True, positive=True, required=True)
-    assert size is not None  # required=True
-    origin = _pair(tray, "origin_mm", "tray.origin_mm", integer=False, positive=False, required=False)
-    tolerance = _number(
-        obj, "tolerance_mm", "tolerance_mm", integer=True, minimum=0, default=thesis.TOLERANCE_MM
-    )
-    rotation = obj.get("allow_rotation", False)
-    if not isinstance(rotation, bool):
-        raise InvalidProblem(f"allow_rotation: expected true or false, got {_kind(rotation)}")
-    footprint = obj.get("footprint", "rect")
-    if footprint not in FOOTPRINTS:
-        raise InvalidProblem(f"footprint: expected one of {', '.join(FOOTPRINTS)}, got {_kind(footprint)}")
-    types = _parse_types(obj)
-    arm = _mapping(obj, "arm", required=False)
-    base = _pair(arm, "base_mm", "arm.base_mm", integer=False, positive=False, required=False)
-    speed = _number(
-        arm, "speed_m_s", "arm.speed_m_s", integer=False, minimum=None, default=DEFAULT_ARM_SPEED_M_S
-    )
-    if speed <= 0:
-        raise InvalidProblem(f"arm.speed_m_s: must be positive, got {speed}")
-    mugs_raw = obj.get("mugs")
-    if not isinstance(mugs_raw, list):
-        raise InvalidProblem(f"mugs: expected a list of mugs, got {_kind(mugs_raw)}")
-    mugs = tuple(_parse_counter_mug(m, f"mugs[{i}]", types) for i, m in enumerate(mugs_raw))
-    placed_raw = obj.get("placed", [])
-    if not isinstance(placed_raw, list):
-        raise InvalidProblem(f"placed: expected a list of mugs, got {_kind(placed_raw)}")
-    placed = tuple(_parse_tray_mug(m, f"placed[{i}]", types) for i, m in enumerate(placed_raw))
-    return Problem(
-        tray_size_mm=(int(size[0]), int(size[1])),
-        tray_origin_mm=(float(origin[0]), float(origin[1])) if origin else (0.0, 0.0),
-        mugs=mugs,
-        mug_types=types,
-        placed=placed,
-        tolerance_mm=int(tolerance),
-        allow_rotation=rotation,
-        arm_base_mm=(float(base[0]), float(base[1])) if base else (0.0, 0.0),
-        arm_speed_m_s=float(speed),
-        footprint_kind=str(footprint),
-    )
+# --- the problem file's shape (``validation.convert`` checks a decoded file against it) ---------------------
+# Sizes on the tray are whole millimetres; a file may write them as 475 or 475.0 (JSON has one number type),
+# so they are declared as numbers and held whole by the tables' own rule. Keys a table inside the problem
+# does not declare are passed over, as they always were (a result's ``placed`` entry, with its ``order``
+# and ``brim_mm``, is a problem's ``placed`` entry); an unknown key at the top is refused.
+
+TraySize = Annotated[float, above(0, 10_000, unit="mm")]
+TrayCoordinate = Annotated[float, within(0, 10_000, unit="mm")]
+MugSize = Annotated[float, above(0, 1_000, unit="mm")]
+Tolerance = Annotated[float, within(0, 1_000, unit="mm")]
+MugMass = Annotated[float, above(0, 100, unit="kg")]
+ArmSpeed = Annotated[float, above(0, 100, unit="m/s")]
 
 
-def _parse_types(obj: Mapping[str, object]) -> dict[str, MugType]:
-    if "mug_types" not in obj:
-        return default_mug_types()
-    raw = _mapping(obj, "mug_types", required=True)
-    if not raw:
-        raise InvalidProblem("mug_types: must name at least one mug type")
-    types: dict[str, MugType] = {}
-    for name, spec in raw.items():
-        where = f"mug_types.{name}"
-        if not isinstance(spec, Mapping):
-            raise InvalidProblem(f"{where}: expected an object, got {_kind(spec)}")
-        dims = {
-            key: int(_number(spec, key, f"{where}.{key}", integer=True, minimum=1, default=None))
-            for key in ("diameter_mm", "width_mm", "height_mm")
-        }
-        mass = _number(spec, "mass_kg", f"{where}.mass_kg", integer=False, minimum=None, default=None)
-        if mass <= 0:
-            raise InvalidProblem(f"{where}.mass_kg: must be positive, got {mass}")
-        if dims["width_mm"] < dims["diameter_mm"]:
-            raise InvalidProblem(
-                f"{where}.width_mm: {dims['width_mm']} is less than the brim diameter {dims['diameter_mm']}"
+def _whole(name: str, value: float) -> int:
+    if not float(value).is_integer():
+        raise Invalid(f"{name}: expected whole millimetres, got {show(value)}")
+    return int(value)
+
+
+@dataclass(frozen=True, slots=True)
+class _TrayTable:
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
+    size_mm: tuple[TraySize, TraySize]
+    origin_mm: tuple[WorldMm, WorldMm] | None = None
+
+    def __post_init__(self) -> None:
+        for i, v in enumerate(self.size_mm):
+            _whole(f"size_mm[{i}]", v)
+
+
+@dataclass(frozen=True, slots=True)
+class _MugTypeTable:
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
+    diameter_mm: MugSize
+    width_mm: MugSize
+    height_mm: MugSize
+    mass_kg: MugMass
+
+    def __post_init__(self) -> None:
+        for key in ("diameter_mm", "width_mm", "height_mm"):
+            _whole(key, getattr(self, key))
+        if self.width_mm < self.diameter_mm:
+            raise Invalid(
+                f"width_mm: {show(self.width_mm)} is less than the brim diameter {show(self.diameter_mm)}"
                 " (width includes the handle)"
             )
-        types[str(name)] = MugType(str(name), dims["diameter_mm"], dims["width_mm"], dims["height_mm"], mass)
+
+
+@dataclass(frozen=True, slots=True)
+class _TrayMugTable:
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
+    id: Annotated[str, NON_EMPTY]
+    type: str
+    x_mm: TrayCoordinate
+    y_mm: TrayCoordinate
+    rotated: bool = False
+    handle_yaw_rad: Yaw | None = None
+
+    def __post_init__(self) -> None:
+        _whole("x_mm", self.x_mm)
+        _whole("y_mm", self.y_mm)
+
+
+@dataclass(frozen=True, slots=True)
+class _ArmTable:
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
+    base_mm: tuple[WorldMm, WorldMm] | None = None
+    speed_m_s: ArmSpeed = DEFAULT_ARM_SPEED_M_S
+
+
+@dataclass(frozen=True, slots=True)
+class _ProblemFile:
+    tray: _TrayTable
+    mugs: tuple[CounterMug, ...]
+    tolerance_mm: Tolerance = thesis.TOLERANCE_MM
+    allow_rotation: bool = False
+    footprint: Annotated[str, OneOf(FOOTPRINTS)] = "rect"
+    # absent (or null): the thesis's two mugs; each entry is a ``_MugTypeTable``, checked by ``_mug_types``
+    # so that a message names its mug type (msgspec does not say which key of a table it was at)
+    mug_types: dict[str, object] | None = None
+    placed: tuple[_TrayMugTable, ...] = ()
+    arm: _ArmTable | None = None
+
+    def __post_init__(self) -> None:
+        _whole("tolerance_mm", self.tolerance_mm)
+        if self.mug_types is not None and not self.mug_types:
+            raise Invalid("mug_types: must name at least one mug type")
+
+
+def _mug_types(tables: Mapping[str, object]) -> dict[str, MugType]:
+    types = {}
+    for name, table in tables.items():
+        t = convert(table, _MugTypeTable, name=f"mug_types.{name}", error=InvalidProblem)
+        types[name] = MugType(name, int(t.diameter_mm), int(t.width_mm), int(t.height_mm), t.mass_kg)
     return types
 
 
-def _parse_counter_mug(raw: object, where: str, types: Mapping[str, MugType]) -> CounterMug:
-    if not isinstance(raw, Mapping):
-        raise InvalidProblem(f"{where}: expected an object, got {_kind(raw)}")
-    mug_id, type_name = _id_and_type(raw, where, types)
-    x = _number(raw, "x_mm", f"{where}.x_mm", integer=False, minimum=None, default=None)
-    y = _number(raw, "y_mm", f"{where}.y_mm", integer=False, minimum=None, default=None)
-    return CounterMug(mug_id, type_name, float(x), float(y), _yaw(raw, where))
-
-
-def _parse_tray_mug(raw: object, where: str, types: Mapping[str, MugType]) -> TrayMug:
-    if not isinstance(raw, Mapping):
-        raise InvalidProblem(f"{where}: expected an object, got {_kind(raw)}")
-    mug_id, type_name = _id_and_type(raw, where, types)
-    x = _number(raw, "x_mm", f"{where}.x_mm", integer=True, minimum=0, default=None)
-    y = _number(raw, "y_mm", f"{where}.y_mm", integer=True, minimum=0, default=None)
-    rotated = raw.get("rotated", False)
-    if not isinstance(rotated, bool):
-        raise InvalidProblem(f"{where}.rotated: expected true or false, got {_kind(rotated)}")
-    return TrayMug(mug_id, type_name, int(x), int(y), rotated, _yaw(raw, where))
-
-
-def _yaw(raw: Mapping[str, object], where: str) -> float | None:
-    if "handle_yaw_rad" not in raw:
-        return None
-    return _check_number(raw["handle_yaw_rad"], f"{where}.handle_yaw_rad", integer=False, minimum=None)
-
-
-def _id_and_type(raw: Mapping[str, object], where: str, types: Mapping[str, MugType]) -> tuple[str, str]:
-    mug_id = raw.get("id")
-    if not isinstance(mug_id, str) or not mug_id:
-        raise InvalidProblem(f"{where}.id: expected a non-empty string, got {_kind(mug_id)}")
-    type_name = raw.get("type")
-    if not isinstance(type_name, str):
-        raise InvalidProblem(f"{where}.type: expected a mug type name, got {_kind(type_name)}")
-    if type_name not in types:
-        raise InvalidProblem(
-            f"{where}.type: unknown mug type {type_name!r} (known: {', '.join(sorted(types))})"
-        )
-    return mug_id, type_name
+def _parse(obj: object) -> Problem:
+    f = convert(obj, _ProblemFile, error=InvalidProblem, root="the problem")
+    types = default_mug_types() if f.mug_types is None else _mug_types(f.mug_types)
+    arm = f.arm or _ArmTable()
+    return Problem(
+        tray_size_mm=(int(f.tray.size_mm[0]), int(f.tray.size_mm[1])),
+        tray_origin_mm=f.tray.origin_mm or (0.0, 0.0),
+        mugs=f.mugs,
+        mug_types=types,
+        placed=tuple(
+            TrayMug(q.id, q.type, int(q.x_mm), int(q.y_mm), q.rotated, q.handle_yaw_rad) for q in f.placed
+        ),
+        tolerance_mm=int(f.tolerance_mm),
+        allow_rotation=f.allow_rotation,
+        arm_base_mm=arm.base_mm or (0.0, 0.0),
+        arm_speed_m_s=arm.speed_m_s,
+        footprint_kind=f.footprint,
+    )
 
 
 def _check_consistency(p: Problem) -> None:
@@ -360,71 +369,3 @@ def _check_placed_outlines(p: Problem) -> None:
                     f"placed[{i}]: closer than {p.tolerance_mm} mm to placed[{j}] (mug outlines)"
                 )
         bodies.append(b)
-
-
-def _mapping(obj: Mapping[str, object], key: str, *, required: bool) -> Mapping[str, object]:
-    value = obj.get(key)
-    if value is None and not required:
-        return {}
-    if not isinstance(value, Mapping):
-        raise InvalidProblem(f"{key}: expected an object, got {_kind(value)}")
-    return value
-
-
-def _pair(
-    obj: Mapping[str, object], key: str, where: str, *, integer: bool, positive: bool, required: bool
-) -> tuple[float, float] | None:
-    value = obj.get(key)
-    if value is None and not required:
-        return None
-    if not isinstance(value, list) or len(value) != 2:
-        raise InvalidProblem(f"{where}: expected a list of two numbers [x, y], got {_kind(value)}")
-    out = []
-    for i, v in enumerate(value):
-        out.append(_check_number(v, f"{where}[{i}]", integer=integer, minimum=1 if positive else None))
-    return out[0], out[1]
-
-
-def _number(
-    obj: Mapping[str, object],
-    key: str,
-    where: str,
-    *,
-    integer: bool,
-    minimum: float | None,
-    default: float | None,
-) -> float:
-    if key not in obj:
-        if default is None:
-            raise InvalidProblem(f"{where}: missing")
-        return default
-    return _check_number(obj[key], where, integer=integer, minimum=minimum)
-
-
-def _check_number(value: object, where: str, *, integer: bool, minimum: float | None) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise InvalidProblem(f"{where}: expected a number, got {_kind(value)}")
-    if not math.isfinite(value):
-        raise InvalidProblem(f"{where}: expected a finite number, got {value}")
-    if integer and value != int(value):
-        raise InvalidProblem(f"{where}: expected whole millimetres, got {value}")
-    if minimum is not None and value < minimum:
-        what = "positive" if minimum == 1 else f"at least {minimum}"
-        raise InvalidProblem(f"{where}: must be {what}, got {value}")
-    return float(value)
-
-
-def _kind(value: object) -> str:
-    if value is None:
-        return "nothing"
-    if isinstance(value, bool):
-        return f"a boolean ({str(value).lower()})"
-    if isinstance(value, str):
-        return f"a string ({value!r})"
-    if isinstance(value, int | float):
-        return f"a number ({value})"
-    if isinstance(value, list):
-        return "a list"
-    if isinstance(value, Mapping):
-        return "an object"
-    return type(value).__name__

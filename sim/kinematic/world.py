@@ -79,13 +79,27 @@ class KinematicWorld:
         self.tray_origin_m = tray_origin_m
         self.tray_size_m = tray_size_m
         self.clock = clock
-        self.mugs: dict[str, SimMug] = {m.mug_id: m for m in mugs}
+        self._mugs: dict[str, SimMug] = {m.mug_id: m for m in mugs}
+        self._held_moved = False  # the arm moved since the held mug's pose was last worked out
         self.q: FloatArray = np.zeros(arm.dof) if q0 is None else np.asarray(q0, dtype=np.float64).copy()
         self.aperture_m = OPEN_APERTURE_M
         self.held: str | None = None
         self._held_local: FloatArray = np.zeros(3)
         self._held_up_local: FloatArray = np.array([0.0, 0.0, 1.0])
         self._slip_next = False
+
+    @property
+    def mugs(self) -> dict[str, SimMug]:
+        """Every mug by id, where it is now (a carried one where the gripper has taken it)."""
+        if self._held_moved:
+            self._held_moved = False
+            self._place_held()
+        return self._mugs
+
+    @mugs.setter
+    def mugs(self, mugs: dict[str, SimMug]) -> None:
+        self._mugs = mugs
+        self._held_moved = False
 
     def set_mugs(self, mugs: list[SimMug]) -> None:
         """Put a new set of mugs on the counter (a new job in simulation); the gripper is empty after it."""
@@ -150,22 +164,30 @@ class KinematicWorld:
         return self.arm.fk(self.q)
 
     def set_q(self, q: FloatArray) -> None:
+        """Move the arm to ``q``; a carried mug goes with it (worked out when someone looks at the mugs:
+        the arm moves many times between looks)."""
         self.q = np.asarray(q, dtype=np.float64).copy()
         if self.held is not None:
-            p, r = self.grasp_pose()
-            base = p + r @ self._held_local
-            up = r @ self._held_up_local
-            mug = self.mugs[self.held]
-            self.mugs[self.held] = replace(
-                mug, x_m=float(base[0]), y_m=float(base[1]), upside_down=bool(up[2] < 0)
-            )
+            self._held_moved = True
+
+    def _place_held(self) -> None:
+        """Put the carried mug where the gripper holds it at the arm's pose."""
+        if self.held is None:
+            return
+        p, r = self.grasp_pose()
+        base = p + r @ self._held_local
+        up = r @ self._held_up_local
+        mug = self._mugs[self.held]
+        self._mugs[self.held] = replace(
+            mug, x_m=float(base[0]), y_m=float(base[1]), upside_down=bool(up[2] < 0)
+        )
 
     # --- gripper ---------------------------------------------------------------------------------------
 
     def pad_force_n(self) -> float:
         if self.held is None:
             return 0.0
-        squeeze = self.mug_geometry[self.mugs[self.held].type].diameter_m - self.aperture_m
+        squeeze = self.mug_geometry[self._mugs[self.held].type].diameter_m - self.aperture_m
         return max(0.0, PAD_STIFFNESS_N_M * squeeze)
 
     def contact_aperture_m(self) -> float | None:

@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from cli.commands.arm import SIDE_GRASPS
-from cli.main import build_parser, named_verb
+from cli.main import VERBS, build_parser, named_verb
 from daemon.config import load_config
 from planning.arm import GraspKind
 from tests.fakes.daemon import running_daemon
@@ -107,8 +107,53 @@ def test_the_help_screen_loads_no_verb_and_reads_as_every_verb_registered() -> N
 def test_the_bare_help_screen_imports_only_the_command_line_itself(tmp_path: Path) -> None:
     [result] = run_cli(tmp_path, ("--help",))
     assert result["code"] == 0
-    assert set(result["ours"]) <= {"cli", "cli.main", "cli.extras", "cli.logs", "daemon", "daemon.errors"}
-    assert not {"structlog", "logging", "asyncio", "zenoh"} & set(result["new"])
+    assert set(result["ours"]) == {"cli", "cli.main", "cli.extras", "cli.logs"}
+    assert not {"structlog", "logging", "asyncio", "zenoh", "msgspec", *HEAVY} & set(result["new"])
+
+
+# What each verb that cannot log (``Verb.logs`` False) runs here: every one of them is covered.
+QUIET_RUNS = {
+    "plan": ("plan", "--dataset", "1"),
+    "config": ("config", "show"),
+    "statechart": ("statechart",),
+}
+
+
+def test_every_verb_that_cannot_log_is_checked_for_it() -> None:
+    assert set(QUIET_RUNS) == {name for name, verb in VERBS.items() if not verb.logs}
+
+
+@pytest.mark.parametrize("argv", QUIET_RUNS.values(), ids=" ".join)
+@pytest.mark.slow
+def test_a_verb_said_not_to_log_imports_no_structlog(tmp_path: Path, argv: tuple[str, ...]) -> None:
+    """The command line configures structlog only for verbs that log; one that imported it could log to
+    stdout unconfigured (and pay its import, a sixth of a plan's start)."""
+    [result] = run_cli(tmp_path, argv)
+    assert result["code"] == 0
+    assert "structlog" not in result["new"]
+
+
+@pytest.mark.slow
+def test_a_plan_without_pictures_loads_no_picture_recorder_nor_zenoh_library(tmp_path: Path) -> None:
+    """``plan --dataset 1`` (the default method, auto) loads what it plans with: numpy and OR-Tools (whose
+    ``cp_model`` imports pandas at its top, unused here: about 40 % of the plan's CPU), not OpenCV, MCAP,
+    Zenoh, structlog or the motion planner's libraries; a picture brings OpenCV, and only that."""
+    [result] = run_cli(tmp_path, ("plan", "--dataset", "1", "--json"))
+    assert result["code"] == 0
+    assert {"numpy", "ortools"} <= set(result["new"])
+    unused = {"cv2", "matplotlib", "zenoh", "mcap", "structlog", "asyncio", "scipy", "pinocchio", "mujoco"}
+    assert not unused & set(result["new"])
+    layers = {m.partition(".")[0] for m in result["ours"]}
+    assert not {"wire", "sim", "perception", "replay", "bench"} & layers
+    # The config's [recording] section only (daemon.config declares it), not the MCAP writer or views.
+    assert {m for m in result["ours"] if m.startswith("recorder")} <= {"recorder", "recorder.settings"}
+    assert not {m for m in result["ours"] if m.startswith("planning.motion")}
+    [drawn] = run_cli(
+        tmp_path,
+        ("plan", "--dataset", "1", "--svg", str(tmp_path / "p.svg"), "--png", str(tmp_path / "p.png")),
+    )
+    assert drawn["code"] == 0
+    assert set(drawn["new"]) - set(result["new"]) == {"cv2"}
 
 
 @pytest.mark.parametrize(

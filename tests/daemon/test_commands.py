@@ -339,19 +339,21 @@ def test_monitor_prints_state_changes_and_events_of_a_running_job(
 
 def test_the_monitor_panel_shows_state_joints_and_force() -> None:
     from cli.commands.monitor import panel
+    from wire.messages import Gripper, Joints, State
 
     text = panel(
         {
-            "state": {
-                "state": "flip.turn",
-                "current_mug": "m3",
-                "mugs_placed": 1,
-                "mugs_planned": 4,
-                "mugs_total": 5,
-                "mugs_failed": 0,
-            },
-            "joints": {"names": ["a", "b"], "position_rad": [0.1, -1.25]},
-            "gripper": {"aperture_m": 0.0725, "force_n": 3.0, "holding": True},
+            "state": State(
+                state="flip.turn",
+                current_mug="m3",
+                mugs_placed=1,
+                mugs_planned=4,
+                mugs_total=5,
+                mugs_failed=0,
+                t=0.0,
+            ),
+            "joints": Joints(t=0.0, names=["a", "b"], position_rad=[0.1, -1.25]),
+            "gripper": Gripper(t=0.0, aperture_m=0.0725, force_n=3.0, holding=True),
         },
         "r1",
         "tcp/127.0.0.1:3474",

@@ -15,6 +15,10 @@ from daemon.errors import ConfigError
 from description import thesis
 from description.camera import CameraSpec
 from description.cell import CellLayout, Tray
+from drivers.dynamixel.config import HealthLimits
+from drivers.fsr import FsrSettings
+from perception.frames import FrameLimits
+from validation import Invalid
 
 
 def test_the_embedded_defaults_load() -> None:
@@ -205,6 +209,44 @@ def test_every_job_state_has_a_time_bound_and_leaves_may_have_shorter_ones() -> 
 
 def test_the_camera_frame_limits_are_read_and_checked() -> None:
     camera = load_config(overrides={"camera": {"frame_timeout_s": 0.5, "frame_retries": 0}}).camera
-    assert (camera.frame_timeout_s, camera.max_frame_age_s, camera.frame_retries) == (0.5, 1.0, 0)
+    assert (camera.frames.timeout_s, camera.frames.max_age_s, camera.frames.retries) == (0.5, 1.0, 0)
     with pytest.raises(ConfigError, match=r"^camera.frame_retries: 11 is out of range"):
         load_config(overrides={"camera": {"frame_retries": 11}})
+
+
+def test_the_device_sections_are_the_drivers_and_perceptions_own_settings() -> None:
+    """``[hardware.fsr]``, ``[hardware.health]`` and ``[camera]``'s frame keys are read straight into the
+    types the reader, the chain's health watch and the observer take, with the ranges those types declare."""
+    config = load_config(
+        overrides={
+            "hardware": {"fsr": {"gain": 2.5, "release_n": 0.4}, "health": {"corrupt_window": 20}},
+            "camera": {"max_frame_age_s": 0.25},
+        }
+    )
+    hw = config.hardware
+    assert hw.fsr == FsrSettings("/dev/dishbot-fsr", gain=2.5, threshold_n=1.0, release_n=0.4)
+    assert hw.health == HealthLimits(corrupt_window=20)
+    assert config.camera.frames == FrameLimits(max_age_s=0.25)
+    for override, message in (
+        ({"hardware": {"fsr": {"gain": 0}}}, "hardware.fsr.gain: 0 is out of range; allowed [0.001, 1000]"),
+        (
+            {"hardware": {"health": {"temperature_warn_c": 75.0}}},
+            "hardware.health.temperature_warn_c: 75 must be below temperature_limit_c 70",
+        ),
+        (
+            {"hardware": {"health": {"voltage_min_v": 13.5}}},
+            "hardware.health.voltage_max_v: 14 must be above voltage_min_v 13.5 by more than twice "
+            "voltage_warn_margin_v 0.5",
+        ),
+        ({"camera": {"frame_timeout_s": 0}}, "camera.frame_timeout_s: 0 is out of range; allowed [0.05, 60]"),
+    ):
+        with pytest.raises(ConfigError) as e:
+            load_config(overrides=override)
+        assert str(e.value) == message
+
+
+def test_settings_built_in_code_keep_the_config_files_rules() -> None:
+    with pytest.raises(Invalid, match=r"^release_n: 2 must be below threshold_n 1 \(the hysteresis"):
+        FsrSettings("/dev/x", threshold_n=1.0, release_n=2.0)
+    with pytest.raises(Invalid, match=r"^temperature_warn_c: 80 must be below temperature_limit_c 70$"):
+        HealthLimits(temperature_warn_c=80.0)

@@ -18,6 +18,8 @@ from recorder import HEADER_TOPIC, read_messages
 
 ROBOT = "svc"
 CHUNK_SIZE_BYTES = 4096  # small chunks: a kill can lose at most the one being written
+WATCHDOG_S = 1.0  # the watchdog test's WATCHDOG_USEC: a ping every 0.5 s
+PINGS = 9
 
 
 def free_port() -> int:
@@ -35,7 +37,9 @@ def notify_socket(tmp_path: Path) -> Iterator[socket.socket]:
     sock.close()
 
 
-def start_daemon(tmp_path: Path, notify: socket.socket) -> subprocess.Popen[bytes]:
+def start_daemon(
+    tmp_path: Path, notify: socket.socket, *, watchdog_usec: int = 2_000_000
+) -> subprocess.Popen[bytes]:
     config = tmp_path / "dishbot.toml"
     # Idle files keep telemetry at the full rate here, so the cut can be seen to within a joint sample.
     recording = f"idle_telemetry_hz = 100.0\nchunk_size_bytes = {CHUNK_SIZE_BYTES}\n"
@@ -43,7 +47,7 @@ def start_daemon(tmp_path: Path, notify: socket.socket) -> subprocess.Popen[byte
     env = {
         **os.environ,
         "NOTIFY_SOCKET": notify.getsockname(),
-        "WATCHDOG_USEC": "2000000",  # 2 s: the daemon pings every second
+        "WATCHDOG_USEC": str(watchdog_usec),  # the daemon pings at half of it
     }
     env.pop("WATCHDOG_PID", None)
     listen = f"tcp/127.0.0.1:{free_port()}"
@@ -104,13 +108,18 @@ def the_recording(tmp_path: Path) -> Path:
 def test_daemon_notifies_ready_pings_the_watchdog_and_stops_cleanly_on_sigterm(
     tmp_path: Path, notify_socket: socket.socket
 ) -> None:
-    proc = start_daemon(tmp_path, notify_socket)
+    proc = start_daemon(tmp_path, notify_socket, watchdog_usec=int(WATCHDOG_S * 1e6))
     try:
         _, ready = wait_for(notify_socket, "READY=1", proc)
         assert ready.splitlines()[1].startswith("STATUS=")
-        pings = [wait_for(notify_socket, "WATCHDOG=1", proc)[0] for _ in range(3)]
-        gaps = [b - a for a, b in itertools.pairwise(pings)]
-        assert all(0.6 < gap < 1.8 for gap in gaps), gaps  # half of WATCHDOG_USEC, well inside the timeout
+        pings = [wait_for(notify_socket, "WATCHDOG=1", proc)[0] for _ in range(PINGS)]
+        # Every half of WATCHDOG_USEC, on a schedule that does not drift: one late ping does not move the
+        # next, so their mean period holds even when a loaded machine makes single gaps long or short (the
+        # bounds allow the last ping 2 s later than the first, or the first 2 s late).
+        period = (pings[-1] - pings[0]) / (PINGS - 1)
+        assert 0.5 * WATCHDOG_S / 2 < period < 1.5 * WATCHDOG_S / 2, [
+            b - a for a, b in itertools.pairwise(pings)
+        ]
         proc.send_signal(signal.SIGTERM)
         _, stopping = wait_for(notify_socket, "STOPPING=1", proc)
         assert proc.wait(timeout=30) == 0

@@ -118,9 +118,14 @@ def test_unplugging_the_servo_adapter_reports_the_lost_bus_and_faults(tmp_path: 
         lost = d.event("bus_lost")
         assert lost["device"] == "bus"
         assert lost["port"] == r.servos.device_path
-        fault_t = next(e["t"] for e in d.events if e["kind"] == "transition" and e["dest"] == "fault")
-        # within a control tick or two of the unplug (20 ms at the gripper's 50 Hz), on a loaded machine
-        assert fault_t - unplugged < 0.25
+        after = [e for e in d.events if e["kind"] == "transition" and e["t"] >= unplugged]
+        dests = [str(e["dest"]) for e in after]
+        fault_t = after[dests.index("fault")]["t"]
+        # At once: the grasp the unplug interrupted is the last thing the job did (it left side_grasp for
+        # nothing but the fault). On an idle machine that is a control tick or two (20 ms at the gripper's
+        # 50 Hz); a loaded one stretches the wall clock the daemon runs on, hence only a generous bound on it.
+        assert all(dest.startswith("side_grasp") for dest in dests[: dests.index("fault")]), dests
+        assert fault_t - unplugged < 2.0
         print(
             f"pty: unplug to bus_lost {(lost['t'] - unplugged) * 1e3:.1f} ms, to fault "
             f"{(fault_t - unplugged) * 1e3:.1f} ms (wall)"

@@ -23,6 +23,7 @@ from daemon.zenoh_session import addressed, session_config
 from recorder import read_messages
 from tests.daemon.conftest import free_port
 from tests.daemon.daemons import ask, cli, daemon, robot_config, router, until_state
+from wire.messages import Gripper, Joints, State, convert
 
 ONLY_FLEET_VERBS = "(only status and estop may go to every robot at once)"
 REFUSED_MANY = f"addressed to many robots is refused: name one robot {ONLY_FLEET_VERBS}"
@@ -229,12 +230,13 @@ def test_the_monitor_screen_keeps_the_last_events_and_fits_80_columns() -> None:
     }
     view = watch.robot("r1")
     view.values = {
-        "state": long_state,
-        "joints": {
-            "names": ["shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn"],
-            "position_rad": [0.0, -1.4, 2.0, 1.0, -1.5708],
-        },
-        "gripper": {"aperture_m": 0.12, "force_n": None, "holding": False},
+        "state": convert({**long_state, "t": 0.0}, State),
+        "joints": Joints(
+            t=0.0,
+            names=["shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn"],
+            position_rad=[0.0, -1.4, 2.0, 1.0, -1.5708],
+        ),
+        "gripper": Gripper(t=0.0, aperture_m=0.12, force_n=None, holding=False),
     }
     view.alive = True
     for i in range(12):
@@ -255,7 +257,8 @@ def test_the_monitor_screen_keeps_the_last_events_and_fits_80_columns() -> None:
 
 
 def test_a_gone_daemon_is_shown_as_gone_not_as_its_last_state() -> None:
-    view = RobotView(values={"state": {"state": "flip.turn"}}, alive=False, changed_at=0.0)
+    state = State(state="flip.turn", mugs_total=0, mugs_placed=0, t=0.0)
+    view = RobotView(values={"state": state}, alive=False, changed_at=0.0)
     text = panel(view.values, "r1", "tcp/127.0.0.1:3474", alive=view.alive, since=view.changed_at)
     lines = text.splitlines()
     assert lines[1].startswith("daemon GONE at ")

@@ -370,8 +370,9 @@ def test_a_lost_bus_is_reported_once_and_every_access_fails_at_once_until_replug
         for _ in range(5):
             with pytest.raises(BusLost):
                 await chain.call(lambda bus: bus.read_states(IDS))
-        # no waits for a re-enumerating adapter: five accesses take far less than one 50 ms retry pause
-        assert wall_seconds() - started < 0.05
+        # No waits for a re-enumerating adapter: a 50 ms retry pause per access would take 0.25 s. The bound
+        # leaves the rest to a loaded machine, which stalls a thread for tens of milliseconds at times.
+        assert wall_seconds() - started < 0.2
         assert chain.bus.lost
         assert [e.kind for e in ev] == ["bus_lost"]
         sim.replug()

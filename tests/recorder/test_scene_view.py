@@ -101,11 +101,15 @@ def test_one_entity_per_detected_mug_coloured_by_type_and_marked_when_upside_dow
 
 def test_the_grasped_mug_moves_with_the_gripper_then_stays_where_it_was_set_down() -> None:
     view = scene_view(load_config())
-    q: dict[str, Any] = {"names": list(JOINTS), "position_rad": [0.3, -0.8, 1.6, 0.4, -1.57]}
+    q: dict[str, Any] = {"t": 0.0, "names": list(JOINTS), "position_rad": [0.3, -0.8, 1.6, 0.4, -1.57]}
     view.derive("dishbot/r1/joints", q, T)
-    view.derive("dishbot/r1/state", {"state": "side_grasp.close", "current_mug": "m1"}, T)
+    view.derive(
+        "dishbot/r1/state",
+        {"state": "side_grasp.close", "mugs_total": 1, "mugs_placed": 0, "current_mug": "m1", "t": 0.0},
+        T,
+    )
     view.derive("dishbot/r1/detections", {"t": 0.0, "mugs": [detection("m1", "big", 0.3, 0.45)]}, T)
-    out = by_topic(view.derive("dishbot/r1/gripper", {"aperture_m": 0.09, "holding": True}, T + 1))
+    out = by_topic(view.derive("dishbot/r1/gripper", {"t": 0.0, "aperture_m": 0.09, "holding": True}, T + 1))
     (carried,) = out["/scene/mugs"].entities
     assert carried.frame_id == "gripper_link"
     assert carried.frame_locked
@@ -115,9 +119,9 @@ def test_the_grasped_mug_moves_with_the_gripper_then_stays_where_it_was_set_down
     world_gripper = arm.world_from("gripper_link", dict(zip(JOINTS, q["position_rad"], strict=True)))
     p = carried.cylinders[0].pose.position
     assert (world_gripper @ np.array([p.x, p.y, p.z, 1.0]))[:3] == pytest.approx([0.3, 0.45, 0.053])
-    moved: dict[str, Any] = {"names": list(JOINTS), "position_rad": [-0.9, -0.8, 1.6, 0.4, -1.57]}
+    moved: dict[str, Any] = {"t": 0.0, "names": list(JOINTS), "position_rad": [-0.9, -0.8, 1.6, 0.4, -1.57]}
     view.derive("dishbot/r1/joints", moved, T + 2)
-    out = by_topic(view.derive("dishbot/r1/gripper", {"aperture_m": 0.12, "holding": False}, T + 3))
+    out = by_topic(view.derive("dishbot/r1/gripper", {"t": 0.0, "aperture_m": 0.12, "holding": False}, T + 3))
     (loose,) = out["/scene/mugs"].entities
     assert loose.frame_id == "world"
     assert loose.texts[0].text == "m1 (set down)"
@@ -254,3 +258,17 @@ def test_the_foxglove_layout_in_docs_shows_channels_the_recordings_have() -> Non
             topic, field = re.match(r"^([^.]+)\.(\w+)", path["value"]).groups()  # type: ignore[union-attr]
             assert topic.startswith("dishbot/dishbot/")  # the default robot_id
             assert field in schema_for(topic)["properties"]  # type: ignore[operator]
+
+
+def test_the_status_label_shows_the_counts_as_the_state_message_has_them() -> None:
+    view = scene_view(load_config())
+    state = {"state": "flip.turn", "mugs_total": 5, "mugs_planned": 4, "mugs_placed": 1, "t": 0.0}
+    out = by_topic(view.derive("dishbot/r1/state", {**state, "mugs_failed": 0, "current_mug": "m3"}, T))
+    assert out["/scene/status"].entities[0].texts[0].text == "flip.turn  placed 1/4  failed 0  mug m3"
+    # counts the message leaves out are shown as 0; a message that is not a state is refused, naming the field
+    out = by_topic(
+        view.derive("dishbot/r1/state", {"state": "done", "mugs_total": 5, "mugs_placed": 4, "t": 1.0}, T)
+    )
+    assert out["/scene/status"].entities[0].texts[0].text == "done  placed 4/0  failed 0"
+    with pytest.raises(ValueError, match="state: mugs_placed: missing"):
+        view.derive("dishbot/r1/state", {"state": "done", "mugs_total": 5, "t": 1.0}, T)

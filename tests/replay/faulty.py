@@ -8,18 +8,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from daemon.app import RunOptions, RunResult, ServeContext, ServeHooks, serve
+from daemon.app import RunResult, ServeContext
 from daemon.backend import Backend, CounterMug, SimOptions
 from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import Config, load_config
 from daemon.job import StartRequest
-from daemon.sdnotify import SdNotifier
-from perception import associate
 from planning.placement import cell_dataset_problem
 from recorder import read_messages
 from replay.faults import FaultInjector, FaultSpec, parse_faults
-from tests.daemon.conftest import free_port
+from tests.fakes.daemon import serve_daemon
 
 ROBOT = "ft"
 
@@ -90,13 +88,7 @@ def run_with_faults(
     injector = FaultInjector(faults, on_fire=on_fire)
     published: list[tuple[str, dict[str, object]]] = []
     request = StartRequest(mugs=counter_mugs(config, mugs)) if once else None
-    options = RunOptions(
-        listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path / "rec", once=request
-    )
-    if prepare:
-        options = injector.prepare(options)
     clock = SimulatedClock()
-    stop = asyncio.Event()
     opened: list[Backend] = []
 
     def tap(topic: str, payload: Mapping[str, object]) -> None:
@@ -124,24 +116,29 @@ def run_with_faults(
                     if stop_when(live):
                         break
                     await ctx.clock.sleep(0.5)
-                stop.set()
+                ctx.stop.set()
 
             asyncio.get_running_loop().create_task(stop_once())
         if stop_after_s is not None:
 
             async def stop_later() -> None:
                 await ctx.clock.sleep(stop_after_s)
-                stop.set()
+                ctx.stop.set()
 
             asyncio.get_running_loop().create_task(stop_later())
 
     async def run() -> RunResult:
         backend = await open_backend(config, sim=SimOptions(world=world, seed=0), clock=clock)
         opened.append(backend)
-        hooks = ServeHooks(on_publish=(injector.on_publish, tap), on_ready=ready)
         try:
-            return await serve(
-                config, backend, associate, options, notifier=SdNotifier(None), stop=stop, hooks=hooks
+            return await serve_daemon(
+                config,
+                backend,
+                tmp_path / "rec",
+                once=request,
+                on_publish=(injector.on_publish, tap),
+                on_ready=ready,
+                prepare=injector.prepare if prepare else None,
             )
         finally:
             injector.close()

@@ -246,6 +246,13 @@ BOTH_CELLS = (
         ("servo_fault", "fault:voltage"),
     ),
     Kind(
+        "4 servo silent once (10 ms), bridged by the retries",
+        _file(kind="servo_silent", servo=4, at_state="flip.transit", duration_s=0.01),
+        "done",
+        (),
+        ("servo_fault", "fault"),
+    ),
+    Kind(
         "4 servo silent for good",
         _file(kind="servo_silent", servo=4, at_state="flip.transit"),
         "fault",
@@ -375,8 +382,9 @@ def outcome(run: FaultRun) -> tuple[str, tuple[str, ...], str]:
     return run.result.end_state, kinds, str(faults[0]["reason"]) if faults else ""
 
 
-@pytest.mark.parametrize("world", ["kinematic", pytest.param("mujoco", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("world", ["kinematic", "mujoco"])
 @pytest.mark.parametrize("kind", BOTH_CELLS, ids=[k.name for k in BOTH_CELLS])
+@pytest.mark.slow
 def test_each_fault_kind_ends_alike_on_both_cells(kind: Kind, world: str, tmp_path: Path) -> None:
     run = run_with_faults(tmp_path, kind.text, world=world, mugs=kind.mugs)
     assert [o.fired for o in run.injector.outcomes()] == [True], run.injector.outcomes()

@@ -14,18 +14,20 @@ from pathlib import Path
 
 import pytest
 
-from daemon.app import RunOptions, ServeContext, serve
+from daemon.app import ServeContext
 from daemon.clock import SimulatedClock
+from daemon.config import Config
 from daemon.errors import UsageError
-from daemon.sdnotify import SdNotifier
 from daemon.sim_backend import KinematicCounter
 from drivers.sim.camera import FaultyCamera
-from perception import associate
 from replay.faults import FaultInjector, FaultSpec, parse_faults
 from sim.kinematic import KinematicCell, KinematicWorld
-from tests.daemon.conftest import free_port
+from tests.fakes.daemon import serve_daemon
 from tests.fakes.job import make_backend, make_world
 from tests.replay.faulty import FaultRun, robot_config, run_with_faults
+
+# Every test here starts a daemon on a simulated cell.
+pytestmark = pytest.mark.slow
 
 FULL_JOB = [
     "detect",
@@ -64,6 +66,12 @@ def injected(run: FaultRun, kind: str, state: str) -> Mapping[str, object]:
     return run.injector.fired[0]
 
 
+def rect_plan_config() -> Config:
+    """The scenarios that name which counter mug the job picks first were written for the rectangle plan's
+    order (m2, then m1); the mug-shaped plan (the default footprint) picks them the other way round."""
+    return robot_config(planner={"method": "bh", "footprint": "rect"})
+
+
 def test_an_arm_servo_overload_in_the_turn_faults_the_job_naming_the_servo(tmp_path: Path) -> None:
     run = run_with_faults(tmp_path, '[[fault]]\nkind = "servo_overload"\nservo = 3\nat_state = "flip.turn"\n')
     assert injected(run, "servo_overload", "flip.turn")["servo"] == 3
@@ -82,7 +90,6 @@ def test_an_arm_servo_overload_in_the_turn_faults_the_job_naming_the_servo(tmp_p
     assert cell(run).servo_sim.servo(3).get("torque_limit") == 0  # the 1.0 servo's own shutdown
 
 
-@pytest.mark.slow
 def test_a_gripper_overload_while_closing_is_recovered_and_the_job_goes_on(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path,
@@ -155,7 +162,6 @@ def test_a_silent_servo_is_a_bus_timeout_naming_it(tmp_path: Path) -> None:
     )
 
 
-@pytest.mark.slow
 def test_a_little_line_noise_is_retried_and_the_job_finishes(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path, '[[fault]]\nkind = "bus_corrupt"\nrate = 0.01\nseed = 3\nat_s = 0\nduration_s = 30\n'
@@ -195,7 +201,6 @@ def test_an_unplugged_servo_bus_faults_the_idle_daemon_and_is_back_once_replugge
     assert run.result.end_state == "fault"  # only reset leaves fault
 
 
-@pytest.mark.slow
 def test_a_briefly_unplugged_force_sensor_while_carrying_is_forgiven(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path,
@@ -206,7 +211,6 @@ def test_a_briefly_unplugged_force_sensor_while_carrying_is_forgiven(tmp_path: P
     assert run.result.end_state == "done"  # back within the job's grace
 
 
-@pytest.mark.slow
 def test_the_force_dropping_while_carrying_recovers_the_lost_mug(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path,
@@ -219,7 +223,6 @@ def test_the_force_dropping_while_carrying_recovers_the_lost_mug(tmp_path: Path)
     assert run.result.end_state == "done"
 
 
-@pytest.mark.slow
 def test_a_force_spike_is_one_raw_sample_the_filter_keeps_out(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path, '[[fault]]\nkind = "fsr_spike"\nvalue_n = 30\nat_state = "side_grasp.close"\n'
@@ -260,7 +263,6 @@ def test_a_camera_sending_no_frame_for_good_faults_after_the_retries(tmp_path: P
     assert fault_t == pytest.approx(float(str(run.event("fault_injected")["t"])) + 3.0)
 
 
-@pytest.mark.slow
 def test_a_stale_camera_faults_the_job_instead_of_showing_placed_mugs(tmp_path: Path) -> None:
     run = run_with_faults(tmp_path, '[[fault]]\nkind = "camera_stale"\nat_state = "detect"\noccurrence = 2\n')
     injected(run, "camera_stale", "detect")
@@ -275,7 +277,6 @@ def test_a_bad_frame_is_refused_by_the_frame_checks_and_faults_the_job(tmp_path:
     assert run.event("fault")["reason"] == "camera: bad frame (NaN depth)"
 
 
-@pytest.mark.slow
 def test_a_camera_hang_that_ends_within_a_retry_lets_the_job_finish(tmp_path: Path) -> None:
     run = run_with_faults(tmp_path, '[[fault]]\nkind = "camera_hang"\nat_state = "detect"\nduration_s = 3\n')
     assert run.injector.fired[0]["ended_at_s"] == 3.0
@@ -293,13 +294,14 @@ def test_a_camera_hang_for_good_faults_at_the_frame_timeout(tmp_path: Path) -> N
     assert fault_t == pytest.approx(float(str(run.event("fault_injected")["t"])) + 6.0)
 
 
-@pytest.mark.slow
 def test_a_slipping_mug_really_falls_and_is_recovered(tmp_path: Path) -> None:
     run = run_with_faults(
-        tmp_path, '[[fault]]\nkind = "mug_slip"\nat_state = "flip.transit"\nafter_s = 0.5\n'
+        tmp_path,
+        '[[fault]]\nkind = "mug_slip"\nat_state = "flip.transit"\nafter_s = 0.5\n',
+        config=rect_plan_config(),
     )
     fired = injected(run, "mug_slip", "flip.transit")
-    assert fired["world_mug"] == "m2"  # the world's mug that was carried
+    assert fired["world_mug"] == "m2"  # the world's mug that was carried (first in the rectangle plan)
     # ... named in the event by the job's id, as the job's own events name it
     assert fired["mug"] == run.event("mug_dropped")["mug_id"]
     assert run.event("mug_dropped")["state"] == "flip.transit"
@@ -309,10 +311,11 @@ def test_a_slipping_mug_really_falls_and_is_recovered(tmp_path: Path) -> None:
     assert run.result.summary.drops == 1
 
 
-@pytest.mark.slow
 def test_a_mug_moved_while_the_arm_works_elsewhere_is_moved_in_the_world(tmp_path: Path) -> None:
     run = run_with_faults(
-        tmp_path, '[[fault]]\nkind = "mug_moved"\nat_state = "side_grasp.lift"\ndx_m = 0.05\ndy_m = -0.01\n'
+        tmp_path,
+        '[[fault]]\nkind = "mug_moved"\nat_state = "side_grasp.lift"\ndx_m = 0.05\ndy_m = -0.01\n',
+        config=rect_plan_config(),  # m2 is picked first, m1 waits on the counter
     )
     fired = injected(run, "mug_moved", "side_grasp.lift")
     assert (fired["world_mug"], fired["dx_m"], fired["dy_m"]) == ("m1", 0.05, -0.01)
@@ -362,7 +365,6 @@ def test_a_full_disk_costs_only_what_came_while_it_was_full_and_the_job_carries_
     assert run.states[-1] == "done"
 
 
-@pytest.mark.slow
 def test_a_loop_stall_blocks_the_loop_for_its_wall_time(tmp_path: Path) -> None:
     gaps: list[float] = []
     last = [time.perf_counter()]
@@ -395,7 +397,6 @@ def test_sigterm_stops_the_daemon_mid_job_and_finishes_the_recording(tmp_path: P
     assert run.logs("daemon_stopping")
 
 
-@pytest.mark.slow
 def test_two_faults_in_one_file_fire_in_their_order(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path,
@@ -442,14 +443,16 @@ def test_the_on_fire_callback_runs_just_before_the_fault_takes_effect(tmp_path: 
 
 def test_device_faults_on_a_backend_without_a_simulated_cell_are_refused_at_attach(tmp_path: Path) -> None:
     faults = parse_faults('[[fault]]\nkind = "fsr_drop"\nat_s = 1\n', source="f.toml")
-    injector = FaultInjector(faults)
-    options = RunOptions(listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(), record_dir=tmp_path / "rec")
+    hooks = FaultInjector(faults).hooks()
 
     async def run() -> None:
-        await serve(
-            robot_config(), make_backend(make_world(1)), associate, options, notifier=SdNotifier(None),
-            hooks=injector.hooks(),
-        )  # fmt: skip
+        await serve_daemon(
+            robot_config(),
+            make_backend(make_world(1)),
+            tmp_path / "rec",
+            on_publish=hooks.on_publish,
+            on_ready=hooks.on_ready,
+        )
 
     with pytest.raises(UsageError) as refused:
         SimulatedClock().run(run())
@@ -462,13 +465,15 @@ def test_device_faults_on_a_backend_without_a_simulated_cell_are_refused_at_atta
 def test_mug_moved_names_the_mug_by_the_jobs_id_and_a_move_it_cannot_make_does_not_fire(
     tmp_path: Path,
 ) -> None:
-    # The job picks its m2 first: while it lifts it, its m1 is moved; m2 is in the gripper, not on the
-    # counter; and 0.9 m would put a mug off the counter.
+    # The job picks its m2 first (the rectangle plan's order: the scenario pins the footprint): while it
+    # lifts it, its m1 is moved; m2 is in the gripper, not on the counter; and 0.9 m would put a mug off the
+    # counter.
     run = run_with_faults(
         tmp_path,
         '[[fault]]\nkind = "mug_moved"\nmug = "m1"\nat_state = "side_grasp.lift"\ndx_m = -0.03\n\n'
         '[[fault]]\nkind = "mug_moved"\nmug = "m2"\nat_state = "side_grasp.lift"\ndx_m = 0.03\n\n'
         '[[fault]]\nkind = "mug_moved"\nat_state = "side_grasp.lift"\ndx_m = 0.9\n',
+        config=rect_plan_config(),
     )
     looks = [p["mugs"] for t, p in run.recorded if t.endswith("/detections")]
     assert all(isinstance(look, list) for look in looks)

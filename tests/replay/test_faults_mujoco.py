@@ -15,6 +15,9 @@ from daemon.sim_backend import MujocoCounter
 from sim.mujoco.cell import SimCell
 from tests.replay.faulty import FaultRun, run_with_faults
 
+# Every test here starts a daemon on a simulated cell.
+pytestmark = pytest.mark.slow
+
 
 def cell(run: FaultRun) -> SimCell:
     counter = run.backend.counter
@@ -22,7 +25,6 @@ def cell(run: FaultRun) -> SimCell:
     return counter.cell
 
 
-@pytest.mark.slow
 def test_an_overheated_elbow_in_the_turn_is_the_drivers_servo_fault(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path,
@@ -90,7 +92,6 @@ def test_a_low_supply_sets_the_voltage_register_and_bit_while_the_job_runs(tmp_p
     assert warning["servo"] == 4
 
 
-@pytest.mark.slow
 def test_a_silent_force_sensor_while_carrying_is_stale_and_faults(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path, '[[fault]]\nkind = "fsr_silent"\nat_state = "flip.transit"\n', world="mujoco", mugs=1
@@ -123,7 +124,6 @@ def test_a_bad_frame_reaches_the_depth_detector_which_refuses_it(tmp_path: Path)
     assert run.event("fault")["reason"] == "camera: bad frame (NaN depth)"  # refused before the detector
 
 
-@pytest.mark.slow
 def test_a_slipping_mug_falls_out_of_the_physics_gripper_and_the_fsr_sees_it(tmp_path: Path) -> None:
     run = run_with_faults(
         tmp_path,

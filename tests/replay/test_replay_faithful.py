@@ -34,6 +34,7 @@ from replay.session import RecordedSession
 from tests.daemon.conftest import free_port
 from tests.replay.conftest import THREE_MUGS, copy_recording
 from tests.replay.faulty import counter_mugs, robot_config, run_with_faults
+from wire.messages import Failure, convert
 
 OVERLOAD = '[[fault]]\nkind = "servo_overload"\nservo = 3\nat_state = "flip.turn"\n'
 UNPLUG = '[[fault]]\nkind = "bus_unplug"\nat_state = "flip.transit"\nduration_s = 5\n'
@@ -318,7 +319,7 @@ def test_a_recorded_driver_error_is_raised_again_as_itself(
     from daemon.backend import failure_fields
 
     fields = failure_fields(error)
-    again = recorded_failure(str(fields["error"]), fields)
+    again = recorded_failure(str(fields["error"]), convert(fields, Failure))
     assert type(again) is type(error)
     assert str(again) == str(error)
     for key in ("servo_id", "bits", "port"):

@@ -131,7 +131,7 @@ def test_publishing_after_the_session_closed_is_recorded_only_and_closing_twice_
     written: list[str] = []
 
     class Sink:
-        def write(self, topic: str, payload: object, *, log_time_ns: int) -> None:
+        def write(self, topic: str, payload: object, *, log_time_ns: int, data: bytes | None = None) -> None:
             written.append(topic)
 
     session.attach_recorder(Sink(), lambda: 0)  # type: ignore[arg-type]

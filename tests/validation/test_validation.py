@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 import msgspec
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from validation import NON_EMPTY, Invalid, OneOf, above, convert, within
+from validation import FINITE, NON_EMPTY, UNKNOWN_KEYS_IGNORED, Invalid, OneOf, above, convert, within
 
 
 @dataclass(frozen=True, slots=True)
@@ -150,3 +150,53 @@ def test_a_trailing_newline_is_not_part_of_a_valid_name() -> None:
     body = b'{"mugs": [{"id": "m1\\n", "type": "big", "x_m": 0.1, "y_m": 0.4}]}'
     with pytest.raises(BadCommand, match=r"^mugs\[0\]\.id: expected 1-32 letters"):
         parse("start", body, load_config())
+
+
+@dataclass(frozen=True, slots=True)
+class Lenient:
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
+    x: Annotated[float, FINITE]
+
+
+@dataclass(frozen=True, slots=True)
+class Strict:
+    lenient: Lenient
+    items: tuple[Lenient, ...] = ()
+
+
+def test_a_shape_may_pass_over_keys_it_does_not_declare_where_its_format_always_has() -> None:
+    assert convert({"lenient": {"x": 1, "colour": "red"}, "items": [{"x": 2, "y": 3}]}, Strict) == Strict(
+        Lenient(1.0), (Lenient(2.0),)
+    )
+    with pytest.raises(Invalid, match=r"^colour: unknown key in the problem \(known keys: items, lenient\)$"):
+        convert({"lenient": {"x": 1}, "colour": "red"}, Strict, root="the problem")
+
+
+@pytest.mark.parametrize(
+    ("x", "message"),
+    [
+        (math.inf, "lenient.x: expected a finite number, got inf"),
+        (-math.inf, "lenient.x: expected a finite number, got -inf"),
+        (math.nan, "lenient.x: expected a finite number, got nan"),
+        ("north", "lenient.x: expected a finite number, got 'north'"),
+        (None, "lenient.x: expected a finite number, got None"),
+    ],
+)
+def test_a_finite_number_refuses_infinity_nan_and_other_types(x: object, message: str) -> None:
+    with pytest.raises(Invalid) as info:
+        convert({"lenient": {"x": x}}, Strict)
+    assert str(info.value) == message
+    assert convert({"lenient": {"x": -1e300}}, Strict).lenient.x == -1e300
+
+
+def test_a_wrong_value_at_the_top_is_named_by_the_root() -> None:
+    with pytest.raises(Invalid, match=r"^the problem: expected a table, got a list$"):
+        convert([1, 2], Strict, root="the problem")
+    with pytest.raises(Invalid, match=r"^the top level: expected a table, got 3$"):
+        convert(3, Strict)
+
+
+def test_the_public_names_are_the_modules_own() -> None:
+    import validation
+
+    assert all(hasattr(validation, name) for name in validation.__all__)

@@ -26,7 +26,7 @@ def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
 
 
 def test_dataset_plan_prints_json_with_the_proven_optimum(capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, _ = run(capsys, "--dataset", "2", "--json")
+    code, out, _ = run(capsys, "--dataset", "2", "--footprint", "rect", "--json")
     assert code == 0
     doc = json.loads(out)
     assert (doc["n"], doc["optimal"], doc["upper_bound"], doc["method"]) == (8, True, 8, "auto")
@@ -45,7 +45,8 @@ def test_problem_file_with_the_documented_format_plans_around_the_mug_on_the_tra
 
 
 def test_summary_names_what_is_left_on_the_counter(capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, _ = run(capsys, "--dataset", "1", "--method", "bh", "--heuristic", "tlf", "--sort", "cif")
+    rect = ("--dataset", "1", "--footprint", "rect")
+    code, out, _ = run(capsys, *rect, "--method", "bh", "--heuristic", "tlf", "--sort", "cif")
     assert code == 0
     expected = plan(
         cell_dataset_problem(load_config().cell, 1),
@@ -57,7 +58,7 @@ def test_summary_names_what_is_left_on_the_counter(capsys: pytest.CaptureFixture
 
 def test_pictures_are_written(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     svg, png = tmp_path / "plan.svg", tmp_path / "plan.png"
-    code, _, _ = run(capsys, "--dataset", "6", "--svg", str(svg), "--png", str(png))
+    code, _, _ = run(capsys, "--dataset", "6", "--footprint", "rect", "--svg", str(svg), "--png", str(png))
     assert code == 0
     assert svg.read_text().startswith("<svg ")
     assert svg.read_text().count("<circle") == 23
@@ -81,12 +82,12 @@ def test_pictures_are_written(tmp_path: Path, capsys: pytest.CaptureFixture[str]
         (
             json.dumps({**EXAMPLE, "tray": {"size_mm": [475, -5]}}),
             [],
-            "{path}: tray.size_mm[1]: must be positive, got -5",
+            "{path}: tray.size_mm[1]: -5 is out of range; allowed (0, 10000] mm",
         ),
         (
             json.dumps({**EXAMPLE, "tray": {"size_mm": ["wide", 520]}}),
             [],
-            "{path}: tray.size_mm[0]: expected a number, got a string ('wide')",
+            "{path}: tray.size_mm[0]: expected a number in (0, 10000] mm, got 'wide'",
         ),
         (
             json.dumps({**EXAMPLE, "tray": {"size_mm": [100, 100]}}),

@@ -184,6 +184,22 @@ def test_mug_shapes_place_more_than_the_rectangle_optimum_on_the_robot_tray(n: i
     assert mug.notes[0].startswith(f"mug-shaped: {rect.n} from the rectangle layout, {mug.n} after ")
 
 
+# Issue 24's targets (10 mm clearance, handles as the arm turns them) where the placer reaches them at seed 0:
+# 12 on dataset 1 is not reached (11; docs/placement.md says why).
+MUG_COUNTS = {1: 11, 2: 11, 3: 12, 4: 23, 5: 25, 6: 26}
+
+
+@pytest.mark.parametrize("n", sorted(MUG_COUNTS))
+@pytest.mark.slow
+def test_mug_shapes_reach_the_counts_of_issue_24_on_every_dataset(n: int) -> None:
+    rect_problem = dataset_problem(n)
+    problem = replace(rect_problem, footprint_kind="mug")
+    # A generous budget: the fixed number of packings decides, not this machine's speed.
+    mug = plan(problem, PlanOptions(time_limit_s=10.0))
+    assert mug.n >= max(MUG_COUNTS[n], plan(rect_problem, PlanOptions()).n)
+    assert_valid_layout(problem, mug)
+
+
 @pytest.mark.slow
 def test_a_seed_repeats_a_mug_shaped_plan_exactly() -> None:
     problem = replace(dataset_problem(2), footprint_kind="mug")
@@ -230,13 +246,11 @@ def test_the_outline_area_is_the_disc_plus_the_handle_beyond_it() -> None:
 
 def test_a_problem_file_names_a_bad_footprint_and_its_handle_yaws() -> None:
     doc: dict[str, object] = {"tray": {"size_mm": [332, 374]}, "mugs": [], "footprint": "round"}
-    with pytest.raises(
-        InvalidProblem, match=r"^footprint: expected one of rect, mug, got a string \('round'\)$"
-    ):
+    with pytest.raises(InvalidProblem, match=r"^footprint: 'round' is not one of rect, mug$"):
         Problem.from_json(doc)
     doc["footprint"] = "mug"
     doc["mugs"] = [{"id": "m1", "type": "big", "x_mm": 0, "y_mm": 400, "handle_yaw_rad": "left"}]
-    with pytest.raises(InvalidProblem, match=r"^mugs\[0\].handle_yaw_rad: expected a number, got a string"):
+    with pytest.raises(InvalidProblem, match=r"^mugs\[0\].handle_yaw_rad: expected a finite number, got '"):
         Problem.from_json(doc)
     doc["mugs"] = [{"id": "m1", "type": "big", "x_mm": 0, "y_mm": 400, "handle_yaw_rad": 1.5}]
     problem = Problem.from_json(doc)

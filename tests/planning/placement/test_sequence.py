@@ -17,7 +17,7 @@ from planning.arm import ArmModel
 from planning.arm.grasp import handle_facing_away_rad
 from planning.interfaces import MugPose, TraySlot
 from planning.motion import CyclePlanner
-from planning.placement import PlanOptions, cell_dataset_problem
+from planning.placement import PlanOptions, PlanResult, Problem, cell_dataset_problem, plan
 from planning.placement.checked import plan_with_arm
 from planning.placement.sequence import reach, sequence
 
@@ -94,3 +94,27 @@ def test_every_checked_cycle_plans_as_the_job_asks_for_it(planner: CyclePlanner,
         q = tuple(float(v) for v in moves[-1].positions[-1])
     # What stays on the counter is what the plan said it would leave: unplaced or out of reach.
     assert set(left) == set(result.unplaced) | {m.mug_id for m in checked.left_out}
+
+
+@pytest.mark.slow
+def test_a_mug_shaped_round_that_drops_a_slot_is_packed_again_with_rectangles(planner: CyclePlanner) -> None:
+    config = load_config()
+    whole = dataclasses.replace(cell_dataset_problem(config.cell, 1), footprint_kind="mug")
+    problem = dataclasses.replace(whole, mugs=whole.mugs[:2])
+    counter = [_mug(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs]
+    # A mug on the tray the packer is not told of, where the mug-shaped plan puts its first mug: that
+    # slot's cycle hits it, so the round drops the slot.
+    first = plan(problem, PlanOptions()).slots(problem)[0]
+    stranger = dataclasses.replace(first, mug_id="stranger")
+    asked: list[tuple[str, tuple[str, ...]]] = []
+
+    def packer(p: Problem, o: PlanOptions) -> PlanResult:
+        asked.append((p.footprint_kind, tuple(m.id for m in p.mugs)))
+        return plan(p, o)
+
+    checked = plan_with_arm(
+        problem, PlanOptions(), planner, START_Q, counter, on_tray=[stranger], planner=packer
+    )
+    ids = tuple(m.id for m in problem.mugs)
+    assert asked[:2] == [("mug", ids), ("rect", ids)]
+    assert checked.rounds >= 2

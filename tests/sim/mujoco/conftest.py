@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import TypeAlias
 
 import numpy as np
@@ -162,3 +163,38 @@ HandFor = Callable[[SimWorld], "Hand"]
 @pytest.fixture
 def hand_for(arm_model: ArmModel) -> HandFor:
     return lambda world: Hand(world, arm_model)
+
+
+@dataclass
+class OneMug:
+    """A world with one mug ``"a"`` standing on the counter facing the arm, and the hand that picks it."""
+
+    world: SimWorld
+    hand: Hand
+    mug: SceneMug
+
+    def grip(self) -> np.ndarray:
+        """Approach the mug and close on it until the pads press 2 N; the grasp's joint angles."""
+        q = self.hand.grasp(self.mug.spec, self.mug.x_m, self.mug.y_m)
+        assert self.hand.close_until(2.0)
+        return q
+
+    def lift(self, q: Vector, *, z_m: float) -> np.ndarray:
+        """From the grasp ``q`` straight up to the side grasp at height ``z_m``; the joint angles there."""
+        g = side_grasp(self.mug.x_m, self.mug.y_m, self.mug.spec, self.hand.model.gripper, z_m=z_m)
+        return self.hand.lift_to(g.target.position_m, GraspKind.SIDE, q)
+
+
+OneMugFactory = Callable[[MugSpec], OneMug]
+
+
+@pytest.fixture
+def one_mug(make_world: WorldFactory, hand_for: HandFor) -> OneMugFactory:
+    """``one_mug(spec)``: a fresh ``OneMug`` world, the mug at (0.24, 0.40) m, in the arm's easy reach."""
+
+    def build(spec: MugSpec) -> OneMug:
+        mug = mug_facing_arm("a", spec, 0.24, 0.40)
+        world = make_world([mug])
+        return OneMug(world, hand_for(world), mug)
+
+    return build

@@ -8,24 +8,18 @@ import math
 import numpy as np
 
 from description.thesis import SMALL_MUG
-from planning.arm.grasp import side_grasp
-from planning.arm.targets import GraspKind
 from sim.mujoco.arm import ArmMjcf
 from sim.mujoco.scene import build_mjcf
 from sim.mujoco.world import HeldMug, SimWorld
-from tests.sim.mujoco.conftest import GRIPPER_ID, HandFor, WorldFactory, cell_layout, mug_facing_arm
+from tests.sim.mujoco.conftest import GRIPPER_ID, OneMugFactory, cell_layout
 
 
 def test_a_mug_put_in_the_gripper_stays_where_a_real_grasp_held_it(
-    make_world: WorldFactory, hand_for: HandFor, arm_mjcf: ArmMjcf
+    one_mug: OneMugFactory, arm_mjcf: ArmMjcf
 ) -> None:
-    mug = mug_facing_arm("a", SMALL_MUG, 0.24, 0.40)
-    world = make_world([mug])
-    hand = hand_for(world)
-    q = hand.grasp(mug.spec, mug.x_m, mug.y_m)
-    assert hand.close_until(2.0)
-    g = side_grasp(mug.x_m, mug.y_m, mug.spec, hand.model.gripper, z_m=0.22)
-    hand.lift_to(g.target.position_m, GraspKind.SIDE, q)
+    cell = one_mug(SMALL_MUG)
+    world, mug = cell.world, cell.mug
+    cell.lift(cell.grip(), z_m=0.22)
     world.step_for(1.0)
     grasped = world.mug_truths()["a"]
     assert grasped.held

@@ -19,7 +19,13 @@ from planning.arm.targets import GraspKind
 from sim.mujoco.arm import ArmMjcf, build_arm_mjcf, load_urdf, parse_urdf
 from sim.mujoco.errors import SimModelError, SimWorldStopped
 from sim.mujoco.world import PhysicsConfig, SimWorld
-from tests.sim.mujoco.conftest import ARM_IDS, GRIPPER_ID, HandFor, WorldFactory, mug_facing_arm
+from tests.sim.mujoco.conftest import (
+    ARM_IDS,
+    GRIPPER_ID,
+    OneMugFactory,
+    WorldFactory,
+    mug_facing_arm,
+)
 
 
 def test_physics_arm_puts_the_grasp_point_where_the_planner_says(
@@ -74,18 +80,15 @@ def test_goals_are_clamped_to_the_joint_limits(make_world: WorldFactory, arm_mjc
 
 @pytest.mark.parametrize("spec", [BIG_MUG, SMALL_MUG], ids=["big", "small"])
 def test_closed_grasp_lifts_the_mug_welded_once_free_and_the_force_reading_rises(
-    make_world: WorldFactory, hand_for: HandFor, spec: MugSpec
+    one_mug: OneMugFactory, spec: MugSpec
 ) -> None:
-    mug = mug_facing_arm("a", spec, 0.24, 0.40)
-    world = make_world([mug])
-    hand = hand_for(world)
+    cell = one_mug(spec)
+    world = cell.world
     assert world.gripper_force_n() == 0.0
-    q = hand.grasp(mug.spec, mug.x_m, mug.y_m)
-    assert hand.close_until(2.0)
+    q = cell.grip()
     assert world.gripper_force_n() > 1.5
     assert world.held_mug is None  # standing on the counter: friction only, no weld yet
-    g = side_grasp(mug.x_m, mug.y_m, mug.spec, hand.model.gripper, z_m=0.22)
-    hand.lift_to(g.target.position_m, GraspKind.SIDE, q)
+    cell.lift(q, z_m=0.22)
     world.step_for(1.0)
     truth = world.mug_truths()["a"]
     assert truth.held
@@ -94,34 +97,22 @@ def test_closed_grasp_lifts_the_mug_welded_once_free_and_the_force_reading_rises
     assert world.gripper_force_n() > 1.5
 
 
-def test_opening_the_gripper_drops_the_mug_and_the_force_falls(
-    make_world: WorldFactory, hand_for: HandFor
-) -> None:
-    mug = mug_facing_arm("a", SMALL_MUG, 0.24, 0.40)
-    world = make_world([mug])
-    hand = hand_for(world)
-    q = hand.grasp(mug.spec, mug.x_m, mug.y_m)
-    assert hand.close_until(2.0)
-    g = side_grasp(mug.x_m, mug.y_m, mug.spec, hand.model.gripper, z_m=0.2)
-    hand.lift_to(g.target.position_m, GraspKind.SIDE, q)
+def test_opening_the_gripper_drops_the_mug_and_the_force_falls(one_mug: OneMugFactory) -> None:
+    cell = one_mug(SMALL_MUG)
+    world = cell.world
+    cell.lift(cell.grip(), z_m=0.2)
     lifted = world.mug_truths()["a"].position_m[2]
-    hand.open()
+    cell.hand.open()
     assert world.held_mug is None
     assert world.gripper_force_n() == 0.0
     world.step_for(1.0)
     assert world.mug_truths()["a"].position_m[2] < lifted - 0.08
 
 
-def test_injected_slip_drops_the_mug_while_the_gripper_stays_closed(
-    make_world: WorldFactory, hand_for: HandFor
-) -> None:
-    mug = mug_facing_arm("a", BIG_MUG, 0.24, 0.40)
-    world = make_world([mug])
-    hand = hand_for(world)
-    q = hand.grasp(mug.spec, mug.x_m, mug.y_m)
-    assert hand.close_until(2.0)
-    g = side_grasp(mug.x_m, mug.y_m, mug.spec, hand.model.gripper, z_m=0.2)
-    hand.lift_to(g.target.position_m, GraspKind.SIDE, q)
+def test_injected_slip_drops_the_mug_while_the_gripper_stays_closed(one_mug: OneMugFactory) -> None:
+    cell = one_mug(BIG_MUG)
+    world = cell.world
+    cell.lift(cell.grip(), z_m=0.2)
     assert world.slip() == "a"
     world.step_for(1.0)
     assert world.held_mug is None
@@ -131,20 +122,15 @@ def test_injected_slip_drops_the_mug_while_the_gripper_stays_closed(
 
 
 @pytest.mark.parametrize("upside_down", [False, True], ids=["upright", "inverted"])
-def test_mug_released_just_above_the_tray_lands_as_planned(
-    make_world: WorldFactory, hand_for: HandFor, upside_down: bool
-) -> None:
+def test_mug_released_just_above_the_tray_lands_as_planned(one_mug: OneMugFactory, upside_down: bool) -> None:
     spec = SMALL_MUG
-    mug = mug_facing_arm("a", spec, 0.24, 0.40)
-    world = make_world([mug])
-    hand = hand_for(world)
-    q = hand.grasp(spec, mug.x_m, mug.y_m)
-    assert hand.close_until(2.0)
-    carry = side_grasp(mug.x_m, mug.y_m, spec, hand.model.gripper, z_m=0.25)
-    q = hand.lift_to(carry.target.position_m, GraspKind.SIDE, q)
+    cell = one_mug(spec)
+    world, hand, mug = cell.world, cell.hand, cell.mug
+    q = cell.lift(cell.grip(), z_m=0.25)
     kind = GraspKind.SIDE_UPSIDE_DOWN if upside_down else GraspKind.SIDE
-    if upside_down:
-        q = hand.lift_to(carry.target.position_m, kind, q)  # the wrist turns by pi: the mug hangs inverted
+    if upside_down:  # the wrist turns by pi where it is: the mug hangs inverted
+        carry = side_grasp(mug.x_m, mug.y_m, spec, hand.model.gripper, z_m=0.25)
+        q = hand.lift_to(carry.target.position_m, kind, q)
     tray_xy = (0.56, -0.02)  # far enough from the near wall for the wrist to clear it
     tray_base = 0.006
     below_grasp = spec.height_mm / 1000.0 - 0.06 if upside_down else 0.06
@@ -254,17 +240,10 @@ def test_a_world_that_dies_on_the_clock_stops_and_says_so_while_the_clock_goes_o
         world.check_alive()
 
 
-def test_a_fast_carry_reads_a_steady_squeeze_not_a_drop(make_world: WorldFactory, hand_for: HandFor) -> None:
-    mug = mug_facing_arm("a", SMALL_MUG, 0.24, 0.40)
-    world = make_world([mug])
-    hand = hand_for(world)
-    q = hand.grasp(mug.spec, mug.x_m, mug.y_m)
-    assert hand.close_until(2.0)
-    q = hand.lift_to(
-        side_grasp(mug.x_m, mug.y_m, SMALL_MUG, hand.model.gripper, z_m=0.25).target.position_m,
-        GraspKind.SIDE,
-        q,
-    )
+def test_a_fast_carry_reads_a_steady_squeeze_not_a_drop(one_mug: OneMugFactory) -> None:
+    cell = one_mug(SMALL_MUG)
+    world, hand = cell.world, cell.hand
+    q = cell.lift(cell.grip(), z_m=0.25)
     lowest: list[float] = []
     world.add_contact_listener(lambda w, t, c: lowest.append(w.gripper_force_n()) if w.held_mug else None)
     carried = world.gripper_force_n()

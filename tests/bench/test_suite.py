@@ -1,0 +1,220 @@
+"""`dishbot bench suite`: the plugin records every test's outcome, time and slow marker; the bench runs a
+suite in a child pytest and reports its counts, folders and slowest tests."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from bench.suite import SuiteRun, TimedTest, as_json, as_tables, by_directory, counts, run_suite, slowest
+from cli.main import main
+from daemon.errors import UsageError
+
+# A small suite with one test of each outcome, a slow one, and a test module at the top.
+SUITE = {
+    "tests/alpha/test_outcomes.py": """
+        import time
+        import pytest
+
+        @pytest.fixture
+        def broken():
+            raise RuntimeError("no fixture")
+
+        def test_passes():
+            time.sleep(0.05)
+
+        def test_fails():
+            assert 1 == 2
+
+        def test_skips():
+            pytest.skip("not here")
+
+        @pytest.mark.xfail(strict=True)
+        def test_xfails():
+            assert False
+
+        def test_errors(broken):
+            pass
+
+        @pytest.mark.slow
+        def test_slow_passes():
+            pass
+    """,
+    "tests/beta/deeper/test_more.py": """
+        def test_one():
+            pass
+
+        def test_two():
+            pass
+    """,
+    "tests/test_top.py": """
+        def test_top():
+            pass
+    """,
+}
+
+
+def write_suite(root: Path) -> None:
+    (root / "pyproject.toml").write_text(
+        '[tool.pytest.ini_options]\ntestpaths = ["tests"]\nmarkers = ["slow: slow"]\n', encoding="utf-8"
+    )
+    for name, text in SUITE.items():
+        path = root / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(textwrap.dedent(text), encoding="utf-8")
+
+
+def test_the_plugin_records_each_tests_outcome_time_and_slow_marker(pytester: pytest.Pytester) -> None:
+    write_suite(pytester.path)
+    out = pytester.path / "times.json"
+    result = pytester.runpytest_inprocess("-p", "bench.suite_times", f"--suite-times={out}")
+    result.assert_outcomes(passed=5, failed=1, skipped=1, xfailed=1, errors=1)
+    doc = json.loads(out.read_text(encoding="utf-8"))
+    assert doc["exit_status"] == 1
+    tests = {t["nodeid"].rpartition("::")[2]: t for t in doc["tests"]}
+    assert {name: t["outcome"] for name, t in tests.items()} == {
+        "test_passes": "passed",
+        "test_fails": "failed",
+        "test_skips": "skipped",
+        "test_xfails": "xfailed",
+        "test_errors": "error",
+        "test_slow_passes": "passed",
+        "test_one": "passed",
+        "test_two": "passed",
+        "test_top": "passed",
+    }
+    assert [name for name, t in tests.items() if t["slow"]] == ["test_slow_passes"]
+    assert tests["test_passes"]["time_s"] >= 0.05  # its call slept that long
+    assert tests["test_passes"]["nodeid"] == "tests/alpha/test_outcomes.py::test_passes"
+
+
+def test_without_the_option_the_plugin_writes_nothing(pytester: pytest.Pytester) -> None:
+    write_suite(pytester.path)
+    pytester.runpytest_inprocess("-p", "bench.suite_times", "tests/test_top.py").assert_outcomes(passed=1)
+    assert sorted(p.name for p in pytester.path.iterdir() if not p.name.startswith(".")) == [
+        "pyproject.toml",
+        "tests",
+    ]
+
+
+def _t(nodeid: str, time_s: float, outcome: str = "passed", *, slow: bool = False) -> TimedTest:
+    return TimedTest(nodeid, outcome, time_s, slow)
+
+
+RUN = SuiteRun(
+    ("pytest", "-m", "not slow"),
+    1,
+    10.0,
+    4.0,
+    (1.5, 2.5),
+    (
+        _t("tests/replay/test_a.py::test_1", 3.0, slow=True),
+        _t("tests/replay/test_a.py::test_2", 1.0, "failed"),
+        _t("tests/planning/placement/test_b.py::test_3", 2.0),
+        _t("tests/planning/test_c.py::test_4[x-y]", 0.5, "error"),
+        _t("tests/test_readme.py::test_5", 1.5, "skipped"),
+    ),
+)
+
+
+def test_tests_count_by_outcome_and_time_by_their_top_folder() -> None:
+    assert counts(RUN.tests) == {
+        "passed": 2,
+        "failed": 1,
+        "error": 1,
+        "skipped": 1,
+        "xfailed": 0,
+        "xpassed": 0,
+    }
+    assert by_directory(RUN.tests) == [
+        {
+            "directory": "tests/replay",
+            "tests": 2,
+            "failed": 1,
+            "slow_tests": 1,
+            "time_s": 4.0,
+            "share_pct": 50.0,
+        },
+        {
+            "directory": "tests/planning",
+            "tests": 2,
+            "failed": 1,
+            "slow_tests": 0,
+            "time_s": 2.5,
+            "share_pct": 31.2,
+        },
+        {
+            "directory": "tests/test_readme.py",
+            "tests": 1,
+            "failed": 0,
+            "slow_tests": 0,
+            "time_s": 1.5,
+            "share_pct": 18.8,
+        },
+    ]
+    assert [t.nodeid.rpartition("::")[2] for t in slowest(RUN.tests, 3)] == ["test_1", "test_3", "test_5"]
+
+
+def test_the_report_gives_the_not_slow_time_beside_the_slow_and_what_lies_outside_the_tests() -> None:
+    doc = json.loads(as_json(RUN))
+    assert doc["benchmark"] == "bench suite"
+    assert doc["command"] == "pytest -m 'not slow'"
+    assert (doc["tests"], doc["passed"], doc["failed"], doc["error"], doc["skipped"]) == (5, 2, 1, 1, 1)
+    assert (doc["not_slow_tests"], doc["not_slow_time_s"]) == (4, 5.0)
+    assert (doc["slow_tests"], doc["slow_time_s"]) == (1, 3.0)
+    assert (doc["tests_time_s"], doc["outside_tests_s"]) == (8.0, 2.0)
+    assert (doc["wall_s"], doc["cpu_s"], doc["load_start"], doc["load_end"]) == (10.0, 4.0, 1.5, 2.5)
+    assert [s["test"] for s in doc["slowest"]][:1] == ["tests/replay/test_a.py::test_1"]
+    text = as_tables(RUN)
+    assert text.startswith("bench suite: pytest -m 'not slow' (from the repository root)\n")
+    assert "time by folder" in text
+    assert "the 10 slowest tests" in text
+
+
+def test_a_path_that_is_not_there_is_refused_before_anything_runs(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "suite", "tests/no_such_folder"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("dishbot bench: error: tests/no_such_folder: no such test file or folder under ")
+
+
+@pytest.mark.slow
+def test_bench_suite_runs_the_suite_in_a_child_pytest_and_reports_it(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    write_suite(tmp_path)
+    run = run_suite(tmp_path, marker="not slow")
+    assert run.exit_status == 1  # one failure, one error
+    assert run.command == ("pytest", "-m", "not slow")
+    assert counts(run.tests) == {
+        "passed": 4,
+        "failed": 1,
+        "error": 1,
+        "skipped": 1,
+        "xfailed": 1,
+        "xpassed": 0,
+    }
+    assert not any(t.slow for t in run.tests)
+    assert [r["directory"] for r in sorted(by_directory(run.tests), key=lambda r: r["directory"])] == [
+        "tests/alpha",
+        "tests/beta",
+        "tests/test_top.py",
+    ]
+    assert run.wall_s >= sum(t.time_s for t in run.tests)
+    out, err = capfd.readouterr()
+    assert out == ""  # pytest's own output goes to stderr: stdout is the report's
+    assert "1 failed" in err
+
+
+@pytest.mark.slow
+def test_a_marker_expression_pytest_refuses_is_a_usage_error(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    write_suite(tmp_path)
+    with pytest.raises(
+        UsageError, match=r"^pytest could not run the suite \(exit 4\): its message is above$"
+    ):
+        run_suite(tmp_path, marker="not (slow")
+    assert "Wrong expression passed to '-m'" in capfd.readouterr().err
