@@ -524,6 +524,11 @@ class RecordedSession:
         try:
             # Over today's defaults, so that a recording made before a setting existed still loads; the
             # robot's own Zenoh settings (endpoints, credentials on its disk) are the replay's business.
+            # A default that changed is the one the recording was made with: a recording from before
+            # ``[planner] footprint`` existed (or while ``rect`` was its default) planned with rectangles.
+            planner = config_doc.get("planner")
+            if isinstance(planner, Mapping) and "footprint" not in planner:
+                config_doc = {**config_doc, "planner": {**planner, "footprint": "rect"}}
             config = load_config(overrides={**config_doc, "zenoh": {}})
         except ConfigError as e:
             raise ReplayError(f"{path}: the recorded config does not load: {e}") from e

@@ -144,9 +144,11 @@ def test_a_plan_without_pictures_loads_no_picture_recorder_nor_zenoh_library(tmp
     unused = {"cv2", "matplotlib", "zenoh", "mcap", "structlog", "asyncio", "scipy", "pinocchio", "mujoco"}
     assert not unused & set(result["new"])
     layers = {m.partition(".")[0] for m in result["ours"]}
-    assert not {"wire", "sim", "perception", "replay", "bench"} & layers
-    # The config's [recording] section only (daemon.config declares it), not the MCAP writer or views.
+    assert not {"wire", "sim", "replay", "bench"} & layers
+    # The config's [recording] section only (daemon.config declares it), not the MCAP writer or views;
+    # and of perception the camera's frame limits ([camera] is that type), not the detector.
     assert {m for m in result["ours"] if m.startswith("recorder")} <= {"recorder", "recorder.settings"}
+    assert {m for m in result["ours"] if m.startswith("perception")} <= {"perception", "perception.frames"}
     assert not {m for m in result["ours"] if m.startswith("planning.motion")}
     [drawn] = run_cli(
         tmp_path,
@@ -211,10 +213,12 @@ def test_the_client_verbs_load_no_heavy_library_while_they_command_a_daemon(tmp_
     results = asyncio.run(go())
     assert [r["code"] for r in results] == [*verbs.values(), 0]
     assert heavy_loaded(results) == {}
-    # The client and the Zenoh session, not the daemon's other layers nor the other verbs.
+    # The client, the Zenoh session and the wire contract the monitor reads its samples with (whose state
+    # names are the chart's leaves), not the daemon's other layers nor the other verbs.
     layers = {"planning", "perception", "statechart", "sim", "wire", "recorder", "replay", "bench"}
     loaded = {m for r in results for m in r["ours"]}
-    assert not {m for m in loaded if m.partition(".")[0] in layers}
+    contract = {"wire", "wire.messages", "statechart", "statechart.chart"}
+    assert not {m for m in loaded if m.partition(".")[0] in layers} - contract
     assert {m for m in loaded if m.startswith("cli.commands.")} == {
         "cli.commands.client",
         "cli.commands.monitor",
