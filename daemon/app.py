@@ -43,7 +43,7 @@ import zenoh
 
 from daemon import commands_handler
 from daemon.backend import Backend, JobPosition, joints_payload, recorded
-from daemon.clock import SessionClock, wall_seconds
+from daemon.clock import SessionClock, every_wall_period, wall_seconds
 from daemon.config import Config
 from daemon.errors import ConfigError, UsageError
 from daemon.job import Job, JobSummary, StartRequest
@@ -365,10 +365,15 @@ async def _run(
         # Inside the try from here on: whatever fails (a hook that refuses, a fault the cell cannot have, a
         # notify socket gone) still stops everything cleanly.
         if notifier.watchdog_interval_s is not None:
-            # On a simulated clock the pings follow simulated time, which stands still while a plan is being
-            # computed; the robot, the one systemd supervises for real, runs on the wall clock.
+            # systemd watches the wall clock: on a simulated one the pings keep to wall time too (simulated
+            # time stands still while a plan is computed, which can take longer than the watchdog allows).
             interval = notifier.watchdog_interval_s / 2.0
-            tasks.append(asyncio.create_task(_every(clock, interval, _ping(notifier, job)), name="watchdog"))
+            pings = (
+                every_wall_period(interval, _ping(notifier, job))
+                if clock.simulated
+                else _every(clock, interval, _ping(notifier, job))
+            )
+            tasks.append(asyncio.create_task(pings, name="watchdog"))
         if backend.on_event is not None:
             # Device events (driver faults, tray collisions) may come from other threads: the job handles them
             # on the loop, publishes them on `events` and faults when the device can no longer be trusted.

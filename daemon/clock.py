@@ -34,6 +34,7 @@ import asyncio
 import concurrent.futures
 import math
 import selectors
+import threading
 import time
 from collections.abc import Callable, Coroutine
 from concurrent.futures import Executor, ThreadPoolExecutor
@@ -57,6 +58,34 @@ def wall_seconds() -> float:
     """A reading of this machine's performance counter: for measuring how long work took (the ``--once``
     summary, the benchmarks), never for the robot's behaviour."""
     return time.perf_counter()
+
+
+async def every_wall_period(period_s: float, action: Callable[[], None]) -> None:
+    """Run ``action`` on this task's loop every ``period_s`` of wall time, without drifting, until cancelled.
+
+    For what is watched on the wall clock whatever clock the session runs on: systemd's watchdog. Simulated
+    time stands still while a plan is being computed (seconds on the full tray), so pings on it would stop
+    for that long. A thread keeps the wall clock's schedule and hands each call to the loop, which runs it:
+    a loop that is stuck still runs none."""
+    loop = asyncio.get_running_loop()
+    stop = threading.Event()
+
+    def schedule() -> None:
+        next_t = time.monotonic() + period_s
+        while not stop.wait(max(0.0, next_t - time.monotonic())):
+            next_t += period_s
+            try:
+                loop.call_soon_threadsafe(action)
+            except RuntimeError:  # the loop is closed: the daemon is gone
+                return
+
+    thread = threading.Thread(target=schedule, name="wall-period", daemon=True)
+    action()
+    thread.start()
+    try:
+        await asyncio.Event().wait()  # until cancelled
+    finally:
+        stop.set()
 
 
 def parse_speed(text: str) -> float | None:

@@ -132,6 +132,12 @@ def _bound(value: float) -> str:
 _PLAIN_KEY: Final = re.compile(r"^[A-Za-z0-9_.-]{1,64}\Z")
 
 
+def key_name(name: str, key: str | int) -> str:
+    """``name`` and one key below it as an error names them: ``a.b``, ``a[3]``, or quoted on one line when
+    the key is no plain word (``mug_types['\\n']``)."""
+    return _join(name, key)
+
+
 def _join(name: str, key: str | int) -> str:
     if isinstance(key, int):
         return f"{name}[{key}]"
@@ -420,6 +426,7 @@ __all__ = [
     "OneOf",
     "above",
     "convert",
+    "key_name",
     "number_range",
     "show",
     "within",

@@ -16,7 +16,18 @@ from typing import Annotated, ClassVar
 
 from description import thesis
 from planning.placement.errors import InvalidProblem
-from validation import FINITE, NON_EMPTY, UNKNOWN_KEYS_IGNORED, Invalid, OneOf, above, convert, show, within
+from validation import (
+    FINITE,
+    NON_EMPTY,
+    UNKNOWN_KEYS_IGNORED,
+    Invalid,
+    OneOf,
+    above,
+    convert,
+    key_name,
+    show,
+    within,
+)
 
 # "rect": the thesis's rectangle around brim and handle; "mug": the brim disc plus the handle at the yaw the
 # arm gives it (``planning.placement.shapes``).
@@ -263,7 +274,7 @@ class _ProblemFile:
 def _mug_types(tables: Mapping[str, object]) -> dict[str, MugType]:
     types = {}
     for name, table in tables.items():
-        t = convert(table, _MugTypeTable, name=f"mug_types.{name}", error=InvalidProblem)
+        t = convert(table, _MugTypeTable, name=key_name("mug_types", name), error=InvalidProblem)
         types[name] = MugType(name, int(t.diameter_mm), int(t.width_mm), int(t.height_mm), t.mass_kg)
     return types
 

@@ -189,3 +189,12 @@ def test_any_json_in_any_place_is_a_problem_or_one_line_naming_a_field(path: str
         text = str(e)
     assert "\n" not in text
     assert len(text) < 300
+
+
+@pytest.mark.parametrize("key", ["\n", "a b", "x\ny"])
+def test_a_mug_type_named_with_a_line_break_is_named_on_one_line(key: str) -> None:
+    """Found by the property above: the type's name went into the error as it was, line break included."""
+    with pytest.raises(InvalidProblem) as e:
+        Problem.from_json(edited(EXAMPLE, "mug_types", {key: None}))
+    assert "\n" not in str(e.value)
+    assert str(e.value).startswith(f"mug_types[{key!r}]: ")
