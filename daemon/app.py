@@ -365,12 +365,15 @@ async def _run(
         # Inside the try from here on: whatever fails (a hook that refuses, a fault the cell cannot have, a
         # notify socket gone) still stops everything cleanly.
         if notifier.watchdog_interval_s is not None:
-            # systemd watches the wall clock: on a simulated one the pings keep to wall time too (simulated
-            # time stands still while a plan is computed, which can take longer than the watchdog allows).
+            # systemd watches the wall clock. A simulated clock paced to it (``--speed``, as a service runs
+            # the simulated cell) pings on the wall clock too: its time stands still while a plan is
+            # computed, which can take longer than the watchdog allows. As fast as the machine allows, the
+            # pings follow simulated time (what the stall tests read).
             interval = notifier.watchdog_interval_s / 2.0
+            paced = clock.simulated and getattr(clock, "speed", None) is not None
             pings = (
                 every_wall_period(interval, _ping(notifier, job))
-                if clock.simulated
+                if paced
                 else _every(clock, interval, _ping(notifier, job))
             )
             tasks.append(asyncio.create_task(pings, name="watchdog"))
