@@ -34,13 +34,12 @@ import structlog
 
 from description.arm import BUNDLED_URDF
 from description.cell import CellLayout, SceneMug
-from description.servos import SERVO_MODELS
 from drivers.interfaces import Clock, RGBDFrame
 from drivers.sim.fsr import FsrSimulator
 from drivers.sim.servo_chain import ServoChainSimulator, default_chain
 from planning.arm import ArmModel
-from sim.devices import GRIPPER_SERVO, arm_servos
 from sim.kinematic import KinematicPlant, KinematicWorld, MugGeometry, SimMug
+from sim.kinematic.cell import servo_plant
 from sim.mujoco.arm import ArmMjcf, build_arm_mjcf, load_urdf
 from sim.mujoco.camera import DepthCamera, DepthNoise
 from sim.mujoco.cell import SnapshotCamera, start_pose
@@ -163,16 +162,7 @@ def kinematic_world(
         clock=clock,
         q0=q0,
     )
-    plant = KinematicPlant(
-        world,
-        arm_servos=arm_servos(),
-        gripper_servo=GRIPPER_SERVO,
-        gripper=arm.gripper,
-        clock=clock,
-        max_speed_rad_s={
-            servo_id: SERVO_MODELS[servo].no_load_speed_rad_s for servo_id, servo in default_chain()
-        },
-    )
+    plant = servo_plant(world, arm.gripper, clock)
     return world, plant
 
 

@@ -16,6 +16,7 @@ import contextlib
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
+from description.arm import GripperGeometry
 from description.servos import SERVO_MODELS
 from description.thesis import MUG_TYPES, MugSpec
 from drivers.dynamixel import DeviceEvent, DynamixelArm, DynamixelGripper
@@ -103,16 +104,7 @@ async def start_kinematic_cell(
         clock=clock,
         q0=q0,
     )
-    plant = KinematicPlant(
-        world,
-        arm_servos=arm_servos(),
-        gripper_servo=GRIPPER_SERVO,
-        gripper=model.gripper,
-        clock=clock,
-        max_speed_rad_s={
-            servo_id: SERVO_MODELS[servo].no_load_speed_rad_s for servo_id, servo in default_chain()
-        },
-    )
+    plant = servo_plant(world, model.gripper, clock)
     listeners: list[Callable[[DeviceEvent], None]] = []
 
     def device_event(event: DeviceEvent) -> None:
@@ -154,3 +146,18 @@ async def start_kinematic_cell(
         plant=plant,
         _device_listeners=listeners,
     ), stack.aclose
+
+
+def servo_plant(world: KinematicWorld, gripper: GripperGeometry, clock: Clock) -> KinematicPlant:
+    """The servo chain's plant over ``world``: the arm's servos and the gripper's, each no faster than its
+    model's no-load speed."""
+    return KinematicPlant(
+        world,
+        arm_servos=arm_servos(),
+        gripper_servo=GRIPPER_SERVO,
+        gripper=gripper,
+        clock=clock,
+        max_speed_rad_s={
+            servo_id: SERVO_MODELS[servo].no_load_speed_rad_s for servo_id, servo in default_chain()
+        },
+    )
