@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import signal
+import sys
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
@@ -319,22 +322,45 @@ def test_any_integer_in_a_numeric_field_is_accepted_or_refused_in_one_line_namin
 
 
 @pytest.mark.slow
-def test_monitor_prints_state_changes_and_events_of_a_running_job(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_monitor_prints_state_changes_and_events_of_a_running_job(tmp_path: Path) -> None:
+    """The monitor, as a user runs it (its own process, piped), prints the job's state changes and events. It
+    is stopped with Ctrl-C once it has shown a placed mug: no wall-clock window the job must fit in."""
+    seen: list[str] = []
+
     async def scenario(endpoint: str, send: Client) -> None:
-        watch = asyncio.create_task(
-            asyncio.to_thread(main, ["monitor", "--connect", endpoint, "--robot", ROBOT, "--duration", "2.5"])
+        watch = await asyncio.create_subprocess_exec(
+            *[sys.executable, "-m", "cli.main", "monitor", "--connect", endpoint, "--robot", ROBOT],
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.STDOUT,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )
-        await asyncio.sleep(1.0)
-        await send("start", b"")
-        assert await watch == 0
+        assert watch.stdout is not None
+        out = watch.stdout
+
+        async def until(what: str, prefix: str) -> None:
+            while not any(line.startswith(prefix) for line in seen):
+                line = await asyncio.wait_for(out.readline(), 120)  # a generous bound on a hang, not a timing
+                assert line, f"the monitor ended before any {what}: {seen}"
+                seen.append(line.decode().rstrip("\n"))
+
+        try:
+            await until("state", "state ")
+            await send("start", b"")
+            await until("placed mug", "event mug_placed ")
+            watch.send_signal(signal.SIGINT)
+            rest, _ = await asyncio.wait_for(watch.communicate(), 60)
+            seen.extend(rest.decode().splitlines())
+            assert watch.returncode == 0
+        finally:
+            if watch.returncode is None:
+                watch.kill()
+                await watch.wait()
 
     _with_daemon(tmp_path, scenario)
-    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith(("state ", "event "))]
-    assert lines[0] == "state idle  placed 0"
-    assert "state detect  placed 0" in lines
-    assert any(line.startswith("event mug_placed ") for line in lines)
+    shown = [line for line in seen if line.startswith(("state ", "event "))]
+    assert shown[0] == "state idle  placed 0"
+    assert "state detect  placed 0" in shown
+    assert any(line.startswith("event mug_placed ") for line in shown)
 
 
 def test_the_monitor_panel_shows_state_joints_and_force() -> None:
