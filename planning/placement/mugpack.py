@@ -11,6 +11,7 @@ each from one end.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import defaultdict
 from collections.abc import Sequence
@@ -23,7 +24,7 @@ from planning.placement.problem import Problem
 from planning.placement.shapes import (
     Bodies,
     MugOutline,
-    clear_of,
+    clear_of_all,
     keeps_clear,
 )
 
@@ -68,7 +69,24 @@ class MugClass:
     bodies: Bodies  # arrays of shape (len(xs), len(ys))
     stacked: npt.NDArray[np.float64]  # the same arrays stacked, shape (fields, len(xs), len(ys))
     free: BoolArray  # the corners where the mug fits on the tray as the problem gives it
-    ranks: dict[Scan, npt.NDArray[np.int64]]
+
+
+@dataclass(frozen=True)
+class _Group:
+    """The classes of one mug type: one grid of corners and brim discs, a handle per class."""
+
+    members: tuple[int, ...]
+    xs: npt.NDArray[np.int64]
+    ys: npt.NDArray[np.int64]
+    bx: npt.NDArray[np.float64]  # the brim centre's x of each row of corners (xs + offset)
+    by: npt.NDArray[np.float64]  # and y of each column
+    radius: float
+    offset: float  # corner to brim centre
+    flat_stacked: npt.NDArray[
+        np.float64
+    ]  # the members' ``MugClass.stacked``, shape (fields, members, xs * ys)
+    free: BoolArray  # the members' ``MugClass.free``, shape (members, xs, ys)
+    order: dict[Scan, npt.NDArray[np.int64]]  # the flat corner indices in each scan's order
 
 
 class MugPacker:
@@ -102,11 +120,44 @@ class MugPacker:
             )
             for k in range(len(fixed.cx)):
                 free &= keeps_clear(bodies.gap_to(fixed, k), self.clearance)
-            gx, gy = np.meshgrid(xs, ys, indexing="ij")
-            polar = self._polar(type_name, xs, ys)
-            ranks = {s: _ranks(gx, gy, s, polar) for s in SCANS}
             stacked = np.stack([getattr(bodies, f) for f in Bodies.__dataclass_fields__])
-            self.classes.append(MugClass(type_name, rel, xs, ys, bodies, stacked, free, ranks))
+            self.classes.append(MugClass(type_name, rel, xs, ys, bodies, stacked, free))
+        # Classes of one type share the grid and the brim discs: their masks are kept and updated together.
+        by_type: dict[str, list[int]] = defaultdict(list)
+        for k, c in enumerate(self.classes):
+            by_type[c.type].append(k)
+        self.groups: list[_Group] = []
+        self.group_of: dict[int, tuple[int, int]] = {}
+        for members in by_type.values():
+            first = self.classes[members[0]]
+            for n, k in enumerate(members):
+                self.group_of[k] = (len(self.groups), n)
+            t = problem.mug_types[first.type]
+            offset = (t.diameter_mm + problem.tolerance_mm) / 2.0
+            stacked = np.stack([self.classes[k].stacked for k in members], axis=1)
+            self.groups.append(
+                _Group(
+                    tuple(members),
+                    first.xs,
+                    first.ys,
+                    (first.xs + offset).astype(float),
+                    (first.ys + offset).astype(float),
+                    t.diameter_mm / 2.0,
+                    offset,
+                    stacked.reshape(stacked.shape[0], len(members), -1),
+                    np.stack([self.classes[k].free for k in members]).reshape(
+                        len(members), len(first.xs), len(first.ys)
+                    ),
+                    _scan_orders(
+                        tx - t.diameter_mm - problem.tolerance_mm,
+                        ty - t.diameter_mm - problem.tolerance_mm,
+                        grid_mm,
+                        offset,
+                        problem.tray_origin_mm,
+                        problem.arm_base_mm,
+                    ),
+                )
+            )
 
     def _grid_bodies(
         self,
@@ -129,63 +180,49 @@ class MugPacker:
             outline = replace(outline, half_thickness=outline.half_thickness + outline.handle_to * spread)
         return Bodies.build(outline, cx.astype(float), cy.astype(float), yaw)
 
-    def _polar(
-        self, type_name: str, xs: npt.NDArray[np.int64], ys: npt.NDArray[np.int64]
-    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-        """The distance (mm) and bearing (rad) from the arm base of the brim centre at every grid corner."""
-        p = self.problem
-        r = (p.mug_types[type_name].diameter_mm + p.tolerance_mm) / 2.0
-        cx, cy = np.meshgrid(xs + r, ys + r, indexing="ij")
-        wx, wy = cx + p.tray_origin_mm[0] - p.arm_base_mm[0], cy + p.tray_origin_mm[1] - p.arm_base_mm[1]
-        return np.hypot(wx, wy), np.arctan2(wy, wx)
-
     def pack(self, sequence: Sequence[int], scan: Scan) -> list[Spot]:
         """Places the classes of ``sequence`` one after the other at the first free corner of ``scan``;
-        a mug that fits nowhere is skipped."""
-        free = [c.free.copy() for c in self.classes]
+        a mug that fits nowhere is skipped.
+
+        A placed mug clears at once, in its window, the corners whose brims would come too close to its
+        brim (one vectorised distance per group); the exact test against the handles runs only on the
+        corners a scan reaches, first ones first (``_first_clear``), and what it rejects stays cleared."""
+        free = [g.free.copy() for g in self.groups]
+        # per class: the scan position before which every corner is known taken (a class's corners only
+        # ever get taken, so its next mug starts where its last one went)
+        start = [0] * len(self.classes)
+        placed: list[npt.NDArray[np.float64]] = []
         spots: list[Spot] = []
         for k in sequence:
-            c = self.classes[k]
-            if not free[k].any():
+            g, member = self.group_of[k]
+            group = self.groups[g]
+            flat = free[g][member].reshape(-1)
+            cell, start[k] = _first_clear(
+                flat, group.order[scan], start[k], group.flat_stacked[:, member], placed, self.clearance
+            )
+            if cell < 0:
                 continue
-            flat = int(np.argmin(np.where(free[k], c.ranks[scan], np.iinfo(np.int64).max)))
-            i, j = divmod(flat, len(c.ys))
-            spots.append((k, int(c.xs[i]), int(c.ys[j])))
-            self._block(free, k, i, j)
+            i, j = divmod(cell, len(group.ys))
+            spots.append((k, int(group.xs[i]), int(group.ys[j])))
+            placed.append(group.flat_stacked[:, member, cell])
+            self._block_discs(free, k, i, j)
         return spots
 
-    def _block(self, free: list[BoolArray], k: int, i: int, j: int) -> None:
-        """Clears, in every class's mask, the corners too close to mug ``k`` placed at grid corner (i, j).
-
-        Only still-free corners within reach are tested: brims closer than both radii and the clearance
-        block at once, and only those between that and both outlines' extents need the exact test."""
+    def _block_discs(self, free: list[BoolArray], k: int, i: int, j: int) -> None:
+        """Clears, in every class's mask, the corners whose brim comes closer than both radii and the
+        clearance to the brim of mug ``k`` placed at grid corner (i, j)."""
         placed = self.classes[k].bodies
         px, py = float(placed.cx[i, j]), float(placed.cy[i, j])
-        one = _one(placed, i, j)
-        for q, c in enumerate(self.classes):
-            if not len(c.xs) or not len(c.ys):
-                continue
-            offset = float(c.bodies.cx[0, 0] - c.xs[0])  # corner to brim centre
-            near = float(c.bodies.r[0, 0]) + float(placed.r[i, j]) + self.clearance
-            reach = float(c.bodies.extent[0, 0]) + float(placed.extent[i, j]) + self.clearance
-            i0 = int(np.searchsorted(c.xs, px - reach - offset, side="left"))
-            i1 = int(np.searchsorted(c.xs, px + reach - offset, side="right"))
-            j0 = int(np.searchsorted(c.ys, py - reach - offset, side="left"))
-            j1 = int(np.searchsorted(c.ys, py + reach - offset, side="right"))
+        for g, group in enumerate(self.groups):
+            near = group.radius + float(placed.r[i, j]) + self.clearance
+            i0 = int(np.searchsorted(group.xs, px - near - group.offset, side="left"))
+            i1 = int(np.searchsorted(group.xs, px + near - group.offset, side="right"))
+            j0 = int(np.searchsorted(group.ys, py - near - group.offset, side="left"))
+            j1 = int(np.searchsorted(group.ys, py + near - group.offset, side="right"))
             if i0 >= i1 or j0 >= j1:
                 continue
-            window = free[q][i0:i1, j0:j1]
-            wi, wj = np.nonzero(window)
-            if not wi.size:
-                continue
-            d = np.hypot(c.bodies.cx[i0 + wi, j0 + wj] - px, c.bodies.cy[i0 + wi, j0 + wj] - py)
-            window[wi[d < near - 1e-6], wj[d < near - 1e-6]] = False
-            ring = (d >= near - 1e-6) & (d < reach)
-            ri, rj = i0 + wi[ring], j0 + wj[ring]
-            if ri.size:
-                candidates = Bodies(*c.stacked[:, ri, rj])
-                blocked = ~clear_of(candidates, one, 0, self.clearance)
-                free[q][ri[blocked], rj[blocked]] = False
+            d = np.hypot((group.bx[i0:i1] - px)[:, None], (group.by[j0:j1] - py)[None, :])
+            free[g][:, i0:i1, j0:j1] &= d >= near - 1e-6
 
     def yaw_at(self, k: int, x: int, y: int) -> float:
         c = self.classes[k]
@@ -218,29 +255,84 @@ def _axis(limit: int, step: int) -> npt.NDArray[np.int64]:
     return values
 
 
-def _ranks(
+@functools.lru_cache(maxsize=8)
+def _scan_orders(
+    x_limit: int,
+    y_limit: int,
+    grid_mm: int,
+    offset: float,
+    origin: tuple[float, float],
+    base: tuple[float, float],
+) -> dict[Scan, npt.NDArray[np.int64]]:
+    """Every scan's order of the flat corner indices of the grid up to (``x_limit``, ``y_limit``) (corner
+    to brim centre ``offset``; the tray corner at ``origin``, the arm base at ``base``, world mm). The same
+    for every class of a type and every problem on the tray, so kept for the packings to come (the plan
+    check's rounds and later replans in the same process)."""
+    xs, ys = _axis(x_limit, grid_mm), _axis(y_limit, grid_mm)
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    cx, cy = np.meshgrid(xs + offset, ys + offset, indexing="ij")
+    wx, wy = cx + origin[0] - base[0], cy + origin[1] - base[1]
+    polar = (np.hypot(wx, wy), np.arctan2(wy, wx))
+    orders = {}
+    for scan in SCANS:
+        order = _order(gx, gy, scan, polar)
+        order.flags.writeable = False
+        orders[scan] = order
+    return orders
+
+
+def _order(
     gx: npt.NDArray[np.int64],
     gy: npt.NDArray[np.int64],
     scan: Scan,
     polar: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]],
 ) -> npt.NDArray[np.int64]:
-    """Each corner's place in ``scan`` (0 first); ``polar``: the brim centre's distance (mm) and bearing
+    """The flat corner indices in ``scan``'s order; ``polar``: the brim centre's distance (mm) and bearing
     (rad) from the arm base at each corner."""
     axis, slant, direction = scan
     if axis in (0, 1):
         primary, secondary = (gx, gy) if axis == 0 else (gy, gx)
-        order = np.lexsort(((direction * secondary).ravel(), (primary + slant * secondary).ravel()))
+        return np.lexsort(((direction * secondary).ravel(), (primary + slant * secondary).ravel()))
+    distance, bearing = polar
+    if axis == 2:
+        keys = (direction * bearing, distance + slant * BEARING_MM * bearing)
     else:
-        distance, bearing = polar
-        if axis == 2:
-            keys = (direction * bearing, distance + slant * BEARING_MM * bearing)
-        else:
-            keys = (distance, direction * BEARING_MM * bearing + slant * distance)
-        order = np.lexsort((keys[0].ravel(), keys[1].ravel()))
-    ranks = np.empty(order.size, np.int64)
-    ranks[order] = np.arange(order.size)
-    return ranks.reshape(gx.shape)
+        keys = (distance, direction * BEARING_MM * bearing + slant * distance)
+    return np.lexsort((keys[0].ravel(), keys[1].ravel()))
 
 
-def _one(b: Bodies, i: int, j: int) -> Bodies:
-    return Bodies(*(np.array([getattr(b, f)[i, j]]) for f in Bodies.__dataclass_fields__))
+def _first_clear(
+    free: BoolArray,
+    order: npt.NDArray[np.int64],
+    start: int,
+    candidates: npt.NDArray[np.float64],
+    placed: Sequence[npt.NDArray[np.float64]],
+    clearance: float,
+) -> tuple[int, int]:
+    """The first corner in ``order`` (from position ``start``) free in ``free`` (flat) whose outline
+    (``candidates``: the class's stacked body fields per flat corner) keeps ``clearance`` from every
+    ``placed`` outline (stacked fields); corners found too close are cleared in ``free``. Returns the corner
+    (-1: none) and its position in ``order`` (where the class's next search starts)."""
+    others = Bodies(*np.array(placed).T) if placed else None
+    chunk = 1024
+    batch = 16
+    pos = start
+    while pos < order.size:
+        idx = order[pos : pos + chunk]
+        found = np.flatnonzero(free[idx])
+        if others is None and found.size:
+            return int(idx[found[0]]), pos + int(found[0])
+        done = 0
+        while done < found.size:
+            take = found[done : done + batch]
+            cells = idx[take]
+            ok = clear_of_all(Bodies(*candidates[:, cells]), others, clearance)  # type: ignore[arg-type]
+            hit = np.flatnonzero(ok)
+            last = int(hit[0]) if hit.size else take.size
+            free[cells[:last]] = False
+            if hit.size:
+                return int(cells[last]), pos + int(take[last])
+            done += take.size
+            batch = min(batch * 2, 256)
+        pos += idx.size
+    return -1, order.size

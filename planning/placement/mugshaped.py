@@ -63,6 +63,7 @@ def run(ctx: Context, rect_method: Callable[[Context], Candidate]) -> Candidate:
     start = _rectangle_start(ctx, rect_method, notes)
     offer(start)
     rect_n = len(start)
+    bound = area_bound(problem)
     packer = MugPacker(problem)
     now = time.thread_time  # CPU time of this thread: other jobs on the machine do not change the result
     deadline = now() + SAFETY_FACTOR * ctx.options.time_limit_s
@@ -74,7 +75,8 @@ def run(ctx: Context, rect_method: Callable[[Context], Candidate]) -> Candidate:
     def pack(sequence: list[int], scan: Scan) -> bool:
         """Packs one layout and offers it; False once the budget or the time is spent."""
         nonlocal packed, stopped
-        if packed >= budget:
+        assert best is not None
+        if packed >= budget or best[1].n >= bound:  # nothing can place more than the bound
             return False
         if now() > deadline:
             stopped = True
@@ -82,7 +84,6 @@ def run(ctx: Context, rect_method: Callable[[Context], Candidate]) -> Candidate:
         spots = packer.pack(sequence, scan)
         packed += 1
         by_scan[scan] = max(by_scan.get(scan, 0), len(spots))
-        assert best is not None
         if len(spots) >= best[1].n:
             offer(_assigned(ctx, packer, spots))
         return True
@@ -100,7 +101,6 @@ def run(ctx: Context, rect_method: Callable[[Context], Candidate]) -> Candidate:
         notes.append(f"mug packing stopped at the time limit after {packed} packings")
     assert best is not None
     layout, metrics = best
-    bound = area_bound(problem)
     notes.insert(0, f"mug-shaped: {rect_n} from the rectangle layout, {metrics.n} after {packed} packings")
     return Candidate(
         layout,

@@ -220,3 +220,18 @@ def _cross(
         np.subtract(px, ox) * np.subtract(qy, oy) - np.subtract(py, oy) * np.subtract(qx, ox),
         dtype=np.float64,
     )
+
+
+def clear_of_all(mine: Bodies, others: Bodies, clearance: float) -> npt.NDArray[np.bool_]:
+    """For each of ``mine`` (arrays (n,)): whether its outline keeps ``clearance`` from every outline of
+    ``others`` (arrays (m,)); ``clear_of`` over every k of ``others`` at once (the same distances)."""
+    limit = clearance - _EPS_MM
+    ox, oy, orad = others.cx[None, :], others.cy[None, :], others.r[None, :]
+    oax, oay, obx, oby, ot = (v[None, :] for v in (others.ax, others.ay, others.bx, others.by, others.t))
+    cx, cy, r, t = mine.cx[:, None], mine.cy[:, None], mine.r[:, None], mine.t[:, None]
+    ax, ay, bx, by = mine.ax[:, None], mine.ay[:, None], mine.bx[:, None], mine.by[:, None]
+    ok = np.hypot(cx - ox, cy - oy) - r - orad >= limit
+    ok &= _point_segment(ox, oy, ax, ay, bx, by) - t - orad >= limit
+    ok &= _point_segment(cx, cy, oax, oay, obx, oby) - r - ot >= limit
+    ok &= _segment_segment(ax, ay, bx, by, oax, oay, obx, oby) - t - ot >= limit  # type: ignore[arg-type]
+    return np.asarray(ok.all(axis=1), dtype=np.bool_)
