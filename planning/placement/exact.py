@@ -23,10 +23,11 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
-from ortools.sat.python import cp_model
 
 from planning.placement.assignment import least_cost_assignment
 from planning.placement.context import Candidate, Context, Layout
+from planning.placement.cpsat import Model, Var
+from planning.placement.cpsat import solve as solve_model
 from planning.placement.order import execution_order
 from planning.placement.problem import Problem
 
@@ -115,14 +116,6 @@ def _point_model_size(shapes: list[_Shape], xs: list[int], ys: list[int], tx: in
     return total
 
 
-def _solver(time_limit_s: float, seed: int) -> cp_model.CpSolver:
-    solver = cp_model.CpSolver()
-    solver.parameters.num_workers = 1
-    solver.parameters.random_seed = seed
-    solver.parameters.max_time_in_seconds = max(time_limit_s, 0.01)
-    return solver
-
-
 def _solve_points(
     problem: Problem,
     shapes: list[_Shape],
@@ -136,8 +129,8 @@ def _solve_points(
 ) -> ExactOutcome:
     """The set-packing model over normal-pattern corners (see the module doc)."""
     tx, ty = problem.tray_size_mm
-    model = cp_model.CpModel()
-    choices: list[tuple[_Shape, int, int, cp_model.IntVar]] = []
+    model = Model()
+    choices: list[tuple[_Shape, int, int, Var]] = []
     for s in shapes:
         for x in xs:
             if x + s.fx > tx:
@@ -147,8 +140,8 @@ def _solve_points(
                     break
                 if any(_overlap((x, y, s.fx, s.fy), f) for f in fixed):
                     continue
-                choices.append((s, x, y, model.new_bool_var(f"{s.type}{'r' if s.rotated else ''}_{x}_{y}")))
-    covering: dict[tuple[int, int], list[cp_model.IntVar]] = defaultdict(list)
+                choices.append((s, x, y, model.bool_var(f"{s.type}{'r' if s.rotated else ''}_{x}_{y}")))
+    covering: dict[tuple[int, int], list[Var]] = defaultdict(list)
     x_index = np.array(xs)
     y_index = np.array(ys)
     for s, x, y, var in choices:
@@ -157,35 +150,32 @@ def _solve_points(
                 covering[(int(px), int(py))].append(var)
     for group in covering.values():
         if len(group) > 1:
-            model.add_at_most_one(group)
+            model.at_most_one(group)
     for t, c in counts.items():
-        model.add(sum(v for s, _, _, v in choices if s.type == t) <= c)
-    n_expr = sum(v for *_, v in choices)
-    model.maximize(n_expr)
+        of_type = [(1, v) for s, _, _, v in choices if s.type == t]
+        if of_type:
+            model.at_most(of_type, c)
+    every = [(1, v) for *_, v in choices]
+    model.maximize(every)
 
-    solver = _solver(time_limit_s, seed)
-    status = solver.solve(model)
-    if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+    solution = solve_model(model, time_limit_s=time_limit_s, seed=seed)
+    if not solution.found:
         return ExactOutcome((), False, _area_bound(problem, counts), "unknown")
-    n_best = round(solver.objective_value)
-    proven = status == cp_model.OPTIMAL
-    bound = (
-        n_best
-        if proven
-        else min(math.floor(solver.best_objective_bound + 1e-6), _area_bound(problem, counts))
-    )
-    chosen = [(s, x, y) for s, x, y, v in choices if solver.value(v)]
+    n_best = round(solution.objective)
+    proven = solution.status == "OPTIMAL"
+    bound = n_best if proven else min(math.floor(solution.bound + 1e-6), _area_bound(problem, counts))
+    chosen = [(s, x, y) for s, x, y, v in choices if solution.value(v)]
 
     # Phase 2: the same number of mugs, as much covered area as possible (bigger mugs first).
-    remaining = time_limit_s - solver.wall_time
+    remaining = time_limit_s - solution.wall_time_s
     if proven and remaining > 0.01:
-        model.add(n_expr == n_best)
-        model.maximize(sum(s.fx * s.fy * v for s, _, _, v in choices))
+        model.equal(every, n_best)
+        model.maximize([(s.fx * s.fy, v) for s, _, _, v in choices])
         for s, x, y, v in choices:
-            model.add_hint(v, (s, x, y) in chosen)
-        solver = _solver(remaining, seed)
-        if solver.solve(model) in (cp_model.OPTIMAL, cp_model.FEASIBLE):
-            chosen = [(s, x, y) for s, x, y, v in choices if solver.value(v)]
+            model.hint(v, (s, x, y) in chosen)
+        second = solve_model(model, time_limit_s=remaining, seed=seed)
+        if second.found:
+            chosen = [(s, x, y) for s, x, y, v in choices if second.value(v)]
     spots = tuple((s.type, x, y, s.rotated) for s, x, y in chosen)
     return ExactOutcome(spots, proven, bound, "optimal" if proven else "feasible")
 
@@ -204,47 +194,44 @@ def _solve_boxes(
     """For instances whose point model is too big (rotation multiplies the normal patterns): one optional box
     per counter mug and orientation under CP-SAT's 2D no-overlap, corners restricted to normal patterns."""
     tx, ty = problem.tray_size_mm
-    model = cp_model.CpModel()
+    model = Model()
     x_boxes, y_boxes = [], []
     for x, y, fx, fy in fixed:
-        x_boxes.append(model.new_fixed_size_interval_var(x, fx, "fixed_x"))
-        y_boxes.append(model.new_fixed_size_interval_var(y, fy, "fixed_y"))
+        x_boxes.append(model.fixed_interval(x, fx, "fixed_x"))
+        y_boxes.append(model.fixed_interval(y, fy, "fixed_y"))
     placed_terms = []
-    slots: list[tuple[_Shape, cp_model.IntVar, cp_model.IntVar, cp_model.IntVar]] = []
+    slots: list[tuple[_Shape, Var, Var, Var]] = []
     for t in sorted(counts):
-        previous: cp_model.IntVar | None = None
+        previous: Var | None = None
         for k in range(counts[t]):
-            present = model.new_bool_var(f"{t}{k}")
+            present = model.bool_var(f"{t}{k}")
             options = []
             for s in (s for s in shapes if s.type == t):
-                lit = model.new_bool_var(f"{t}{k}_{'r' if s.rotated else 'u'}")
-                x_var = model.new_int_var_from_domain(
-                    cp_model.Domain.from_values([v for v in xs if v + s.fx <= tx]), f"x_{t}{k}{s.rotated}"
-                )
-                y_var = model.new_int_var_from_domain(
-                    cp_model.Domain.from_values([v for v in ys if v + s.fy <= ty]), f"y_{t}{k}{s.rotated}"
-                )
-                x_boxes.append(model.new_optional_fixed_size_interval_var(x_var, s.fx, lit, "bx"))
-                y_boxes.append(model.new_optional_fixed_size_interval_var(y_var, s.fy, lit, "by"))
+                lit = model.bool_var(f"{t}{k}_{'r' if s.rotated else 'u'}")
+                x_var = model.int_var([v for v in xs if v + s.fx <= tx], f"x_{t}{k}{s.rotated}")
+                y_var = model.int_var([v for v in ys if v + s.fy <= ty], f"y_{t}{k}{s.rotated}")
+                x_boxes.append(model.optional_interval(x_var, s.fx, lit, "bx"))
+                y_boxes.append(model.optional_interval(y_var, s.fy, lit, "by"))
                 options.append(lit)
                 slots.append((s, x_var, y_var, lit))
-            model.add(sum(options) == present)
+            model.equal([(1, o) for o in options] + [(-1, present)], 0)
             if previous is not None:
-                model.add_implication(present, previous)  # identical mugs: fill slots in order
+                model.implication(present, previous)  # identical mugs: fill slots in order
             previous = present
-            placed_terms.append(present)
-    model.add_no_overlap_2d(x_boxes, y_boxes)
-    model.maximize(sum(placed_terms))
-    solver = _solver(time_limit_s, seed)
-    status = solver.solve(model)
+            placed_terms.append((1, present))
+    model.no_overlap_2d(x_boxes, y_boxes)
+    model.maximize(placed_terms)
+    solution = solve_model(model, time_limit_s=time_limit_s, seed=seed)
     area_bound = _area_bound(problem, counts)
-    if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+    if not solution.found:
         return ExactOutcome((), False, area_bound, "unknown")
-    proven = status == cp_model.OPTIMAL
-    n_best = round(solver.objective_value)
-    bound = n_best if proven else min(math.floor(solver.best_objective_bound + 1e-6), area_bound)
+    proven = solution.status == "OPTIMAL"
+    n_best = round(solution.objective)
+    bound = n_best if proven else min(math.floor(solution.bound + 1e-6), area_bound)
     spots = tuple(
-        (s.type, solver.value(x), solver.value(y), s.rotated) for s, x, y, lit in slots if solver.value(lit)
+        (s.type, solution.value(x), solution.value(y), s.rotated)
+        for s, x, y, lit in slots
+        if solution.value(lit)
     )
     return ExactOutcome(spots, proven, bound, "optimal" if proven else "feasible")
 
