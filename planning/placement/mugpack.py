@@ -221,8 +221,8 @@ class MugPacker:
             j1 = int(np.searchsorted(group.ys, py + near - group.offset, side="right"))
             if i0 >= i1 or j0 >= j1:
                 continue
-            d = np.hypot((group.bx[i0:i1] - px)[:, None], (group.by[j0:j1] - py)[None, :])
-            free[g][:, i0:i1, j0:j1] &= d >= near - 1e-6
+            dx, dy = group.bx[i0:i1] - px, group.by[j0:j1] - py
+            free[g][:, i0:i1, j0:j1] &= (dx * dx)[:, None] + (dy * dy)[None, :] >= (near - 1e-6) ** 2
 
     def yaw_at(self, k: int, x: int, y: int) -> float:
         c = self.classes[k]

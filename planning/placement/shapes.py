@@ -224,14 +224,22 @@ def _cross(
 
 def clear_of_all(mine: Bodies, others: Bodies, clearance: float) -> npt.NDArray[np.bool_]:
     """For each of ``mine`` (arrays (n,)): whether its outline keeps ``clearance`` from every outline of
-    ``others`` (arrays (m,)); ``clear_of`` over every k of ``others`` at once (the same distances)."""
+    ``others`` (arrays (m,)); ``clear_of`` over every k of ``others`` at once (the same distances), testing
+    only the pairs whose axes are closer than both extents and the clearance (the others keep it)."""
     limit = clearance - _EPS_MM
-    ox, oy, orad = others.cx[None, :], others.cy[None, :], others.r[None, :]
-    oax, oay, obx, oby, ot = (v[None, :] for v in (others.ax, others.ay, others.bx, others.by, others.t))
-    cx, cy, r, t = mine.cx[:, None], mine.cy[:, None], mine.r[:, None], mine.t[:, None]
-    ax, ay, bx, by = mine.ax[:, None], mine.ay[:, None], mine.bx[:, None], mine.by[:, None]
-    ok = np.hypot(cx - ox, cy - oy) - r - orad >= limit
+    d = np.hypot(mine.cx[:, None] - others.cx[None, :], mine.cy[:, None] - others.cy[None, :])
+    near = d < mine.extent[:, None] + others.extent[None, :] + clearance
+    i, k = np.nonzero(near)
+    if not i.size:
+        return np.ones(mine.cx.shape, dtype=np.bool_)
+    ox, oy, orad, ot = others.cx[k], others.cy[k], others.r[k], others.t[k]
+    oax, oay, obx, oby = others.ax[k], others.ay[k], others.bx[k], others.by[k]
+    cx, cy, r, t = mine.cx[i], mine.cy[i], mine.r[i], mine.t[i]
+    ax, ay, bx, by = mine.ax[i], mine.ay[i], mine.bx[i], mine.by[i]
+    ok = d[i, k] - r - orad >= limit
     ok &= _point_segment(ox, oy, ax, ay, bx, by) - t - orad >= limit
     ok &= _point_segment(cx, cy, oax, oay, obx, oby) - r - ot >= limit
     ok &= _segment_segment(ax, ay, bx, by, oax, oay, obx, oby) - t - ot >= limit  # type: ignore[arg-type]
-    return np.asarray(ok.all(axis=1), dtype=np.bool_)
+    clear = np.ones(mine.cx.shape, dtype=np.bool_)
+    clear[i[~ok]] = False
+    return clear
