@@ -2,11 +2,14 @@
 
 Every mug class (type and handle angle to the slot's bearing) has a grid of candidate footprint corners,
 ``GRID_MM`` apart plus the tray's far edges, and a mask of the corners where such a mug would fit: inside the
-walls and clear of the mugs already on the tray. Placing a mug clears, in every class's mask, the corners
-whose mug would come closer than the clearance to it; only a window of the grid around the new mug can be
-affected, so one placement costs a few thousand exact distance tests per class. A fill heuristic takes the
-first free corner in its scan (as §4.2.2's do on the 1 mm matrix): rows along one tray axis from one side,
-each from one end.
+walls and clear of the mugs already on the tray. A fill heuristic takes the first corner in its scan where
+the mug keeps the clearance from the mugs placed before it (as §4.2.2's do on the 1 mm matrix): rows along
+one tray axis from one side, each from one end. Placing a mug clears at once, in every class's mask and a
+window of the grid around it, the corners whose brims would come too close to its brim; the exact tests
+against the handles run only on the corners a scan reaches (``_first_clear``), and what they reject stays
+cleared for the rest of the packing. Most corners are never reached: about 45 corners per placed mug get the
+exact test on datasets 1 and 4 (against the placed mugs within reach), where clearing each placed mug's
+whole window tested thousands.
 """
 
 from __future__ import annotations
@@ -82,9 +85,8 @@ class _Group:
     by: npt.NDArray[np.float64]  # and y of each column
     radius: float
     offset: float  # corner to brim centre
-    flat_stacked: npt.NDArray[
-        np.float64
-    ]  # the members' ``MugClass.stacked``, shape (fields, members, xs * ys)
+    # the members' ``MugClass.stacked``, shape (fields, members, len(xs) * len(ys))
+    flat_stacked: npt.NDArray[np.float64]
     free: BoolArray  # the members' ``MugClass.free``, shape (members, xs, ys)
     order: dict[Scan, npt.NDArray[np.int64]]  # the flat corner indices in each scan's order
 
@@ -196,7 +198,7 @@ class MugPacker:
         for k in sequence:
             g, member = self.group_of[k]
             group = self.groups[g]
-            flat = free[g][member].reshape(-1)
+            flat = free[g][member].reshape(-1)  # a view: what _first_clear rejects stays cleared
             cell, start[k] = _first_clear(
                 flat, group.order[scan], start[k], group.flat_stacked[:, member], placed, self.clearance
             )
