@@ -315,20 +315,21 @@ def _first_clear(
     (``candidates``: the class's stacked body fields per flat corner) keeps ``clearance`` from every
     ``placed`` outline (stacked fields); corners found too close are cleared in ``free``. Returns the corner
     (-1: none) and its position in ``order`` (where the class's next search starts)."""
-    others = Bodies(*np.array(placed).T) if placed else None
+    if not placed:  # nothing to keep clear of: the first free corner
+        rest = np.flatnonzero(free[order[start:]])
+        return (int(order[start + rest[0]]), start + int(rest[0])) if rest.size else (-1, order.size)
+    others = Bodies(*np.array(placed).T)
     chunk = 1024
     batch = 16
     pos = start
     while pos < order.size:
         idx = order[pos : pos + chunk]
         found = np.flatnonzero(free[idx])
-        if others is None and found.size:
-            return int(idx[found[0]]), pos + int(found[0])
         done = 0
         while done < found.size:
             take = found[done : done + batch]
             cells = idx[take]
-            ok = clear_of_all(Bodies(*candidates[:, cells]), others, clearance)  # type: ignore[arg-type]
+            ok = clear_of_all(Bodies(*candidates[:, cells]), others, clearance)
             hit = np.flatnonzero(ok)
             last = int(hit[0]) if hit.size else take.size
             free[cells[:last]] = False
