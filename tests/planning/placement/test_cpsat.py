@@ -85,12 +85,16 @@ def test_both_builders_write_the_same_model_and_find_the_same_optimum(
         seen.append(str(model.proto))
         return solve(model, **kw)
 
+    # The point model proves its optimum in well under a second (then the spots are the solver's
+    # deterministic answer: a generous limit keeps a loaded machine from cutting either solve short); the
+    # box model of the rotated 30-mug datasets runs to its limit.
+    limit = 2.0 if rotation else 30.0
     monkeypatch.setattr(exact, "solve_model", recording)
-    ours = exact.solve(problem, time_limit_s=2.0, seed=0)
+    ours = exact.solve(problem, time_limit_s=limit, seed=0)
     ours_models = list(seen)
     seen.clear()
     monkeypatch.setattr(exact, "Model", CpModelBuilder)
-    theirs = exact.solve(problem, time_limit_s=2.0, seed=0)
+    theirs = exact.solve(problem, time_limit_s=limit, seed=0)
     assert ours_models == seen
     assert ours_models  # a model was solved
     assert (len(ours.spots), ours.optimal, ours.upper_bound) == (
@@ -98,7 +102,8 @@ def test_both_builders_write_the_same_model_and_find_the_same_optimum(
         theirs.optimal,
         theirs.upper_bound,
     )
-    if ours.optimal:
+    if not rotation:
+        assert ours.optimal
         assert ours.spots == theirs.spots
 
 
