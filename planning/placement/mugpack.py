@@ -88,7 +88,7 @@ class _Group:
     # the members' ``MugClass.stacked``, shape (fields, members, len(xs) * len(ys))
     flat_stacked: npt.NDArray[np.float64]
     free: BoolArray  # the members' ``MugClass.free``, shape (members, xs, ys)
-    order: dict[Scan, npt.NDArray[np.int64]]  # the flat corner indices in each scan's order
+    order: dict[Scan, npt.NDArray[np.int32]]  # the flat corner indices in each scan's order
 
 
 class MugPacker:
@@ -257,7 +257,7 @@ def _axis(limit: int, step: int) -> npt.NDArray[np.int64]:
     return values
 
 
-@functools.lru_cache(maxsize=8)
+@functools.lru_cache(maxsize=4)  # two types on one tray: 3-8 MB each (48 scans of 16,000-43,000 corners)
 def _scan_orders(
     x_limit: int,
     y_limit: int,
@@ -265,7 +265,7 @@ def _scan_orders(
     offset: float,
     origin: tuple[float, float],
     base: tuple[float, float],
-) -> dict[Scan, npt.NDArray[np.int64]]:
+) -> dict[Scan, npt.NDArray[np.int32]]:
     """Every scan's order of the flat corner indices of the grid up to (``x_limit``, ``y_limit``) (corner
     to brim centre ``offset``; the tray corner at ``origin``, the arm base at ``base``, world mm). The same
     for every class of a type and every problem on the tray, so kept for the packings to come (the plan
@@ -277,7 +277,7 @@ def _scan_orders(
     polar = (np.hypot(wx, wy), np.arctan2(wy, wx))
     orders = {}
     for scan in SCANS:
-        order = _order(gx, gy, scan, polar)
+        order = _order(gx, gy, scan, polar).astype(np.int32)
         order.flags.writeable = False
         orders[scan] = order
     return orders
@@ -305,7 +305,7 @@ def _order(
 
 def _first_clear(
     free: BoolArray,
-    order: npt.NDArray[np.int64],
+    order: npt.NDArray[np.int32],
     start: int,
     candidates: npt.NDArray[np.float64],
     placed: Sequence[npt.NDArray[np.float64]],
