@@ -16,6 +16,9 @@ enforces:
   order it was submitted, so the interleaving of tasks does not depend on which thread finished first.
 - The simulated world is stepped by the clock (``add_stepper``) as time advances, on the loop's thread, so
   every reader sees the world exactly at the clock's time.
+- Executor work may take simulated time on purpose (``SimulatedClock.sleep_off_loop``: a replay serving a
+  computation that took that long on the robot): while it waits, it counts as waiting on the clock, not as
+  work in flight, and when its time comes it goes on before anything else runs at that time.
 - Time does not advance while anything the daemon hands work to is behind (``add_backlog``: the recorder's
   queue). On the wall clock a recorder that cannot keep up drops messages rather than stall the robot; in
   simulation time simply waits for it, so nothing is dropped and a run does not depend on this machine's load.
@@ -176,6 +179,14 @@ class RealClock:
 
 
 @dataclass(slots=True)
+class _Parked:
+    """A thread doing executor work that waits for simulated time to reach ``until``."""
+
+    until: float
+    woken: threading.Event
+
+
+@dataclass(slots=True)
 class _Work:
     """Executor work in flight: the thread or process's future and the loop's future it resolves."""
 
@@ -204,6 +215,11 @@ class SimulatedClock:
         self._steppers: list[Callable[[float], None]] = []
         self._backlogs: list[CaughtUp] = []
         self._work: list[_Work] = []
+        # Executor threads waiting on simulated time (``sleep_off_loop``), and the condition the loop waits
+        # on for executor work: notified when a piece of work finishes or a thread starts waiting.
+        self._parked: list[_Parked] = []
+        self._work_changed = threading.Condition()
+        self._closed = False  # the loop is closed: a thread waits on simulated time no more
         self._loop: _SimulatedLoop | None = None
         self._pace_wall = 0.0  # wall clock and simulated time of the last pacing anchor
         self._pace_sim = 0.0
@@ -243,6 +259,26 @@ class SimulatedClock:
         self._check_loop()
         await asyncio.wait({future}, timeout=seconds)
         return future.done()
+
+    def sleep_off_loop(self, until: float) -> None:
+        """From a thread doing executor work for this clock's loop (``run_in_executor``,
+        ``asyncio.to_thread``): block until simulated time reaches ``until``, as a computation that takes
+        that long would. Meanwhile the work counts as waiting on the clock, not as work in flight: time moves
+        on and the loop's tasks (polls, timers, telemetry) run through it; when time reaches ``until`` the
+        thread goes on before anything else runs at that time, and the loop waits for it as for any work.
+        Returns at once at or past ``until``, once the loop is closed, and on any thread but one doing this
+        clock's executor work in a thread pool (the loop would not know to wait for it; the loop's own
+        thread cannot wait for itself). The wait depends on simulated time only, never on this machine's
+        load."""
+        if getattr(_this_thread, "work_of", None) is not self:
+            return  # not this clock's executor work (the loop's own thread, another thread): cannot wait
+        with self._work_changed:
+            if self._closed or until <= self._now:
+                return
+            parked = _Parked(until, threading.Event())
+            self._parked.append(parked)
+            self._work_changed.notify_all()
+        parked.woken.wait()
 
     def add_stepper(self, step: Callable[[float], None]) -> Callable[[], None]:
         self._steppers.append(step)
@@ -285,6 +321,8 @@ class SimulatedClock:
         if self._loop is not None and not self._loop.is_closed():
             raise RuntimeError("a SimulatedClock drives one event loop at a time; this one is running")
         self._loop = _SimulatedLoop(self)
+        with self._work_changed:
+            self._closed = False
         self._pace_wall, self._pace_sim = time.monotonic(), self._now
         return self._loop
 
@@ -301,7 +339,10 @@ class SimulatedClock:
 
     def _submit(self, executor: Executor, fn: Callable[..., T], *args: Any) -> asyncio.Future[T]:
         assert self._loop is not None
-        done = executor.submit(fn, *args)
+        if isinstance(executor, ThreadPoolExecutor):
+            done = executor.submit(_as_work_of, self, fn, *args)
+        else:
+            done = executor.submit(fn, *args)
         result: asyncio.Future[T] = self._loop.create_future()
 
         def cancelled(f: asyncio.Future[T]) -> None:
@@ -310,7 +351,34 @@ class SimulatedClock:
 
         result.add_done_callback(cancelled)
         self._work.append(_Work(done, result))
+        done.add_done_callback(self._notify_work)
         return result
+
+    def _notify_work(self, _: object) -> None:
+        with self._work_changed:
+            self._work_changed.notify_all()
+
+    def _first_wake(self) -> float | None:
+        """The earliest simulated time a thread waits for (``sleep_off_loop``); None when none waits."""
+        with self._work_changed:
+            return min((p.until for p in self._parked), default=None)
+
+    def _wake_parked(self, t: float) -> bool:
+        """Let the threads waiting for simulated time ``t`` (or earlier) go on; whether any did."""
+        with self._work_changed:
+            woken = [p for p in self._parked if p.until <= t]
+            self._parked = [p for p in self._parked if p.until > t]
+        for p in woken:
+            p.woken.set()
+        return bool(woken)
+
+    def _loop_closed(self) -> None:
+        """The loop is closed: threads waiting on simulated time go on, and none waits any more."""
+        with self._work_changed:
+            self._closed = True
+            parked, self._parked = self._parked, []
+        for p in parked:
+            p.woken.set()
 
     def _select(
         self, select: Callable[[float | None], list[tuple[selectors.SelectorKey, int]]], timeout: float | None
@@ -325,11 +393,19 @@ class SimulatedClock:
         if ready or timeout == 0:
             return ready
         if self._work:
+            in_flight = len(self._work)
             outside = self._finish_work(select)
-            return outside if outside is not None else select(0)
-        if timeout is None:
+            if outside is not None:
+                return outside
+            if len(self._work) < in_flight:
+                return select(0)  # work handed back: the loop runs what it resolved, at this time
+            # Every piece of work in flight waits on the clock (``sleep_off_loop``): time moves on.
+        wake = self._first_wake()
+        if timeout is None and wake is None:
             return select(None)  # no timer at all: only the outside world can wake the loop
-        target = self._now + timeout
+        target = self._now + timeout if timeout is not None else math.inf
+        if wake is not None:
+            target = min(target, wake)
         if self.speed is not None:
             wait = self._paced_wait(target)
             if wait > 0:
@@ -345,6 +421,10 @@ class SimulatedClock:
             if ready:
                 return ready
         self._advance(target)
+        if self._wake_parked(target):
+            # The threads whose time came go on first: until they finish or wait again, nothing else runs.
+            outside = self._finish_work(select)
+            return outside if outside is not None else select(0)
         # No second look for I/O: nothing on this thread wrote any since the look above (the world's
         # steppers write to no device), and input from outside is taken at the next look, at this time.
         return []
@@ -368,20 +448,24 @@ class SimulatedClock:
     def _finish_work(
         self, select: Callable[[float | None], list[tuple[selectors.SelectorKey, int]]]
     ) -> list[tuple[selectors.SelectorKey, int]] | None:
-        """Wait for every piece of executor work in flight, then resolve their futures in submission order;
-        None when done, or what came in from outside meanwhile (a command, a signal; looked for every
-        ``_EXTERNAL_POLL_S``), which is handled first while the work stays in flight."""
-        work, self._work = self._work, []
-        pending = {w.done for w in work}
-        while pending:
-            _, pending = concurrent.futures.wait(pending, timeout=_EXTERNAL_POLL_S)
-            if pending:
-                ready = select(0)
-                if ready:
-                    self._work = work
-                    return ready
+        """Wait until every piece of executor work in flight has finished or waits on the clock
+        (``sleep_off_loop``), then resolve the futures of those finished in submission order (those waiting
+        stay in flight); None when done, or what came in from outside meanwhile (a command, a signal, a
+        callback a thread handed the loop; looked for every ``_EXTERNAL_POLL_S``), which is handled first
+        while the work stays in flight."""
+        work = self._work
+        while True:
+            with self._work_changed:
+                running = sum(1 for w in work if not w.done.done())
+                if running <= len(self._parked):
+                    break
+                self._work_changed.wait(_EXTERNAL_POLL_S)
+            ready = select(0)
+            if ready:
+                return ready
+        self._work = [w for w in work if not w.done.done()]
         for w in work:
-            if w.result.done() or w.done.cancelled():
+            if not w.done.done() or w.result.done() or w.done.cancelled():
                 continue
             error = w.done.exception()
             if error is not None:
@@ -411,6 +495,19 @@ def _nothing() -> None:
     return None
 
 
+# Which clock's executor work this thread is doing (``work_of``), for ``SimulatedClock.sleep_off_loop``.
+_this_thread = threading.local()
+
+
+def _as_work_of(clock: SimulatedClock, fn: Callable[..., T], *args: Any) -> T:
+    """Run ``fn`` in a pool thread as ``clock``'s executor work."""
+    _this_thread.work_of = clock
+    try:
+        return fn(*args)
+    finally:
+        _this_thread.work_of = None
+
+
 def _wake(future: asyncio.Future[None]) -> None:
     if not future.done():
         future.set_result(None)
@@ -438,6 +535,10 @@ class _SimulatedLoop(asyncio.SelectorEventLoop):
 
     def time(self) -> float:
         return self._clock.monotonic()
+
+    def close(self) -> None:
+        self._clock._loop_closed()
+        super().close()
 
     def run_in_executor(
         self, executor: Executor | None, func: Callable[[*Ts], T], *args: *Ts

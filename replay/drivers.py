@@ -39,7 +39,7 @@ from typing import Final, TypeVar, cast
 import structlog
 
 from daemon.backend import Backend, EventListener, MotionCalls, PlanPlacement
-from daemon.clock import SessionClock
+from daemon.clock import SessionClock, SimulatedClock
 from drivers.errors import BusLost, DriverError
 from drivers.interfaces import (
     ArmDriver,
@@ -111,9 +111,12 @@ _ERROR_MODULES: Final = (
     "perception.errors",
     "drivers.camera.realsense",
 )
-# How long (wall seconds) a worker thread computing for the job waits for the event loop to hand over the
-# device events that came meanwhile, and for the job to move on when the recording's computation was cut.
-_COMPUTING_WAIT_S = 2.0
+# How long (simulated s) a worker thread asking a plan the recorded job never got gives the job to move on
+# (the device fault or stop that interrupted the recorded job's computation, handed over first).
+_INTERRUPTED_WAIT_S = 1.0
+# How often (wall s) a worker thread waiting for the event loop to run what it handed it looks whether the
+# loop is gone: only for noticing the end of the replay, never for what happens in it.
+_LOOP_GONE_POLL_S = 0.5
 # How long a replayed call recorded as cancelled waits for the replay's job to cancel it too (simulated s).
 _CANCEL_WAIT_S = 1.0
 
@@ -273,7 +276,11 @@ class Replayer:
             loop.call_soon_threadsafe(deliver)
         except RuntimeError:  # the loop is closed: the replay is over
             return
-        done.wait(_COMPUTING_WAIT_S)
+        # The loop runs it while it waits for this thread (the simulated clock looks for callbacks handed
+        # over meanwhile), however long that takes on this machine; only a loop that is gone never does.
+        while not done.wait(_LOOP_GONE_POLL_S):
+            if loop.is_closed() or not loop.is_running():
+                return
 
     def deliver_before_next_command(self) -> None:
         """Hand the daemon the device events the recording has where the job is now, before its next
@@ -313,18 +320,9 @@ class Replayer:
             self.events.serve(self.session.device_event_payload(r))
 
     def moves(self) -> int:
-        """How often the replay's job has moved on so far (for ``wait_moved_on``)."""
+        """How often the replay's job has moved on so far (transitions, device commands, the divergence)."""
         with self._moves_changed:
             return self._moves
-
-    def wait_moved_on(self, since: int, timeout_s: float) -> bool:
-        """From a worker thread: wait until the replay's job has moved on (a transition, a device command)
-        or the replay diverged since ``moves()`` was ``since``; whether it did within ``timeout_s`` wall
-        seconds. On the event loop itself only whether it has."""
-        with self._moves_changed:
-            if self._loop is not None and _on(self._loop):
-                return self._moves != since
-            return self._moves_changed.wait_for(lambda: self._moves != since, timeout_s)
 
     def at(self, anchor: Anchor) -> float | None:
         """The replay's monotonic time of ``anchor`` when its job has got there, else None."""
@@ -376,6 +374,54 @@ class Replayer:
         end = _t_end(recorded)
         if end is not None and math.isfinite(end):
             await self.clock.sleep_until(self.replay_monotonic(end))
+
+    # --- computing as long as the robot did --------------------------------------------------------------
+
+    def computed_until(self, rec: Recorded) -> float | None:
+        """When a computation served from ``rec`` (a motion plan, a placement plan) ends on the replay's
+        clock: where the recorded one ended in the job (``RecordedSession.anchor``: after the same
+        transitions and device commands, as long after the later of them), so that the daemon's other tasks
+        (polls, health, telemetry, the recorded device events) run through that time as they did on the
+        robot. None when it ends now: in a simulated session computing took no simulated time (its replay
+        stays exactly as it was), and a replay that is already past that point waits for nothing."""
+        if self.session.simulated or not self.started:
+            return None
+        t = self.at(self.session.anchor(rec))
+        if t is None or t <= self.clock.monotonic() + _SAME_S:
+            return None
+        return t
+
+    def compute_until(self, t: float) -> None:
+        """From a worker thread computing for the job: take simulated time until ``t`` (the loop's tasks go
+        on meanwhile); at once on the loop's own thread, which cannot wait for itself."""
+        if isinstance(self.clock, SimulatedClock):
+            self.clock.sleep_off_loop(t)
+
+    def placement_until(self, rec: Recorded) -> float | None:
+        """When a served placement plan (``rec``) is handed over: the recorded plan is the plan check's
+        result, published when the check was done; the packing itself had ended before the first motion
+        plan the check asked after it (the first one not served yet at the same place in the job)."""
+        end = self.computed_until(rec)
+        if end is None:
+            return None
+        here = self.session.anchor(rec)
+        with self._motion_lock:
+            items = self._ordered["motion"]
+            for i in range(self._next["motion"], len(items)):
+                r = items[i]
+                if r.t_ns >= rec.t_ns:
+                    break
+                a = self.session.anchor(r)
+                if i in self._motion_taken or (a.transitions, a.device_commands) != (
+                    here.transitions,
+                    here.device_commands,
+                ):
+                    continue
+                t = self.at(a)
+                if t is not None:
+                    end = min(end, max(t, self.clock.monotonic()))
+                break
+        return end
 
     # --- following the recording ---------------------------------------------------------------------------
 
@@ -502,7 +548,9 @@ class Replayer:
         # fault, a stop)? Then what interrupted it comes now, and the job moves on without this plan.
         since = self.moves()
         self.deliver_events_while_computing(None)
-        if self.replaying and self.wait_moved_on(since, _COMPUTING_WAIT_S) and self.replaying:
+        if self.replaying:  # the job reacts in simulated time: give it that long (the loop goes on meanwhile)
+            self.compute_until(self.clock.monotonic() + _INTERRUPTED_WAIT_S)
+        if self.replaying and self.moves() != since:
             raise MotionRefused(
                 f"{call}: the recorded job was interrupted while this plan was being made (not recorded)"
             )
@@ -827,6 +875,9 @@ class ReplayPlacement:
         if planned != mugs:
             self._r.diverge("plan", f"a plan for {', '.join(planned)}", f"a plan for {', '.join(mugs)}")
             return await run(planner, problem, options)
+        until = self._r.placement_until(rec)  # as long as the robot's packing took
+        if until is not None:
+            await self._r.clock.sleep_until(until)
         return result
 
 
@@ -909,12 +960,16 @@ class ReplayMotion(MotionCalls):
         rec = self._r.take_motion(call, digest, f"{call} for the job's arguments")
         if rec is None:
             return run()
-        # What came while the robot made this plan comes before the job has it.
-        self._r.deliver_events_while_computing(rec.t_ns)
         p = _as(rec, Motion)
         if p.call != call or p.args_digest != digest:
             self._r.diverge("motion", f"{p.call} as recorded", f"{call} for other arguments")
             return run()
+        # As long as the robot took to make it (the daemon's other tasks go on meanwhile), and what came
+        # while it did comes before the job has it.
+        until = self._r.computed_until(rec)
+        if until is not None:
+            self._r.compute_until(until)
+        self._r.deliver_events_while_computing(rec.t_ns)
         if isinstance(p.refused, str):
             raise MotionRefused(p.refused, blockers=p.blockers if isinstance(p.blockers, list) else ())
         if isinstance(p.result, UnsetType):

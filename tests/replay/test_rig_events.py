@@ -2,9 +2,10 @@
 robot's log must match). ``tests/data/rig-fault-while-planning-job.mcap`` (see its README) is a job of the
 robot rig on a loaded machine: the FSR went stale and came back four times while the job detected and
 planned (the plan took 8 s of the robot's wall time), and a servo that did not answer ended the job in
-``fault``. A replay's planning takes no simulated time, so those events must come where they fell in the
-job's order (before ``cycle_planned``), and the fault's ``servo_recovered`` before the job's reaction to
-it, which the stand-in makes at once."""
+``fault``. Those events must come where they fell in the job's order (before ``cycle_planned``), and the
+fault's ``servo_recovered`` before the job's reaction to it, which the stand-in makes at once. A served
+plan takes as long on the replay's simulated clock as it took on the robot (issue 20: the daemon's polls
+and device events go on through it), so the replay's job moves on when the robot's did."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from replay.engine import replay
+from replay.engine import ReplayReport, replay
 from replay.session import RecordedSession
 
 RECORDING = Path(__file__).parents[1] / "data" / "rig-fault-while-planning-job.mcap"
@@ -21,6 +22,11 @@ RECORDING = Path(__file__).parents[1] / "data" / "rig-fault-while-planning-job.m
 @pytest.fixture(scope="module")
 def recorded() -> RecordedSession:
     return RecordedSession.load(RECORDING)
+
+
+@pytest.fixture(scope="module")
+def replayed(recorded: RecordedSession) -> ReplayReport:
+    return replay(recorded)
 
 
 def test_the_recording_has_device_events_while_the_job_planned(recorded: RecordedSession) -> None:
@@ -37,10 +43,31 @@ def test_the_recording_has_device_events_while_the_job_planned(recorded: Recorde
 
 
 @pytest.mark.slow
-def test_it_replays_to_a_match_with_every_event_where_it_fell(recorded: RecordedSession) -> None:
-    report = replay(recorded)
+def test_it_replays_to_a_match_with_every_event_where_it_fell(
+    recorded: RecordedSession, replayed: ReplayReport
+) -> None:
+    report = replayed
     assert report.first_divergence is None, report.first_divergence
     assert [e.kind for e in report.replayed.events] == [e.kind for e in recorded.trace.events]
     assert report.replayed.final_state == "fault"
     assert report.resimulated_from_s is None
     assert report.served["device_event"] == len(recorded.device_events)
+
+
+@pytest.mark.slow
+def test_served_plans_take_as_long_as_on_the_robot_and_the_job_keeps_the_robots_times(
+    recorded: RecordedSession, replayed: ReplayReport
+) -> None:
+    # The plan took 9.9 s of the robot's wall time (detect at 0, plan at 2.7, the first move at 12.6): the
+    # replay's job leaves the plan state then too, not as soon as the recorded plans are served.
+    assert replayed.replayed.states == recorded.trace.states
+    recorded_times = dict(zip(recorded.trace.states, recorded.trace.state_times_s, strict=True))
+    assert recorded_times["side_grasp.approach"] - recorded_times["plan"] > 9.0
+    for state, t, t_replay in zip(
+        recorded.trace.states, recorded.trace.state_times_s, replayed.replayed.state_times_s, strict=True
+    ):
+        assert t_replay == pytest.approx(t, abs=0.05), state
+    # and every event at its time (the FSR's while the job planned among them), the servo's as it failed.
+    for e, e_replay in zip(recorded.trace.events, replayed.replayed.events, strict=True):
+        assert (e_replay.kind, e_replay.state) == (e.kind, e.state)
+        assert e_replay.t_s == pytest.approx(e.t_s, abs=0.05), e.kind
