@@ -548,14 +548,28 @@ class Replayer:
         # fault, a stop)? Then what interrupted it comes now, and the job moves on without this plan.
         since = self.moves()
         self.deliver_events_while_computing(None)
-        if self.replaying:  # the job reacts in simulated time: give it that long (the loop goes on meanwhile)
-            self.compute_until(self.clock.monotonic() + _INTERRUPTED_WAIT_S)
+        if self.replaying:  # the job reacts in simulated time (the loop goes on while this thread waits):
+            # as long as the recorded job took to move on from here, and a while more.
+            self.compute_until(max(self.clock.monotonic(), self._recorded_move_on()) + _INTERRUPTED_WAIT_S)
         if self.replaying and self.moves() != since:
             raise MotionRefused(
                 f"{call}: the recorded job was interrupted while this plan was being made (not recorded)"
             )
         self.diverge("motion", "nothing more recorded", got)
         return None
+
+    def _recorded_move_on(self) -> float:
+        """When the recorded job moved on from where the replay's job is now (its next transition or device
+        command), on the replay's clock; now when it never did."""
+        n, m = len(self.transition_times), len(self.device_command_times)
+        transitions, commands = self.session.transition_monos, self.session.device_command_monos
+        later = [*transitions[n : n + 1], *commands[m : m + 1]]
+        if not later:
+            return self.clock.monotonic()
+        start = self.session.start_monotonic
+        base = max(transitions[n - 1] if n else start, commands[m - 1] if m else start)
+        t = self.at(Anchor(n, m, max(0.0, min(later) - base)))
+        return self.clock.monotonic() if t is None else t
 
     def _choose_motion(self, call: str, digest: str) -> int:
         """The index of the motion record to serve (``take_motion``), taken out of the index by arguments;
