@@ -55,6 +55,7 @@ from replay.session import (
     trace_of_messages,
 )
 from validation import toml
+from wire.messages import Command, UnsetType
 
 log = structlog.get_logger("replay")
 
@@ -510,12 +511,14 @@ async def _drive(session: RecordedSession, replayer: Replayer, ctx: ServeContext
     events = asyncio.create_task(_serve_device_events(session, replayer), name="replay-device-events")
     try:
         for command in session.later_commands():
-            verb = str(command.payload.get("verb"))
+            came = command.message
+            if not isinstance(came, Command):  # (``RecordedSession.load`` decoded every input/command)
+                raise ReplayError(f"{command.kind}: recorded as {type(came).__name__}, not Command")
+            verb = came.verb
             await _when_it_came(session, replayer, clock, command, verb)
-            payload = str(command.payload.get("payload", "")).encode()
-            reply = await ctx.handle(verb, payload, bool(command.payload.get("many")))
-            recorded = command.payload.get("reply")
-            if isinstance(recorded, Mapping) and bool(recorded.get("ok")) != bool(reply.get("ok")):
+            reply = await ctx.handle(verb, came.payload.encode(), came.many is True)
+            recorded = came.reply
+            if not isinstance(recorded, UnsetType) and bool(recorded.get("ok")) != bool(reply.get("ok")):
                 replayer.diverge(
                     "command", f"{verb} answered {_answer(recorded)}", f"{verb} answered {_answer(reply)}"
                 )
