@@ -70,6 +70,10 @@ def test_a_different_observation_diverges_at_the_plan_and_the_simulated_cell_fin
     assert len(placed) == 3
 
 
+# Times of one simulated instant taken from two wall-clock timestamps (see below).
+_SAME_INSTANT_S = 1e-6
+
+
 @pytest.mark.parametrize("fraction", [0.3, 0.5, 0.8])
 @pytest.mark.slow
 def test_a_recording_cut_by_a_crash_replays_up_to_the_cut_and_says_so(
@@ -85,10 +89,16 @@ def test_a_recording_cut_by_a_crash_replays_up_to_the_cut_and_says_so(
     assert report.cut == session.cut
     assert report.match, report.first_divergence
     # The replay stopped just after the recording does (a second later), in the state the whole job was in
-    # then.
+    # then. Its last state began at the same simulated instant as the whole job's: the two times are sums
+    # of a wall-clock start (about 1.7e9 s, a new one per recording) and simulated time, equal only to the
+    # float's resolution there (2.4e-7 s), so "then" is just after that instant (it used to be read at the
+    # instant itself, and one recording in three or so, by its start, found the state before).
     assert 0 < len(report.replayed.states) < len(whole.trace.states)
     assert len(report.replayed.states) >= len(session.trace.states)
-    assert report.replayed.final_state == whole.trace.state_at(report.replayed.state_times_s[-1])
+    last = report.replayed.state_times_s[-1]
+    recorded_last = whole.trace.state_times_s[len(report.replayed.states) - 1]
+    assert last == pytest.approx(recorded_last, abs=_SAME_INSTANT_S)
+    assert report.replayed.final_state == whole.trace.state_at(last + _SAME_INSTANT_S)
     assert report.replayed.states == whole.trace.states[: len(report.replayed.states)]
 
 
