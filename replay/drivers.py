@@ -545,18 +545,30 @@ class Replayer:
             self.recording_ended()
             return None
         # The recorded job asked no more plans: was it interrupted while this one was being made (a device
-        # fault, a stop)? Then what interrupted it comes now, and the job moves on without this plan.
+        # fault, a stop)? Then what interrupted it comes (a failed read, a device event, each at its time
+        # while this thread waits on the simulated clock: as long as the recorded job took to move on from
+        # here, and a while more), and the job moves on without this plan.
         since = self.moves()
-        self.deliver_events_while_computing(None)
-        if self.replaying:  # the job reacts in simulated time (the loop goes on while this thread waits):
-            # as long as the recorded job took to move on from here, and a while more.
-            self.compute_until(max(self.clock.monotonic(), self._recorded_move_on()) + _INTERRUPTED_WAIT_S)
+        if self.session.simulated:  # computing took no simulated time: what came meanwhile comes first
+            self.deliver_events_while_computing(None)
+        if self.replaying:
+            self.compute_until(self.interrupted_until())
         if self.replaying and self.moves() != since:
             raise MotionRefused(
                 f"{call}: the recorded job was interrupted while this plan was being made (not recorded)"
             )
         self.diverge("motion", "nothing more recorded", got)
         return None
+
+    def interrupted_until(self) -> float:
+        """How long a computation the recorded job never finished (a fault, a stop interrupted it) waits for
+        the replay's job to move on as the recorded one did: until as long after the recorded job moved on
+        from where the replay's job is now, and ``_INTERRUPTED_WAIT_S`` more."""
+        return max(self.clock.monotonic(), self._recorded_move_on()) + _INTERRUPTED_WAIT_S
+
+    def exhausted(self, stream: str) -> bool:
+        """Whether every recorded result of ``stream`` (served by order) has been served."""
+        return self._next[stream] >= len(self._ordered[stream])
 
     def _recorded_move_on(self) -> float:
         """When the recorded job moved on from where the replay's job is now (its next transition or device
@@ -877,6 +889,11 @@ class ReplayPlacement:
         self, planner: PlacementPlanner, problem: Problem, options: PlanOptions, run: PlanPlacement
     ) -> PlanResult:
         mugs = sorted(m.id for m in problem.mugs)
+        if self._r.serving() and self._r.exhausted("plan") and self._r.session.cut is None:
+            # The recorded job got no more plans: was it interrupted while it packed (a device fault, a
+            # stop)? What interrupted it comes at its time while this waits, and the job moves on (this
+            # call is cancelled with the job's state); else the replay diverges here.
+            await self._r.clock.sleep_until(self._r.interrupted_until())
         rec = self._r.take("plan", f"a plan for {', '.join(mugs)}") if self._r.serving() else None
         if rec is None:
             return await run(planner, problem, options)

@@ -71,3 +71,26 @@ def test_served_plans_take_as_long_as_on_the_robot_and_the_job_keeps_the_robots_
     for e, e_replay in zip(recorded.trace.events, replayed.replayed.events, strict=True):
         assert (e_replay.kind, e_replay.state) == (e.kind, e.state)
         assert e_replay.t_s == pytest.approx(e.t_s, abs=0.05), e.kind
+
+
+# A job whose placement packing a fault interrupted (see tests/data/README.md): its recording has the plan
+# check's motion plans and no placement plan.
+PACKING = Path(__file__).parents[1] / "data" / "rig-fault-while-packing-job.mcap"
+
+
+@pytest.mark.slow
+def test_a_packing_the_robot_never_finished_waits_for_the_fault_that_interrupted_it() -> None:
+    recorded = RecordedSession.load(PACKING)
+    assert recorded.trace.states == ("detect", "plan", "fault")
+    assert not recorded.streams.get("plan")
+    assert len(recorded.streams["input/motion"]) == 3
+    report = replay(recorded)
+    # It used to diverge as soon as the served reach plans were done (2.96 s: "plan: expected nothing more
+    # recorded, got a plan for m1, m2, m3"): the packing took the robot until the fault, 0.9 s more.
+    assert report.first_divergence is None, report.first_divergence
+    assert report.served["motion"] == 3
+    assert report.served.get("plan", 0) == 0
+    assert [e.kind for e in report.replayed.events] == [e.kind for e in recorded.trace.events]
+    assert report.replayed.final_state == "fault"
+    for t, t_replay in zip(recorded.trace.state_times_s, report.replayed.state_times_s, strict=True):
+        assert t_replay == pytest.approx(t, abs=0.05)
