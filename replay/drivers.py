@@ -382,12 +382,17 @@ class Replayer:
         clock: where the recorded one ended in the job (``RecordedSession.anchor``: after the same
         transitions and device commands, as long after the later of them), so that the daemon's other tasks
         (polls, health, telemetry, the recorded device events) run through that time as they did on the
-        robot. None when it ends now: in a simulated session computing took no simulated time (its replay
-        stays exactly as it was), and a replay that is already past that point waits for nothing."""
+        robot. A recorded end after something the replay's job has not done yet (a stop the daemon gave
+        as it met a failure while the robot computed: the replay's will give it meanwhile) is laid on the
+        replay's clock as the recording's clock is (lined up at the job's start). None when it ends now: in a
+        simulated session computing took no simulated time (its replay stays exactly as it was), and a
+        replay that is already past that point waits for nothing."""
         if self.session.simulated or not self.started:
             return None
         t = self.at(self.session.anchor(rec))
-        if t is None or t <= self.clock.monotonic() + _SAME_S:
+        if t is None:
+            t = self.replay_monotonic(self.session.monotonic_of(rec))
+        if t <= self.clock.monotonic() + _SAME_S:
             return None
         return t
 
@@ -494,20 +499,28 @@ class Replayer:
             if i < 0:
                 return None
             last = self._last_served.get(stream, -1)
-            if (
-                stream == "input/joints"
-                and not self.session.simulated
-                and i <= last
-                and last + 1 < len(times)
-                and times[last + 1] - now <= _WALL_READ_S
-            ):
-                # On the wall clock each recorded read was one read: a sample served already was another
-                # read's. The robot's job read a little later than the replay's (its computation took
-                # time, the replay's takes none): the next sample not served yet is the one it read.
-                i = last + 1
+            if stream == "input/joints" and not self.session.simulated:
+                i = self._wall_joint_read(i, last, now)
         self._last_served[stream] = max(i, self._last_served.get(stream, -1))
         self.served[stream] = self.served.get(stream, 0) + 1
         return self._timed[stream][i]
+
+    def _wall_joint_read(self, i: int, last: int, now: float) -> int:
+        """The joint sample of a wall-clock recording a read at ``now`` (recorded monotonic) gets, ``i`` being
+        the last one recorded at or before it and ``last`` the latest one served so far. On the wall clock
+        each recorded read was one read, and the robot's job read no earlier than the replay's does (its
+        computing and its bus took time): a sample read before now was another read's (a poll's), one
+        served already too. So the next sample not served yet is the one the job read, when it comes within
+        ``_WALL_READ_S``. A failed read is never taken early (it comes at its time); neither is a sample
+        that is not served yet when its read failed."""
+        items, times = self._timed["input/joints"], self._timed_t["input/joints"]
+        j = max(i, last) + 1
+        if j >= len(times) or times[j] - now > _WALL_READ_S:
+            return i
+        if i <= last:
+            return j  # (the latest at or before now was served already: always the next one)
+        ok = (isinstance(items[k].message, InputJoints) and not _failed(items[k]) for k in (i, j))
+        return j if all(ok) else i
 
     def take(self, stream: str, got: str) -> Recorded | None:
         """The next recorded result of ``stream``; at the end of the recording, divergence (None)."""

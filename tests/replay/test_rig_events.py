@@ -94,3 +94,22 @@ def test_a_packing_the_robot_never_finished_waits_for_the_fault_that_interrupted
     assert report.replayed.final_state == "fault"
     for t, t_replay in zip(recorded.trace.state_times_s, report.replayed.state_times_s, strict=True):
         assert t_replay == pytest.approx(t, abs=0.05)
+
+
+# A job whose gripper read failed while it planned its first cycle (see tests/data/README.md).
+GRIPPER = Path(__file__).parents[1] / "data" / "rig-gripper-failed-while-planning-job.mcap"
+
+
+@pytest.mark.slow
+def test_a_read_that_failed_while_the_robot_planned_fails_while_the_replay_plans() -> None:
+    recorded = RecordedSession.load(GRIPPER)
+    assert recorded.trace.states == ("detect", "plan", "fault")
+    report = replay(recorded)
+    # The cycle plan the robot had at 2.8 s was recorded after the daemon's stop at 2.75 s (its reaction to
+    # the failed read): it used to be served at once, as the plan check ended (2.3 s), and the replay's job
+    # went on to side_grasp.approach before the read failed (at first 0.2 s in, before any plan took time).
+    assert report.first_divergence is None, report.first_divergence
+    assert [e.kind for e in report.replayed.events] == [e.kind for e in recorded.trace.events]
+    assert report.replayed.final_state == "fault"
+    for t, t_replay in zip(recorded.trace.state_times_s, report.replayed.state_times_s, strict=True):
+        assert t_replay == pytest.approx(t, abs=0.05)
