@@ -564,9 +564,11 @@ class Replayer:
         since = self.moves()
         if self.session.simulated:  # computing took no simulated time: what came meanwhile comes first
             self.deliver_events_while_computing(None)
-        if self.replaying:
+        if self.replaying and not self.made_every_transition():
             self.compute_until(self.interrupted_until())
-        if self.replaying and self.moves() != since:
+        # (A job that made every recorded transition already, its final one, asks from a thread it left:
+        # the plan check's next probe after the one refused.)
+        if self.replaying and (self.moves() != since or self.made_every_transition()):
             raise MotionRefused(
                 f"{call}: the recorded job was interrupted while this plan was being made (not recorded)"
             )
@@ -578,6 +580,11 @@ class Replayer:
         the replay's job to move on as the recorded one did: until as long after the recorded job moved on
         from where the replay's job is now, and ``_INTERRUPTED_WAIT_S`` more."""
         return max(self.clock.monotonic(), self._recorded_move_on()) + _INTERRUPTED_WAIT_S
+
+    def made_every_transition(self) -> bool:
+        """Whether the replay's job has made every transition the recorded job made (it ended as recorded,
+        or is where the recording stops)."""
+        return len(self.transition_times) >= len(self.session.transition_monos)
 
     def exhausted(self, stream: str) -> bool:
         """Whether every recorded result of ``stream`` (served by order) has been served."""

@@ -113,3 +113,19 @@ def test_a_read_that_failed_while_the_robot_planned_fails_while_the_replay_plans
     assert report.replayed.final_state == "fault"
     for t, t_replay in zip(recorded.trace.state_times_s, report.replayed.state_times_s, strict=True):
         assert t_replay == pytest.approx(t, abs=0.05)
+
+
+# A job whose plan check's probe a fault interrupted (see tests/data/README.md).
+PROBING = Path(__file__).parents[1] / "data" / "rig-fault-while-probing-job.mcap"
+
+
+@pytest.mark.slow
+def test_probes_a_faulted_jobs_plan_check_asks_after_the_fault_are_refused_not_a_divergence() -> None:
+    recorded = RecordedSession.load(PROBING)
+    assert recorded.trace.states == ("detect", "plan", "fault")
+    report = replay(recorded)
+    assert report.first_divergence is None, report.first_divergence
+    assert report.served["motion"] == 1
+    assert [e.kind for e in report.replayed.events] == [e.kind for e in recorded.trace.events]
+    for t, t_replay in zip(recorded.trace.state_times_s, report.replayed.state_times_s, strict=True):
+        assert t_replay == pytest.approx(t, abs=0.05)
