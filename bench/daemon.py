@@ -170,9 +170,10 @@ def _bench(args: argparse.Namespace) -> int:
 
 async def _live(tmp: Path, variant: _Variant, commands: int, seconds: float, log_level: str) -> _Live:
     from daemon.app import RunOptions, serve
-    from daemon.backend import ProcessMotionPlanner, SimOptions
+    from daemon.backend import SimOptions
     from daemon.cell import open_backend
     from daemon.clock import RealClock
+    from daemon.planners import ProcessMotionPlanner
     from daemon.sdnotify import SdNotifier
     from recorder.files import is_job_file
 
@@ -401,7 +402,7 @@ def _query(session: zenoh.Session, verb: str, request: StartRequest | None) -> N
 def _recording_throughput(path: Path, messages: int, *, foxglove: bool) -> tuple[float, float, int]:
     """Messages per second and MB/s the recorder takes, from the first write until the file is finished;
     with ``foxglove``, each joint sample also gives its transforms (``/tf``), as in the daemon."""
-    from daemon.backend import scene_view
+    from daemon.hardware import scene_view
     from daemon.zenoh_session import key
     from recorder import Recorder
 

@@ -42,12 +42,14 @@ import structlog
 import zenoh
 
 from daemon import commands_handler
-from daemon.backend import Backend, JobPosition, joints_payload, recorded
+from daemon.backend import Backend
 from daemon.clock import SessionClock, every_wall_period, wall_seconds
 from daemon.config import Config
 from daemon.errors import ConfigError, UsageError
 from daemon.job import Job, JobSummary, StartRequest
 from daemon.log_relay import LogRelay, LostLines, RecordQueue, output_guarded, plain_record
+from daemon.messages import joints_payload
+from daemon.recorded import JobPosition, recorded
 from daemon.sdnotify import SdNotifier
 from daemon.security import exposure_error
 from daemon.zenoh_session import ZenohSession, error_text
@@ -209,7 +211,7 @@ async def serve(
     try:
         view = None
         if config.foxglove.channels:
-            from daemon.backend import scene_view
+            from daemon.hardware import scene_view
             from recorder.foxglove_arm import UrdfError
 
             try:

@@ -9,15 +9,11 @@ from __future__ import annotations
 
 import concurrent.futures
 
-from daemon.backend import (
-    Backend,
-    ProcessMotionPlanner,
-    SimOptions,
-    check_cell_reachable,
-    open_hardware_backend,
-)
+from daemon.backend import Backend, SimOptions
 from daemon.clock import RealClock, SessionClock
 from daemon.config import Config
+from daemon.hardware import open_hardware_backend
+from daemon.planners import ProcessMotionPlanner, check_cell_reachable
 from planning.arm import ArmModel
 
 

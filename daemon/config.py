@@ -15,7 +15,6 @@ layout (for ``dishbot config show`` and the recording's session header).
 
 from __future__ import annotations
 
-import ipaddress
 import math
 import re
 import tomllib
@@ -40,6 +39,7 @@ from planning.placement import FOOTPRINTS, METHODS
 from recorder.settings import RecordingConfig
 from statechart.chart import JOB_LEAVES, JOB_STATES, top_level
 from validation import NON_EMPTY, Invalid, OneOf, convert, show, toml, within
+from wire.hosts import is_loopback
 
 _ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}\Z")
 _BACKENDS = ("sim", "hardware")
@@ -643,16 +643,6 @@ def check_foxglove_listen(value: object, name: str, *, insecure: bool) -> tuple[
             "listens on 127.0.0.1 unless [foxglove] insecure = true"
         )
     return host, port
-
-
-def is_loopback(host: str) -> bool:
-    """Whether a host name or address is this machine's loopback (127.0.0.0/8, ::1, localhost)."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 def _merge(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:

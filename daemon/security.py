@@ -23,7 +23,6 @@ so client verbs stay quick to start.
 
 from __future__ import annotations
 
-import ipaddress
 import re
 import stat
 import tomllib
@@ -34,6 +33,7 @@ from typing import Annotated, Any
 
 from daemon.errors import ConfigError
 from validation import convert, show, within
+from wire.hosts import is_loopback
 
 NAMESPACE = "dishbot"
 # dishbot's own port ("DISH" on a phone keypad): not Zenoh's 7447 (zenohd, ROS 2's rmw_zenoh router, the
@@ -91,17 +91,6 @@ def endpoint_host(endpoint: str) -> str:
     """The host part of ``proto/host:port`` (an IPv6 address without its brackets)."""
     host = endpoint.split("/", 1)[1].rsplit(":", 1)[0]
     return host[1:-1] if host.startswith("[") else host
-
-
-def is_loopback(endpoint: str) -> bool:
-    """Whether only this machine can reach ``endpoint`` (127.0.0.0/8, ::1 or localhost)."""
-    host = endpoint_host(endpoint)
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 def check_name(value: object, name: str) -> str:
@@ -338,7 +327,9 @@ def exposure_error(listen: Sequence[str], connect: Sequence[str], zenoh: ZenohCo
             missing_tls = tls_missing(endpoint, zenoh.tls)
             if missing_tls:
                 raise ConfigError(f"{kind} {missing_tls}")
-            if is_loopback(endpoint) or (endpoint_protocol(endpoint) == "tls" and zenoh.tls.enabled):
+            if is_loopback(endpoint_host(endpoint)) or (
+                endpoint_protocol(endpoint) == "tls" and zenoh.tls.enabled
+            ):
                 continue
             return (
                 f"zenoh {kind} {endpoint} is reachable from other machines without TLS: anyone who reaches "

@@ -22,17 +22,12 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from daemon.backend import (
-    Backend,
-    CounterMug,
-    EventListener,
-    SimOptions,
-    cycle_planner,
-    device_event_payload,
-)
+from daemon.backend import Backend, CounterMug, EventListener, SimOptions
 from daemon.clock import SessionClock
 from daemon.config import Config
 from daemon.errors import UsageError
+from daemon.messages import device_event_payload
+from daemon.planners import cycle_planner
 from description.cell import CellLayout, Tray
 from description.thesis import MugSpec
 from drivers.interfaces import Camera

@@ -27,7 +27,6 @@ loopback unless the config says ``insecure = true`` (``config.check_foxglove_lis
 from __future__ import annotations
 
 import asyncio
-import ipaddress
 import json
 import threading
 from collections.abc import Callable, Coroutine, Iterable, Sequence
@@ -50,6 +49,7 @@ from foxglove.websocket import (
 from recorder.errors import LiveServerError
 from recorder.foxglove_scene import ARM, CALIBRATION, CELL, DEPTH, MUGS, PLAN, STATUS, TF, TOPICS, channel
 from recorder.writer import ChannelSpec, json_channel
+from wire.hosts import is_loopback
 from wire.schemas import HEADER_TOPIC, described_topics, topic_suffix
 
 log = structlog.get_logger(__name__)
@@ -96,7 +96,7 @@ class LiveServer(ServerListener):
         self._lock = threading.Lock()
         self._channels: dict[str, foxglove.Channel] = {}
         self._latest: dict[str, tuple[bytes, int]] = {}
-        self.commands_allowed = _is_loopback(host)
+        self.commands_allowed = is_loopback(host)
         for spec in channels:  # before the server exists: its first client sees them all at once
             self._declare(spec)
         try:
@@ -259,12 +259,3 @@ _REPLY_SCHEMA: Final = json.dumps(
 
 def _json_schema(name: str, data: bytes) -> MessageSchema:
     return MessageSchema(encoding="json", schema=foxglove.Schema(name=name, encoding="jsonschema", data=data))
-
-
-def _is_loopback(host: str) -> bool:
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False

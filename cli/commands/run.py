@@ -301,9 +301,10 @@ async def _backend(
 ) -> Backend:
     import structlog
 
-    from daemon.backend import ProcessMotionPlanner, SimOptions
+    from daemon.backend import SimOptions
     from daemon.cell import open_backend
     from daemon.clock import SimulatedClock, describe_speed
+    from daemon.planners import ProcessMotionPlanner
 
     sim: SimOptions | None = None
     if args.sim or config.backend == "sim":

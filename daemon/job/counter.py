@@ -6,9 +6,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import replace
 
-from daemon.backend import depth_preview_payload, observation_payload
 from daemon.job.context import JobContext
 from daemon.job.services import Services
+from daemon.messages import depth_preview_payload, observation_payload
 from perception.interfaces import Detection
 from planning.interfaces import MugPose
 

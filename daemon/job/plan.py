@@ -9,12 +9,12 @@ from __future__ import annotations
 import asyncio
 import functools
 
-from daemon.backend import CyclePlannerSpec, plan_placement
 from daemon.config import Config
 from daemon.job.context import JobContext, Outcome
 from daemon.job.cycles import NEXT_CYCLE_READS, NEXT_CYCLE_WRITES, take_next_cycle
 from daemon.job.services import Services
 from daemon.job.unit import Unit
+from daemon.planners import CyclePlannerSpec, plan_placement
 from description.cell import Tray
 from planning.interfaces import TraySlot
 from planning.placement import (

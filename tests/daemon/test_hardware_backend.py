@@ -13,16 +13,13 @@ import numpy as np
 import pytest
 
 from cli.main import main
-from daemon.backend import (
-    SimOptions,
-    check_cell_reachable,
-    load_correction,
-    open_hardware_backend,
-)
+from daemon.backend import SimOptions
 from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.errors import ConfigError, UsageError
+from daemon.hardware import open_hardware_backend
+from daemon.planners import check_cell_reachable, load_correction
 from description.camera import CameraSpec
 from description.thesis import JOINT_SERVOS
 from drivers.interfaces import RGBDFrame

@@ -13,11 +13,11 @@ from typing import Any
 
 import pytest
 
-from daemon.backend import CyclePlannerSpec, plan_placement
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import Job, JobContext, Services, StartRequest
 from daemon.job.cycles import take_next_cycle
+from daemon.planners import CyclePlannerSpec, plan_placement
 from perception import associate
 from perception.interfaces import Detection
 from planning.interfaces import CyclePlan, MotionRefused, MugPose, TraySlot

@@ -18,9 +18,10 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from daemon.backend import Backend, open_hardware_backend
+from daemon.backend import Backend
 from daemon.clock import RealClock
 from daemon.config import Config, load_config
+from daemon.hardware import open_hardware_backend
 from daemon.zenoh_session import session_config
 from drivers.interfaces import JointTrajectory
 from drivers.sim import FsrSimulator, ServoChainSimulator, default_chain

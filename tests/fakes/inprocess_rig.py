@@ -17,9 +17,10 @@ from pathlib import Path
 from typing import Any
 
 from daemon.app import ServeContext
-from daemon.backend import Backend, open_hardware_backend
+from daemon.backend import Backend
 from daemon.clock import SimulatedClock
 from daemon.config import Config, load_config
+from daemon.hardware import open_hardware_backend
 from drivers.sim import FsrSimulator, ServoChainSimulator, default_chain
 from drivers.sim.plant import FirstOrderPlant
 from drivers.stack import ARM_JOINTS

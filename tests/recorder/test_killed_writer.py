@@ -61,7 +61,7 @@ FOXGLOVE_WRITER = textwrap.dedent(
     import sys, time
     from pathlib import Path
     from daemon.config import load_config
-    from daemon.backend import scene_view
+    from daemon.hardware import scene_view
     from recorder import Recorder
 
     rec = Recorder(Path(sys.argv[1]), chunk_size=65536, deriver=scene_view(load_config()))

@@ -13,9 +13,9 @@ import websockets
 from websockets.typing import Subprotocol
 
 from cli.main import main
-from daemon.backend import scene_view
 from daemon.config import check_foxglove_listen, load_config
 from daemon.errors import ConfigError
+from daemon.hardware import scene_view
 from recorder import Recorder, read_messages
 from recorder.errors import LiveServerError
 from recorder.foxglove_server import LiveServer, known_channels

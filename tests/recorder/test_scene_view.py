@@ -11,8 +11,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from daemon.backend import depth_preview_payload, scene_view
 from daemon.config import load_config
+from daemon.hardware import scene_view
+from daemon.messages import depth_preview_payload
 from recorder.foxglove_arm import ArmFrames, UrdfError
 from recorder.foxglove_scene import channel, describe_event
 from tests.recorder.foxglove_decode import message_class

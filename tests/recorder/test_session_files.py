@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from daemon.backend import scene_view
 from daemon.config import load_config
+from daemon.hardware import scene_view
 from recorder import Recorder, read_messages
 from recorder.files import Retention, SessionRecording, file_name, is_job_file
 from recorder.settings import RecordingConfig

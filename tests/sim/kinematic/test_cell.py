@@ -313,7 +313,7 @@ def test_a_stale_frame_shows_the_mugs_as_they_stood_when_it_was_taken() -> None:
 def test_a_depth_preview_is_published_as_16_bit_millimetres() -> None:
     import base64
 
-    from daemon.backend import depth_preview_payload
+    from daemon.messages import depth_preview_payload
 
     depth = np.array([[0.0, 1.25], [np.nan, 70.0]], dtype=np.float32)
     payload = depth_preview_payload(depth)
