@@ -31,6 +31,7 @@ from cli.progress import Progress
 from daemon.config import Config, load_config
 from daemon.errors import UsageError
 from description import thesis
+from wire.messages import Payload, plain
 
 if TYPE_CHECKING:
     from daemon.clock import SimulatedClock
@@ -240,9 +241,9 @@ async def run_dataset(
     collisions: list[TrayCollision] = []
     cell.on_collision(collisions.append)
 
-    def publish(key: str, payload: Mapping[str, object]) -> None:
+    def publish(key: str, payload: Payload) -> None:
         if on_event is not None:
-            on_event(key, payload)
+            on_event(key, plain(payload))
 
     job = Job(backend, config, publish, associate, executor=executor)
     control = asyncio.create_task(job.run())

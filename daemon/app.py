@@ -48,7 +48,7 @@ from daemon.config import Config
 from daemon.errors import ConfigError, UsageError
 from daemon.job import Job, JobSummary, StartRequest
 from daemon.log_relay import LogRelay, LostLines, RecordQueue, output_guarded, plain_record
-from daemon.messages import joints_payload
+from daemon.messages import gripper_message, joints_message
 from daemon.recorded import JobPosition, recorded
 from daemon.sdnotify import SdNotifier
 from daemon.security import exposure_error
@@ -59,6 +59,7 @@ from drivers.errors import BusLost, DriverError, ServoFault
 from perception.interfaces import Associate
 from recorder.files import SessionRecording, is_job_file
 from recorder.outcome import JobOutcome
+from wire.messages import Command, Event, Payload, plain
 
 if TYPE_CHECKING:
     from recorder.foxglove_server import LiveServer
@@ -302,13 +303,15 @@ async def _run(
     backend = recorded(backend, session.record, position)
     outcome = JobOutcome()
 
-    def publish(topic: str, payload: Mapping[str, object]) -> None:
+    def publish(topic: str, payload: Payload) -> None:
         if topic == "events":
             outcome.add(payload)  # what `--once` says about each mug
             position.saw(topic, payload)
         session.publish(topic, payload)
-        for tap in hooks.on_publish:
-            tap(topic, payload)
+        if hooks.on_publish:
+            seen = plain(payload)  # the taps (a replay's, a fault plan's) read the JSON object
+            for tap in hooks.on_publish:
+                tap(topic, seen)
 
     job = Job(backend, config, publish, associate, executor=executor, recording=recording)
 
@@ -329,21 +332,24 @@ async def _run(
                     recording.expect_job(header)
         # The operator's commands are inputs too: a replay sends them again where they came in the job
         # (``position``, taken as the command arrives) (``status`` asks and changes nothing: not kept).
-        t, t_device, at = clock.now(), clock.monotonic(), position.fields()
+        t, t_device = clock.now(), clock.monotonic()
+        at = position.state, position.transitions, position.device_commands
         reply = await commands_handler.handle(job, verb, payload, many)
         if verb != "status":
             text = payload.decode("utf-8", "replace")
             session.record(
                 "input/command",
-                {
-                    "t": t,
-                    "t_device": t_device,
-                    "verb": verb,
-                    "payload": text,
-                    "many": many,
-                    "reply": reply,
-                    **at,
-                },
+                Command(
+                    t=t,
+                    t_device=t_device,
+                    verb=verb,
+                    payload=text,
+                    many=many,
+                    reply=reply,
+                    at_state=at[0],
+                    at_transitions=at[1],
+                    at_device_commands=at[2],
+                ),
             )
         return reply
 
@@ -565,13 +571,9 @@ class ConnectionHealth:
             log.info(kind, peers=peers, routers=routers)
         else:
             log.warning(kind, peers=peers, routers=routers)
-        event = {
-            "kind": kind,
-            "state": self._job.chart.state,
-            "t": self._clock.now(),
-            "peers": peers,
-            "routers": routers,
-        }
+        event = Event(
+            kind=kind, state=self._job.chart.state, t=self._clock.now(), peers=peers, routers=routers
+        )
         self._session.publish("events", event)
 
 
@@ -662,7 +664,7 @@ async def _joints_loop(session: ZenohSession, backend: Backend, job: Job, rate_h
 
     async def read() -> None:
         js = await backend.arm.read_joints()
-        session.publish("joints", joints_payload(js, t=clock.now()))
+        session.publish("joints", joints_message(js, t=clock.now()))
 
     await _polled(clock, 1.0 / rate_hz, read, job, "joints")
 
@@ -673,19 +675,8 @@ async def _gripper_loop(session: ZenohSession, backend: Backend, job: Job, rate_
     async def read() -> None:
         gs = await backend.gripper.read()
         reading = backend.force.latest()
-        session.publish(
-            "gripper",
-            {
-                "t": clock.now(),
-                "t_device": gs.t,
-                "aperture_m": round(gs.aperture_m, 5),
-                "load": round(gs.load, 4),
-                "force_n": None if reading is None else round(reading.force_n, 4),
-                "raw": None if reading is None else reading.raw,
-                "seq": None if reading is None else reading.seq,
-                "holding": backend.force.holding(),
-            },
-        )
+        t = clock.now()
+        session.publish("gripper", gripper_message(gs, reading, holding=backend.force.holding(), t=t))
 
     await _polled(clock, 1.0 / rate_hz, read, job, "gripper")
 

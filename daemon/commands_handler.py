@@ -27,6 +27,7 @@ from daemon.job import CommandRefused, Job, PlannerRequest, StartRequest
 from daemon.security import FLEET_VERBS
 from description import thesis
 from validation import convert, show, within
+from wire.messages import plain
 
 VERBS = ("status", "start", "pause", "resume", "stop", "estop", "reset")
 _MAX_MUGS = 64
@@ -121,7 +122,7 @@ def status(job: Job) -> dict[str, object]:
     """``status``: the state payload, the job's summary, the commands allowed now and the recording's
     health (``{"ok": false, "error": ...}`` once the disk failed)."""
     allowed = [v for v in VERBS if v == "status" or job.chart.can(v)]
-    out = {**job.status(), "summary": job.summary.to_json(), "allowed": allowed}
+    out = {**plain(job.status()), "summary": job.summary.to_json(), "allowed": allowed}
     recording = job.recording()
     if recording is not None:
         out["recording"] = recording

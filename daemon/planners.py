@@ -25,6 +25,7 @@ from planning.interfaces import CyclePlan, MotionPlanner, MugPose, TraySlot
 from planning.motion import DynamicsMoveCost, check_reachable
 from planning.motion.planner import CyclePlanner
 from planning.placement import PlanOptions, PlanResult, Problem, plan
+from wire.messages import MotionCall
 
 T = TypeVar("T")
 
@@ -36,7 +37,7 @@ class MotionCalls:
 
     inner: MotionPlanner
 
-    def _call(self, call: str, args: tuple[object, ...], run: Callable[[], T]) -> T:
+    def _call(self, call: MotionCall, args: tuple[object, ...], run: Callable[[], T]) -> T:
         raise NotImplementedError
 
     def plan_cycle(

@@ -11,9 +11,11 @@ from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import replace
 from typing import TypeVar
 
+import msgspec
+
 from daemon.backend import Backend, EventListener
 from daemon.clock import SessionClock
-from daemon.messages import failure_fields, joints_payload, observation_payload
+from daemon.messages import failure_fields, observation_input
 from daemon.planners import MotionCalls
 from drivers.errors import BusLost, DriverError
 from drivers.interfaces import (
@@ -29,13 +31,29 @@ from drivers.interfaces import (
 )
 from perception.interfaces import MugObserver, Observation
 from planning.interfaces import MotionPlanner, MotionRefused
-from wire.messages import BadMessage, Event, convert
+from wire.messages import (
+    ArmCommand,
+    BadMessage,
+    CallFailed,
+    Event,
+    Follow,
+    Force,
+    Grasp,
+    GripperCommand,
+    Holding,
+    InputJoints,
+    Motion,
+    MotionCall,
+    Payload,
+    ReadFailed,
+    as_message,
+)
 from wire.motion import args_digest, result_json
 
 T = TypeVar("T")
 
 
-Sink = Callable[[str, Mapping[str, object]], None]
+Sink = Callable[[str, Payload], None]
 
 
 class JobPosition:
@@ -49,12 +67,12 @@ class JobPosition:
         self.transitions = 0
         self.device_commands = 0
 
-    def saw(self, topic: str, payload: Mapping[str, object]) -> None:
+    def saw(self, topic: str, payload: Payload) -> None:
         """Follow what the daemon publishes (its transitions)."""
         if topic != "events":
             return
         try:
-            event = convert(payload, Event, name=topic)
+            event = as_message(payload, Event, name=topic)
         except BadMessage:
             return
         if event.kind != "transition":
@@ -103,7 +121,8 @@ def _recorded_events(
     on_event: Callable[[EventListener], None], sink: Sink, clock: SessionClock, position: JobPosition
 ) -> Callable[[EventListener], None]:
     """``on_event`` whose events are also recorded (``input/device_event``) on the event loop, just before
-    the daemon handles them there, with the job's position and the monotonic time then."""
+    the daemon handles them there, with the job's position and the monotonic time then. A device event is
+    a mapping (the driver's own keys come first), so its record is one too."""
 
     def register(listener: EventListener) -> None:
         try:
@@ -127,19 +146,26 @@ def _recorded_events(
     return register
 
 
+Ending = TypeVar("Ending", Follow, GripperCommand, CallFailed)
+
+
 async def _failing_recorded(
-    call: Awaitable[T], sink: Sink, clock: SessionClock, topic: str, record: Mapping[str, object]
+    call: Awaitable[T], sink: Sink, clock: SessionClock, topic: str, record: Ending
 ) -> T:
     """``await call``; when it is cancelled or raises, ``record`` goes to ``topic`` first, with the call's
     end and ``cancelled`` or the ``error``."""
     try:
         return await call
     except asyncio.CancelledError:
-        sink(topic, {**record, "t_end": clock.monotonic(), "cancelled": True})
+        sink(topic, msgspec.structs.replace(record, t_end=clock.monotonic(), cancelled=True))
         raise
     except BaseException as e:
-        sink(topic, {**record, "t_end": clock.monotonic(), **failure_fields(e)})
+        sink(topic, msgspec.structs.replace(record, t_end=clock.monotonic(), **failure_fields(e)))
         raise
+
+
+def _read_failed(clock: SessionClock, t_read: float, e: BaseException) -> ReadFailed:
+    return ReadFailed(t=clock.now(), t_read=t_read, **failure_fields(e))
 
 
 class _RecordedArm:
@@ -157,12 +183,19 @@ class _RecordedArm:
         try:
             js = await self._inner.read_joints()
         except (DriverError, BusLost) as e:
-            t_read = self._clock.monotonic()
-            self._sink("input/joints_failed", {"t": self._clock.now(), "t_read": t_read, **failure_fields(e)})
+            self._sink("input/joints_failed", _read_failed(self._clock, self._clock.monotonic(), e))
             raise
         self._sink(
             "input/joints",
-            {**joints_payload(js, t=self._clock.now(), exact=True), "t_read": self._clock.monotonic()},
+            InputJoints(
+                t=self._clock.now(),
+                t_device=js.t,
+                names=list(js.names),
+                position_rad=list(js.position_rad),
+                velocity_rad_s=list(js.velocity_rad_s),
+                load=list(js.load),
+                t_read=self._clock.monotonic(),
+            ),
         )
         return js
 
@@ -171,28 +204,27 @@ class _RecordedArm:
         so that a replay can tell whether it asks the same and take as long."""
         self._position.device_command()
         started = self._clock.monotonic()
-        record: dict[str, object] = {
-            "label": trajectory.label,
-            "points": len(trajectory.times),
-            "duration_s": round(trajectory.duration, 6),
-            "end_rad": [round(float(v), 6) for v in trajectory.positions[-1]]
-            if len(trajectory.times)
-            else [],
-            "t_start": started,
-        }
+        record = Follow(
+            label=trajectory.label,
+            points=len(trajectory.times),
+            duration_s=round(trajectory.duration, 6),
+            end_rad=[round(float(v), 6) for v in trajectory.positions[-1]] if len(trajectory.times) else [],
+            t_start=started,
+            t_end=started,  # until it ends
+        )
         await _failing_recorded(
             self._inner.follow(trajectory), self._sink, self._clock, "output/follow", record
         )
-        self._sink("output/follow", {**record, "t_end": self._clock.monotonic()})
+        self._sink("output/follow", msgspec.structs.replace(record, t_end=self._clock.monotonic()))
 
     async def stop(self) -> None:
         self._position.device_command()
-        self._sink("output/arm", {"action": "stop", "t_start": self._clock.monotonic()})
+        self._sink("output/arm", ArmCommand(action="stop", t_start=self._clock.monotonic()))
         await self._inner.stop()
 
     async def relax(self) -> None:
         self._position.device_command()
-        self._sink("output/arm", {"action": "relax", "t_start": self._clock.monotonic()})
+        self._sink("output/arm", ArmCommand(action="relax", t_start=self._clock.monotonic()))
         await self._inner.relax()
 
 
@@ -209,46 +241,46 @@ class _RecordedGripper:
         try:
             return await self._inner.read()
         except (DriverError, BusLost) as e:
-            t_read = self._clock.monotonic()
-            self._sink(
-                "input/gripper_failed", {"t": self._clock.now(), "t_read": t_read, **failure_fields(e)}
-            )
+            self._sink("input/gripper_failed", _read_failed(self._clock, self._clock.monotonic(), e))
             raise
 
     async def open(self, aperture_m: float | None = None) -> None:
         self._position.device_command()
-        record: dict[str, object] = {
-            "action": "open",
-            "aperture_m": aperture_m,
-            "t_start": self._clock.monotonic(),
-        }
+        record = GripperCommand(action="open", aperture_m=aperture_m, t_start=self._clock.monotonic())
         await _failing_recorded(
             self._inner.open(aperture_m), self._sink, self._clock, "output/gripper", record
         )
-        self._sink("output/gripper", {**record, "t_end": self._clock.monotonic()})
+        self._sink("output/gripper", msgspec.structs.replace(record, t_end=self._clock.monotonic()))
 
     async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
         self._position.device_command()
         started = self._clock.monotonic()
-        asked = {"force_threshold_n": force_threshold_n, "min_aperture_m": min_aperture_m, "t_start": started}
+        asked = CallFailed(
+            force_threshold_n=force_threshold_n,
+            min_aperture_m=min_aperture_m,
+            t_start=started,
+            t_end=started,  # until it ends
+        )
         closing = self._inner.close_on_mug(force_threshold_n=force_threshold_n, min_aperture_m=min_aperture_m)
         result = await _failing_recorded(closing, self._sink, self._clock, "input/grasp_failed", asked)
         self._sink(
             "input/grasp",
-            {
-                "held": result.held,
-                "force_n": result.force_n,
-                "aperture_m": result.aperture_m,
-                "reason": result.reason,
-                **asked,
-                "t_end": self._clock.monotonic(),
-            },
+            Grasp(
+                held=result.held,
+                force_n=result.force_n,
+                aperture_m=result.aperture_m,
+                reason=result.reason,
+                force_threshold_n=force_threshold_n,
+                min_aperture_m=min_aperture_m,
+                t_start=started,
+                t_end=self._clock.monotonic(),
+            ),
         )
         return result
 
     async def stop(self) -> None:
         self._position.device_command()
-        self._sink("output/gripper", {"action": "stop", "t_start": self._clock.monotonic()})
+        self._sink("output/gripper", GripperCommand(action="stop", t_start=self._clock.monotonic()))
         await self._inner.stop()
 
 
@@ -263,20 +295,20 @@ class _RecordedForce:
         if reading is not None:
             self._sink(
                 "input/force",
-                {
-                    "t": self._clock.now(),
-                    "t_device": reading.t,
-                    "t_read": self._clock.monotonic(),
-                    "force_n": reading.force_n,
-                    "raw": reading.raw,
-                    "seq": reading.seq,
-                },
+                Force(
+                    t=self._clock.now(),
+                    t_device=reading.t,
+                    t_read=self._clock.monotonic(),
+                    force_n=reading.force_n,
+                    raw=reading.raw,
+                    seq=reading.seq,
+                ),
             )
         return reading
 
     def holding(self) -> bool:
         held = self._inner.holding()
-        self._sink("input/holding", {"holding": held, "t_read": self._clock.monotonic()})
+        self._sink("input/holding", Holding(holding=held, t_read=self._clock.monotonic()))
         return held
 
 
@@ -295,32 +327,22 @@ class _RecordedObserver:
         except asyncio.CancelledError:
             self._sink(
                 "input/observe_failed",
-                {
-                    "t": self._clock.now(),
-                    "t_start": started,
-                    "t_end": self._clock.monotonic(),
-                    "cancelled": True,
-                },
+                CallFailed(
+                    t=self._clock.now(), t_start=started, t_end=self._clock.monotonic(), cancelled=True
+                ),
             )
             raise
         except BaseException as e:
             self._sink(
                 "input/observe_failed",
-                {
-                    "t": self._clock.now(),
-                    "t_start": started,
-                    "t_end": self._clock.monotonic(),
-                    **failure_fields(e),
-                },
+                CallFailed(
+                    t=self._clock.now(), t_start=started, t_end=self._clock.monotonic(), **failure_fields(e)
+                ),
             )
             raise
         self._sink(
             "input/observation",
-            {
-                **observation_payload(obs, t=self._clock.now(), exact=True),
-                "t_start": started,
-                "t_end": self._clock.monotonic(),
-            },
+            observation_input(obs, t=self._clock.now(), t_start=started, t_end=self._clock.monotonic()),
         )
         return obs
 
@@ -341,8 +363,7 @@ class _RecordedHealth:
         try:
             await self._inner.poll()
         except (DriverError, BusLost) as e:
-            t_read = self._clock.monotonic()
-            self._sink("input/health_failed", {"t": self._clock.now(), "t_read": t_read, **failure_fields(e)})
+            self._sink("input/health_failed", _read_failed(self._clock, self._clock.monotonic(), e))
             raise
 
     def problems(self) -> tuple[str, ...]:
@@ -361,15 +382,18 @@ class _RecordedMotion(MotionCalls):
         self._sink = sink
         self._clock = clock
 
-    def _call(self, call: str, args: tuple[object, ...], run: Callable[[], T]) -> T:
-        record: dict[str, object] = {"call": call, "args_digest": args_digest(call, *args)}
+    def _call(self, call: MotionCall, args: tuple[object, ...], run: Callable[[], T]) -> T:
+        digest = args_digest(call, *args)
         try:
             result = run()
         except MotionRefused as e:
-            self._sink("input/motion", {**record, "refused": str(e), "blockers": sorted(e.blockers)})
+            self._sink(
+                "input/motion",
+                Motion(call=call, args_digest=digest, refused=str(e), blockers=sorted(e.blockers)),
+            )
             raise
         except Exception as e:
-            self._sink("input/motion", {**record, **failure_fields(e)})
+            self._sink("input/motion", Motion(call=call, args_digest=digest, **failure_fields(e)))
             raise
-        self._sink("input/motion", {**record, "result": result_json(call, result)})
+        self._sink("input/motion", Motion(call=call, args_digest=digest, result=result_json(call, result)))
         return result

@@ -29,6 +29,7 @@ import structlog
 import zenoh
 
 from daemon.security import NAMESPACE, ZenohConfig, node_settings
+from wire.messages import Payload
 from wire.messages import encode as wire_encode
 
 log = structlog.get_logger("daemon.zenoh")
@@ -46,9 +47,7 @@ _RETRY = {"period_init_ms": 500, "period_max_ms": 4000, "period_increase_factor"
 class RecordSink(Protocol):
     """What the session records to: ``recorder.Recorder`` fits."""
 
-    def write(
-        self, topic: str, payload: Mapping[str, object], *, log_time_ns: int, data: bytes | None = None
-    ) -> bool: ...
+    def write(self, topic: str, payload: Payload, *, log_time_ns: int, data: bytes | None = None) -> bool: ...
 
 
 def session_config(
@@ -182,7 +181,7 @@ class ZenohSession:
             raise ValueError("attach_recorder needs now_ns: the session clock the messages are stamped on")
         self._recorder, self._now_ns = recorder, now_ns
 
-    def publish(self, topic: str, payload: Mapping[str, object]) -> None:
+    def publish(self, topic: str, payload: Payload) -> None:
         """Publish on ``dishbot/<id>/<topic>`` and record it, the same bytes to both (encoded once, by
         ``wire.messages.encode``); safe from any thread."""
         data = wire_encode(payload)
@@ -196,11 +195,11 @@ class ZenohSession:
             else:
                 publisher.put(data)
 
-    def record(self, topic: str, payload: Mapping[str, object]) -> None:
+    def record(self, topic: str, payload: Payload) -> None:
         """Record without publishing (driver-boundary inputs), under ``dishbot/<id>/<topic>``."""
         self._record(self.key(topic), payload, None)
 
-    def _record(self, topic: str, payload: Mapping[str, object], data: bytes | None) -> None:
+    def _record(self, topic: str, payload: Payload, data: bytes | None) -> None:
         recorder, now_ns = self._recorder, self._now_ns
         if recorder is not None and now_ns is not None:
             recorder.write(topic, payload, log_time_ns=now_ns(), data=data)

@@ -42,6 +42,7 @@ from recorder.writer import (
     free_path,
     header_payload,
 )
+from wire.messages import BadMessage, Event, Message, Payload, as_message
 from wire.schemas import topic_suffix
 
 log = structlog.get_logger(__name__)
@@ -51,10 +52,21 @@ IDLE: Final = "idle"
 _END_STATES: Final = frozenset({"done", "fault", "estop"})
 
 
-def ends_job(transition: Mapping[str, object]) -> bool:
+def ends_job(transition: Event) -> bool:
     """Whether a ``transition`` event ends a loading job: done, fault, estop, or stopped back to idle."""
-    dest = transition.get("dest")
-    return dest in _END_STATES or (dest == "idle" and transition.get("trigger") == "stop")
+    dest = transition.dest
+    return dest in _END_STATES or (dest == "idle" and transition.trigger == "stop")
+
+
+def _transition(topic: str, payload: Payload) -> Event | None:
+    """The transition ``payload`` is, when it is one (an ``events`` message of kind ``transition``)."""
+    if topic_suffix(topic) != "events":
+        return None
+    try:
+        event = as_message(payload, Event, name="events")
+    except BadMessage:
+        return None
+    return event if event.kind == "transition" else None
 
 
 def file_name(robot_id: str, kind: str, log_time_ns: int) -> str:
@@ -167,7 +179,7 @@ class SessionRecording:
         self._recorder: Recorder | None = None
         self._unusable = False
         self._opening = False
-        self._early: list[tuple[str, Mapping[str, object], int]] = []
+        self._early: list[tuple[str, Payload, int]] = []
         self.disk = DiskSpace()  # shared by every file of the session (a full disk stays full across them)
         self._listener: HealthListener | None = None
         self._failure: tuple[Path, str] | None = None  # the file that failed and why, until one works again
@@ -227,14 +239,14 @@ class SessionRecording:
         with self._lock:
             self._expected = dict(job)
 
-    def write(
-        self, topic: str, payload: Mapping[str, object], *, log_time_ns: int, data: bytes | None = None
-    ) -> bool:
+    def write(self, topic: str, payload: Payload, *, log_time_ns: int, data: bytes | None = None) -> bool:
         """Record one message, first opening a new file when this message starts one; ``data`` are its
         bytes when already encoded (``Recorder.write``)."""
         with self._lock:
             if self._opening:  # a log record of the first file's opening, on this thread: after the header
-                self._early.append((topic, dict(payload), log_time_ns))
+                self._early.append(
+                    (topic, payload if isinstance(payload, Message) else dict(payload), log_time_ns)
+                )
                 return True
             recorder = self._recorder
             if recorder is None:
@@ -295,9 +307,9 @@ class SessionRecording:
         self._recorder = recorder
         return recorder
 
-    def _route(self, topic: str, payload: Mapping[str, object], t: int) -> None:
-        transition = topic_suffix(topic) == "events" and payload.get("kind") == "transition"
-        if transition and payload.get("trigger") == "start":
+    def _route(self, topic: str, payload: Payload, t: int) -> None:
+        transition = _transition(topic, payload)
+        if transition is not None and transition.trigger == "start":
             if self._kind == JOB and not self._job_started:
                 self._job_started = True  # the file was opened for this job (--once)
             else:
@@ -305,7 +317,7 @@ class SessionRecording:
                 self._job_started = True
             return
         if self._kind == JOB:
-            if transition and self._job_ended_ns is None and ends_job(payload):
+            if transition is not None and self._job_ended_ns is None and ends_job(transition):
                 self._job_ended_ns = t
             elif self._job_ended_ns is not None and t - self._job_ended_ns >= self._settings.job_tail_s * 1e9:
                 self._rotate(IDLE, t)

@@ -12,7 +12,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Final
 
-from wire.messages import UNSET, BadMessage, Event, UnsetType, convert
+from wire.messages import UNSET, BadMessage, Event, Payload, UnsetType, as_message
 
 _DEVICE_FAULTS: Final = frozenset({"servo_fault", "bus_lost", "fsr_lost", "fsr_stale", "tray_collision"})
 _MAX_DEVICE_FAULTS = 20
@@ -38,14 +38,13 @@ class JobOutcome:
             outcome.add(event)
         return outcome
 
-    def add(self, event: Event | Mapping[str, object]) -> None:
+    def add(self, payload: Payload) -> None:
         """Fold one event in (a decoded one, or its payload; one that is not an event is left out); a
         ``start`` transition begins a new job (what came before is forgotten)."""
-        if not isinstance(event, Event):
-            try:
-                event = convert(event, Event, name="events")
-            except BadMessage:
-                return
+        try:
+            event = as_message(payload, Event, name="events")
+        except BadMessage:
+            return
         kind = event.kind
         mug = _text(event.mug_id)
         if kind == "transition":

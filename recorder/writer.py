@@ -47,7 +47,7 @@ import structlog
 from mcap.writer import CompressionType, Writer
 
 from recorder.errors import RecordingError
-from wire.messages import Message, decode, encode, message_type, topic_suffix
+from wire.messages import Message, Payload, decode, encode, message_type, topic_suffix
 from wire.schemas import HEADER_TOPIC, is_telemetry, schema_bytes, schema_name
 
 log = structlog.get_logger(__name__)
@@ -363,10 +363,9 @@ class Recorder:
         with self._lock:
             return tuple(self._paths)
 
-    def write(
-        self, topic: str, payload: Mapping[str, object], *, log_time_ns: int, data: bytes | None = None
-    ) -> bool:
-        """Queue one message; False (counted as dropped) when the queue is full or the disk has failed.
+    def write(self, topic: str, payload: Payload, *, log_time_ns: int, data: bytes | None = None) -> bool:
+        """Queue one message (its declared struct, or a JSON object); False (counted as dropped) when the
+        queue is full or the disk has failed.
         ``data``: the payload's bytes as ``wire.messages.encode`` wrote them (for Zenoh), recorded as they
         are instead of encoding the payload again.
 
@@ -480,7 +479,7 @@ class Recorder:
     def _enqueue(
         self,
         topic: str,
-        payload: Mapping[str, object],
+        payload: Payload,
         *,
         log_time_ns: int,
         flush_now: bool,
@@ -845,10 +844,10 @@ def free_path(path: Path) -> Path:
     raise RecordingError(f"recording {path} and {_MAX_NAME_TRIES - 1} numbered variants already exist")
 
 
-def _encode(topic: str, payload: Mapping[str, object]) -> bytes:
+def _encode(topic: str, payload: Payload) -> bytes:
     if not topic:
         raise RecordingError("recording topic must be a non-empty key expression")
-    if not isinstance(payload, Mapping):
+    if not isinstance(payload, Mapping | Message):
         raise RecordingError(
             f"recording payload for {topic!r} must be a JSON object, got {type(payload).__name__}"
         )

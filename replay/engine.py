@@ -55,7 +55,7 @@ from replay.session import (
     trace_of_messages,
 )
 from validation import toml
-from wire.messages import Command, UnsetType
+from wire.messages import Command, Payload, UnsetType, plain
 
 log = structlog.get_logger("replay")
 
@@ -337,10 +337,8 @@ class _Tee:
 
         forward = self._forward
 
-        def tee(
-            topic: str, payload: Mapping[str, object], *, log_time_ns: int, data: bytes | None = None
-        ) -> bool:
-            self.messages.append(RecordedMessage(topic, log_time_ns, dict(payload)))
+        def tee(topic: str, payload: Payload, *, log_time_ns: int, data: bytes | None = None) -> bool:
+            self.messages.append(RecordedMessage(topic, log_time_ns, dict(plain(payload))))
             return write(topic, payload, log_time_ns=log_time_ns, data=data) if forward else True
 
         recording.write = tee  # type: ignore[method-assign]

@@ -789,7 +789,7 @@ class FaultInjector:
             cell.fsr_spike(spec.value_n or 0.0)
             return {"value_n": spec.value_n}
         if kind == "mug_slip":
-            carried = self._ctx.job.status().get("current_mug") if self._ctx is not None else None
+            carried = self._ctx.job.status().current_mug if self._ctx is not None else None
             world_mug = cell.slip()
             if world_mug is None:
                 self._no_effect[spec.index] = "no mug was held"

@@ -450,11 +450,11 @@ class Command(Message, kw_only=True):
     """``input/command``: an operator's command as it came, the daemon's reply and where the job was."""
 
     t: WallT
+    t_device: DeviceT | U = UNSET
     verb: Annotated[str, doc("the command's verb (cmd/<verb>); status queries are not kept")]
     payload: Annotated[str, doc("the command's JSON payload as received (UTF-8, undecodable bytes replaced)")]
     many: Annotated[bool, doc("the query named robots by wildcard")] | U = UNSET
     reply: Annotated[dict[str, Any], doc("the daemon's reply")] | U = UNSET
-    t_device: DeviceT | U = UNSET
     at_state: AtState | U = UNSET
     at_transitions: AtTransitions | U = UNSET
     at_device_commands: AtDeviceCommands | U = UNSET
@@ -584,6 +584,28 @@ def _finite(value: object) -> bool:
 
 M = TypeVar("M", bound=Message)
 
+# What a producer hands ``publish``: the topic's declared message; on the open topics (``events`` from a
+# driver or a fault file, ``log``) a mapping, which ``encode`` writes in its own key order.
+Payload = Message | Mapping[str, object]
+
+
+def as_message(payload: Payload, kind: type[M], *, name: str = "") -> M:
+    """A published payload read as ``kind``: the message itself, or a mapping (or another message's fields)
+    converted (``BadMessage`` when it is not one)."""
+    if isinstance(payload, kind):
+        return payload
+    if isinstance(payload, Message):
+        return convert(msgspec.to_builtins(payload), kind, name=name)
+    return convert(payload, kind, name=name)
+
+
+def plain(payload: Payload) -> Mapping[str, object]:
+    """A payload as its JSON object (what the bytes hold): for readers of any topic's keys."""
+    if isinstance(payload, Message):
+        built: dict[str, object] = msgspec.to_builtins(payload, enc_hook=_fallback)
+        return built
+    return payload
+
 
 def decode(data: bytes | str, kind: type[M], *, name: str = "") -> M:
     """``data`` (a payload's JSON) as a ``kind``; ``BadMessage`` with one line naming the message (``name``,
@@ -646,11 +668,14 @@ __all__ = [
     "UNSET",
     "BadMessage",
     "Message",
+    "Payload",
     "UnsetType",
+    "as_message",
     "convert",
     "decode",
     "decode_topic",
     "encode",
     "message_type",
+    "plain",
     "topic_suffix",
 ]

@@ -15,7 +15,7 @@ import dataclasses
 import hashlib
 import json
 from collections.abc import Mapping, Sequence
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 
@@ -176,7 +176,7 @@ def _number(doc: Mapping[str, object], key: str) -> float:
     return float(value)
 
 
-def result_json(call: str, result: object) -> object:
+def result_json(call: str, result: object) -> dict[str, Any]:
     """The JSON of a planner call's result."""
     if call == "plan_move" and isinstance(result, JointTrajectory):
         return trajectory_json(result)

@@ -8,7 +8,7 @@ from dataclasses import replace
 
 from daemon.job.context import JobContext
 from daemon.job.services import Services
-from daemon.messages import depth_preview_payload, observation_payload
+from daemon.messages import depth_preview, detections_message
 from perception.interfaces import Detection
 from planning.interfaces import MugPose
 
@@ -38,10 +38,13 @@ async def look(services: Services, ctx: JobContext, *, target_id: str = "") -> d
     for d in reading_order([d for d in associated if not d.mug_id]):
         seen.append(replace(d, mug_id=f"m{ctx.next_id}"))
         ctx.next_id += 1
-    payload = observation_payload(replace(obs, detections=tuple(seen)), t=services.wall_time())
-    if obs.depth_preview is not None:
-        payload["depth_preview"] = depth_preview_payload(obs.depth_preview)
-    services.publish("detections", payload)
+    preview = None if obs.depth_preview is None else depth_preview(obs.depth_preview)
+    services.publish(
+        "detections",
+        detections_message(
+            replace(obs, detections=tuple(seen)), t=services.wall_time(), depth_preview=preview
+        ),
+    )
     return {d.mug_id: _pose(d) for d in seen}
 
 

@@ -14,6 +14,7 @@ from daemon.job.context import JobContext, Outcome
 from daemon.job.cycles import NEXT_CYCLE_READS, NEXT_CYCLE_WRITES, take_next_cycle
 from daemon.job.services import Services
 from daemon.job.unit import Unit
+from daemon.messages import plan_message
 from daemon.planners import CyclePlannerSpec, plan_placement
 from description.cell import Tray
 from planning.interfaces import TraySlot
@@ -29,6 +30,7 @@ from planning.placement import (
     plan,
 )
 from planning.placement.checked import CheckedPlan, plan_checked
+from wire.messages import OutOfReach, Slot
 
 
 class Plan(Unit):
@@ -57,21 +59,13 @@ class Plan(Unit):
             services.event("out_of_reach", mug_id=m.mug_id, reason=m.reason, detail=m.detail)
         for mug_id, why in checked.dropped:
             services.event("slot_dropped", mug_id=mug_id, reason=why)
-        payload = result.to_json()
-        payload["out_of_reach"] = [{"id": m.mug_id, "reason": m.reason} for m in checked.left_out]
-        payload["slots"] = [
-            {
-                "id": s.mug_id,
-                "type": s.type,
-                "x_m": round(s.x_m, 5),
-                "y_m": round(s.y_m, 5),
-                "rotated": s.rotated,
-            }
+        out_of_reach = [OutOfReach(id=m.mug_id, reason=m.reason) for m in checked.left_out]
+        slots = [
+            Slot(id=s.mug_id, type=s.type, x_m=round(s.x_m, 5), y_m=round(s.y_m, 5), rotated=s.rotated)
             for s, _ in ctx.queue
         ]
-        payload["t_plan_s"] = payload["t"]  # the plan's time estimate; ``t`` is the time of publication
-        payload["t"] = services.wall_time()
-        services.publish("plan", payload)
+        t = services.wall_time()
+        services.publish("plan", plan_message(result, out_of_reach=out_of_reach, slots=slots, t=t))
         return Outcome("planned", {"has_next_mug": await take_next_cycle(services, ctx)})
 
 

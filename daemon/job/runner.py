@@ -46,6 +46,7 @@ from planning.interfaces import MotionRefused
 from statechart.chart import JOB_STATES, top_level
 from statechart.errors import EventRefused
 from statechart.machine import StateChart, Transition
+from wire.messages import State
 
 log = structlog.get_logger("daemon.job")
 
@@ -144,19 +145,19 @@ class Job:
             "next_id": ctx.next_id,
         }
 
-    def status(self) -> dict[str, object]:
-        """The ``state`` payload: where the chart is and how far the job got."""
+    def status(self) -> State:
+        """The ``state`` message: where the chart is and how far the job got."""
         ctx = self._ctx
-        return {
-            "state": self.chart.state,
-            "mugs_total": len(ctx.counter) + len(ctx.on_tray),
-            "mugs_planned": ctx.summary.planned,
-            "mugs_placed": len(ctx.on_tray),
-            "mugs_failed": ctx.summary.failed,
-            "current_mug": ctx.current.mug_id if ctx.current else None,
-            "transitions": self._transitions,
-            "t": self._services.wall_time(),
-        }
+        return State(
+            state=self.chart.state,
+            mugs_total=len(ctx.counter) + len(ctx.on_tray),
+            mugs_planned=ctx.summary.planned,
+            mugs_placed=len(ctx.on_tray),
+            mugs_failed=ctx.summary.failed,
+            current_mug=ctx.current.mug_id if ctx.current else None,
+            transitions=self._transitions,
+            t=self._services.wall_time(),
+        )
 
     async def command(self, verb: str, request: StartRequest | None = None) -> dict[str, object]:
         """Queue a command for the control task and wait for its reply; ``CommandRefused`` when refused."""

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -17,8 +17,9 @@ from daemon.config import Config
 from drivers.interfaces import Clock
 from perception.interfaces import Associate
 from planning.placement import PlacementPlanner, PlanOptions, PlanResult, Problem
+from wire.messages import Payload
 
-Publish = Callable[[str, Mapping[str, object]], None]
+Publish = Callable[[str, Payload], None]
 
 T = TypeVar("T")
 

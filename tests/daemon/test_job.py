@@ -25,6 +25,7 @@ from perception.interfaces import Detection
 from planning.interfaces import MotionPlanner
 from planning.placement.datasets import cell_dataset_problem
 from tests.fakes.job import FakeMotion, FakeWorld, make_backend, make_world
+from wire.messages import Payload, plain
 
 Published = list[tuple[str, dict[str, Any]]]
 
@@ -34,8 +35,8 @@ def _job(
 ) -> tuple[Job, Published]:
     published: Published = []
 
-    def publish(topic: str, payload: Mapping[str, object]) -> None:
-        published.append((topic, dict(payload)))
+    def publish(topic: str, payload: Payload) -> None:
+        published.append((topic, dict(plain(payload))))
 
     config = load_config(overrides={"planner": {"method": "bh", "time_limit_s": 0.2}})
     backend = make_backend(world, refuse=refuse, clock=SimulatedClock())
@@ -359,7 +360,7 @@ def test_a_new_job_on_the_same_counter_plans_around_the_mugs_already_on_the_tray
     first_slot = plans[0]["slots"][0]
     assert all((s["x_m"], s["y_m"]) != (first_slot["x_m"], first_slot["y_m"]) for s in plans[1]["slots"])
     assert sorted(world.placed) == ["true0", "true1", "true2"]
-    assert job.status()["mugs_placed"] == 3
+    assert job.status().mugs_placed == 3
 
 
 def test_an_empty_counter_ends_the_job_done_with_nothing_to_do() -> None:
@@ -377,7 +378,7 @@ def test_starting_on_a_new_dataset_sets_the_simulated_counter_up_and_records_the
     async def go() -> tuple[Backend, MotionPlanner]:
         backend = await open_backend(config, sim=SimOptions(world="kinematic"), clock=clock)
         first_planner = backend.motion
-        job = Job(backend, config, lambda t, p: published.append((t, dict(p))), associate)
+        job = Job(backend, config, lambda t, p: published.append((t, dict(plain(p)))), associate)
         control = asyncio.create_task(job.run())
         await job.command("start", StartRequest(dataset=4))
         await job.command("stop")

@@ -15,6 +15,7 @@ from daemon.job.errors import CommandRefused
 from daemon.job.services import Services
 from perception import associate
 from tests.fakes.job import make_backend, make_world
+from wire.messages import plain
 
 SILENT = "the gripper's force sensor is not reporting (lost or silent); check the FSR Arduino"
 
@@ -31,7 +32,7 @@ class _Watched:
         services = Services(
             self.backend,
             load_config(),
-            lambda topic, payload: self.published.append((topic, dict(payload))),
+            lambda topic, payload: self.published.append((topic, dict(plain(payload)))),
             associate,
             state=lambda: "idle",
         )

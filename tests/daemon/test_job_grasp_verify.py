@@ -4,13 +4,13 @@ clock: the waits are the job's, in simulated seconds)."""
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Mapping
 
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import Job, StartRequest
 from perception import associate
 from tests.fakes.job import FakeForce, FakeWorld, make_backend, make_world
+from wire.messages import Payload
 
 
 class DebouncedForce(FakeForce):
@@ -43,7 +43,7 @@ def _run_job(world: FakeWorld, force: DebouncedForce) -> tuple[Job, float]:
     backend.force = force
     config = load_config(overrides={"planner": {"method": "bh", "time_limit_s": 0.2}})
 
-    def publish(topic: str, payload: Mapping[str, object]) -> None:
+    def publish(topic: str, payload: Payload) -> None:
         del topic, payload
 
     job = Job(backend, config, publish, associate)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import asyncio
 import math
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -23,6 +23,7 @@ from perception.interfaces import Detection
 from planning.interfaces import CyclePlan, MotionRefused, MugPose, TraySlot
 from planning.placement import PlanOptions, TrayMug, cell_dataset_problem
 from tests.fakes.job import FakeMotion, FakeWorld, make_backend, make_world
+from wire.messages import Payload, plain
 
 
 class SwappingMotion(FakeMotion):
@@ -66,8 +67,8 @@ def test_a_blocked_mug_is_swapped_for_a_reachable_one_of_its_type_and_both_are_p
     world = make_world(3)  # small true0 and true2, big true1
     published: list[tuple[str, dict[str, Any]]] = []
 
-    def publish(topic: str, payload: Mapping[str, object]) -> None:
-        published.append((topic, dict(payload)))
+    def publish(topic: str, payload: Payload) -> None:
+        published.append((topic, dict(plain(payload))))
 
     backend = make_backend(world, clock=SimulatedClock())
     backend.motion = SwappingMotion(world)
@@ -119,7 +120,7 @@ def _services(world: FakeWorld, published: list[tuple[str, dict[str, Any]]] | No
     return Services(
         make_backend(world),
         load_config(),
-        lambda topic, payload: out.append((topic, dict(payload))),
+        lambda topic, payload: out.append((topic, dict(plain(payload)))),
         associate,
         state=lambda: "detect",
     )
@@ -231,7 +232,7 @@ def test_mugs_no_motion_reaches_are_left_out_of_the_plan_and_never_tried() -> No
     assert isinstance(backend.motion, FakeMotion)
     backend.motion.blocked_by = {"true1": "true3"}  # ... and stands in front of big true1
     config = load_config(overrides={"planner": {"method": "bh", "time_limit_s": 0.2}})
-    job = Job(backend, config, lambda t, p: published.append((t, dict(p))), associate)
+    job = Job(backend, config, lambda t, p: published.append((t, dict(plain(p)))), associate)
 
     async def go() -> None:
         control = asyncio.create_task(job.run())

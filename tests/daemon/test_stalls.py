@@ -30,6 +30,7 @@ from recorder import Recorder, read_messages
 from tests.fakes.daemon import serve_daemon
 from tests.fakes.devices import ScriptedCamera
 from tests.fakes.job import FakeArm, FakeWorld, make_backend, make_world
+from wire.messages import plain
 
 Published = list[tuple[str, dict[str, Any]]]
 
@@ -83,7 +84,9 @@ def _camera_job(script: list[str], then: str) -> tuple[Job, Published, ScriptedC
     backend = make_backend(make_world(2), clock=clock)
     backend.observer = CameraObserver(camera, clock=clock)
     published: Published = []
-    job = Job(backend, config, lambda topic, payload: published.append((topic, dict(payload))), associate)
+    job = Job(
+        backend, config, lambda topic, payload: published.append((topic, dict(plain(payload)))), associate
+    )
 
     async def go() -> float:
         control = asyncio.create_task(job.run())
@@ -157,7 +160,7 @@ def _serve_stuck_move(
     times: dict[str, float] = {}
 
     def tap(topic: str, payload: Mapping[str, object]) -> None:
-        published.append((topic, dict(payload)))
+        published.append((topic, dict(plain(payload))))
         if topic == "events" and payload.get("kind") == "transition":
             if payload.get("dest") == "flip.transit":
                 times["flip"] = clock.monotonic()
@@ -254,7 +257,7 @@ def test_a_state_past_its_bound_faults_even_when_every_log_line_fails(structlog_
     job = Job(
         make_backend(world, clock=clock),
         config,
-        lambda topic, payload: published.append((topic, dict(payload))),
+        lambda topic, payload: published.append((topic, dict(plain(payload)))),
         associate,
     )
 

@@ -13,10 +13,11 @@ import pytest
 
 from daemon.config import load_config
 from daemon.hardware import scene_view
-from daemon.messages import depth_preview_payload
+from daemon.messages import depth_preview
 from recorder.foxglove_arm import ArmFrames, UrdfError
 from recorder.foxglove_scene import channel, describe_event
 from tests.recorder.foxglove_decode import message_class
+from wire.messages import Detections
 
 T = 1_790_000_000_000_000_000
 JOINTS = ("shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn")
@@ -51,7 +52,7 @@ def test_the_depth_image_has_the_configured_cameras_shape_in_16_bit_millimetres(
     view = scene_view(config)
     depth = np.full((60, 80), 1.25, dtype=np.float32)  # the observer's preview of a 320x240 frame
     depth[0, 0] = np.nan  # no reading
-    payload = {"t": 0.0, "mugs": [], "meta": {}, "depth_preview": depth_preview_payload(depth)}
+    payload = Detections(t=0.0, mugs=[], meta={}, depth_preview=depth_preview(depth))
     out = by_topic(view.derive("dishbot/r1/detections", payload, T))
     image = out["/camera/depth"]
     assert (image.width, image.height, image.encoding, image.step) == (80, 60, "16UC1", 160)
@@ -70,7 +71,7 @@ def test_the_depth_image_has_the_configured_cameras_shape_in_16_bit_millimetres(
 
 def test_depth_images_come_at_most_at_depth_hz() -> None:
     view = scene_view(load_config(), depth_hz=0.5)
-    payload = {"t": 0.0, "mugs": [], "depth_preview": depth_preview_payload(np.ones((12, 16), np.float32))}
+    payload = Detections(t=0.0, mugs=[], depth_preview=depth_preview(np.ones((12, 16), np.float32)))
     times = [T + k * 500_000_000 for k in range(9)]  # every 0.5 s for 4 s
     images = [
         t for t in times if "/camera/depth" in by_topic(view.derive("dishbot/r1/detections", payload, t))

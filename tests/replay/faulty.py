@@ -18,6 +18,7 @@ from planning.placement import cell_dataset_problem
 from recorder import read_messages
 from replay.faults import FaultInjector, FaultSpec, parse_faults
 from tests.fakes.daemon import serve_daemon
+from wire.messages import Payload, plain
 
 ROBOT = "ft"
 
@@ -103,9 +104,9 @@ def run_with_faults(
         session = ctx.session
         publish = session.publish
 
-        def published(topic: str, payload: Mapping[str, object]) -> None:  # everything, not only the job's
+        def published(topic: str, payload: Payload) -> None:  # everything, not only the job's
             if topic == "events":
-                live.append(dict(payload))
+                live.append(dict(plain(payload)))
             publish(topic, payload)
 
         session.publish = published  # type: ignore[method-assign]

@@ -313,10 +313,10 @@ def test_a_stale_frame_shows_the_mugs_as_they_stood_when_it_was_taken() -> None:
 def test_a_depth_preview_is_published_as_16_bit_millimetres() -> None:
     import base64
 
-    from daemon.messages import depth_preview_payload
+    from daemon.messages import depth_preview
 
     depth = np.array([[0.0, 1.25], [np.nan, 70.0]], dtype=np.float32)
-    payload = depth_preview_payload(depth)
-    assert (payload["width"], payload["height"], payload["encoding"]) == (2, 2, "uint16_mm_le_base64")
-    values = np.frombuffer(base64.b64decode(str(payload["data"])), dtype="<u2").reshape(2, 2)
+    preview = depth_preview(depth)
+    assert (preview.width, preview.height, preview.encoding) == (2, 2, "uint16_mm_le_base64")
+    values = np.frombuffer(base64.b64decode(preview.data), dtype="<u2").reshape(2, 2)
     assert values.tolist() == [[0, 1250], [0, 65535]]
