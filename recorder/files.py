@@ -42,7 +42,17 @@ from recorder.writer import (
     free_path,
     header_payload,
 )
-from wire.messages import BadMessage, Event, Message, Payload, as_message
+from wire.messages import (
+    UNSET,
+    BadMessage,
+    Event,
+    HeaderJob,
+    HeaderScene,
+    Message,
+    Payload,
+    as_message,
+    header_part,
+)
 from wire.schemas import topic_suffix
 
 log = structlog.get_logger(__name__)
@@ -352,8 +362,10 @@ class SessionRecording:
 
     def _job_header(self, job: Mapping[str, object]) -> dict[str, object]:
         out = dict(job)
-        if out.get("dataset") is None and out.get("mugs") is None:
-            out["dataset"] = self._scene().get("dataset")  # the same scene as the job before
+        asked = header_part(job, HeaderJob)
+        if asked.dataset in (None, UNSET) and asked.mugs in (None, UNSET):
+            dataset = header_part(self._scene(), HeaderScene).dataset
+            out["dataset"] = None if dataset is UNSET else dataset  # the same scene as the job before
         return out
 
     def _file_header(self, kind: str) -> dict[str, object]:

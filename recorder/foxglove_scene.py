@@ -81,6 +81,7 @@ from wire.messages import (
     Detections,
     Event,
     Gripper,
+    HeaderScene,
     Joints,
     Message,
     Plan,
@@ -88,7 +89,9 @@ from wire.messages import (
     State,
     UnsetType,
     convert,
+    header_part,
 )
+from wire.messages import Log as LogRecord
 from wire.schemas import topic_suffix
 
 log = structlog.get_logger(__name__)
@@ -266,7 +269,7 @@ class SceneView:
             return self._event(_as(payload, Event, kind), plain, t)
         if kind == "log":
             plain = payload if isinstance(payload, Mapping) else msgspec.to_builtins(payload)
-            return [_derived(LOG, _log_message(plain, t), t)]
+            return [_derived(LOG, _log_message(_as(payload, LogRecord, kind), plain, t), t)]
         return []
 
     def opening(self, log_time_ns: int) -> Sequence[Derived]:
@@ -367,7 +370,7 @@ class SceneView:
     def _event(self, event: Event, payload: Mapping[str, object], t: int) -> list[Derived]:
         s = self._s
         kind = event.kind
-        out = [_derived(EVENTS, _event_message(payload, t), t)]
+        out = [_derived(EVENTS, _event_message(event, payload, t), t)]
         if kind == "mug_placed":
             mug_id = event.mug_id if event.mug_id is not UNSET else ""
             mug = s.counter.pop(mug_id, None) or s.loose.pop(mug_id, None)
@@ -390,13 +393,11 @@ class SceneView:
             )
             out.append(_derived(MUGS, self._mugs_scene(t), t))
         elif kind == "scene_set":
-            scene = event.scene if event.scene is not UNSET else {}
-            tray = scene.get("tray")
-            if isinstance(tray, Mapping):
-                origin, size = tray.get("origin_m"), tray.get("size_mm")
-                if isinstance(origin, list) and isinstance(size, list):
-                    s.tray_origin_m = (float(origin[0]), float(origin[1]))
-                    s.tray_size_m = (float(size[0]) / 1000.0, float(size[1]) / 1000.0)
+            tray = header_part(event.scene if event.scene is not UNSET else None, HeaderScene).tray
+            if tray is not UNSET and len(tray.origin_m) >= 2 and len(tray.size_mm) >= 2:
+                origin, size = tray.origin_m, tray.size_mm
+                s.tray_origin_m = (float(origin[0]), float(origin[1]))
+                s.tray_size_m = (float(size[0]) / 1000.0, float(size[1]) / 1000.0)
             s.counter, s.loose, s.placed, s.carried, s.slots = {}, {}, {}, None, []
             out += [
                 _derived(CELL, self._cell_scene(t), t),
@@ -732,44 +733,43 @@ def _depth_image(preview: DepthPreview, t: int) -> RawImage:
     )
 
 
-def _log_message(record: Mapping[str, object], t: int) -> Log:
-    level = _LOG_LEVELS.get(str(record.get("level", "")), LogLevel.Unknown)
+def _log_message(record: LogRecord, fields: Mapping[str, object], t: int) -> Log:
+    """A log record as Foxglove's log line: its event, then every other field the record has (``fields``,
+    its JSON object: a record is open), in its order."""
     skip = {"event", "level", "timestamp", "logger"}
-    detail = " ".join(f"{k}={v}" for k, v in record.items() if k not in skip)
-    event = str(record.get("event", ""))
+    detail = " ".join(f"{k}={v}" for k, v in fields.items() if k not in skip)
     return Log(
         timestamp=_stamp(t),
-        level=level,
-        message=f"{event} {detail}".strip(),
-        name=str(record.get("logger", "dishbot")),
+        level=_LOG_LEVELS.get(record.level, LogLevel.Unknown),
+        message=f"{record.event} {detail}".strip(),
+        name=record.logger if record.logger is not UNSET else "dishbot",
     )
 
 
-def _event_message(event: Mapping[str, object], t: int) -> Log:
-    kind = str(event.get("kind", ""))
-    if kind in _ERROR_EVENTS:
+def _event_message(event: Event, fields: Mapping[str, object], t: int) -> Log:
+    if event.kind in _ERROR_EVENTS:
         level = LogLevel.Error
-    elif kind in _WARNING_EVENTS:
+    elif event.kind in _WARNING_EVENTS:
         level = LogLevel.Warning
     else:
         level = LogLevel.Info
-    return Log(timestamp=_stamp(t), level=level, message=describe_event(event), name="events")
+    return Log(timestamp=_stamp(t), level=level, message=describe_event(event, fields), name="events")
 
 
-def describe_event(event: Mapping[str, object]) -> str:
-    """One line for an ``events`` message: its kind, the mug and the reason first, then the rest."""
-    kind = str(event.get("kind", ""))
-    if kind == "transition":
-        return f"transition {event.get('source')} -> {event.get('dest')} ({event.get('trigger')})"
-    parts = [kind]
-    if event.get("mug_id"):
-        parts.append(str(event["mug_id"]))
-    text = " ".join(parts)
-    if event.get("reason"):
-        text += f": {event['reason']}"
+def describe_event(event: Event, fields: Mapping[str, object]) -> str:
+    """One line for an ``events`` message: its kind, the mug and the reason first, then the rest of its
+    fields (``fields``, its JSON object: a device's event carries keys of its own), in its order."""
+    if event.kind == "transition":
+        source, dest, trigger = (None if v is UNSET else v for v in (event.source, event.dest, event.trigger))
+        return f"transition {source} -> {dest} ({trigger})"
+    text = event.kind
+    if event.mug_id:
+        text += f" {event.mug_id}"
+    if event.reason:
+        text += f": {event.reason}"
     skip = {"kind", "mug_id", "reason", "t", "state", "scene"}
-    rest = " ".join(f"{k}={v}" for k, v in event.items() if k not in skip)
-    state = event.get("state")
+    rest = " ".join(f"{k}={v}" for k, v in fields.items() if k not in skip)
+    state = "" if event.state is UNSET else event.state
     return f"{text}{' ' + rest if rest else ''}{f' [{state}]' if state else ''}"
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Final
 
 from recorder.reader import RecordingRead
-from wire.messages import Event, Gripper, Joints, SessionHeader, State
+from wire.messages import UNSET, Event, Gripper, HeaderFile, Joints, SessionHeader, State, header_part
 from wire.schemas import HEADER_TOPIC, topic_suffix
 
 if TYPE_CHECKING:
@@ -225,8 +225,8 @@ def _label(ax: Axes, t: float, y: float, text: str, end: float, *, colour: str =
 
 def _title(rec: RecordingRead) -> str:
     header = next((m.decoded(SessionHeader) for m in rec if m.topic == HEADER_TOPIC), None)
-    file = header.file if header is not None and isinstance(header.file, dict) else {}
-    kind = file.get("kind")
+    file = header_part(header.file if header is not None else None, HeaderFile)
+    kind = file.kind if file.kind is not UNSET else None
     duration = ((rec.end_ns or 0) - (rec.start_ns or 0)) / 1e9
     text = f"{rec.path.name}{f' ({kind})' if kind else ''}, {duration:.1f} s"
     if rec.being_written:

@@ -300,6 +300,13 @@ class Event(Message, kw_only=True):
     still_acting: Annotated[list[int], doc("fault_ended: faults still holding the device")] | U = UNSET
 
 
+class EventKind(Message, kw_only=True):
+    """Only an event's ``kind`` (its other fields are not read): for a reader that must act on the kind of
+    an event whose other fields may not be what ``Event`` declares."""
+
+    kind: str
+
+
 # Where the job was when an input from outside it came (``daemon.backend.JobPosition``): a replay sends it
 # again when its job is at the same place.
 AtState = Annotated[str, doc("the job's state when it came")]
@@ -511,6 +518,84 @@ class SessionHeader(Message, kw_only=True):
     file: Annotated[dict[str, Any], doc("kind (job or idle), writer pid, the file before it")] | U = UNSET
 
 
+# Typed views of the header's open documents (``config``, ``scene``, ``job``, ``file`` stay JSON objects in
+# the declaration, so that a later key is kept byte for byte): what readers take from them, every field
+# optional (``header_part`` reads one, an empty view when it is not one).
+
+
+class HeaderFile(Message, kw_only=True):
+    """``session/header``'s ``file``: which file of the session this is."""
+
+    kind: Annotated[str, doc("job or idle")] | U = UNSET
+    index: Annotated[int, doc("the file's number in its writer's process, from 1")] | U = UNSET
+    pid: Annotated[int, doc("the writing process")] | U = UNSET
+    previous: Annotated[str | None, doc("the file before it (null: the first)")] | U = UNSET
+    continues: Annotated[bool, doc("it goes on after a file whose writing failed")] | U = UNSET
+
+
+class HeaderMug(Message, kw_only=True):
+    """A mug a ``start`` command listed (``job.mugs``)."""
+
+    id: Annotated[str, doc("mug id")] | U = UNSET
+    type: Annotated[str, doc("mug type")] | U = UNSET
+    x_m: Annotated[Number, doc("world x, m")] | U = UNSET
+    y_m: Annotated[Number, doc("world y, m")] | U = UNSET
+
+
+class HeaderPlanner(Message, kw_only=True):
+    """``job.planner``: the effective planner settings."""
+
+    method: Annotated[str, doc("placement method")] | U = UNSET
+    cost: Annotated[str, doc("cost function")] | U = UNSET
+    fitness: Annotated[str, doc("fitness function")] | U = UNSET
+    time_limit_s: Annotated[Number, doc("time limit, s")] | U = UNSET
+    seed: Annotated[int, doc("random seed")] | U = UNSET
+
+
+class HeaderJob(Message, kw_only=True):
+    """``session/header``'s ``job``: what the job in the file ran."""
+
+    dataset: Annotated[int | None, doc("the dataset set out")] | U = UNSET
+    mugs: Annotated[list[HeaderMug] | None, doc("the mugs the start command listed")] | U = UNSET
+    planner: Annotated[dict[str, Any], doc("the effective planner settings")] | U = UNSET
+    planner_overrides: Annotated[dict[str, Any], doc("the start command's planner settings")] | U = UNSET
+    sim_seed: Annotated[int | None, doc("the simulated cell's seed")] | U = UNSET
+    carried: Annotated[list[dict[str, Any]], doc("the tray's mugs from the jobs before")] | U = UNSET
+
+
+class HeaderTray(Message, kw_only=True):
+    origin_m: Annotated[list[Number], doc("the tray's corner, world x and y, m")]
+    size_mm: Annotated[list[Number], doc("the tray's size, mm")]
+
+
+class HeaderScene(Message, kw_only=True):
+    """``session/header``'s ``scene`` (and a ``scene_set`` event's): the cell as the file or job opened."""
+
+    backend: Annotated[str, doc("the backend's name")] | U = UNSET
+    tray: HeaderTray | U = UNSET
+    dataset: Annotated[int | None, doc("the dataset on the counter")] | U = UNSET
+
+
+class HeaderConfig(Message, kw_only=True):
+    """What readers take from ``session/header``'s ``config``."""
+
+    robot_id: Annotated[str, doc("the robot's id")] | U = UNSET
+    dataset: Annotated[int | None, doc("the configured dataset")] | U = UNSET
+
+
+H = TypeVar("H", HeaderFile, HeaderJob, HeaderPlanner, HeaderScene, HeaderConfig)
+
+
+def header_part(document: object, kind: type[H]) -> H:
+    """One of the header's documents as its view; an empty view when it is missing or not one."""
+    if not isinstance(document, Mapping):
+        return kind()
+    try:
+        return msgspec.convert(document, type=kind, strict=True)
+    except msgspec.ValidationError:
+        return kind()
+
+
 # What follows ``dishbot/<robot_id>/`` → the message on it. The schema's name is ``dishbot.<suffix>`` with
 # ``/`` written ``_`` (``dishbot.input_joints``).
 TOPICS: Final[Mapping[str, type[Message]]] = {
@@ -675,6 +760,7 @@ __all__ = [
     "decode",
     "decode_topic",
     "encode",
+    "header_part",
     "message_type",
     "plain",
     "topic_suffix",

@@ -9,7 +9,7 @@ import time
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 from cli.commands.output import add_json_flag, format_table
 from daemon.errors import UsageError
@@ -17,6 +17,10 @@ from recorder.errors import RecordingError
 
 if TYPE_CHECKING:
     from recorder import RecordingRead
+    from recorder.outcome import JobOutcome
+    from wire.messages import UnsetType
+
+T = TypeVar("T")
 
 # Log times from 2000-01-01 on are wall-clock (Unix epoch) stamps; earlier ones come from a session clock.
 _EPOCH_FLOOR_NS = 946_684_800 * 10**9
@@ -130,30 +134,41 @@ class RecordingSummary:
     duration_s: float
     topics: dict[str, int]
     schemas: dict[str, str]
-    outcome: dict[str, object] | None = None
+    outcome: JobOutcome | None = None
     previous: object = None
     extra: dict[str, object] = field(default_factory=dict)
 
     @classmethod
     def of(cls, rec: RecordingRead) -> RecordingSummary:
         from recorder.outcome import JobOutcome
-        from wire.messages import UNSET, Event, SessionHeader
+        from wire.messages import (
+            UNSET,
+            Event,
+            HeaderConfig,
+            HeaderFile,
+            HeaderJob,
+            HeaderScene,
+            SessionHeader,
+            header_part,
+        )
         from wire.schemas import HEADER_TOPIC, topic_suffix
 
         header = next((m.decoded(SessionHeader) for m in rec if m.topic == HEADER_TOPIC), None)
         if header is None:
             header = SessionHeader(config={}, scene={})
-        config, scene = header.config, header.scene
-        job = _table(header.job) if header.job is not UNSET else {}
-        file = header.file if header.file is not UNSET else {}
+        config = header_part(header.config, HeaderConfig)
+        scene = header_part(header.scene, HeaderScene)
+        job = header_part(header.job, HeaderJob)
+        file = header_part(header.file, HeaderFile)
         start, end = rec.start_ns, rec.end_ns
         cut_after_s = None
         if rec.cut_after_ns is not None and start is not None:
             cut_after_s = round((rec.cut_after_ns - start) / 1e9, 3)
         events = [e for m in rec if topic_suffix(m.topic) == "events" and (e := m.decoded(Event)) is not None]
-        kind = file.get("kind")
-        outcome = JobOutcome.of(events).to_json() if kind == "job" or (kind is None and events) else None
-        mugs = job.get("mugs")
+        kind = _given(file.kind)
+        outcome = JobOutcome.of(events) if kind == "job" or (kind is None and events) else None
+        mugs = _given(job.mugs)
+        dataset = job.dataset if job.dataset is not UNSET else _given(scene.dataset, _given(config.dataset))
         return cls(
             path=str(rec.path),
             size_bytes=rec.size_bytes,
@@ -165,19 +180,19 @@ class RecordingSummary:
             cut_reason=rec.cut_reason,
             messages=rec.message_count,
             kind=str(kind) if kind is not None else None,
-            robot_id=config.get("robot_id"),
-            dataset=job.get("dataset", scene.get("dataset", config.get("dataset"))),
-            mugs=[m.get("id") for m in mugs if isinstance(m, dict)] if isinstance(mugs, list) else None,
-            planner=job.get("planner"),
-            sim_seed=job.get("sim_seed"),
-            writer_pid=file.get("pid"),
+            robot_id=_given(config.robot_id),
+            dataset=dataset,
+            mugs=None if mugs is None else [_given(m.id) for m in mugs],
+            planner=_given(job.planner),
+            sim_seed=_given(job.sim_seed),
+            writer_pid=_given(file.pid),
             start_ns=start,
             end_ns=end,
             duration_s=round((end - start) / 1e9, 3) if start is not None and end is not None else 0.0,
             topics=dict(sorted(rec.topic_counts.items())),
             schemas=dict(sorted(rec.schema_names.items())),
             outcome=outcome,
-            previous=file.get("previous"),
+            previous=_given(file.previous),
         )
 
     @property
@@ -194,6 +209,7 @@ class RecordingSummary:
 
     def to_json(self) -> dict[str, object]:
         doc: dict[str, object] = {f: getattr(self, f) for f in self.__dataclass_fields__ if f != "extra"}
+        doc["outcome"] = None if self.outcome is None else self.outcome.to_json()
         doc["status"] = self.status
         doc["start"] = _time_text(self.start_ns)
         doc["end"] = _time_text(self.end_ns)
@@ -211,10 +227,12 @@ class RecordingSummary:
         else:
             lines.append(f"dataset:   {_or_dash(self.dataset)}")
         if isinstance(self.planner, dict):
-            p = self.planner
+            from wire.messages import HeaderPlanner, header_part
+
+            p = header_part(self.planner, HeaderPlanner)
             lines.append(
-                f"planner:   {p.get('method')}, cost {p.get('cost')}, fitness {p.get('fitness')}, "
-                f"time limit {p.get('time_limit_s')} s, seed {p.get('seed')}"
+                f"planner:   {_given(p.method)}, cost {_given(p.cost)}, fitness {_given(p.fitness)}, "
+                f"time limit {_given(p.time_limit_s)} s, seed {_given(p.seed)}"
             )
         if self.sim_seed is not None:
             lines.append(f"sim seed:  {self.sim_seed}")
@@ -232,26 +250,18 @@ class RecordingSummary:
         return "\n".join(lines)
 
 
-def _outcome_lines(outcome: dict[str, object]) -> list[str]:
-    placed = outcome.get("placed") or []
-    given_up = outcome.get("given_up") or []
-    assert isinstance(placed, list)
-    assert isinstance(given_up, list)
+def _outcome_lines(outcome: JobOutcome) -> list[str]:
+    placed, given_up = outcome.placed, outcome.given_up
     lines = [
-        f"outcome:   {outcome.get('end_state') or 'not ended in this file'}",
+        f"outcome:   {outcome.end_state or 'not ended in this file'}",
         f"placed:    {len(placed)}{': ' + ' '.join(map(str, placed)) if placed else ''}",
         f"given up:  {len(given_up)}",
     ]
-    lines += [f"  {g['mug_id']}: {g['reason']}" for g in given_up if isinstance(g, dict)]
-    for name, key in (("grasp failures", "grasp_failures"), ("drops", "drops")):
-        counts = outcome.get(key) or {}
-        assert isinstance(counts, dict)
+    lines += [f"  {mug_id}: {reason}" for mug_id, reason in given_up.items()]
+    for name, counts in (("grasp failures", outcome.grasp_failures), ("drops", outcome.drops)):
         if counts:
             lines.append(f"{name}: " + ", ".join(f"{m} ×{n}" for m, n in counts.items()))
-    faults = outcome.get("faults") or []
-    device = outcome.get("device_faults") or []
-    assert isinstance(faults, list)
-    assert isinstance(device, list)
+    faults, device = outcome.faults, outcome.device_faults
     lines.append(f"faults:    {len(faults)}")
     lines += [f"  {f}" for f in faults]
     if device:
@@ -260,8 +270,11 @@ def _outcome_lines(outcome: dict[str, object]) -> list[str]:
     return lines
 
 
-def _table(value: object) -> dict[str, object]:
-    return value if isinstance(value, dict) else {}
+def _given(value: T | UnsetType, default: T | None = None) -> T | None:
+    """A view's field, ``default`` when the document leaves it out."""
+    from wire.messages import UnsetType
+
+    return default if isinstance(value, UnsetType) else value
 
 
 def _time_text(ns: int | None) -> str | None:

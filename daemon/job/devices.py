@@ -17,6 +17,7 @@ import structlog
 from daemon.job.errors import CommandRefused
 from daemon.job.services import Services
 from drivers.errors import BusLost, DriverError
+from wire.messages import UNSET, BadMessage, Event, EventKind, as_message
 
 log = structlog.get_logger("daemon.job")
 
@@ -51,11 +52,17 @@ class DeviceSupervisor:
         longer be seen), fault the job. Servo faults and warnings are only reported here: the gripper recovers
         overloads itself, and a fault that stands reaches the job as the driver's exception (from its work,
         the telemetry or the health poll). However many of them report one cause, the job faults once."""
-        kind = str(event.get("kind", ""))
-        self._services.publish("events", {**event, "state": state})
-        reason = f"{kind} on {event.get('port', event.get('device', '?'))}"
-        if "error" in event:
-            reason += f": {event['error']}"
+        self._services.publish("events", {**event, "state": state})  # a driver's keys first: a mapping
+        try:
+            heard = as_message(event, Event, name="events")
+        except BadMessage as e:  # a field of another type than declared: its kind still decides
+            log.warning("device_event_field_unexpected", error=str(e))
+            heard = Event(kind=as_message(event, EventKind, name="events").kind)
+        kind = heard.kind
+        where = heard.port if heard.port is not UNSET else heard.device if heard.device is not UNSET else "?"
+        reason = f"{kind} on {where}"
+        if heard.error is not UNSET:
+            reason += f": {heard.error}"
         if kind == "bus_lost":
             asyncio.get_running_loop().create_task(self._fault(reason))
         elif kind in ("fsr_lost", "fsr_stale"):

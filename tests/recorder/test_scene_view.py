@@ -17,7 +17,7 @@ from daemon.messages import depth_preview
 from recorder.foxglove_arm import ArmFrames, UrdfError
 from recorder.foxglove_scene import channel, describe_event
 from tests.recorder.foxglove_decode import message_class
-from wire.messages import Detections
+from wire.messages import Detections, Event, convert
 
 T = 1_790_000_000_000_000_000
 JOINTS = ("shoulder_turn", "shoulder_lift", "elbow_lift", "wrist_lift", "wrist_turn")
@@ -169,9 +169,11 @@ def test_events_become_one_line_logs_with_a_level() -> None:
         "/events"
     ]
     assert fault.level == 4  # ERROR
-    assert describe_event({"kind": "transition", "source": "idle", "dest": "detect", "trigger": "start"}) == (
-        "transition idle -> detect (start)"
-    )
+    transition = {"kind": "transition", "source": "idle", "dest": "detect", "trigger": "start"}
+    assert describe_event(convert(transition, Event), transition) == "transition idle -> detect (start)"
+    # A device's event: its own keys, in its order, after the kind.
+    lost = {"port": "/dev/ttyUSB0", "kind": "bus_lost", "device": "servo bus", "t": 2.0, "state": "idle"}
+    assert describe_event(convert(lost, Event), lost) == "bus_lost port=/dev/ttyUSB0 device=servo bus [idle]"
 
 
 def test_log_records_keep_their_level_and_fields() -> None:
