@@ -596,6 +596,50 @@ def header_part(document: object, kind: type[H]) -> H:
         return kind()
 
 
+# --- the replies to ``cmd/<verb>`` (Zenoh queries; not recorded) -------------------------------------------
+
+
+class ReplyRecording(Message, kw_only=True):
+    """``status``'s ``recording``: whether recording works, the file and error of a failure, messages lost."""
+
+    ok: Annotated[bool, doc("recording works")] | U = UNSET
+    path: Annotated[str | None, doc("the file being written, or the one that failed")] | U = UNSET
+    error: Annotated[str, doc("why writing failed")] | U = UNSET
+    dropped: Annotated[int, doc("messages lost")] | U = UNSET
+
+
+class Reply(Message, kw_only=True):
+    """A daemon's reply to ``cmd/<verb>``: ``robot_id``, ``ok`` and the ``error`` of a refusal; for
+    ``status`` (and the verbs that change the state) the ``state`` message's fields, the job's summary, the
+    commands allowed now and the recording's health. What a client reads of it: it prints the reply as it
+    came."""
+
+    robot_id: Annotated[str, doc("the robot that answered")] | U = UNSET
+    ok: Annotated[bool, doc("the command was accepted")] | U = UNSET
+    error: Annotated[str, doc("why it was refused")] | U = UNSET
+    state: Annotated[str, doc("the chart's leaf state")] | U = UNSET
+    mugs_total: Annotated[int, doc("mugs known")] | U = UNSET
+    mugs_planned: Annotated[int, doc("mugs with a tray slot")] | U = UNSET
+    mugs_placed: Annotated[int, doc("mugs on the tray")] | U = UNSET
+    mugs_failed: Annotated[int, doc("mugs given up")] | U = UNSET
+    current_mug: Annotated[str | None, doc("the mug being handled")] | U = UNSET
+    allowed: Annotated[list[str], doc("the commands the state allows now")] | U = UNSET
+    recording: ReplyRecording | U = UNSET
+
+
+def reply_of(document: Mapping[str, object]) -> Reply:
+    """A reply as the client reads it; one that is not a reply reads as refused, naming the field."""
+    try:
+        return msgspec.convert(document, type=Reply, strict=True)
+    except msgspec.ValidationError as e:
+        robot = document.get("robot_id")
+        return Reply(
+            robot_id=robot if isinstance(robot, str) else UNSET,
+            ok=False,
+            error=f"the reply is not a daemon's reply: {_worded(str(e))}",
+        )
+
+
 # What follows ``dishbot/<robot_id>/`` → the message on it. The schema's name is ``dishbot.<suffix>`` with
 # ``/`` written ``_`` (``dishbot.input_joints``).
 TOPICS: Final[Mapping[str, type[Message]]] = {
@@ -763,5 +807,6 @@ __all__ = [
     "header_part",
     "message_type",
     "plain",
+    "reply_of",
     "topic_suffix",
 ]

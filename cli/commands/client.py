@@ -23,7 +23,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from daemon.errors import ConfigError, UsageError
 from daemon.security import (
@@ -42,6 +42,10 @@ from description import thesis
 # Zenoh is imported when a verb runs: `dishbot --help` and the verbs' --help load none of it.
 if TYPE_CHECKING:
     import zenoh
+
+    from wire.messages import Reply, UnsetType
+
+T = TypeVar("T")
 
 DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"  # where `dishbot run` listens by default
 DEFAULT_ROBOT = "dishbot"
@@ -301,13 +305,14 @@ def _send(args: argparse.Namespace) -> int:
     if stranger:
         print(f"dishbot {verb}: {stranger}", file=sys.stderr)
         return 1
+    view = reply_of(reply)
     if args.json:
         print(json.dumps(reply, indent=2))
-    elif reply.get("ok"):
-        print(_readable(reply))
+    elif view.ok:
+        print(_readable(view))
     else:
-        print(f"dishbot {verb}: refused by robot {t.robot!r}: {reply.get('error')}", file=sys.stderr)
-    return 0 if reply.get("ok") else 1
+        print(f"dishbot {verb}: refused by robot {t.robot!r}: {_shown(view.error)}", file=sys.stderr)
+    return 0 if view.ok else 1
 
 
 def _silence(session: zenoh.Session, t: Target, verb: str, timeout_s: float, *, refused: bool) -> str:
@@ -347,14 +352,14 @@ def _who(t: Target) -> str:
 
 def _narrow_to_role(reply: dict[str, Any], t: Target) -> None:
     """``allowed`` is what the robot's state allows; shown to a monitor, only what a monitor may send."""
-    allowed = reply.get("allowed")
-    if t.profile is not None and isinstance(allowed, list):
-        reply["allowed"] = [v for v in allowed if role_may(t.profile.role, str(v))]
+    allowed = _shown(reply_of(reply).allowed)
+    if t.profile is not None and allowed is not None:
+        reply["allowed"] = [v for v in allowed if role_may(t.profile.role, v)]
 
 
 def _stranger(reply: Mapping[str, Any], robot: str) -> str:
     """A complaint when the reply came from another robot than the one named (two daemons, one id?)."""
-    answered = reply.get("robot_id")
+    answered = _shown(reply_of(reply).robot_id)
     if answered is None:
         return f"the reply names no robot; expected {robot!r} (an older daemon?): not trusting it"
     if answered != robot:
@@ -363,31 +368,28 @@ def _stranger(reply: Mapping[str, Any], robot: str) -> str:
 
 
 def _print_fleet(verb: str, replies: Sequence[dict[str, Any]], *, as_json: bool) -> int:
-    replies = sorted(replies, key=lambda r: str(r.get("robot_id", "")))
+    views = sorted(((reply_of(r), r) for r in replies), key=lambda vr: _shown(vr[0].robot_id) or "")
     if as_json:
-        print(json.dumps(replies, indent=2))
+        print(json.dumps([r for _, r in views], indent=2))
     else:
         rows: list[tuple[str, ...]] = [
             ("robot", "ok", "state", "placed", "planned", "seen", "failed", "detail")
         ]
-        for r in replies:
-            detail = "" if r.get("ok") else str(r.get("error", ""))
+        for v, _ in views:
+            counts = (v.mugs_placed, v.mugs_planned, v.mugs_total, v.mugs_failed)
             rows.append(
                 (
-                    str(r.get("robot_id", "?")),
-                    "yes" if r.get("ok") else "no",
-                    str(r.get("state", "-")),
-                    *(
-                        str(r.get(k, "-"))
-                        for k in ("mugs_placed", "mugs_planned", "mugs_total", "mugs_failed")
-                    ),
-                    detail,
+                    _text(v.robot_id, "?"),
+                    "yes" if v.ok else "no",
+                    _text(v.state, "-"),
+                    *(_text(n, "-") for n in counts),
+                    "" if v.ok else _text(v.error, ""),
                 )
             )
         widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
         for row in rows:
             print("  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip())
-    return 0 if all(r.get("ok") for r in replies) else 1
+    return 0 if all(v.ok for v, _ in views) else 1
 
 
 def _list(args: argparse.Namespace) -> int:
@@ -456,20 +458,42 @@ def _check_planner_names(args: argparse.Namespace) -> None:
             raise UsageError(f"{flag} {value}: choose one of {', '.join(allowed)}")
 
 
-def _readable(reply: Mapping[str, Any]) -> str:
-    lines = [f"robot: {reply.get('robot_id')}", f"state: {reply.get('state')}"]
-    if "mugs_total" in reply:
+def _readable(reply: Reply) -> str:
+    lines = [f"robot: {_shown(reply.robot_id)}", f"state: {_shown(reply.state)}"]
+    if _shown(reply.mugs_total) is not None:
         lines.append(
-            f"mugs: {reply.get('mugs_placed')} placed of {reply.get('mugs_planned')} planned, "
-            f"{reply.get('mugs_total')} seen, {reply.get('mugs_failed')} failed; "
-            f"current {reply.get('current_mug') or '-'}"
+            f"mugs: {_shown(reply.mugs_placed)} placed of {_shown(reply.mugs_planned)} planned, "
+            f"{reply.mugs_total} seen, {_shown(reply.mugs_failed)} failed; "
+            f"current {_shown(reply.current_mug) or '-'}"
         )
-    if "allowed" in reply:
-        lines.append(f"allowed: {', '.join(reply['allowed'])}")
-    recording = reply.get("recording")
-    if isinstance(recording, Mapping) and recording.get("ok") is False:
+    allowed = _shown(reply.allowed)
+    if allowed is not None:
+        lines.append(f"allowed: {', '.join(allowed)}")
+    recording = _shown(reply.recording)
+    if recording is not None and recording.ok is False:
         lines.append(
-            f"recording: failed at {recording.get('path')}: {recording.get('error')}; "
-            f"{recording.get('dropped')} messages lost"
+            f"recording: failed at {_shown(recording.path)}: {_shown(recording.error)}; "
+            f"{_shown(recording.dropped)} messages lost"
         )
     return "\n".join(lines)
+
+
+def _shown(value: T | UnsetType) -> T | None:
+    """A reply's field as the client prints it (None when the reply leaves it out)."""
+    from wire.messages import UnsetType
+
+    return None if isinstance(value, UnsetType) else value
+
+
+def _text(value: object, missing: str) -> str:
+    from wire.messages import UnsetType
+
+    return missing if isinstance(value, UnsetType) else str(value)
+
+
+def reply_of(reply: Mapping[str, object]) -> Reply:
+    """The reply as the wire contract declares it (imported when a reply came: ``--help`` loads no
+    msgspec)."""
+    from wire.messages import reply_of as declared
+
+    return declared(reply)

@@ -80,7 +80,7 @@ def test_a_disk_full_mid_job_is_published_shown_in_status_and_counted_and_the_jo
 
 
 def test_the_status_verb_prints_a_failed_recording() -> None:
-    from cli.commands.client import _readable
+    from cli.commands.client import _readable, reply_of
 
     reply = {
         "robot_id": "r1",
@@ -93,10 +93,11 @@ def test_the_status_verb_prints_a_failed_recording() -> None:
             "dropped": 7,
         },
     }
-    assert _readable(reply).splitlines()[-1] == (
+    assert _readable(reply_of(reply)).splitlines()[-1] == (
         "recording: failed at /rec/r1-job.mcap: [Errno 28] No space left; 7 messages lost"
     )
-    assert "recording" not in _readable({**reply, "recording": {"ok": True, "path": "x", "dropped": 0}})
+    working = {**reply, "recording": {"ok": True, "path": "x", "dropped": 0}}
+    assert "recording" not in _readable(reply_of(working))
 
 
 @pytest.mark.slow
