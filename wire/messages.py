@@ -256,6 +256,7 @@ class Event(Message, kw_only=True):
     grasp_held: Annotated[bool, doc("transition: the grasp's outcome")] | U = UNSET
     needs_plan: Annotated[bool, doc("transition: the tray needs a new plan")] | U = UNSET
     has_next_mug: Annotated[bool, doc("transition: another mug is ready")] | U = UNSET
+    mug_found: Annotated[bool, doc("transition: the lost mug was seen again")] | U = UNSET
     x_m: Annotated[Number, doc("mug_placed: the slot, world x, m; mug_found: where the mug was seen")] | U = (
         UNSET
     )
