@@ -39,7 +39,7 @@ from planning.placement import FOOTPRINTS, METHODS
 from recorder.settings import RecordingConfig
 from statechart.chart import JOB_LEAVES, JOB_STATES, top_level
 from validation import NON_EMPTY, Invalid, OneOf, convert, show, toml, within
-from wire.hosts import is_loopback
+from validation.hosts import is_loopback
 
 _ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}\Z")
 _BACKENDS = ("sim", "hardware")

@@ -33,7 +33,7 @@ from typing import Annotated, Any
 
 from daemon.errors import ConfigError
 from validation import convert, show, within
-from wire.hosts import is_loopback
+from validation.hosts import is_loopback
 
 NAMESPACE = "dishbot"
 # dishbot's own port ("DISH" on a phone keypad): not Zenoh's 7447 (zenohd, ROS 2's rmw_zenoh router, the

@@ -49,7 +49,7 @@ from foxglove.websocket import (
 from recorder.errors import LiveServerError
 from recorder.foxglove_scene import ARM, CALIBRATION, CELL, DEPTH, MUGS, PLAN, STATUS, TF, TOPICS, channel
 from recorder.writer import ChannelSpec, json_channel
-from wire.hosts import is_loopback
+from validation.hosts import is_loopback
 from wire.schemas import HEADER_TOPIC, described_topics, topic_suffix
 
 log = structlog.get_logger(__name__)
