@@ -1,7 +1,7 @@
 """Which cell a job runs on: the robot or a simulated cell, built from the config (``open_backend``).
 
 The one builder for ``dishbot run``, the replay and every bench. The hardware backend is assembled in
-``daemon.backend``; a simulated cell in ``daemon.sim_backend``, imported only when one is asked for, so the
+``daemon.hardware``; a simulated cell in ``daemon.sim_backend``, imported only when one is asked for, so the
 robot's process loads no simulator.
 """
 

@@ -1,7 +1,7 @@
 """The simulated backends: the kinematic and the MuJoCo cell, each with its counter set up for a job.
 
 ``daemon.cell.open_backend`` imports this module only for a simulated cell. Both cells take the same parts
-from the config as the robot does (the cycle planner of ``daemon.backend.cycle_planner``, the configured
+from the config as the robot does (the cycle planner of ``daemon.planners.cycle_planner``, the configured
 cell and catalogue), start the arm at ``sim.start_q_rad`` and set their counters up through ``sim.counter``:
 a dataset's mugs, or the mugs a ``start`` command lists. They differ where the worlds do. The kinematic
 cell's camera sees the world's truth (with noise) and it takes any dataset, switching to the dataset's tray

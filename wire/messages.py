@@ -16,10 +16,11 @@ leave out is ``X | UnsetType = UNSET`` (left out again when encoded); one that i
 that ``130`` stays ``130``. Fields a later version adds are allowed on decoding (``additionalProperties``
 in the schema) and ignored by older readers.
 
-Two topics are open by nature: ``events`` (each kind has its own detail, and a driver's device event carries
-the driver's own keys) and ``log`` (a structlog record: whatever the call named). Their types declare every
-field dishbot writes, for typed reading; their producers build them as mappings (``encode`` takes a mapping
-too, keeping the producer's key order).
+The daemon's producers build these structs (``daemon.messages``, ``daemon.recorded``). Two topics are open
+by nature: ``events`` (each kind has its own detail, and a driver's device event carries the driver's own
+keys, before ``kind``) and ``log`` (a structlog record: whatever the call named). Their types declare every
+field dishbot writes, for typed reading; the job's events, device events and log records are built as
+mappings (``encode`` takes a mapping too, keeping the producer's key order: ``Payload``).
 """
 
 from __future__ import annotations
@@ -308,7 +309,7 @@ class EventKind(Message, kw_only=True):
     kind: str
 
 
-# Where the job was when an input from outside it came (``daemon.backend.JobPosition``): a replay sends it
+# Where the job was when an input from outside it came (``daemon.recorded.JobPosition``): a replay sends it
 # again when its job is at the same place.
 AtState = Annotated[str, doc("the job's state when it came")]
 AtTransitions = Annotated[
@@ -356,7 +357,7 @@ Cancelled = Annotated[bool, doc("the call was cancelled (the job left the state)
 
 
 class Failure(Message, kw_only=True):
-    """The fields of a driver call that raised or was cancelled (``daemon.backend.failure_fields``), as the
+    """The fields of a driver call that raised or was cancelled (``daemon.messages.failure_fields``), as the
     calls' messages carry them."""
 
     cancelled: Cancelled | U = UNSET

@@ -47,11 +47,12 @@ class DeviceSupervisor:
         self._force_down = 0  # FSR lost/stale reports since it was last restored
 
     def on_event(self, event: Mapping[str, object], state: str) -> None:
-        """A driver's fault or recovery (``backend.device_event_payload``), on the event loop: published on
-        ``events``; a lost bus, and a silent or unplugged force sensor while a job works (a drop could no
-        longer be seen), fault the job. Servo faults and warnings are only reported here: the gripper recovers
-        overloads itself, and a fault that stands reaches the job as the driver's exception (from its work,
-        the telemetry or the health poll). However many of them report one cause, the job faults once."""
+        """A driver's fault or recovery (``daemon.messages.device_event_payload``), on the event loop:
+        published on ``events``; a lost bus, and a silent or unplugged force sensor while a job works (a
+        drop could no longer be seen), fault the job. Servo faults and warnings are only reported here: the
+        gripper recovers overloads itself, and a fault that stands reaches the job as the driver's exception
+        (from its work, the telemetry or the health poll). However many of them report one cause, the job
+        faults once."""
         self._services.publish("events", {**event, "state": state})  # a driver's keys first: a mapping
         try:
             heard = as_message(event, Event, name="events")
