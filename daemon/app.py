@@ -59,7 +59,7 @@ from drivers.errors import BusLost, DriverError, ServoFault
 from perception.interfaces import Associate
 from recorder.files import SessionRecording, is_job_file
 from recorder.outcome import JobOutcome
-from wire.messages import Command, Event, Payload, plain
+from wire.messages import Command, ConnectionLostEvent, ConnectionRestoredEvent, Payload, plain
 
 if TYPE_CHECKING:
     from recorder.foxglove_server import LiveServer
@@ -571,9 +571,8 @@ class ConnectionHealth:
             log.info(kind, peers=peers, routers=routers)
         else:
             log.warning(kind, peers=peers, routers=routers)
-        event = Event(
-            kind=kind, state=self._job.chart.state, t=self._clock.now(), peers=peers, routers=routers
-        )
+        made = ConnectionRestoredEvent if connected else ConnectionLostEvent
+        event = made(state=self._job.chart.state, t=self._clock.now(), peers=peers, routers=routers)
         self._session.publish("events", event)
 
 

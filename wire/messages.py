@@ -309,6 +309,156 @@ class EventKind(Message, kw_only=True):
     kind: str
 
 
+# --- the job's events by kind: a tagged union (``kind`` the tag) ------------------------------------------
+#
+# What the job and the daemon write on ``events`` with a detail of its kind's own, built as one of these:
+# ``kind`` is the tag (written first), then the chart's state and the times (``Services.event`` fills them),
+# then the kind's detail in the order the job writes it. ``events``' declared type, and so its schema, stays
+# the flat ``Event`` above: a driver's device event writes its own keys before ``kind``, a transition's detail
+# is the firing unit's guard values, and Foxglove's message paths want one object's properties; every field of
+# every kind here is a field of ``Event`` of the same type (a test holds them to it). ``decode_event`` reads
+# an event as its kind's struct, and any other (a transition, a device's, a fault file's, an unknown kind
+# from another version) as the flat ``Event``.
+
+
+class JobEvent(Message, kw_only=True, tag_field="kind"):
+    """An event of one of the job's kinds; ``state``, ``t`` and ``t_device`` are filled when published."""
+
+    state: str | U = UNSET
+    t: Number | U = UNSET
+    t_device: Number | U = UNSET
+
+
+class MugGivenUpEvent(JobEvent, kw_only=True, tag="mug_given_up"):
+    mug_id: str
+    reason: str
+
+
+class MugFoundEvent(JobEvent, kw_only=True, tag="mug_found"):
+    mug_id: str
+    x_m: Number
+    y_m: Number
+
+
+class MotionRefusedEvent(JobEvent, kw_only=True, tag="motion_refused"):
+    mug_id: str
+    reason: str
+
+
+class MugSwappedEvent(JobEvent, kw_only=True, tag="mug_swapped"):
+    slot_for: str
+    mug_id: str
+    reason: str
+
+
+class CyclePlannedEvent(JobEvent, kw_only=True, tag="cycle_planned"):
+    mug_id: str
+    retry: bool
+    duration_s: Number
+    energy_j: Number
+
+
+class SceneSetEvent(JobEvent, kw_only=True, tag="scene_set"):
+    scene: dict[str, Any]
+
+
+class RecordingFailedEvent(JobEvent, kw_only=True, tag="recording_failed"):
+    path: str
+    error: str
+    dropped: int
+
+
+class RecordingRestoredEvent(JobEvent, kw_only=True, tag="recording_restored"):
+    path: str
+
+
+class FaultEvent(JobEvent, kw_only=True, tag="fault"):
+    reason: str
+
+
+class WarningEvent(JobEvent, kw_only=True, tag="warning"):
+    message: str
+
+
+class OutOfReachEvent(JobEvent, kw_only=True, tag="out_of_reach"):
+    mug_id: str
+    reason: str
+    detail: str
+
+
+class SlotDroppedEvent(JobEvent, kw_only=True, tag="slot_dropped"):
+    mug_id: str
+    reason: str
+
+
+class CounterChangedEvent(JobEvent, kw_only=True, tag="counter_changed"):
+    came: list[str]
+    went: list[str]
+
+
+class MugDroppedEvent(JobEvent, kw_only=True, tag="mug_dropped"):
+    mug_id: str
+
+
+class GraspFailedEvent(JobEvent, kw_only=True, tag="grasp_failed"):
+    mug_id: str
+
+
+class MugPlacedEvent(JobEvent, kw_only=True, tag="mug_placed"):
+    mug_id: str
+    x_m: Number
+    y_m: Number
+    handle_yaw_rad: Number | U = UNSET
+
+
+class ConnectionLostEvent(JobEvent, kw_only=True, tag="connection_lost"):
+    peers: int
+    routers: int
+
+
+class ConnectionRestoredEvent(JobEvent, kw_only=True, tag="connection_restored"):
+    peers: int
+    routers: int
+
+
+JobEvents = (
+    MugGivenUpEvent
+    | MugFoundEvent
+    | MotionRefusedEvent
+    | MugSwappedEvent
+    | CyclePlannedEvent
+    | SceneSetEvent
+    | RecordingFailedEvent
+    | RecordingRestoredEvent
+    | FaultEvent
+    | WarningEvent
+    | OutOfReachEvent
+    | SlotDroppedEvent
+    | CounterChangedEvent
+    | MugDroppedEvent
+    | GraspFailedEvent
+    | MugPlacedEvent
+    | ConnectionLostEvent
+    | ConnectionRestoredEvent
+)
+JOB_EVENTS: Final[tuple[type[JobEvent], ...]] = JobEvents.__args__
+_JOB_EVENT_TAGS: Final = frozenset(str(k.__struct_config__.tag) for k in JOB_EVENTS)
+
+
+def decode_event(data: bytes | str) -> JobEvents | Event:
+    """An ``events`` payload as its kind's struct (one of ``JobEvents``), or as the flat ``Event`` when its
+    kind has none (a transition, a device's event, a fault file's, a kind from another version) or it does
+    not have its kind's fields; ``BadMessage`` when it is not an event at all."""
+    event = decode(data, Event, name="events")
+    if event.kind in _JOB_EVENT_TAGS:
+        try:
+            kinded: JobEvents = msgspec.json.decode(data, type=JobEvents)
+        except msgspec.ValidationError:
+            return event
+        return kinded
+    return event
+
+
 # Where the job was when an input from outside it came (``daemon.recorded.JobPosition``): a replay sends it
 # again when its job is at the same place.
 AtState = Annotated[str, doc("the job's state when it came")]
@@ -804,6 +954,7 @@ __all__ = [
     "as_message",
     "convert",
     "decode",
+    "decode_event",
     "decode_topic",
     "encode",
     "header_part",

@@ -20,6 +20,7 @@ from daemon.job.errors import CommandRefused
 from daemon.job.requests import StartRequest
 from daemon.job.services import Services
 from statechart.machine import StateChart
+from wire.messages import SceneSetEvent
 
 log = structlog.get_logger("daemon.job")
 
@@ -123,7 +124,7 @@ class Commands:
         if tray != backend.tray and backend.motion_for is not None:
             backend.motion = backend.motion_for(tray)
         backend.tray = tray
-        self._services.event("scene_set", scene=backend.scene())  # the recording's header has the first
+        self._services.event(SceneSetEvent(scene=backend.scene()))  # the recording's header has the first
 
 
 def _info(event: str, **fields: object) -> None:

@@ -11,6 +11,7 @@ from daemon.job.services import Services
 from daemon.messages import depth_preview, detections_message
 from perception.interfaces import Detection
 from planning.interfaces import MugPose
+from wire.messages import MugGivenUpEvent
 
 # The context keys these touch, for the declarations of the units that call them.
 LOOK_READS = frozenset({"counter"})
@@ -66,7 +67,7 @@ def give_up(services: Services, ctx: JobContext, mug_id: str, reason: str) -> No
     """Leave a mug on the counter for good (it stays known, so it is not mistaken for a new one)."""
     ctx.given_up.add(mug_id)
     ctx.summary.failed = len(ctx.given_up)
-    services.event("mug_given_up", mug_id=mug_id, reason=reason)
+    services.event(MugGivenUpEvent(mug_id=mug_id, reason=reason))
 
 
 def _pose(d: Detection) -> MugPose:

@@ -18,6 +18,7 @@ from daemon.job.services import Services
 from planning.interfaces import CyclePlan, MotionRefused, MugPose, TraySlot
 from planning.placement import TrayMug
 from statechart.chart import CYCLE_PHASES
+from wire.messages import CyclePlannedEvent, MotionRefusedEvent, MugSwappedEvent
 
 # The context keys these touch, for the declarations of the units that call them.
 _ADOPT_WRITES = frozenset({"current", "cycle", "step", "grasp_held"})
@@ -73,7 +74,7 @@ async def plan_retry(services: Services, ctx: JobContext, mug: MugPose, slot: Tr
             tuple(ctx.on_tray),
         )
     except MotionRefused as e:
-        services.event("motion_refused", mug_id=mug.mug_id, reason=str(e))
+        services.event(MotionRefusedEvent(mug_id=mug.mug_id, reason=str(e)))
         return False
     _adopt(services, ctx, mug, slot, cycle, retry=True)
     return True
@@ -99,7 +100,7 @@ async def _fill(
         )
     except MotionRefused as e:
         ctx.deferred[slot] = Deferral.of(e.blockers, available, slot)
-        services.event("motion_refused", mug_id=slot.mug_id, reason=str(e))
+        services.event(MotionRefusedEvent(mug_id=slot.mug_id, reason=str(e)))
         return False
     ctx.deferred.pop(slot, None)
     if mug.mug_id != slot.mug_id:
@@ -109,7 +110,7 @@ async def _fill(
             for s, t in ctx.queue
         ]
         services.event(
-            "mug_swapped", slot_for=slot.mug_id, mug_id=mug.mug_id, reason="blocked or out of reach"
+            MugSwappedEvent(slot_for=slot.mug_id, mug_id=mug.mug_id, reason="blocked or out of reach")
         )
         slot = replace(slot, mug_id=mug.mug_id)
         tray_mug = replace(tray_mug, id=mug.mug_id)
@@ -130,9 +131,10 @@ def _adopt(
     ctx.step = 0
     ctx.grasp_held = False
     services.event(
-        "cycle_planned",
-        mug_id=mug.mug_id,
-        retry=retry,
-        duration_s=round(cycle.duration_s, 3),
-        energy_j=round(cycle.energy_j, 3),
+        CyclePlannedEvent(
+            mug_id=mug.mug_id,
+            retry=retry,
+            duration_s=round(cycle.duration_s, 3),
+            energy_j=round(cycle.energy_j, 3),
+        )
     )

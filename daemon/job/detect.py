@@ -8,6 +8,7 @@ from daemon.job.counter import LOOK_READS, LOOK_WRITES, look
 from daemon.job.cycles import NEXT_CYCLE_READS, NEXT_CYCLE_WRITES, take_next_cycle
 from daemon.job.services import Services
 from daemon.job.unit import Unit
+from wire.messages import CounterChangedEvent
 
 
 class Detect(Unit):
@@ -26,7 +27,7 @@ class Detect(Unit):
         came = set(ctx.counter) - ctx.given_up - previous
         went = previous - set(ctx.counter)
         if previous and (came or went):
-            services.event("counter_changed", came=sorted(came), went=sorted(went))
+            services.event(CounterChangedEvent(came=sorted(came), went=sorted(went)))
         ctx.needs_plan = ctx.needs_plan or bool(came or went)
         ctx.summary.detected = max(ctx.summary.detected, len(ctx.counter) + len(ctx.on_tray))
         if ctx.needs_plan:

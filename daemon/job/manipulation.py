@@ -24,6 +24,7 @@ from daemon.job.unit import Stages, Unit
 from drivers.interfaces import JointTrajectory
 from planning.interfaces import MotionRefused, Step, StepKind
 from statechart.chart import CARRYING
+from wire.messages import UNSET, GraspFailedEvent, MugDroppedEvent, MugPlacedEvent
 
 # After a pause, a move is joined at its nearest sample; within this of it, without a bridging move.
 _ON_PATH_RAD = 0.02
@@ -56,7 +57,7 @@ class FollowSteps(Unit):
                 if not await _move(services, ctx, step, watch=self.leaf in CARRYING and ctx.carrying):
                     ctx.summary.drops += 1
                     ctx.carrying = False
-                    services.event("mug_dropped", state=self.leaf, mug_id=cycle.mug_id)
+                    services.event(MugDroppedEvent(state=self.leaf, mug_id=cycle.mug_id))
                     return Outcome("mug_dropped", {})
             elif step.kind is StepKind.CLOSE:
                 g = services.config.grasp
@@ -95,10 +96,8 @@ class PlaceRelease(FollowSteps):
             ctx.tray_mugs.append(ctx.current_tray_mug)
         ctx.counter.pop(slot.mug_id, None)
         ctx.summary.placed = len(ctx.on_tray)
-        placed = {"mug_id": slot.mug_id, "x_m": slot.x_m, "y_m": slot.y_m}
-        if handle_yaw is not None:
-            placed["handle_yaw_rad"] = round(handle_yaw, 4)
-        services.event("mug_placed", **placed)
+        yaw = UNSET if handle_yaw is None else round(handle_yaw, 4)
+        services.event(MugPlacedEvent(mug_id=slot.mug_id, x_m=slot.x_m, y_m=slot.y_m, handle_yaw_rad=yaw))
 
 
 class PlaceRetreat(FollowSteps):
@@ -128,7 +127,7 @@ class VerifyGrasp(Unit):
         if not held:
             ctx.summary.grasp_failures += 1
             mug_id = ctx.current.mug_id if ctx.current else ""
-            services.event("grasp_failed", state=self.leaf, mug_id=mug_id)
+            services.event(GraspFailedEvent(state=self.leaf, mug_id=mug_id))
         return Outcome("verified", {"grasp_held": held})
 
 

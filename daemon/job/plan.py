@@ -30,7 +30,7 @@ from planning.placement import (
     plan,
 )
 from planning.placement.checked import CheckedPlan, plan_checked
-from wire.messages import OutOfReach, Slot
+from wire.messages import OutOfReach, OutOfReachEvent, Slot, SlotDroppedEvent, WarningEvent
 
 
 class Plan(Unit):
@@ -49,16 +49,16 @@ class Plan(Unit):
             problem = problem_of(services, ctx)
             checked = await checked_plan(services, ctx, problem)
         except InvalidProblem as e:
-            services.event("warning", message=f"placement planning refused the problem: {e}")
+            services.event(WarningEvent(message=f"placement planning refused the problem: {e}"))
             return Outcome("planned", {"has_next_mug": False})
         result = checked.result
         ctx.queue = _slots(result, problem, ctx)
         ctx.summary.planned = len(ctx.on_tray) + len(ctx.queue)
         ctx.summary.left_out = checked.summary_lines()
         for m in checked.left_out:
-            services.event("out_of_reach", mug_id=m.mug_id, reason=m.reason, detail=m.detail)
+            services.event(OutOfReachEvent(mug_id=m.mug_id, reason=m.reason, detail=m.detail))
         for mug_id, why in checked.dropped:
-            services.event("slot_dropped", mug_id=mug_id, reason=why)
+            services.event(SlotDroppedEvent(mug_id=mug_id, reason=why))
         out_of_reach = [OutOfReach(id=m.mug_id, reason=m.reason) for m in checked.left_out]
         slots = [
             Slot(id=s.mug_id, type=s.type, x_m=round(s.x_m, 5), y_m=round(s.y_m, 5), rotated=s.rotated)

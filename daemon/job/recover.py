@@ -9,6 +9,7 @@ from daemon.job.cycles import RETRY_READS, RETRY_WRITES, plan_retry
 from daemon.job.manipulation import gripper_action
 from daemon.job.services import Services
 from daemon.job.unit import Unit
+from wire.messages import MugFoundEvent
 
 
 class RecoverLostMug(Unit):
@@ -38,7 +39,7 @@ class RecoverLostMug(Unit):
             and attempts < services.config.grasp.max_attempts
             and await plan_retry(services, ctx, mug, current)
         ):
-            services.event("mug_found", mug_id=current.mug_id, x_m=mug.x_m, y_m=mug.y_m)
+            services.event(MugFoundEvent(mug_id=current.mug_id, x_m=mug.x_m, y_m=mug.y_m))
             return Outcome("recovered", {"mug_found": True})
         reason = "not seen on the counter" if mug is None else f"given up after {attempts} attempts"
         give_up(services, ctx, current.mug_id, reason)

@@ -46,7 +46,7 @@ from planning.interfaces import MotionRefused
 from statechart.chart import JOB_STATES, top_level
 from statechart.errors import EventRefused
 from statechart.machine import StateChart, Transition
-from wire.messages import State
+from wire.messages import FaultEvent, RecordingFailedEvent, RecordingRestoredEvent, State
 
 log = structlog.get_logger("daemon.job")
 
@@ -129,9 +129,9 @@ class Job:
         that loses its recording is still safe."""
         if error is not None:
             dropped = self._recording.dropped() if self._recording is not None else 0
-            self._services.event("recording_failed", path=path, error=error, dropped=dropped)
+            self._services.event(RecordingFailedEvent(path=path, error=error, dropped=dropped))
         else:
-            self._services.event("recording_restored", path=path)
+            self._services.event(RecordingRestoredEvent(path=path))
 
     def carried(self) -> dict[str, object]:
         """What a job started now without a new counter carries over from the jobs before it (the mugs on
@@ -201,7 +201,7 @@ class Job:
             return
         try:
             await self._devices.safe_stop()
-            self._services.event("fault", reason=reason)
+            self._services.event(FaultEvent(reason=reason))
             await self._fire(Outcome("fault", {"reason": reason}))
         except Exception as e:  # reported; the deadline or the operator may still end it
             _say(log.error, "control_failed", error=repr(e))
@@ -263,7 +263,7 @@ class Job:
         if outcome.trigger == "fault":
             await self._devices.safe_stop()
             _say(log.error, "fault", reason=outcome.values.get("reason", ""))
-            self._services.event("fault", **dict(outcome.values))
+            self._services.event(FaultEvent(reason=str(outcome.values.get("reason", ""))))
         await self._fire(outcome)
 
     async def _fire(self, outcome: Outcome) -> None:
@@ -276,9 +276,7 @@ class Job:
     def _on_transition(self, change: Transition) -> None:
         self._transitions += 1
         detail = {k: v for k, v in change.detail.items() if isinstance(v, str | int | float | bool)}
-        self._services.event(
-            "transition", trigger=change.trigger, source=change.source, dest=change.dest, **detail
-        )
+        self._services.transition(trigger=change.trigger, source=change.source, dest=change.dest, **detail)
         self._services.publish("state", self.status())
         self._progress.entered(
             change.source,

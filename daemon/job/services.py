@@ -12,12 +12,14 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
+import msgspec
+
 from daemon.backend import Backend
 from daemon.config import Config
 from drivers.interfaces import Clock
 from perception.interfaces import Associate
 from planning.placement import PlacementPlanner, PlanOptions, PlanResult, Problem
-from wire.messages import Payload
+from wire.messages import UNSET, JobEvent, Payload
 
 Publish = Callable[[str, Payload], None]
 
@@ -38,12 +40,20 @@ class Services:
     # None: a thread.
     executor: concurrent.futures.Executor | None = None
 
-    def event(self, kind: str, **detail: Any) -> None:
-        """Publish one job event on ``events``: its kind, the chart's state, the wall clock and the detail."""
+    def event(self, event: JobEvent) -> None:
+        """Publish one job event on ``events``: its kind, the chart's state (unless the event names one),
+        the wall clock, the session's monotonic time and the kind's detail."""
+        state = self.state() if event.state is UNSET else event.state
+        stamped = msgspec.structs.replace(event, state=state, t=self.wall_time(), t_device=self.monotonic())
+        self.publish("events", stamped)
+
+    def transition(self, **detail: Any) -> None:
+        """Publish a ``transition`` on ``events``: its detail is the trigger, the states and the firing
+        unit's guard values, in the order the unit gives them (open: no kind struct writes it)."""
         self.publish(
             "events",
             {
-                "kind": kind,
+                "kind": "transition",
                 "state": self.state(),
                 "t": self.wall_time(),
                 "t_device": self.monotonic(),
