@@ -19,8 +19,9 @@ in the schema) and ignored by older readers.
 The daemon's producers build these structs (``daemon.messages``, ``daemon.recorded``). Two topics are open
 by nature: ``events`` (each kind has its own detail, and a driver's device event carries the driver's own
 keys, before ``kind``) and ``log`` (a structlog record: whatever the call named). Their types declare every
-field dishbot writes, for typed reading; the job's events, device events and log records are built as
-mappings (``encode`` takes a mapping too, keeping the producer's key order: ``Payload``).
+field dishbot writes, for typed reading. The job's events of a fixed detail are built as a tagged union by
+``kind`` (``JobEvents``); transitions, device events and log records as mappings (``encode`` takes a mapping
+too, keeping the producer's key order: ``Payload``).
 """
 
 from __future__ import annotations
