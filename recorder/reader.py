@@ -39,13 +39,67 @@ _RECORD_PREFIX = struct.Struct("<BQ")  # opcode, record length
 _MESSAGE_PREFIX = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time; then the data
 
 
-@dataclass(frozen=True, slots=True)
 class RecordedMessage:
-    """One message as recorded: its topic (key expression), log time and decoded JSON payload."""
+    """One message as recorded: its topic (key expression), log time and decoded JSON payload.
+
+    Read compactly (``read_messages(..., compact=True)``) it keeps the payload's JSON bytes as recorded
+    (``raw``) and decodes them at each ``payload``: a long recording's messages then take about their size
+    in the file, not several times it as Python dicts. Immutable either way."""
+
+    __slots__ = ("_data", "log_time_ns", "topic")
 
     topic: str
     log_time_ns: int
-    payload: dict[str, object]
+    _data: dict[str, object] | bytes  # the payload, or its JSON bytes
+
+    def __init__(
+        self,
+        topic: str,
+        log_time_ns: int,
+        payload: dict[str, object] | None = None,
+        *,
+        raw: bytes | None = None,
+    ) -> None:
+        data = payload if payload is not None else raw
+        if data is None or (payload is not None and raw is not None):
+            raise TypeError("a RecordedMessage holds either its payload or its raw JSON bytes")
+        object.__setattr__(self, "topic", topic)
+        object.__setattr__(self, "log_time_ns", log_time_ns)
+        object.__setattr__(self, "_data", data)
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError(f"RecordedMessage is immutable (cannot set {name})")
+
+    def __delattr__(self, name: str) -> None:
+        raise AttributeError(f"RecordedMessage is immutable (cannot delete {name})")
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, RecordedMessage):
+            return NotImplemented
+        return (self.topic, self.log_time_ns, self.payload) == (other.topic, other.log_time_ns, other.payload)
+
+    __hash__ = None  # type: ignore[assignment]  # (a payload is a dict)
+
+    def __repr__(self) -> str:
+        return (
+            f"RecordedMessage(topic={self.topic!r}, log_time_ns={self.log_time_ns!r}, "
+            f"payload={self.payload!r})"
+        )
+
+    @property
+    def payload(self) -> dict[str, object]:
+        """The payload, a JSON object (read compactly: decoded anew at each call, a fresh dict)."""
+        data = self._data
+        if isinstance(data, dict):
+            return data
+        payload: dict[str, object] = json.loads(data)
+        return payload
+
+    @property
+    def raw(self) -> bytes | None:
+        """The payload's JSON bytes as recorded, when read compactly (else None)."""
+        data = self._data
+        return data if isinstance(data, bytes) else None
 
     def decoded(self, kind: type[M]) -> M | None:
         """The payload as the declared message ``kind`` (``wire.messages``); None when it is not one (a
@@ -102,11 +156,15 @@ class RecordingRead:
         return next((m.payload for m in self.messages if m.topic == HEADER_TOPIC), None)
 
 
-def read_messages(path: Path, *, keep: Callable[[str], bool] | None = None) -> RecordingRead:
+def read_messages(
+    path: Path, *, keep: Callable[[str], bool] | None = None, compact: bool = False
+) -> RecordingRead:
     """Read a recording, finished or not, up to the first byte that cannot be used.
 
     ``keep(topic)`` selects the topics whose payloads are decoded and returned (default: all JSON topics);
-    the others are only counted, which keeps summaries of long sessions cheap. Raises ``RecordingError``
+    the others are only counted (never decoded), which keeps summaries of long sessions cheap. With
+    ``compact`` the kept messages hold their JSON bytes, not the decoded dicts (``RecordedMessage.raw``):
+    each is still decoded once here, to check it is a JSON object. Raises ``RecordingError``
     (one line, naming the file) when the file is missing, empty or not MCAP, or a message in an intact chunk
     is not a JSON object.
     """
@@ -124,7 +182,7 @@ def read_messages(path: Path, *, keep: Callable[[str], bool] | None = None) -> R
                             f"{path}: cut inside the MCAP magic after {size} bytes, nothing recorded"
                         )
                     raise RecordingError(f"{path}: not an MCAP file (bad magic)")
-                read = _Scan(path, data, keep).run()
+                read = _Scan(path, data, keep, compact=compact).run()
             if read.truncated and _locked(f.fileno()):
                 read = _with_writer(read)
             return read
@@ -166,10 +224,13 @@ def _with_writer(read: RecordingRead) -> RecordingRead:
 class _Scan:
     """One pass over the records of a mapped file, tolerant of a missing end."""
 
-    def __init__(self, path: Path, data: mmap.mmap, keep: Callable[[str], bool] | None) -> None:
+    def __init__(
+        self, path: Path, data: mmap.mmap, keep: Callable[[str], bool] | None, *, compact: bool = False
+    ) -> None:
         self.path = path
         self.data = data
         self.keep = keep
+        self.compact = compact
         self.topics: dict[int, str] = {}
         self.kept: dict[int, bool] = {}
         self.schemas: dict[int, Schema] = {}
@@ -264,13 +325,17 @@ class _Scan:
         self.end_ns = t if self.end_ns is None else max(self.end_ns, t)
         if not self.kept[channel_id]:
             return
+        raw = bytes(data[start + _MESSAGE_PREFIX.size : end])
         try:
-            payload = json.loads(data[start + _MESSAGE_PREFIX.size : end])
+            payload = json.loads(raw)
         except ValueError as e:
             raise RecordingError(f"{self.path}: message on {topic} at byte {offset} is not JSON ({e})") from e
         if not isinstance(payload, dict):
             raise RecordingError(f"{self.path}: message on {topic} at byte {offset} is not a JSON object")
-        self.messages.append(RecordedMessage(topic, t, payload))
+        if self.compact:
+            self.messages.append(RecordedMessage(topic, t, raw=raw))
+        else:
+            self.messages.append(RecordedMessage(topic, t, payload))
 
     def _done(self, cut_at: int | None, reason: str) -> RecordingRead:
         return RecordingRead(

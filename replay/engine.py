@@ -53,6 +53,7 @@ from replay.session import (
     Trace,
     compare,
     trace_of_messages,
+    traced_topic,
 )
 from validation import toml
 from wire.messages import Command, Payload, UnsetType, plain
@@ -319,8 +320,8 @@ def _alive(pid: int) -> bool:
 
 
 class _Tee:
-    """Every message the daemon hands its recorder (what it publishes, and the driver-boundary inputs and
-    device commands it records), with the log time it stamped, as it happens: the replay's trace. Taken
+    """The messages the daemon hands its recorder that make a trace (``traced_topic``: events, state and
+    device commands), with the log time it stamped, as they happen: the replay's trace. Taken
     before the recorder's queue and disk, so a dropped or unwritten message is still in the trace.
 
     Not ``forward``ed, nothing reaches the recorder: a replay whose recording nobody keeps and no fault
@@ -338,7 +339,8 @@ class _Tee:
         forward = self._forward
 
         def tee(topic: str, payload: Payload, *, log_time_ns: int, data: bytes | None = None) -> bool:
-            self.messages.append(RecordedMessage(topic, log_time_ns, dict(plain(payload))))
+            if traced_topic(topic):  # the trace's topics only: a long replay's memory stays flat
+                self.messages.append(RecordedMessage(topic, log_time_ns, dict(plain(payload))))
             return write(topic, payload, log_time_ns=log_time_ns, data=data) if forward else True
 
         recording.write = tee  # type: ignore[method-assign]

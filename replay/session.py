@@ -182,6 +182,29 @@ def device_command(suffix: str, payload: Mapping[str, object], t_s: float) -> De
     return None
 
 
+# The topics ``device_command`` reads.
+_COMMAND_SUFFIXES: Final = frozenset({"output/follow", "output/gripper", "input/grasp", "input/grasp_failed"})
+# The topic suffixes a replay reads from a recording besides the driver-boundary ones (``input/*``,
+# ``output/*``): the trace's (events, state), the served placement plan (plan), and what the re-simulated
+# world is rebuilt from (``replay.resim``: gripper, detections, also state and events).
+_REPLAYED_SUFFIXES: Final = frozenset({"events", "state", "plan", "gripper", "detections"})
+
+
+def replayed_topic(topic: str) -> bool:
+    """Whether a replay reads ``topic`` of a recording (``RecordedSession.load`` decodes no other: not the
+    telemetry, the log, nor Foxglove's views such as ``/tf``)."""
+    if topic == HEADER_TOPIC:
+        return True
+    suffix = topic_suffix(topic)
+    return suffix in _REPLAYED_SUFFIXES or suffix.startswith(("input/", "output/"))
+
+
+def traced_topic(topic: str) -> bool:
+    """Whether ``trace_of_messages`` reads ``topic`` (a replay's tee keeps no other)."""
+    suffix = topic_suffix(topic)
+    return suffix in ("events", "state") or suffix in _COMMAND_SUFFIXES
+
+
 def trace_of(read: RecordingRead, *, start_ns: int | None = None) -> Trace:
     """The trace in a recording, its times from ``start_ns`` (default: the job's ``start`` transition)."""
     return trace_of_messages(read.messages, start_ns=start_ns, first_ns=read.start_ns)
@@ -211,10 +234,12 @@ def trace_of_messages(
             if not started:
                 continue
         if suffix == "events":
-            event = m.decoded(Event)
-            if event is None:  # not an event: nothing of it in the trace
+            payload = m.payload  # (decoded once: a compact read decodes at each ``payload``)
+            try:
+                event = convert(payload, Event, name=suffix)
+            except BadMessage:  # not an event: nothing of it in the trace
                 continue
-            detail = {k: v for k, v in m.payload.items() if k not in ("kind", "t", "state", "t_device")}
+            detail = {k: v for k, v in payload.items() if k not in ("kind", "t", "state", "t_device")}
             events.append(TraceEvent(event.kind, t_s, _text(event.state), detail))
             if event.kind == "transition":
                 dest = _text(event.dest)
@@ -224,7 +249,7 @@ def trace_of_messages(
         elif suffix == "state" and not final:
             state = m.decoded(State)
             final = state.state if state is not None else ""
-        else:
+        elif suffix in _COMMAND_SUFFIXES:
             command = device_command(suffix, m.payload, t_s)
             if command is not None:
                 outputs.append(command)
@@ -331,16 +356,75 @@ def compare(expected: Trace, got: Trace, *, prefix: bool = False) -> Divergence 
     return min(found, key=lambda d: d.t_s) if found else None
 
 
-@dataclass(frozen=True, slots=True)
 class Recorded:
-    """One recorded input or output: its topic suffix, its log time (ns) and its payload."""
+    """One recorded input or output: its topic suffix, its log time (ns) and its payload.
+
+    Loaded from a recording (``RecordedSession.load``) it keeps only the payload's JSON bytes as recorded,
+    shared with the session's ``read``, and decodes them at each ``payload`` and ``message``: a long
+    session's streams take about their size in the file (checked when loaded, so a decode cannot fail)."""
+
+    __slots__ = ("_data", "_typed", "kind", "t_ns")
 
     kind: str
     t_ns: int
-    payload: Mapping[str, object]
-    # The payload as its declared message (``wire.messages``), for the driver-boundary topics a replay
-    # serves; None for the open ones (device events) and the plan (``PlanResult.from_json`` reads it).
-    message: Message | None = None
+    _data: Mapping[str, object] | bytes  # the payload, or its JSON bytes
+    _typed: Message | type[Message] | None  # the message, or its declared type to decode it as
+
+    def __init__(
+        self,
+        kind: str,
+        t_ns: int,
+        payload: Mapping[str, object] | None = None,
+        message: Message | None = None,
+        *,
+        raw: bytes | None = None,
+        declared: type[Message] | None = None,
+    ) -> None:
+        data = payload if payload is not None else raw
+        if data is None or (payload is not None and raw is not None):
+            raise TypeError("a Recorded holds either its payload or its raw JSON bytes")
+        object.__setattr__(self, "kind", kind)
+        object.__setattr__(self, "t_ns", t_ns)
+        object.__setattr__(self, "_data", data)
+        object.__setattr__(self, "_typed", message if message is not None else declared)
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError(f"Recorded is immutable (cannot set {name})")
+
+    def __delattr__(self, name: str) -> None:
+        raise AttributeError(f"Recorded is immutable (cannot delete {name})")
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Recorded):
+            return NotImplemented
+        return (self.kind, self.t_ns, self.payload, self.message) == (
+            other.kind,
+            other.t_ns,
+            other.payload,
+            other.message,
+        )
+
+    __hash__ = None  # type: ignore[assignment]  # (a payload is a dict)
+
+    def __repr__(self) -> str:
+        return f"Recorded(kind={self.kind!r}, t_ns={self.t_ns!r}, payload={self.payload!r})"
+
+    @property
+    def payload(self) -> Mapping[str, object]:
+        data = self._data
+        if isinstance(data, bytes):
+            payload: dict[str, object] = json.loads(data)
+            return payload
+        return data
+
+    @property
+    def message(self) -> Message | None:
+        """The payload as its declared message (``wire.messages``), for the driver-boundary topics a replay
+        serves; None for the open ones (device events) and the plan (``PlanResult.from_json`` reads it)."""
+        typed = self._typed
+        if isinstance(typed, type):
+            return convert(self.payload, typed, name=self.kind)
+        return typed
 
 
 @dataclass(frozen=True, slots=True)
@@ -498,7 +582,7 @@ class RecordedSession:
     def load(cls, path: Path) -> RecordedSession:
         """Read ``path``; ``ReplayError`` (one line) when it is not a job recording dishbot can replay."""
         try:
-            read = read_messages(path)
+            read = read_messages(path, keep=replayed_topic, compact=True)
         except RecordingError as e:
             raise ReplayError(str(e)) from e
         messages = list(read.messages)
@@ -537,15 +621,24 @@ class RecordedSession:
             raise ReplayError(f"{path}: the job never started (no start transition recorded)")
         start_ns = start.log_time_ns
         streams: dict[str, list[Recorded]] = {}
+        suffixes: dict[str, str] = {}  # one string per topic, not one per record
         for m in messages[1:]:
-            suffix = topic_suffix(m.topic)
+            suffix = suffixes.get(m.topic) or suffixes.setdefault(m.topic, topic_suffix(m.topic))
             if suffix.startswith(("input/", "output/")) or suffix == "plan":
                 declared = None if suffix in _UNTYPED else TOPICS.get(suffix)
+                payload = m.payload
                 try:
-                    message = None if declared is None else convert(m.payload, declared, name=suffix)
+                    if declared is not None:  # checked here, decoded again when served
+                        convert(payload, declared, name=suffix)
                 except BadMessage as e:
                     raise ReplayError(f"{path}: {e}") from None
-                streams.setdefault(suffix, []).append(Recorded(suffix, m.log_time_ns, m.payload, message))
+                raw = m.raw
+                record = (
+                    Recorded(suffix, m.log_time_ns, raw=raw, declared=declared)
+                    if raw is not None
+                    else Recorded(suffix, m.log_time_ns, payload, declared=declared)
+                )
+                streams.setdefault(suffix, []).append(record)
         # (A job that ended before its first move has no follow, but its other device commands.)
         if "input/joints" in streams and not any(k.startswith("output/") for k in streams):
             raise ReplayError(
@@ -567,16 +660,17 @@ class RecordedSession:
             if suffix != "events":
                 continue
             started = started or m is start
-            kind = m.payload.get("kind")
+            event_payload = m.payload  # (decoded once: a compact read decodes at each ``payload``)
+            kind = event_payload.get("kind")
             if started and kind == "transition":
-                t = m.payload.get("t_device")
+                t = event_payload.get("t_device")
                 ok = isinstance(t, int | float) and not isinstance(t, bool)
                 transitions.append(float(t) if ok else m.log_time_ns / 1e9 - mono_offset)  # type: ignore[arg-type]
-            elif started and "device" in m.payload and kind != "fault_injected":
+            elif started and "device" in event_payload and kind != "fault_injected":
                 # An older recording's device event: its ``t_device`` is the driver's clock, which on a
                 # simulated session is the daemon's; on the wall clock its log time says when it came.
                 # It came after the transitions published before it (``events`` is in order).
-                payload = dict(m.payload)
+                payload = dict(event_payload)
                 t = payload.get("t_device")
                 if not (simulated and isinstance(t, int | float) and not isinstance(t, bool)):
                     payload["t_read"] = m.log_time_ns / 1e9 - mono_offset
