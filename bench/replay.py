@@ -116,6 +116,27 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="DIR",
         help="keep the recorded job files in DIR (a new or empty folder; default: a temporary one)",
     )
+    parser.add_argument(
+        "--memory",
+        action="store_true",
+        help="measure memory instead: record an ordinary kinematic dataset 1 job and the same job paused by "
+        "the operator for --paused-s (about an hour of recording), replay each in a fresh process and "
+        "report its peak resident memory against the recording's size and duration (target: <= 600 MB "
+        "for the hour)",
+    )
+    parser.add_argument(
+        "--paused-s",
+        type=float,
+        default=None,
+        metavar="S",
+        help="with --memory: how long the operator pauses the long job, simulated seconds (default 3360: "
+        "a job file of about an hour)",
+    )
+    parser.add_argument(
+        "--memory-mujoco",
+        action="store_true",
+        help="with --memory: also an ordinary MuJoCo dataset 1 job",
+    )
     add_json_flag(parser)
     parser.set_defaults(handler=run)
 
@@ -160,6 +181,10 @@ def rig_sessions(n: int) -> list[Session]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.memory:
+        return _run_memory(args)
+    if args.paused_s is not None or args.memory_mujoco:
+        raise UsageError("--paused-s and --memory-mujoco go with --memory")
     from replay.engine import replay
     from replay.session import RecordedSession
 
@@ -226,6 +251,17 @@ def run(args: argparse.Namespace) -> int:
     }
     emit("bench replay: fault-free replays of recorded jobs", columns, rows, as_json=args.json, extra=extra)
     return 0
+
+
+def _run_memory(args: argparse.Namespace) -> int:
+    from bench.replay_memory import PAUSED_S_DEFAULT, run_memory
+
+    if args.sessions is not None or args.rig:
+        raise UsageError("--memory records its own jobs; leave out --sessions and --rig")
+    paused_s = PAUSED_S_DEFAULT if args.paused_s is None else args.paused_s
+    return run_memory(
+        paused_s=paused_s, mujoco=args.memory_mujoco, keep=_keep_dir(args.keep), as_json=args.json
+    )
 
 
 class RigNotStarted(RuntimeError):

@@ -467,7 +467,7 @@ class RecordedSession:
     """One job's recording, ready to replay."""
 
     path: Path
-    read: RecordingRead
+    read: RecordingRead  # compact, of the topics a replay reads (``replayed_topic``); every topic counted
     header: Mapping[str, object]
     config: Config
     backend: str  # the scene's backend name: sim-kinematic, sim-mujoco or hardware

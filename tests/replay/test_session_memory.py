@@ -122,7 +122,7 @@ def _with_broken(source: Path, target: Path, broken: str) -> Path:
                 )
             data = b"{not json" if channel.topic == broken else message.data
             writer.add_message(channels[channel.id], message.log_time, data, message.publish_time)
-        writer.finish()
+        writer.finish()  # type: ignore[no-untyped-call]
     return target
 
 
