@@ -17,6 +17,7 @@ from daemon.job.counter import GIVE_UP_WRITES, give_up
 from daemon.job.services import Services
 from planning.interfaces import CyclePlan, MotionRefused, MugPose, TraySlot
 from planning.placement import TrayMug
+from planning.placement.sequence import fill_slot
 from statechart.chart import CYCLE_PHASES
 from wire.messages import CyclePlannedEvent, MotionRefusedEvent, MugSwappedEvent
 
@@ -88,16 +89,21 @@ async def _fill(
     available: Mapping[str, MugPose],
 ) -> bool:
     """Plan the cycle filling ``slot`` with its mug or, when that one is blocked, with the nearest reachable
-    counter mug of the same type; the two mugs swap their places in the plan."""
+    counter mug of the same type; the two mugs swap their places in the plan. Mugs given up are obstacles
+    (``sequence.fill_slot``, the plan check's own choice, when any stands on the counter)."""
     js = await services.backend.arm.read_joints()
+    motion = services.backend.motion
+    # Mugs given up stay where they are: obstacles for every later cycle, never candidates for a slot.
+    fixed = tuple(m for k, m in ctx.counter.items() if k in ctx.given_up)
     try:
-        mug, cycle = await asyncio.to_thread(
-            services.backend.motion.plan_for_slot,
-            js.position_rad,
-            slot,
-            tuple(available.values()),
-            tuple(ctx.on_tray),
-        )
+        if fixed:
+            mug, cycle = await asyncio.to_thread(
+                fill_slot, motion, js.position_rad, slot, available, tuple(ctx.on_tray), fixed
+            )
+        else:  # the planner's own call (it decides once per slot what no candidate can change)
+            mug, cycle = await asyncio.to_thread(
+                motion.plan_for_slot, js.position_rad, slot, tuple(available.values()), tuple(ctx.on_tray)
+            )
     except MotionRefused as e:
         ctx.deferred[slot] = Deferral.of(e.blockers, available, slot)
         services.event(MotionRefusedEvent(mug_id=slot.mug_id, reason=str(e)))

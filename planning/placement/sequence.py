@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 from planning.interfaces import CyclePlan, MotionPlanner, MotionRefused, MugPose, StepKind, TraySlot
@@ -118,7 +118,7 @@ def sequence(
             if blockers is not None and blockers <= movable.keys():
                 continue  # nothing that blocked it has moved since
             try:
-                mug, plan = _fill(motion, q, slot, movable, placed, fixed, checks)
+                mug, plan = fill_slot(motion, q, slot, movable, placed, fixed, checks=checks)
             except MotionRefused as e:
                 on_counter = e.blockers & movable.keys()
                 if not on_counter:
@@ -153,18 +153,22 @@ def sequence(
     return Sequenced(tuple(cycles), tuple(dropped), checks[0])
 
 
-def _fill(
+def fill_slot(
     motion: MotionPlanner,
-    q: tuple[float, ...],
+    q: Sequence[float],
     slot: TraySlot,
-    movable: dict[str, MugPose],
+    movable: Mapping[str, MugPose],
     placed: Sequence[TraySlot],
     fixed: Sequence[MugPose],
-    checks: list[int],
+    *,
+    checks: list[int] | None = None,
 ) -> tuple[MugPose, CyclePlan]:
     """The cycle filling ``slot``: its own mug, else the other movable mugs of its type nearest the arm
     first (``CyclePlanner.plan_for_slot``'s order, so the job repeats the choice); every other counter mug
-    and the fixed ones are obstacles."""
+    and the fixed ones (mugs given up, which stay where they are) are obstacles, never candidates. The job
+    fills its slots with it when mugs given up stand on the counter (``daemon.job.cycles``). ``checks[0]``
+    counts the cycles planned."""
+    checks = [0] if checks is None else checks
     named = [m for m in movable.values() if m.mug_id == slot.mug_id]
     others = sorted(
         (m for m in movable.values() if m.type == slot.type and m.mug_id != slot.mug_id),

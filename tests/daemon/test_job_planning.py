@@ -257,3 +257,32 @@ def test_mugs_no_motion_reaches_are_left_out_of_the_plan_and_never_tried() -> No
     assert [slots[f"slot:{m}"] for m in out + dropped] == [0, 0]
     assert (job.summary.planned, job.summary.placed, job.summary.failed) == (3, 3, 0)
     assert len(job.summary.left_out) == 2
+
+
+def test_a_mug_given_up_on_the_counter_stays_an_obstacle_for_later_cycles() -> None:
+    world = _world_big_and_two_small()
+    published: list[tuple[str, dict[str, Any]]] = []
+    services = _services(world, published)
+    assert isinstance(services.backend.motion, FakeMotion)
+    services.backend.motion.blocked_by = {"A": "C"}  # the big mug stands behind small C
+    ctx = _counter_and_queue(world, ["A", "B"])
+    ctx.given_up.add("C")  # C stays where it is, in front of A, for good
+
+    async def go() -> list[str | None]:
+        taken = []
+        for mug in ("B", None):
+            has_next = await take_next_cycle(services, ctx)
+            taken.append(ctx.current.mug_id if has_next and ctx.current else None)
+            if mug is not None:
+                _taken_off(world, ctx, mug)
+        return taken
+
+    # Without C as an obstacle A's cycle would plan straight through it; with it A waits, B goes, and A is
+    # given up once nothing else is left (C never moves).
+    assert asyncio.run(go()) == ["B", None]
+    obstacles = services.backend.motion.obstacles
+    assert obstacles
+    assert all("C" in o for o in obstacles)  # every cycle planned saw C
+    assert "C" not in {c.split(":")[1] for c in _calls(services)}  # and never as a candidate
+    given_up = [p["mug_id"] for t, p in published if t == "events" and p["kind"] == "mug_given_up"]
+    assert given_up == ["A"]
