@@ -61,6 +61,19 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         ),
     )
     parser.add_argument("--seed", default="0", help="seed of the random counter layouts (default 0)")
+    parser.add_argument(
+        "--jobs",
+        default="1",
+        metavar="J",
+        help="with --layouts: worker processes checking layouts side by side (default 1; the rows do not "
+        "depend on it)",
+    )
+    parser.add_argument(
+        "--no-unchecked",
+        action="store_true",
+        help="with --layouts: skip the unchecked baseline (the packer's own order; a second packing and job "
+        "run per layout, which the order target does not need)",
+    )
     add_json_flag(parser)
     parser.set_defaults(handler=run)
 
@@ -92,12 +105,19 @@ def run(args: argparse.Namespace) -> int:
     for flag, text in (("--layouts", args.layouts), ("--seed", args.seed)):
         if not text.isdigit():
             raise UsageError(f"{flag}: expected a whole number, 0 or more, got {text!r}")
+    if not args.jobs.isdigit() or int(args.jobs) < 1:
+        raise UsageError(f"--jobs: expected a whole number, at least 1, got {args.jobs!r}")
     if int(args.layouts):
         from bench.placement_order import order_table
 
         layouts = Progress("bench placement", len(datasets) * int(args.layouts), enabled=not args.json)
         order_columns, order_rows, order_extra = order_table(
-            datasets, int(args.layouts), int(args.seed), lambda note: layouts.next(note)
+            datasets,
+            int(args.layouts),
+            int(args.seed),
+            lambda note: layouts.next(note),
+            jobs=int(args.jobs),
+            unchecked=not args.no_unchecked,
         )
         emit(
             "placement order checked with the arm",

@@ -15,12 +15,15 @@ counted apart.
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
-import math
-import random
+import multiprocessing
 import statistics
 import time
 from collections.abc import Callable, Sequence
+
+import numpy as np
+import numpy.typing as npt
 
 from daemon.config import load_config
 from description import thesis
@@ -41,10 +44,12 @@ COLUMNS = [
     "unchecked_planned",
     "unchecked_placed",
     "unchecked_order_collisions",
-    "s_per_layout",
+    "cpu_s_per_layout",
 ]
 _BRIM_GAP_MM = 20.0
 _HANDLE_GAP_MM = 10.0
+# The spacing of the points a layout's brim centres are drawn from.
+_GRID_MM = 2.0
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -57,118 +62,209 @@ class JobRun:
 
 
 def order_table(
-    datasets: Sequence[int], layouts: int, seed: int, progress: Callable[[str], None]
+    datasets: Sequence[int],
+    layouts: int,
+    seed: int,
+    progress: Callable[[str], None],
+    *,
+    jobs: int = 1,
+    unchecked: bool = True,
 ) -> tuple[list[str], list[list[object]], dict[str, object]]:
-    from planning.arm import ArmModel
-    from planning.motion import CyclePlanner
-    from sim.counter import dataset_counter
-
+    """The table (see the module). The layouts are drawn here, in one process and in order, so the same seed
+    gives the same layouts and the same rows whatever ``jobs`` is; each layout is then planned and run in one
+    of ``jobs`` worker processes (each keeps one cycle planner per dataset, with what it remembers of the
+    tray's shared motions, across layouts). ``unchecked=False`` skips the unchecked baseline (a second
+    packing and job run per layout), which the order target does not need."""
     config = load_config()
-    arm = ArmModel.load()
-    start_q = tuple(config.sim.start_q_rad)
+    tasks: list[tuple[int, int, Problem]] = []
+    mugs: dict[int, int] = {}
+    for n in datasets:
+        base = dataclasses.replace(cell_dataset_problem(config.cell, n), footprint_kind="mug")
+        mugs[n] = len(base.mugs)
+        rng = np.random.default_rng([seed, n])
+        tasks += [(n, k, random_layout(base, rng)) for k in range(layouts)]
+    runs: dict[int, list[LayoutRun]] = {n: [] for n in datasets}
+    started = time.perf_counter()
+    if jobs == 1:
+        for n, k, problem in tasks:
+            progress(f"dataset {n}: layout {k + 1} of {layouts}")
+            runs[n].append(run_layout(n, problem, unchecked))
+    else:
+        context = multiprocessing.get_context("forkserver")
+        with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context) as pool:
+            futures = {pool.submit(run_layout, n, problem, unchecked): (n, k) for n, k, problem in tasks}
+            for future in concurrent.futures.as_completed(futures):
+                n, k = futures[future]
+                progress(f"dataset {n}: layout {k + 1} of {layouts} done")
+                runs[n].append(future.result())
+    wall_s = time.perf_counter() - started
     rows: list[list[object]] = []
     total_checked_collisions = 0
     total_short = 0
     for n in datasets:
-        base = dataclasses.replace(cell_dataset_problem(config.cell, n), footprint_kind="mug")
-        tray = dataset_counter(n, config.cell, thesis.MUG_TYPES).tray
-        motion = CyclePlanner(arm, dataclasses.replace(config.cell, tray=tray), thesis.MUG_TYPES)
-        rng = random.Random(seed * 1_000_003 + n)
-        stats: dict[str, list[int]] = {c: [] for c in COLUMNS[3:11]}
-        started = time.perf_counter()
-        for k in range(layouts):
-            progress(f"dataset {n}: layout {k + 1} of {layouts}")
-            problem = random_layout(base, rng)
-            counter = [_pose(problem, i) for i in range(len(problem.mugs))]
-            checked = plan_with_arm(problem, PlanOptions(), motion, start_q, counter)
-            run = run_as_job(motion, start_q, checked.result.slots(problem), counter)
-            unchecked = plan(problem, PlanOptions())
-            baseline = run_as_job(motion, start_q, unchecked.slots(problem), counter)
-            for key, value in (
-                ("out_of_reach", len(checked.left_out)),
-                ("planned", checked.result.n),
-                ("placed", run.placed),
-                ("order_collisions", run.order_collisions),
-                ("other_refusals", run.other_refusals),
-                ("unchecked_planned", unchecked.n),
-                ("unchecked_placed", baseline.placed),
-                ("unchecked_order_collisions", baseline.order_collisions),
-            ):
-                stats[key].append(value)
-            total_short += checked.result.n - run.placed
-        total_checked_collisions += sum(stats["order_collisions"])
+        rs = runs[n]
+
+        def mean(values: Sequence[int]) -> object:
+            return round(statistics.fmean(values), 2) if values else "-"
+
+        def total(values: Sequence[int]) -> object:
+            return sum(values) if values else "-"
+
+        base_runs = [r for r in rs if r.unchecked is not None]
         rows.append(
             [
                 n,
                 layouts,
-                len(base.mugs),
-                round(statistics.fmean(stats["out_of_reach"]), 2),
-                round(statistics.fmean(stats["planned"]), 2),
-                round(statistics.fmean(stats["placed"]), 2),
-                sum(stats["order_collisions"]),
-                sum(stats["other_refusals"]),
-                round(statistics.fmean(stats["unchecked_planned"]), 2),
-                round(statistics.fmean(stats["unchecked_placed"]), 2),
-                sum(stats["unchecked_order_collisions"]),
-                round((time.perf_counter() - started) / layouts, 1),
+                mugs[n],
+                mean([r.out_of_reach for r in rs]),
+                mean([r.planned for r in rs]),
+                mean([r.job.placed for r in rs]),
+                sum(r.job.order_collisions for r in rs),
+                sum(r.job.other_refusals for r in rs),
+                mean([r.unchecked_planned for r in base_runs]),
+                mean([r.unchecked.placed for r in base_runs if r.unchecked is not None]),
+                total([r.unchecked.order_collisions for r in base_runs if r.unchecked is not None]),
+                round(statistics.fmean(r.cpu_s for r in rs), 1),
             ]
         )
+        total_checked_collisions += sum(r.job.order_collisions for r in rs)
+        total_short += sum(r.planned - r.job.placed for r in rs)
     extra: dict[str, object] = {
         "seed": seed,
+        "jobs": jobs,
+        "wall_s": round(wall_s, 1),
         "planned, placed, out_of_reach": "mean per layout; collisions and refusals: sums over the layouts",
+        "cpu_s_per_layout": "CPU seconds per layout in its worker (checked plan, job run, baseline)",
         "order_collisions (checked), target 0": total_checked_collisions,
         "planned but not placed (checked), target 0": total_short,
     }
     return COLUMNS, rows, extra
 
 
-def random_layout(base: Problem, rng: random.Random) -> Problem:
+@dataclasses.dataclass(frozen=True, slots=True)
+class LayoutRun:
+    """One layout: the checked plan and its job run; the unchecked plan's (None when skipped)."""
+
+    out_of_reach: int
+    planned: int
+    job: JobRun
+    unchecked_planned: int
+    unchecked: JobRun | None
+    cpu_s: float
+
+
+# The worker's cycle planners, one per dataset (its tray), with the arm and config loaded once per process.
+_PLANNERS: dict[int, tuple[MotionPlanner, tuple[float, ...]]] = {}
+
+
+def _planner(n: int) -> tuple[MotionPlanner, tuple[float, ...]]:
+    if n not in _PLANNERS:
+        from planning.arm import ArmModel
+        from planning.motion import CyclePlanner
+        from sim.counter import dataset_counter
+
+        config = load_config()
+        tray = dataset_counter(n, config.cell, thesis.MUG_TYPES).tray
+        arm = ArmModel.load()
+        motion = CyclePlanner(arm, dataclasses.replace(config.cell, tray=tray), thesis.MUG_TYPES)
+        _PLANNERS[n] = (motion, tuple(config.sim.start_q_rad))
+    return _PLANNERS[n]
+
+
+def run_layout(n: int, problem: Problem, unchecked: bool = True) -> LayoutRun:
+    """Plan ``problem`` (dataset ``n``'s mugs at one layout) checked with the arm and run it as the job
+    would; the same for the packer's unchecked plan when ``unchecked``."""
+    motion, start_q = _planner(n)
+    cpu = time.process_time()
+    counter = [_pose(problem, i) for i in range(len(problem.mugs))]
+    checked = plan_with_arm(problem, PlanOptions(), motion, start_q, counter)
+    job = run_as_job(motion, start_q, checked.result.slots(problem), counter)
+    base_planned, base = 0, None
+    if unchecked:
+        packed = plan(problem, PlanOptions())
+        base_planned = packed.n
+        base = run_as_job(motion, start_q, packed.slots(problem), counter)
+    return LayoutRun(
+        len(checked.left_out), checked.result.n, job, base_planned, base, time.process_time() - cpu
+    )
+
+
+def random_layout(base: Problem, rng: np.random.Generator) -> Problem:
     """``base``'s mugs at random brim centres within the box of its own counter's brim centres (see the
-    module); tried again from scratch until every mug has a place."""
+    module), the largest first (fewer layouts jam before the last mug), each drawn uniformly among the
+    points of a ``_GRID_MM`` grid over the box that keep their distance to the mugs set out before it (as
+    rejection sampling would draw it, without its misses); started again from scratch when no point is
+    left for a mug."""
     xs = [m.x_mm for m in base.mugs]
     ys = [m.y_mm for m in base.mugs]
-    box = (min(xs), min(ys), max(xs), max(ys))
+    gx = np.arange(min(xs), max(xs) + 1e-9, _GRID_MM)
+    gy = np.arange(min(ys), max(ys) + 1e-9, _GRID_MM)
+    grid = np.stack(np.meshgrid(gx, gy, indexing="ij"), axis=-1).reshape(-1, 2)
+    base_xy = np.array(base.arm_base_mm, dtype=np.float64)
+    types = sorted({m.type for m in base.mugs})
+    radius = {t: base.mug_types[t].diameter_mm / 2.0 for t in types}
+    handle = {t: base.mug_types[t].width_mm - base.mug_types[t].diameter_mm for t in types}
     while True:
-        placed: list[tuple[float, float, str]] = []
-        for m in base.mugs:
-            for _ in range(2000):
-                x, y = rng.uniform(box[0], box[2]), rng.uniform(box[1], box[3])
-                if all(_apart(base, (x, y, m.type), other) for other in placed):
-                    placed.append((x, y, m.type))
-                    break
-            else:
+        free = {t: np.arange(len(grid)) for t in types}  # indices into grid still free for a mug of type t
+        at: dict[str, npt.NDArray[np.float64]] = {}
+        for m in sorted(base.mugs, key=lambda m: -(radius[m.type] + handle[m.type])):
+            if free[m.type].size == 0:
                 break
-        if len(placed) == len(base.mugs):
+            point = grid[free[m.type][rng.integers(free[m.type].size)]]
+            at[m.id] = point
+            one = point[None, :]
+            r1, l1 = np.array([radius[m.type]]), np.array([handle[m.type]])
+            for t in types:
+                keep = _apart_all(grid[free[t]], radius[t], handle[t], one, r1, l1, base_xy)
+                free[t] = free[t][keep]
+        if len(at) == len(base.mugs):
             mugs = tuple(
-                dataclasses.replace(m, x_mm=round(x, 1), y_mm=round(y, 1))
-                for m, (x, y, _) in zip(base.mugs, placed, strict=True)
+                dataclasses.replace(m, x_mm=round(float(at[m.id][0]), 1), y_mm=round(float(at[m.id][1]), 1))
+                for m in base.mugs
             )
             return dataclasses.replace(base, mugs=mugs)
 
 
-def _apart(problem: Problem, a: tuple[float, float, str], b: tuple[float, float, str]) -> bool:
-    ra = problem.mug_types[a[2]].diameter_mm / 2.0
-    rb = problem.mug_types[b[2]].diameter_mm / 2.0
-    if math.hypot(a[0] - b[0], a[1] - b[1]) < ra + rb + _BRIM_GAP_MM:
-        return False
-    return (
-        _handle_gap(problem, a, b) >= rb + _HANDLE_GAP_MM
-        and _handle_gap(problem, b, a) >= ra + _HANDLE_GAP_MM
-    )
+def _apart_all(
+    cand: npt.NDArray[np.float64],
+    r: float,
+    length: float,
+    at: npt.NDArray[np.float64],
+    r_at: npt.NDArray[np.float64],
+    len_at: npt.NDArray[np.float64],
+    base_xy: npt.NDArray[np.float64],
+) -> npt.NDArray[np.bool_]:
+    """Which candidate brim centres (K, 2) of a mug (brim radius ``r``, handle ``length``) keep their
+    distance to every mug set out (``at``, their radii and handle lengths): brims ``_BRIM_GAP_MM`` apart,
+    each handle (a segment from its brim pointing away from the arm base) ``_HANDLE_GAP_MM`` from the other
+    mug's brim."""
+    if len(at) == 0:
+        return np.ones(len(cand), dtype=bool)
+    d = np.linalg.norm(cand[:, None, :] - at[None, :, :], axis=2)
+    ok = d >= r + r_at[None, :] + _BRIM_GAP_MM
+    k = len(cand)
+    # The candidate's handle against the brims set out, then their handles against the candidate's brim.
+    theirs = _handle_gap(at, r_at, len_at, cand, base_xy).T
+    ok &= _handle_gap(cand, np.full(k, r), np.full(k, length), at, base_xy) >= r_at[None, :] + _HANDLE_GAP_MM
+    ok &= theirs >= r + _HANDLE_GAP_MM
+    return np.asarray(np.all(ok, axis=1))
 
 
-def _handle_gap(problem: Problem, a: tuple[float, float, str], b: tuple[float, float, str]) -> float:
-    """Distance from ``b``'s axis to ``a``'s handle (a segment from its brim to its tip, pointing away
-    from the arm base)."""
-    t = problem.mug_types[a[2]]
-    r = t.diameter_mm / 2.0
-    bx, by = problem.arm_base_mm
-    yaw = math.atan2(a[1] - by, a[0] - bx)
-    ux, uy = math.cos(yaw), math.sin(yaw)
-    p0 = (a[0] + r * ux, a[1] + r * uy)
-    length = t.width_mm - t.diameter_mm
-    s = max(0.0, min(length, (b[0] - p0[0]) * ux + (b[1] - p0[1]) * uy))
-    return math.hypot(b[0] - (p0[0] + s * ux), b[1] - (p0[1] + s * uy))
+def _handle_gap(
+    a: npt.NDArray[np.float64],
+    r: npt.NDArray[np.float64],
+    length: npt.NDArray[np.float64],
+    b: npt.NDArray[np.float64],
+    base_xy: npt.NDArray[np.float64],
+) -> npt.NDArray[np.float64]:
+    """(len(a), len(b)): distance from each point of ``b`` to the handle of each mug at ``a`` (brim radius
+    ``r``, handle ``length``: a segment from its brim pointing away from the arm base)."""
+    u = a - base_xy
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    p0 = (a + r[:, None] * u)[:, None, :]
+    u = u[:, None, :]
+    s = np.clip(np.sum((b[None, :, :] - p0) * u, axis=2), 0.0, length[:, None])
+    return np.asarray(np.linalg.norm(b[None, :, :] - (p0 + s[..., None] * u), axis=2))
 
 
 def _pose(problem: Problem, i: int) -> MugPose:
