@@ -118,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
             lambda note: layouts.next(note),
             jobs=int(args.jobs),
             unchecked=not args.no_unchecked,
+            log_level=args.log_level,
         )
         emit(
             "placement order checked with the arm",

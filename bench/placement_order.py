@@ -69,12 +69,14 @@ def order_table(
     *,
     jobs: int = 1,
     unchecked: bool = True,
+    log_level: str = "info",
 ) -> tuple[list[str], list[list[object]], dict[str, object]]:
     """The table (see the module). The layouts are drawn here, in one process and in order, so the same seed
     gives the same layouts and the same rows whatever ``jobs`` is; each layout is then planned and run in one
     of ``jobs`` worker processes (each keeps one cycle planner per dataset, with what it remembers of the
     tray's shared motions, across layouts). ``unchecked=False`` skips the unchecked baseline (a second
-    packing and job run per layout), which the order target does not need."""
+    packing and job run per layout), which the order target does not need. The workers log at
+    ``log_level`` to stderr, as the command line does, and die with this process."""
     config = load_config()
     tasks: list[tuple[int, int, Problem]] = []
     mugs: dict[int, int] = {}
@@ -91,7 +93,9 @@ def order_table(
             runs[n].append(run_layout(n, problem, unchecked))
     else:
         context = multiprocessing.get_context("forkserver")
-        with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context) as pool:
+        with concurrent.futures.ProcessPoolExecutor(
+            jobs, mp_context=context, initializer=_worker, initargs=(log_level,)
+        ) as pool:
             futures = {pool.submit(run_layout, n, problem, unchecked): (n, k) for n, k, problem in tasks}
             for future in concurrent.futures.as_completed(futures):
                 n, k = futures[future]
@@ -151,6 +155,14 @@ class LayoutRun:
     unchecked_planned: int
     unchecked: JobRun | None
     cpu_s: float
+
+
+def _worker(log_level: str) -> None:
+    from cli.logs import configure_cli_logging
+    from daemon.lifeline import die_with_parent
+
+    die_with_parent()
+    configure_cli_logging(log_level)
 
 
 # The worker's cycle planners, one per dataset (its tray), with the arm and config loaded once per process.
