@@ -76,7 +76,8 @@ def order_table(
     of ``jobs`` worker processes (each keeps one cycle planner per dataset, with what it remembers of the
     tray's shared motions, across layouts). ``unchecked=False`` skips the unchecked baseline (a second
     packing and job run per layout), which the order target does not need. The workers log at
-    ``log_level`` to stderr, as the command line does, and die with this process."""
+    ``log_level`` to stderr, as the command line does (they die with the forkserver they were forked from,
+    which outlives a bench killed with SIGKILL)."""
     config = load_config()
     tasks: list[tuple[int, int, Problem]] = []
     mugs: dict[int, int] = {}
