@@ -713,7 +713,13 @@ class HeaderJob(Message, kw_only=True):
     planner: Annotated[dict[str, Any], doc("the effective planner settings")] | U = UNSET
     planner_overrides: Annotated[dict[str, Any], doc("the start command's planner settings")] | U = UNSET
     sim_seed: Annotated[int | None, doc("the simulated cell's seed")] | U = UNSET
-    carried: Annotated[list[dict[str, Any]], doc("the tray's mugs from the jobs before")] | U = UNSET
+    carried: (
+        Annotated[
+            dict[str, Any],
+            doc("what the job carried over from the jobs before: on_tray, tray_mugs, counter"),
+        ]
+        | U
+    ) = UNSET
 
 
 class HeaderTray(Message, kw_only=True):
@@ -736,7 +742,14 @@ class HeaderConfig(Message, kw_only=True):
     dataset: Annotated[int | None, doc("the configured dataset")] | U = UNSET
 
 
-H = TypeVar("H", HeaderFile, HeaderJob, HeaderPlanner, HeaderScene, HeaderConfig)
+class HeaderClock(Message, kw_only=True):
+    """``session/header``'s ``clock``: the session clock's source and, when simulated, where it started."""
+
+    source: Annotated[str, doc("wall or simulated")] | U = UNSET
+    wall_start: Annotated[Number, doc("the clock's start on the wall clock, Unix seconds")] | U = UNSET
+
+
+H = TypeVar("H", HeaderFile, HeaderJob, HeaderPlanner, HeaderScene, HeaderConfig, HeaderClock)
 
 
 def header_part(document: object, kind: type[H]) -> H:

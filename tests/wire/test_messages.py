@@ -25,6 +25,8 @@ from wire.messages import (
     BadMessage,
     Event,
     Gripper,
+    HeaderClock,
+    HeaderJob,
     Joints,
     Log,
     Message,
@@ -33,6 +35,7 @@ from wire.messages import (
     decode,
     decode_topic,
     encode,
+    header_part,
     message_type,
 )
 from wire.schemas import schema_for, schema_name
@@ -116,6 +119,38 @@ def test_the_generated_schema_keeps_the_stored_schemas_names_fields_types_and_re
             assert now.get("type") == was.get("type"), (topic, field)
             assert now.get("items", {}).get("type") == was.get("items", {}).get("type"), (topic, field)
             assert set(was.get("enum", ())) <= set(now.get("enum", ())), (topic, field)
+
+
+def test_the_header_views_read_every_recorded_header_clock_and_job() -> None:
+    """The views replay/ reads the header through take what each recorded header holds (an empty view
+    would silently read as "missing")."""
+    headers = []
+    for path in sorted(RECORDING.parent.glob("*.mcap")):
+        with path.open("rb") as f:
+            for _, _channel, message in make_reader(f).iter_messages(topics=["session/header"]):
+                headers.append((path.name, json.loads(message.data)))
+    assert headers
+    for name, header in headers:
+        clock = header_part(header.get("clock"), HeaderClock)
+        assert clock.source in ("wall", "simulated"), name
+        assert isinstance(clock.wall_start, int | float), name
+        job = header.get("job")
+        if isinstance(job, dict):
+            view = header_part(job, HeaderJob)
+            assert view.sim_seed == job.get("sim_seed", view.sim_seed), name
+            assert (view.mugs is None) == (job.get("mugs") is None), name
+
+
+def test_a_carried_job_header_keeps_its_view_and_a_malformed_clock_is_an_empty_one() -> None:
+    job: dict[str, object] = {
+        "dataset": None,
+        "mugs": None,
+        "sim_seed": 4,
+        "carried": {"on_tray": [], "counter": []},
+    }
+    assert header_part(job, HeaderJob).sim_seed == 4
+    assert header_part(job, HeaderJob).carried == {"on_tray": [], "counter": []}
+    assert header_part({"source": "simulated", "wall_start": "soon"}, HeaderClock) == HeaderClock()
 
 
 def test_every_topic_has_a_schema_named_after_it() -> None:
