@@ -36,11 +36,14 @@ from wire.messages import (
     BadMessage,
     Command,
     Event,
+    HeaderClock,
+    HeaderJob,
     InputJoints,
     Message,
     State,
     UnsetType,
     convert,
+    header_part,
 )
 from wire.schemas import topic_suffix
 
@@ -489,7 +492,7 @@ class RecordedSession:
 
     @property
     def simulated(self) -> bool:
-        return self.clock.get("source") == "simulated"
+        return header_part(self.clock, HeaderClock).source == "simulated"
 
     @property
     def world(self) -> str:
@@ -571,11 +574,13 @@ class RecordedSession:
         if starting is not None and isinstance(starting.message, Command):
             return starting.message.payload.encode()
         body: dict[str, object] = {}
-        if self.job.get("mugs") is not None:
+        job = header_part(self.job, HeaderJob)
+        if job.mugs is not None and not isinstance(job.mugs, UnsetType):
+            # The mugs go back as recorded, every key of theirs (the view keeps only what readers take):
+            # the daemon validates the start body it is sent.
             body["mugs"] = self.job["mugs"]
-        overrides = self.job.get("planner_overrides")
-        if isinstance(overrides, Mapping) and overrides:
-            body["planner"] = dict(overrides)
+        if not isinstance(job.planner_overrides, UnsetType) and job.planner_overrides:
+            body["planner"] = dict(job.planner_overrides)
         return json.dumps(body).encode()
 
     @classmethod
@@ -589,6 +594,8 @@ class RecordedSession:
         if not messages or messages[0].topic != HEADER_TOPIC:
             raise ReplayError(f"{path}: not a dishbot recording (no {HEADER_TOPIC} message first)")
         header = messages[0].payload
+        # The header's documents are checked here, raw, for the one-line errors below (a view of a malformed
+        # document is only empty); from here on they are read through their views (``wire.messages.Header*``).
         scene, job, clock, file = (header.get(k) for k in ("scene", "job", "clock", "file"))
         config_doc = header.get("config")
         if not isinstance(config_doc, Mapping) or not isinstance(scene, Mapping):
@@ -646,7 +653,7 @@ class RecordedSession:
             )
         mono_offset = _mono_offset(streams.get("input/joints", []), clock)
         start_monotonic = _start_monotonic(start, streams.get("input/joints", []), clock)
-        simulated = isinstance(clock, Mapping) and clock.get("source") == "simulated"
+        simulated = header_part(clock, HeaderClock).source == "simulated"  # (wall_start checked above)
         transitions: list[float] = []
         derived_events: list[Recorded] = []
         started = False
@@ -752,10 +759,9 @@ def _start_monotonic(start: RecordedMessage, joints: Sequence[Recorded], clock: 
 def _mono_offset(joints: Sequence[Recorded], clock: object) -> float:
     """How far the session's ``now()`` is ahead of its monotonic clock: the simulated clock's wall start,
     or on the wall clock the median over the joint reads (each carries both)."""
-    if isinstance(clock, Mapping) and clock.get("source") == "simulated":
-        start = clock.get("wall_start")
-        if isinstance(start, int | float):
-            return float(start)
+    view = header_part(clock, HeaderClock)
+    if view.source == "simulated" and not isinstance(view.wall_start, UnsetType):
+        return float(view.wall_start)
     diffs = [
         r.t_ns / 1e9 - float(r.message.t_read)
         for r in joints
