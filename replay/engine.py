@@ -56,7 +56,17 @@ from replay.session import (
     traced_topic,
 )
 from validation import toml
-from wire.messages import Command, Payload, UnsetType, plain
+from wire.messages import (
+    UNSET,
+    Command,
+    HeaderClock,
+    HeaderJob,
+    HeaderScene,
+    Payload,
+    UnsetType,
+    header_part,
+    plain,
+)
 
 log = structlog.get_logger("replay")
 
@@ -349,8 +359,8 @@ class _Tee:
 def _wall_start(session: RecordedSession) -> float:
     """The replay's clock starts where the recording's did: the simulated clock's wall start, or the
     recording's first message on the wall clock."""
-    start = session.clock.get("wall_start")
-    if session.simulated and isinstance(start, int | float):
+    start = header_part(session.clock, HeaderClock).wall_start
+    if session.simulated and not isinstance(start, UnsetType):
         return float(start)
     return (session.read.start_ns or session.start_ns) / 1e9
 
@@ -393,8 +403,9 @@ async def _replay(
         config = dataclasses.replace(
             config, sim=dataclasses.replace(config.sim, joint_speed_rad_s=_STAND_IN_JOINT_SPEED_RAD_S)
         )
-    dataset = session.scene.get("dataset") if session.job.get("mugs") is None else None
-    seed = session.job.get("sim_seed")
+    job = header_part(session.job, HeaderJob)
+    dataset = header_part(session.scene, HeaderScene).dataset if job.mugs in (None, UNSET) else None
+    seed = job.sim_seed
     try:
         backend = await open_backend(
             config,

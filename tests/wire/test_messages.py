@@ -22,11 +22,13 @@ from mcap.reader import make_reader
 from wire.messages import (
     EVENT_KINDS,
     TOPICS,
+    UNSET,
     BadMessage,
     Event,
     Gripper,
     HeaderClock,
     HeaderJob,
+    HeaderScene,
     Joints,
     Log,
     Message,
@@ -134,6 +136,9 @@ def test_the_header_views_read_every_recorded_header_clock_and_job() -> None:
         clock = header_part(header.get("clock"), HeaderClock)
         assert clock.source in ("wall", "simulated"), name
         assert isinstance(clock.wall_start, int | float), name
+        scene = header.get("scene")
+        assert header_part(scene, HeaderScene).dataset == scene.get("dataset", UNSET), name
+        assert header_part(scene, HeaderScene).backend == scene["backend"], name
         job = header.get("job")
         if isinstance(job, dict):
             view = header_part(job, HeaderJob)
