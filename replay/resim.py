@@ -36,6 +36,7 @@ from planning.arm import ArmModel
 from replay.errors import ReplayError
 from replay.session import RecordedSession
 from sim.kinematic import SimMug
+from wire.messages import Command, HeaderJob, Holding, State, UnsetType, header_part
 from wire.schemas import topic_suffix
 
 if TYPE_CHECKING:
@@ -155,15 +156,17 @@ def world_at(session: RecordedSession, t_s: float, *, arm: ArmModel | None = Non
         elif suffix == "gripper":
             aperture = _float(p, "aperture_m", aperture if aperture is not None else 0.0)
         elif suffix == "state":
-            mug = p.get("current_mug")
-            current = str(mug) if isinstance(mug, str) and mug else None
+            state = m.decoded(State)  # (None: a malformed one, which says no mug is being handled)
+            named = state.current_mug if state is not None else None
+            current = named if isinstance(named, str) and named else None
         elif suffix == "detections":
             looked = True
             mugs = _after_look(mugs, p, at, keep=current if holding else None, sizes=sizes)
         elif suffix == "events" and p.get("kind") == "mug_placed":
             mugs = _placed(mugs, p, at, sizes=sizes)
         elif suffix == "input/holding":
-            now = bool(p.get("holding"))
+            says = m.decoded(Holding)
+            now = says is not None and says.holding
             mug = mugs.get(current) if current is not None and len(q) == arm.dof else None
             if mug is not None and now and not holding:  # a grasp: the mug moves with the gripper from here
                 grip = _Grip.of(mug, *arm.fk(q))
@@ -201,8 +204,9 @@ def _header_tray(session: RecordedSession, sizes: Mapping[str, tuple[float, floa
     recording without ``job.carried`` has only its scene: a simulated scene that says where each mug is,
     by the simulated world's ids (one the job uses for another mug is renamed ``earlier-<id>``); the tray
     is empty otherwise."""
-    carried = session.job.get("carried")
-    slots = carried.get("on_tray") if isinstance(carried, Mapping) else None
+    carried = header_part(session.job, HeaderJob).carried
+    # (Its slots are ``planning.interfaces.TraySlot`` as JSON, each read as far as it goes.)
+    slots = None if isinstance(carried, UnsetType) else carried.get("on_tray")
     if isinstance(slots, list):
         return [_carried_mug(slot, sizes) for slot in slots if isinstance(slot, Mapping)]
     taken = {
@@ -213,6 +217,8 @@ def _header_tray(session: RecordedSession, sizes: Mapping[str, tuple[float, floa
         if isinstance(d, Mapping)
     }
     out = []
+    # An older recording's scene mugs: the simulated world's own table of each, not a declared message (the
+    # header view ``HeaderScene`` does not take them); read key by key as far as each goes.
     scene_mugs = session.scene.get("mugs")
     for m in scene_mugs if isinstance(scene_mugs, list) else []:
         if isinstance(m, Mapping) and m.get("where") == "tray":
@@ -578,10 +584,14 @@ def continues_earlier_job(session: RecordedSession) -> bool:
     """Whether the job went on with the scene an earlier job of its daemon left (the mugs on the tray, the
     counter it knew): it was started by a ``start`` command that named neither a dataset nor mugs."""
     for r in session.commands():
-        if r.payload.get("verb") != "start" or r.t_ns > session.start_ns:
+        command = r.message
+        assert isinstance(command, Command)  # (``commands()`` keeps only those)
+        if command.verb != "start" or r.t_ns > session.start_ns:
             continue
+        # The start body as the operator sent it: an open document the daemon's own parser judges; only
+        # whether it named a dataset or mugs matters here.
         try:
-            body = json.loads(str(r.payload.get("payload", "")) or "{}")
+            body = json.loads(command.payload or "{}")
         except ValueError:
             return False
         return isinstance(body, Mapping) and body.get("dataset") is None and body.get("mugs") is None
@@ -618,8 +628,9 @@ def carried_over(session: RecordedSession) -> JobContext:
     }
     numbers = [int(m.mug_id[1:]) for m in seen.mugs if m.mug_id[:1] == "m" and m.mug_id[1:].isdigit()]
     next_id = max(numbers, default=0) + 1
-    carried = session.job.get("carried")
-    if isinstance(carried, Mapping):  # the header says what the job carried over: exactly that
+    carried = header_part(session.job, HeaderJob).carried
+    if not isinstance(carried, UnsetType):  # the header says what the job carried over: exactly that
+        # (its entries are the job's own dataclasses as JSON: their constructors judge them, one line if not)
         try:
             on_tray = [TraySlot(**slot) for slot in carried["on_tray"]]
             tray_mugs = [TrayMug(**mug) for mug in carried["tray_mugs"]]
