@@ -985,6 +985,8 @@ class ReplayEvents:
 
     def serve(self, payload: Mapping[str, object]) -> None:
         """Hand the daemon a recorded device event now (on the event loop)."""
+        # A device event is an open document: its keys beyond the declared ones are the driver's own, and
+        # the daemon's listeners take it as a table: it is handed on as recorded, its times the replay's.
         event = dict(payload)
         event["t"] = self._r.clock.now()
         device_t = payload.get("t_read", payload.get("t_device"))

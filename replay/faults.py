@@ -279,6 +279,8 @@ def parse_faults(text: str, *, source: str, config: Config | None = None) -> tup
     extra = sorted(set(document) - {"fault"})
     if extra:
         raise UsageError(f"{source}: {extra[0]}: unknown key (a fault file holds only [[fault]] tables)")
+    # A fault file is its own document (not a wire message): read here and in ``_entry`` by its own validator,
+    # whose one-line errors name the file, the entry and the key.
     entries = document.get("fault")
     if entries is None:
         raise UsageError(f"{source}: no [[fault]] table; list the faults as [[fault]] tables")
@@ -588,6 +590,8 @@ class FaultInjector:
         record = self._records.get(spec.index)
         ran = "the run" if end is None else f"the run ended at {end:.3f} s"
         if record is not None:
+            # (``record`` is the rig's own fault_injected event as it builds it: its target keys are the
+            # fault kind's own, so it stays a table.)
             target = {k: v for k, v in record.items() if k not in _RECORD_KEYS}
             fired_at = record.get("fired_at_s")
             ended_at = record.get("ended_at_s")
