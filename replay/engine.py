@@ -63,9 +63,11 @@ from wire.messages import (
     HeaderJob,
     HeaderScene,
     Payload,
+    Reply,
     UnsetType,
     header_part,
     plain,
+    reply_of,
 )
 
 log = structlog.get_logger("replay")
@@ -514,9 +516,9 @@ async def _drive(session: RecordedSession, replayer: Replayer, ctx: ServeContext
         start_at = session.start_monotonic
         if 0.0 < start_at - clock.monotonic() <= _MAX_IDLE_WAIT_S:
             await clock.sleep_until(start_at)
-    reply = await ctx.handle("start", session.start_payload(), False)
-    if not reply.get("ok"):
-        log.error("replay_start_refused", error=reply.get("error"))
+    reply = reply_of(await ctx.handle("start", session.start_payload(), False))
+    if reply.ok is not True:
+        log.error("replay_start_refused", error=None if isinstance(reply.error, UnsetType) else reply.error)
         ctx.stop.set()
         return
     events = asyncio.create_task(_serve_device_events(session, replayer), name="replay-device-events")
@@ -527,9 +529,9 @@ async def _drive(session: RecordedSession, replayer: Replayer, ctx: ServeContext
                 raise ReplayError(f"{command.kind}: recorded as {type(came).__name__}, not Command")
             verb = came.verb
             await _when_it_came(session, replayer, clock, command, verb)
-            reply = await ctx.handle(verb, came.payload.encode(), came.many is True)
-            recorded = came.reply
-            if not isinstance(recorded, UnsetType) and bool(recorded.get("ok")) != bool(reply.get("ok")):
+            reply = reply_of(await ctx.handle(verb, came.payload.encode(), came.many is True))
+            recorded = None if isinstance(came.reply, UnsetType) else reply_of(came.reply)
+            if recorded is not None and (recorded.ok is True) != (reply.ok is True):
                 replayer.diverge(
                     "command", f"{verb} answered {_answer(recorded)}", f"{verb} answered {_answer(reply)}"
                 )
@@ -603,8 +605,9 @@ def _finished(trace: Trace) -> bool:
     return trace.final_state == "idle" and len(trace.states) > 1
 
 
-def _answer(reply: Mapping[str, object]) -> str:
-    return "ok" if reply.get("ok") else f"refused ({reply.get('error', '')})"
+def _answer(reply: Reply) -> str:
+    error = "" if isinstance(reply.error, UnsetType) else reply.error
+    return "ok" if reply.ok is True else f"refused ({error})"
 
 
 def load_and_replay(path: Path, options: ReplayOptions = ReplayOptions()) -> ReplayReport:
