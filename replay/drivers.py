@@ -171,9 +171,6 @@ class Replayer:
         self.transition_times: list[float] = []
         self.device_command_times: list[float] = []
         self._moved: asyncio.Event | None = None
-        # The job's moves (transitions, device commands, the divergence), for worker threads to wait on.
-        self._moves = 0
-        self._moves_changed = threading.Condition()
         self._loop: asyncio.AbstractEventLoop | None = None  # the replay's event loop, from the job's start
         self.events_delivered = 0  # recorded device events handed to the daemon, in recorded order
         # The stand-in is not the recording's own cell (a robot's recording, another simulated world): its
@@ -243,9 +240,6 @@ class Replayer:
         if self._moved is not None:
             self._moved.set()
             self._moved = None
-        with self._moves_changed:
-            self._moves += 1
-            self._moves_changed.notify_all()
 
     # --- device events that came while the job computed ----------------------------------------------------
 
@@ -320,9 +314,9 @@ class Replayer:
             self.events.serve(self.session.device_event_payload(r))
 
     def moves(self) -> int:
-        """How often the replay's job has moved on so far (transitions, device commands, the divergence)."""
-        with self._moves_changed:
-            return self._moves
+        """How often the replay's job has moved on so far (transitions, device commands, the divergence);
+        read from worker threads (the lists only grow, on the loop's thread)."""
+        return len(self.transition_times) + len(self.device_command_times) + (self.divergence is not None)
 
     def at(self, anchor: Anchor) -> float | None:
         """The replay's monotonic time of ``anchor`` when its job has got there, else None."""
@@ -437,9 +431,6 @@ class Replayer:
         self.replaying = False
         self.divergence = Divergence(self.t_s(), self.state, what, expected, got)
         log.info("replay_diverged", **self.divergence.to_json())
-        with self._moves_changed:
-            self._moves += 1
-            self._moves_changed.notify_all()
         if self._on_diverge is not None:
             self._on_diverge(self.divergence)
 
@@ -716,6 +707,16 @@ async def _bounded(call: Awaitable[T], replayer: Replayer, rec: Recorded) -> T |
     return None
 
 
+async def _cell_side(call: Awaitable[T], replayer: Replayer, rec: Recorded) -> T | None:
+    """The cell's side of a served move, opening or close: as the robot did, as far as it went (``_bounded``
+    when the recorded call failed); in a stand-in for another cell only until the recorded call ended, as a
+    cell slower than the robot (MuJoCo's arm for a kinematic or a robot's recording) must not make the job
+    read the recording's later inputs while it still moves. Its result when it ran to its end."""
+    if _failed(rec) or replayer.other_cell:
+        return await _bounded(call, replayer, rec)
+    return await call
+
+
 async def _ended_as_recorded(replayer: Replayer, rec: Recorded) -> None:
     """After a served call: at its recorded end, fail as it failed; a call recorded as cancelled waits for
     the replay's job to cancel it too (divergence when it does not)."""
@@ -764,13 +765,7 @@ class ReplayArm:
         if rec is None or not self._r.check(rec, asked):
             await self._inner.follow(trajectory)
             return
-        # The cell moves as the robot did, as far as it went; a stand-in for another cell only until the
-        # recorded move ended: one slower than the robot (MuJoCo's arm for a kinematic or a robot's
-        # recording) must not make the job read the recording's later inputs while it still follows.
-        if _failed(rec) or self._r.other_cell:
-            await _bounded(self._inner.follow(trajectory), self._r, rec)
-        else:
-            await self._inner.follow(trajectory)
+        await _cell_side(self._inner.follow(trajectory), self._r, rec)
         await _ended_as_recorded(self._r, rec)
 
     async def stop(self) -> None:
@@ -803,10 +798,7 @@ class ReplayGripper:
         if rec is None or not self._r.check(rec, asked):
             await self._inner.open(aperture_m)
             return
-        if _failed(rec) or self._r.other_cell:
-            await _bounded(self._inner.open(aperture_m), self._r, rec)  # as long as the recorded opening
-        else:
-            await self._inner.open(aperture_m)
+        await _cell_side(self._inner.open(aperture_m), self._r, rec)
         await _ended_as_recorded(self._r, rec)
 
     async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
@@ -816,10 +808,7 @@ class ReplayGripper:
         closing = self._inner.close_on_mug(force_threshold_n=force_threshold_n, min_aperture_m=min_aperture_m)
         if rec is None:
             return await closing
-        if _failed(rec) or self._r.other_cell:
-            live = await _bounded(closing, self._r, rec)  # as long as the recorded close
-        else:
-            live = await closing
+        live = await _cell_side(closing, self._r, rec)
         if not self._r.check(rec, asked):
             return (
                 live
