@@ -141,11 +141,14 @@ class Replayer:
         self._start_now: float | None = None  # the replay's now() at its job's start transition
         self._start_mono = 0.0  # and its monotonic time then
         # Timed inputs by the recorded monotonic time of their read (older recordings: their log time).
+        # Each read time is taken once: a loaded record decodes its JSON at every look.
         self._timed: dict[str, list[Recorded]] = {}
+        self._timed_t: dict[str, list[float]] = {}
         for name, topics in _TIMED.items():
-            items = [r for t in topics for r in session.streams.get(t, ())]
-            self._timed[name] = sorted(items, key=self._read_time)  # stable: the order consumed
-        self._timed_t = {k: [self._read_time(r) for r in v] for k, v in self._timed.items()}
+            timed = [(self._read_time(r), r) for t in topics for r in session.streams.get(t, ())]
+            timed.sort(key=lambda pair: pair[0])  # stable: the order consumed
+            self._timed[name] = [r for _, r in timed]
+            self._timed_t[name] = [t for t, _ in timed]
         self._ordered: dict[str, list[Recorded]] = {}
         for name, topics in _ORDERED.items():
             items = [r for t in topics for r in session.streams.get(t, ())]
