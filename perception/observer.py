@@ -157,13 +157,11 @@ def cell_observer_factory(
     clock: Clock | None = None,
     limits: FrameLimits | None = None,
 ) -> Callable[[Camera], CameraObserver]:
-    """Observers for the configured cell and mug catalogue: search the table, and leave out the mugs standing
-    in the tray (they are placed; the daemon looks for the mugs still to load, on the counter and the flip
-    area). Frames are held to ``limits`` on ``clock``. The hardware and the MuJoCo cell both observe
+    """Observers for the configured cell and mug catalogue: search the table, the tray included (the daemon
+    loads the mugs on the counter and the flip area; on the tray it tells the mugs it placed from one that
+    fell there). Frames are held to ``limits`` on ``clock``. The hardware and the MuJoCo cell both observe
     through it."""
-    detector = DepthMugDetector(
-        catalogue, region_m=cell.table_region_m, exclude_m=(cell.tray.outer_region_m,)
-    )
+    detector = DepthMugDetector(catalogue, region_m=cell.table_region_m)
 
     def factory(camera: Camera) -> CameraObserver:
         return CameraObserver(camera, detector, preview_width=preview_width, clock=clock, limits=limits)

@@ -120,6 +120,9 @@ class JobContext:
     attempts: dict[str, int] = field(default_factory=dict)  # recoveries per mug
     on_tray: list[TraySlot] = field(default_factory=list)  # where the placed mugs stand
     tray_mugs: list[TrayMug] = field(default_factory=list)  # the same, as the placement planner takes them
+    # Mugs lying on the tray where no slot of the job is (one that fell there on the way): obstacles for every
+    # later slot and cycle, never picked (``counter.look`` finds them; they stay for the job).
+    strays: list[MugPose] = field(default_factory=list)
     queue: list[tuple[TraySlot, TrayMug]] = field(default_factory=list)  # planned slots still to fill
     deferred: dict[TraySlot, Deferral] = field(default_factory=dict)  # queued slots no motion reached
     needs_plan: bool = True  # the counter changed since the placement was planned
@@ -135,13 +138,14 @@ class JobContext:
 
     def next_job(self, planner: PlanOptions) -> JobContext:
         """The context of a job that follows this one on the same scene (after a stop, or an estop and a
-        reset): the mugs on the tray stay, the mugs known on the counter keep their ids (its first look
-        finds them where they were), and only mugs new to the counter get new ids."""
+        reset): the mugs on the tray stay (placed or stray), the mugs known on the counter keep their ids
+        (its first look finds them where they were), and only mugs new to the counter get new ids."""
         return JobContext(
             planner=planner,
             counter=dict(self.counter),
             on_tray=list(self.on_tray),
             tray_mugs=list(self.tray_mugs),
+            strays=list(self.strays),
             next_id=self.next_id,
         )
 

@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import replace
 
 from daemon.job.context import Deferral, JobContext
-from daemon.job.counter import GIVE_UP_WRITES, give_up
+from daemon.job.counter import GIVE_UP_WRITES, give_up, tray_obstacles
 from daemon.job.services import Services
 from planning.interfaces import CyclePlan, MotionRefused, MugPose, TraySlot
 from planning.placement import TrayMug
@@ -23,9 +23,9 @@ from wire.messages import CyclePlannedEvent, MotionRefusedEvent, MugSwappedEvent
 
 # The context keys these touch, for the declarations of the units that call them.
 _ADOPT_WRITES = frozenset({"current", "cycle", "step", "grasp_held"})
-NEXT_CYCLE_READS = frozenset({"counter", "on_tray", "given_up"})
+NEXT_CYCLE_READS = frozenset({"counter", "on_tray", "strays", "given_up"})
 NEXT_CYCLE_WRITES = frozenset({"queue", "deferred", "current_tray_mug"}) | _ADOPT_WRITES | GIVE_UP_WRITES
-RETRY_READS = frozenset({"counter", "on_tray"})
+RETRY_READS = frozenset({"counter", "on_tray", "strays"})
 RETRY_WRITES = _ADOPT_WRITES
 
 
@@ -72,7 +72,7 @@ async def plan_retry(services: Services, ctx: JobContext, mug: MugPose, slot: Tr
             js.position_rad,
             mug,
             slot,
-            tuple(ctx.on_tray),
+            tray_obstacles(ctx),
         )
     except MotionRefused as e:
         services.event(MotionRefusedEvent(mug_id=mug.mug_id, reason=str(e)))
@@ -98,11 +98,11 @@ async def _fill(
     try:
         if fixed:
             mug, cycle = await asyncio.to_thread(
-                fill_slot, motion, js.position_rad, slot, available, tuple(ctx.on_tray), fixed
+                fill_slot, motion, js.position_rad, slot, available, tray_obstacles(ctx), fixed
             )
         else:  # the planner's own call (it decides once per slot what no candidate can change)
             mug, cycle = await asyncio.to_thread(
-                motion.plan_for_slot, js.position_rad, slot, tuple(available.values()), tuple(ctx.on_tray)
+                motion.plan_for_slot, js.position_rad, slot, tuple(available.values()), tray_obstacles(ctx)
             )
     except MotionRefused as e:
         ctx.deferred[slot] = Deferral.of(e.blockers, available, slot)

@@ -11,6 +11,7 @@ import functools
 
 from daemon.config import Config
 from daemon.job.context import JobContext, Outcome
+from daemon.job.counter import tray_obstacles
 from daemon.job.cycles import NEXT_CYCLE_READS, NEXT_CYCLE_WRITES, take_next_cycle
 from daemon.job.services import Services
 from daemon.job.unit import Unit
@@ -27,6 +28,7 @@ from planning.placement import (
     PlanResult,
     Problem,
     TrayMug,
+    TrayStray,
     plan,
 )
 from planning.placement.checked import CheckedPlan, plan_checked
@@ -36,7 +38,7 @@ from wire.messages import OutOfReach, OutOfReachEvent, Slot, SlotDroppedEvent, W
 class Plan(Unit):
     """Plan the tray slots and their order; ``planned`` with ``has_next_mug``."""
 
-    reads = NEXT_CYCLE_READS | {"planner", "tray_mugs", "given_up", "on_tray", "counter"}
+    reads = NEXT_CYCLE_READS | {"planner", "tray_mugs", "given_up", "on_tray", "strays", "counter"}
     writes = NEXT_CYCLE_WRITES | {"queue", "needs_plan", "summary"}
 
     def __init__(self) -> None:
@@ -88,7 +90,7 @@ async def checked_plan(services: Services, ctx: JobContext, problem: Problem) ->
         pack=pack,
         off_loop=asyncio.to_thread,
         fixed=[m for m in ctx.counter.values() if m.mug_id in ctx.given_up],
-        on_tray=tuple(ctx.on_tray),
+        on_tray=tray_obstacles(ctx),
     )
 
 
@@ -101,7 +103,8 @@ def placement_planner(config: Config, tray: Tray) -> PlacementPlanner:
 
 
 def problem_of(services: Services, ctx: JobContext) -> Problem:
-    """The placement problem of the counter's mugs (those given up left out) around the mugs on the tray."""
+    """The placement problem of the counter's mugs (those given up left out) around the mugs on the tray
+    (those the job placed, and the strays where they lie)."""
     tray = services.backend.tray
     config = services.config
     types = {
@@ -123,6 +126,15 @@ def problem_of(services: Services, ctx: JobContext) -> Problem:
         tolerance_mm=config.planner.tolerance_mm,
         allow_rotation=config.planner.allow_rotation,
         footprint_kind=config.planner.footprint,
+        strays=tuple(
+            TrayStray(
+                m.mug_id,
+                m.type,
+                (m.x_m * 1000.0 - tray.origin_m[0] * 1000.0, m.y_m * 1000.0 - tray.origin_m[1] * 1000.0),
+                m.handle_yaw_rad if m.handle_seen else None,
+            )
+            for m in ctx.strays
+        ),
     )
 
 

@@ -41,7 +41,12 @@ class RecoverLostMug(Unit):
         ):
             services.event(MugFoundEvent(mug_id=current.mug_id, x_m=mug.x_m, y_m=mug.y_m))
             return Outcome("recovered", {"mug_found": True})
-        reason = "not seen on the counter" if mug is None else f"given up after {attempts} attempts"
+        if any(m.mug_id == current.mug_id for m in ctx.strays):
+            reason = "fell on the tray; left there as an obstacle"
+        elif mug is None:
+            reason = "not seen on the counter"
+        else:
+            reason = f"given up after {attempts} attempts"
         give_up(services, ctx, current.mug_id, reason)
         ctx.current = None
         ctx.cycle = None

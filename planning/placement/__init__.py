@@ -9,7 +9,7 @@ from planning.placement.cost import MoveCost, ThesisMoveCost
 from planning.placement.datasets import cell_dataset_problem, dataset_problem
 from planning.placement.errors import InvalidProblem
 from planning.placement.planner import METHODS, PlacedMug, PlanResult, plan
-from planning.placement.problem import FOOTPRINTS, CounterMug, MugType, Problem, TrayMug
+from planning.placement.problem import FOOTPRINTS, CounterMug, MugType, Problem, TrayMug, TrayStray
 from planning.placement.seam import PlacementPlanner
 
 __all__ = [
@@ -26,6 +26,7 @@ __all__ = [
     "Problem",
     "ThesisMoveCost",
     "TrayMug",
+    "TrayStray",
     "cell_dataset_problem",
     "dataset_problem",
     "plan",

@@ -95,7 +95,7 @@ def solve(problem: Problem, *, time_limit_s: float, seed: int = 0) -> ExactOutco
     ]
     if not shapes:
         return ExactOutcome((), True, 0, "optimal")
-    fixed = [(q.x_mm, q.y_mm, *problem.footprint(q.type, q.rotated)) for q in problem.placed]
+    fixed = problem.obstacle_rects()
     xs = normal_patterns([0, *(x + fx for x, _, fx, _ in fixed)], [s.fx for s in shapes], tx)
     ys = normal_patterns([0, *(y + fy for _, y, _, fy in fixed)], [s.fy for s in shapes], ty)
 
@@ -262,7 +262,7 @@ def assign(ctx: Context, spots: Iterable[tuple[str, int, int, bool]]) -> Layout:
     placing order, so its sortedness is that of the order the arm follows."""
     p = ctx.problem
     tx, ty = p.tray_size_mm
-    fixed = [(q.x_mm, q.y_mm, *p.footprint(q.type, q.rotated)) for q in p.placed]
+    fixed = p.obstacle_rects()
     spots = list(spots)
     best: tuple[float, list[tuple[int, int, int, bool]]] | None = None
     for flip_x in (False, True):

@@ -60,6 +60,9 @@ Spot = tuple[int, int, int]
 
 BoolArray = npt.NDArray[np.bool_]
 
+# A stray mug (``Problem.strays``) whose handle was not seen keeps this many handle directions clear.
+_STRAY_YAWS: npt.NDArray[np.float64] = np.arange(32, dtype=np.float64) * (2.0 * np.pi / 32)
+
 
 @dataclass(frozen=True)
 class MugClass:
@@ -233,13 +236,25 @@ class MugPacker:
 
 
 def fixed_bodies(problem: Problem) -> Bodies:
-    """The mugs already on the tray as outlines (their handles where the problem says they point)."""
+    """The mugs already on the tray as outlines (their handles where the problem says they point), and the
+    strays lying there: a stray whose handle was not seen has one in each of ``_STRAY_YAWS`` directions."""
     parts = []
     for q in problem.placed:
         t = problem.mug_types[q.type]
         cx, cy = problem.brim_centre_on_tray(q.type, q.x_mm, q.y_mm)
         parts.append(
             Bodies.build(MugOutline.of(t), np.array([cx]), np.array([cy]), np.array([q.handle_yaw()]))
+        )
+    for s in problem.strays:
+        yaws = _STRAY_YAWS if s.handle_yaw_rad is None else np.array([s.handle_yaw_rad], dtype=np.float64)
+        n = len(yaws)
+        parts.append(
+            Bodies.build(
+                MugOutline.of(problem.mug_types[s.type]),
+                np.full(n, s.brim_mm[0]),
+                np.full(n, s.brim_mm[1]),
+                yaws,
+            )
         )
     if not parts:
         empty = np.zeros(0)

@@ -42,9 +42,8 @@ class GridPacker:
     def pack(self, order: Sequence[int]) -> Packing:
         p = self.problem
         occupied = np.zeros(p.tray_size_mm, dtype=np.bool_)
-        for q in p.placed:
-            fx, fy = p.footprint(q.type, q.rotated)
-            occupied[q.x_mm : q.x_mm + fx, q.y_mm : q.y_mm + fy] = True
+        for x, y, fx, fy in p.obstacle_rects():
+            occupied[x : x + fx, y : y + fy] = True
         rotations = (False, True) if p.allow_rotation else (False,)
         spots: list[Spot | None] = []
         for mug in order:

@@ -114,9 +114,7 @@ class Packer:
                     self._options.append(option)
                 indices.append(self._options.index(option))
             self._shape_options.append(tuple(indices))
-        base = sorted(
-            self._rect_of(q.x_mm, q.y_mm, *problem.footprint(q.type, q.rotated)) for q in problem.placed
-        )
+        base = sorted(self._rect_of(*r) for r in problem.obstacle_rects())
         self._base: tuple[tuple[Rect, ...], tuple[int, ...]] = (
             tuple(base),
             tuple(sorted({0, *(r[3] for r in base)})),

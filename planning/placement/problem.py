@@ -82,6 +82,20 @@ class TrayMug:
         return math.pi / 2 if self.rotated else 0.0
 
 
+@dataclass(frozen=True, slots=True)
+class TrayStray:
+    """A mug lying on the tray where no plan put it (it fell there on the way, or someone set it down): an
+    obstacle the layout keeps clear of. Unlike a ``TrayMug`` it may stand anywhere: partly off the tray,
+    closer than the tolerance to another mug. ``brim_mm`` is its brim centre in tray coordinates;
+    ``handle_yaw_rad`` where its handle points (tray frame), None when unseen: then every direction is
+    kept clear."""
+
+    id: str
+    type: str
+    brim_mm: tuple[float, float]
+    handle_yaw_rad: float | None = None
+
+
 def default_mug_types() -> dict[str, MugType]:
     """The thesis catalogue (§5.3): big and small mugs."""
     return {
@@ -104,9 +118,27 @@ class Problem:
     arm_base_mm: tuple[float, float] = (0.0, 0.0)
     arm_speed_m_s: float = DEFAULT_ARM_SPEED_M_S
     footprint_kind: str = "rect"  # one of FOOTPRINTS; "footprint" in the problem format
+    strays: tuple[TrayStray, ...] = ()  # mugs lying on the tray where no plan put them: obstacles
 
     def __post_init__(self) -> None:
         _check_consistency(self)
+
+    def obstacle_rects(self) -> list[tuple[int, int, int, int]]:
+        """The tray's occupied rectangles (x, y, extent x, extent y; mm, tray coordinates) for the rectangle
+        packers: each placed mug's footprint, and for a stray the square its brim and handle can sweep (the
+        handle at any yaw) grown by half the tolerance, cut to the tray (a stray wholly off it is none)."""
+        rects = [(q.x_mm, q.y_mm, *self.footprint(q.type, q.rotated)) for q in self.placed]
+        tx, ty = self.tray_size_mm
+        for s in self.strays:
+            t = self.mug_types[s.type]
+            half = t.width_mm - t.diameter_mm / 2.0 + self.tolerance_mm / 2.0
+            x0 = max(0, math.floor(s.brim_mm[0] - half))
+            y0 = max(0, math.floor(s.brim_mm[1] - half))
+            x1 = min(tx, math.ceil(s.brim_mm[0] + half))
+            y1 = min(ty, math.ceil(s.brim_mm[1] + half))
+            if x0 < x1 and y0 < y1:
+                rects.append((x0, y0, x1 - x0, y1 - y0))
+        return rects
 
     def footprint(self, type_name: str, rotated: bool = False) -> tuple[int, int]:
         """Footprint extent (along tray x, along tray y) in mm, tolerance included."""
@@ -178,7 +210,17 @@ class Problem:
                 | ({} if p.handle_yaw_rad is None else {"handle_yaw_rad": p.handle_yaw_rad})
                 for p in self.placed
             ],
-        }
+        } | (  # only when there are strays: a problem without any writes what it always wrote
+            {}
+            if not self.strays
+            else {
+                "strays": [
+                    {"id": s.id, "type": s.type, "brim_mm": list(s.brim_mm)}
+                    | ({} if s.handle_yaw_rad is None else {"handle_yaw_rad": s.handle_yaw_rad})
+                    for s in self.strays
+                ]
+            }
+        )
 
 
 # --- the problem file's shape (``validation.convert`` checks a decoded file against it) ---------------------
@@ -246,6 +288,15 @@ class _TrayMugTable:
 
 
 @dataclass(frozen=True, slots=True)
+class _StrayTable:
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
+    id: Annotated[str, NON_EMPTY]
+    type: str
+    brim_mm: tuple[WorldMm, WorldMm]
+    handle_yaw_rad: Yaw | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class _ArmTable:
     unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
     base_mm: tuple[WorldMm, WorldMm] | None = None
@@ -263,6 +314,7 @@ class _ProblemFile:
     # so that a message names its mug type (msgspec does not say which key of a table it was at)
     mug_types: dict[str, object] | None = None
     placed: tuple[_TrayMugTable, ...] = ()
+    strays: tuple[_StrayTable, ...] = ()
     arm: _ArmTable | None = None
 
     def __post_init__(self) -> None:
@@ -296,6 +348,7 @@ def _parse(obj: object) -> Problem:
         arm_base_mm=arm.base_mm or (0.0, 0.0),
         arm_speed_m_s=arm.speed_m_s,
         footprint_kind=f.footprint,
+        strays=tuple(TrayStray(q.id, q.type, q.brim_mm, q.handle_yaw_rad) for q in f.strays),
     )
 
 
@@ -316,6 +369,7 @@ def _check_consistency(p: Problem) -> None:
     ids: set[str] = set()
     entries = [("mugs", i, m.id, m.type) for i, m in enumerate(p.mugs)]
     entries += [("placed", i, q.id, q.type) for i, q in enumerate(p.placed)]
+    entries += [("strays", i, q.id, q.type) for i, q in enumerate(p.strays)]
     for group, i, mug_id, type_name in entries:
         if type_name not in p.mug_types:
             known = ", ".join(sorted(p.mug_types))

@@ -7,7 +7,7 @@ with OpenCV (imported only when a PNG is drawn)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -73,6 +73,10 @@ def _items(problem: Problem, result: PlanResult) -> list[_Mug]:
         _mug(problem, "", q.id, q.type, (q.x_mm, q.y_mm), q.rotated, None, q.handle_yaw(), _FIXED)
         for q in problem.placed
     ]
+    for q in problem.strays:  # where it lies, no footprint of its own (``Problem.obstacle_rects`` has one)
+        yaw = 0.0 if q.handle_yaw_rad is None else q.handle_yaw_rad
+        stray = _mug(problem, "", q.id, q.type, (0, 0), False, q.brim_mm, yaw, _FIXED)
+        items.append(replace(stray, footprint=None))
     for p in result.placed:
         yaw = p.handle_yaw_rad if p.handle_yaw_rad is not None else (math.pi / 2 if p.rotated else 0.0)
         items.append(

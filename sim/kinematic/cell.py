@@ -63,11 +63,12 @@ class KinematicCell:
 
 
 def visible_mugs(world: KinematicWorld) -> list[Detection]:
-    """The exact detections of the mugs the camera sees: those standing on the counter."""
+    """The exact detections of the mugs the camera sees: those standing on the counter or on the tray (not
+    the one in the gripper)."""
     return [
         Detection(m.type, m.x_m, m.y_m, m.upside_down, m.handle_yaw_rad, 1.0)
         for m in world.mugs.values()
-        if m.where == "counter"
+        if m.where != "gripper"
     ]
 
 

@@ -42,6 +42,10 @@ class FakeWorld:
     hold_in_phase: str | None = None
     hold_in_close: bool = False
     holding_still: asyncio.Event = field(default_factory=asyncio.Event)
+    # Where each mug's cycle was planned to set it down (true id -> brim centre), and where the placed ones
+    # stand: the observer sees them there, as a camera over the tray would.
+    slot_for: dict[str, tuple[float, float]] = field(default_factory=dict)
+    placed_at: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.original = dict(self.counter)
@@ -95,6 +99,8 @@ class FakeGripper:
         if self.w.held is not None:
             if self.w.phase.startswith("place"):
                 self.w.placed.append(self.w.held)
+                if self.w.held in self.w.slot_for:
+                    self.w.placed_at[self.w.held] = self.w.slot_for[self.w.held]
             else:
                 self.w.loose = self.w.held
             self.w.held = None
@@ -136,10 +142,13 @@ class FakeObserver:
     async def observe(self) -> Observation:
         await asyncio.sleep(0)
         seen = [d for k, d in self.w.counter.items() if k != self.w.held]
-        # The placed mugs, in rows of three on the tray (the job leaves them out: they are its own work).
+        # The placed mugs where they were set down (the job knows them: its own work); a mug placed by no
+        # planned cycle, in rows of three on the tray.
         seen += [
-            Detection("big", 0.3 + 0.1 * (i % 3), -0.15 + 0.1 * (i // 3), True, 0.0, 0.9)
-            for i, _ in enumerate(self.w.placed)
+            Detection(
+                "big", *self.w.placed_at.get(k, (0.3 + 0.1 * (i % 3), -0.15 + 0.1 * (i // 3))), True, 0.0, 0.9
+            )
+            for i, k in enumerate(self.w.placed)
         ]
         return Observation(0.0, tuple(Detection(d.type, d.x_m, d.y_m, False, 0.0, 0.9) for d in seen))
 
@@ -177,9 +186,12 @@ class FakeMotion:
         refusals = []
         for mug in [*named, *others]:
             try:
-                return mug, self._cycle(start_q, mug, on_tray, counter)
+                cycle = self._cycle(start_q, mug, on_tray, counter)
             except MotionRefused as e:
                 refusals.append(e)
+                continue
+            self.w.slot_for[self.w.target or ""] = (slot.x_m, slot.y_m)
+            return mug, cycle
         if len(refusals) == 1:
             raise refusals[0]
         why = "; ".join(map(str, refusals))
@@ -197,7 +209,9 @@ class FakeMotion:
         counter: Sequence[MugPose] = (),
     ) -> CyclePlan:
         self.calls.append(f"cycle:{mug.mug_id}")
-        return self._cycle(start_q, mug, on_tray, [*counter, mug])
+        cycle = self._cycle(start_q, mug, on_tray, [*counter, mug])
+        self.w.slot_for[self.w.target or ""] = (slot.x_m, slot.y_m)
+        return cycle
 
     def _cycle(
         self, start_q: Sequence[float], mug: MugPose, on_tray: Sequence[TraySlot], counter: Sequence[MugPose]

@@ -100,7 +100,7 @@ def test_documented_example_parses_and_round_trips() -> None:
             "colour",
             "red",
             "colour: unknown key in the problem (known keys: allow_rotation, arm, footprint, mug_types,"
-            " mugs, placed, tolerance_mm, tray)",
+            " mugs, placed, strays, tolerance_mm, tray)",
         ),
     ],
 )
