@@ -96,7 +96,7 @@ def test_ten_live_clients_receive_every_message_their_job_recorded(tmp_path: Pat
     clients: list[FoxgloveClient] = []
     try:
         for _ in range(TRIALS):
-            clients.append(asyncio.run(_trial(f"ws://127.0.0.1:{port}", topics, _mugs(2))))
+            clients.append(asyncio.run(_trial(f"ws://127.0.0.1:{port}", topics, _mugs(1))))
         daemon.send_signal(signal.SIGTERM)
         assert daemon.wait(timeout=60) == 0
     finally:
