@@ -762,6 +762,65 @@ def header_part(document: object, kind: type[H]) -> H:
         return kind()
 
 
+# --- views: the part of a message that a reader takes, whichever topic or source it came from -------------
+#
+# No topic carries these (no schema is generated from them, ``TOPICS`` does not name them): each is the few
+# fields of one or more declared messages that one reader compares or times by, so that a recorded payload
+# and a live request (or an older recording's rebuilt entry) are read as one typed value. Unknown keys are
+# ignored as on every message; ``view`` reads one.
+
+
+class FollowAsked(Message, kw_only=True):
+    """What a move asked the arm (``output/follow``'s label and goal), recorded or asked now."""
+
+    label: Annotated[str, doc("what the trajectory is for")]
+    end_rad: Annotated[list[Number], doc("the goal joint positions, rad (empty: no point)")] = []
+
+
+class OpenAsked(Message, kw_only=True):
+    """What an ``output/gripper`` command asked: its action and, for an opening, how far."""
+
+    action: Annotated[str, doc("open or stop")]
+    aperture_m: Annotated[Number | None, doc("the opening asked for, m (null: fully)")] = None
+
+
+class CloseAsked(Message, kw_only=True):
+    """What a close asked (``input/grasp``, ``input/grasp_failed``, or a close asked now): its force."""
+
+    force_threshold_n: Annotated[Number | None, doc("the force the close was asked to reach, N")] = None
+
+
+class Started(Message, kw_only=True):
+    """When a device command began (``t_start`` of ``output/*``, ``input/grasp``, ``input/observation``,
+    ``input/grasp_failed``, ``input/observe_failed``), on the driver's clock."""
+
+    t_start: DeviceT | U = UNSET
+
+
+class InputPosition(Message, kw_only=True):
+    """Where an input from outside the job fell (``input/command``, ``input/device_event``, and a device
+    event that a replay rebuilds from an older recording's ``events``): the driver's time of it (``t_read``,
+    else ``t_device``) and the job's position then (``at_transitions``, ``at_device_commands``)."""
+
+    t_read: DeviceT | U = UNSET
+    t_device: DeviceT | U = UNSET
+    at_transitions: AtTransitions | U = UNSET
+    at_device_commands: AtDeviceCommands | U = UNSET
+
+
+V = TypeVar("V", FollowAsked, OpenAsked, CloseAsked, Started, InputPosition)
+
+
+def view(payload: Mapping[str, object] | Message, kind: type[V], *, name: str = "") -> V:
+    """The part ``kind`` of a payload (a mapping, or a message's fields); ``BadMessage`` (one line naming
+    ``name`` and the field) when the payload does not have it."""
+    if isinstance(payload, kind):
+        return payload
+    if isinstance(payload, Message):
+        payload = plain(payload)
+    return convert(payload, kind, name=name)
+
+
 # --- the replies to ``cmd/<verb>`` (Zenoh queries; not recorded) -------------------------------------------
 
 
@@ -976,4 +1035,5 @@ __all__ = [
     "plain",
     "reply_of",
     "topic_suffix",
+    "view",
 ]
