@@ -34,16 +34,24 @@ from wire.messages import (
     TOPICS,
     UNSET,
     BadMessage,
+    CloseAsked,
     Command,
     Event,
+    EventKind,
+    FollowAsked,
     HeaderClock,
     HeaderJob,
     InputJoints,
+    InputPosition,
     Message,
+    OpenAsked,
+    Started,
     State,
     UnsetType,
     convert,
     header_part,
+    reply_of,
+    view,
 )
 from wire.schemas import topic_suffix
 
@@ -169,19 +177,26 @@ class DeviceCommand:
         return f"close the gripper until {values} N"
 
 
-def device_command(suffix: str, payload: Mapping[str, object], t_s: float) -> DeviceCommand | None:
-    """The device command a recorded ``output/*`` (or grasp) message stands for; None for the others."""
-    if suffix == "output/follow":
-        end = payload.get("end_rad")
-        values = tuple(float(v) for v in end if isinstance(v, int | float)) if isinstance(end, list) else ()
-        return DeviceCommand("follow", str(payload.get("label", "")), values, t_s)
-    if suffix == "output/gripper" and payload.get("action") == "open":
-        aperture = payload.get("aperture_m")
-        return DeviceCommand("open", "", (float(aperture),) if isinstance(aperture, int | float) else (), t_s)
-    if suffix in ("input/grasp", "input/grasp_failed"):
-        threshold = payload.get("force_threshold_n")
-        values = (float(threshold),) if isinstance(threshold, int | float) else ()
-        return DeviceCommand("close", "", values, t_s)
+def device_command(suffix: str, payload: Mapping[str, object] | Message, t_s: float) -> DeviceCommand | None:
+    """The device command a recorded ``output/*`` (or grasp) message stands for, or one the daemon asks now
+    (its request as the same topic's fields: ``FollowAsked``, ``OpenAsked``, ``CloseAsked`` or a mapping of
+    them); None for the other topics, and for a payload without what its topic asks (not a command)."""
+    try:
+        if suffix == "output/follow":
+            follow = view(payload, FollowAsked, name=suffix)
+            return DeviceCommand("follow", follow.label, tuple(float(v) for v in follow.end_rad), t_s)
+        if suffix == "output/gripper":
+            gripper = view(payload, OpenAsked, name=suffix)
+            if gripper.action != "open":
+                return None
+            aperture = () if gripper.aperture_m is None else (float(gripper.aperture_m),)
+            return DeviceCommand("open", "", aperture, t_s)
+        if suffix in ("input/grasp", "input/grasp_failed"):
+            close = view(payload, CloseAsked, name=suffix)
+            threshold = () if close.force_threshold_n is None else (float(close.force_threshold_n),)
+            return DeviceCommand("close", "", threshold, t_s)
+    except BadMessage:
+        return None
     return None
 
 
@@ -527,7 +542,7 @@ class RecordedSession:
             command = r.message
             assert isinstance(command, Command)  # (commands() keeps only those)
             reply = command.reply
-            if command.verb == "start" and not isinstance(reply, UnsetType) and reply.get("ok"):
+            if command.verb == "start" and not isinstance(reply, UnsetType) and reply_of(reply).ok is True:
                 return r
         return None
 
@@ -541,18 +556,15 @@ class RecordedSession:
 
     def monotonic_of(self, r: Recorded) -> float:
         """The recorded monotonic time of a command or a device event (when the daemon took it)."""
-        for key in ("t_read", "t_device"):
-            t = r.payload.get(key)
-            if isinstance(t, int | float) and not isinstance(t, bool) and math.isfinite(t):
-                return float(t)
-        return r.t_ns / 1e9 - self.mono_offset_s
+        return _monotonic(_position(r.payload), r.t_ns / 1e9 - self.mono_offset_s)
 
     def anchor(self, r: Recorded) -> Anchor:
         """Where ``r`` (a command or a device event) fell in the job: as recorded with it (``at_*``), else
         from the times of the transitions and device commands before it."""
-        t = self.monotonic_of(r)
-        n, m = r.payload.get("at_transitions"), r.payload.get("at_device_commands")
-        if not (isinstance(n, int) and isinstance(m, int)) or isinstance(n, bool) or isinstance(m, bool):
+        position = _position(r.payload)
+        t = _monotonic(position, r.t_ns / 1e9 - self.mono_offset_s)
+        n, m = position.at_transitions, position.at_device_commands
+        if isinstance(n, UnsetType) or isinstance(m, UnsetType):
             n = bisect.bisect_left(self.transition_monos, t)
             m = bisect.bisect_left(self.device_command_monos, t)
         n = max(0, min(n, len(self.transition_monos)))
@@ -655,54 +667,61 @@ class RecordedSession:
         start_monotonic = _start_monotonic(start, streams.get("input/joints", []), clock)
         simulated = header_part(clock, HeaderClock).source == "simulated"  # (wall_start checked above)
         transitions: list[float] = []
-        derived_events: list[Recorded] = []
+        # An older recording's device events (no ``input/device_event``), rebuilt from its ``events``: the
+        # event as published, its log time, its read time and the job's position then (``InputPosition``).
+        older: list[tuple[Mapping[str, object], int, float, int, int]] = []
         started = False
         same_instant: list[float] = []  # device commands recorded so far, by their start
         for m in messages:
             suffix = topic_suffix(m.topic)
             if suffix in _DEVICE_COMMAND_TOPICS:
-                t_start = m.payload.get("t_start")
-                if isinstance(t_start, int | float) and not isinstance(t_start, bool):
-                    same_instant.append(float(t_start))
+                t_start = _started(m.payload)
+                if t_start is not None:
+                    same_instant.append(t_start)
             if suffix != "events":
                 continue
             started = started or m is start
             event_payload = m.payload  # (decoded once: a compact read decodes at each ``payload``)
-            kind = event_payload.get("kind")
-            if started and kind == "transition":
-                t = event_payload.get("t_device")
-                ok = isinstance(t, int | float) and not isinstance(t, bool)
-                transitions.append(float(t) if ok else m.log_time_ns / 1e9 - mono_offset)  # type: ignore[arg-type]
-            elif started and "device" in event_payload and kind != "fault_injected":
+            kind = m.decoded(EventKind)
+            if not started or kind is None:
+                continue
+            if kind.kind == "transition":
+                t_device = _position(event_payload).t_device
+                logged = m.log_time_ns / 1e9 - mono_offset
+                transitions.append(logged if isinstance(t_device, UnsetType) else float(t_device))
+            elif "device" in event_payload and kind.kind != "fault_injected":
                 # An older recording's device event: its ``t_device`` is the driver's clock, which on a
                 # simulated session is the daemon's; on the wall clock its log time says when it came.
-                # It came after the transitions published before it (``events`` is in order).
-                payload = dict(event_payload)
-                t = payload.get("t_device")
-                if not (simulated and isinstance(t, int | float) and not isinstance(t, bool)):
-                    payload["t_read"] = m.log_time_ns / 1e9 - mono_offset
-                else:
-                    payload["t_read"] = float(t)
-                payload["at_transitions"] = len(transitions)
+                # It came after the transitions published before it (``events`` is in order) ...
+                t_device = _position(event_payload).t_device
+                logged = m.log_time_ns / 1e9 - mono_offset
+                t_read = float(t_device) if simulated and not isinstance(t_device, UnsetType) else logged
                 # ... and after the device commands begun before it, or at the same instant when recorded
                 # before it (the call that failed as the driver said so), not those that answered it.
-                at = float(payload["t_read"])  # type: ignore[arg-type]
-                payload["at_device_commands"] = sum(
-                    1 for c in same_instant if start_monotonic - 1e-9 <= c and abs(c - at) <= 1e-9
+                at_same = sum(
+                    1 for c in same_instant if start_monotonic - 1e-9 <= c and abs(c - t_read) <= 1e-9
                 )
-                derived_events.append(Recorded("events", m.log_time_ns, payload))
+                older.append((event_payload, m.log_time_ns, t_read, len(transitions), at_same))
         commands = sorted(
-            float(t)
+            t
             for topic in _DEVICE_COMMAND_TOPICS
             for r in streams.get(topic, ())
-            if isinstance(t := r.payload.get("t_start"), int | float)
-            and not isinstance(t, bool)
-            and t >= start_monotonic - 1e-9
+            if (t := _started(r.payload)) is not None and t >= start_monotonic - 1e-9
         )
         recorded_events = streams.get("input/device_event", [])
-        for r in derived_events:
-            t = float(r.payload["t_read"])  # type: ignore[arg-type]
-            r.payload["at_device_commands"] += bisect.bisect_left(commands, t - 1e-9)  # type: ignore[index, operator]
+        derived_events = [
+            Recorded(
+                "events",
+                t_ns,
+                {
+                    **event,
+                    "t_read": t_read,
+                    "at_transitions": n,
+                    "at_device_commands": at_same + bisect.bisect_left(commands, t_read - 1e-9),
+                },
+            )
+            for event, t_ns, t_read, n, at_same in older
+        ]
         return cls(
             path=path,
             read=read,
@@ -744,6 +763,37 @@ def _check_wall_start(path: Path, value: object) -> None:
 
 def _shown(value: object) -> str:
     return "missing" if value is None else repr(value)
+
+
+def _position(payload: Mapping[str, object]) -> InputPosition:
+    """Where an input fell (``InputPosition``). A recorded position that is not one (a flag where a count
+    goes) is not taken, and the input is placed by its times alone; times that are not numbers are not
+    taken either (it is placed by its log time then)."""
+    try:
+        return view(payload, InputPosition)
+    except BadMessage:
+        pass
+    try:
+        return view({k: v for k, v in payload.items() if k in ("t_read", "t_device")}, InputPosition)
+    except BadMessage:
+        return InputPosition()
+
+
+def _monotonic(position: InputPosition, logged: float) -> float:
+    """The driver's time of an input: its ``t_read``, else its ``t_device``, else ``logged``."""
+    for t in (position.t_read, position.t_device):
+        if not isinstance(t, UnsetType) and math.isfinite(t):
+            return float(t)
+    return logged
+
+
+def _started(payload: Mapping[str, object]) -> float | None:
+    """When a device command began (``Started``), or None when its record does not say."""
+    try:
+        t = view(payload, Started).t_start
+    except BadMessage:
+        return None
+    return None if isinstance(t, UnsetType) else float(t)
 
 
 def _start_monotonic(start: RecordedMessage, joints: Sequence[Recorded], clock: object) -> float:
