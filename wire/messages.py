@@ -749,7 +749,42 @@ class HeaderClock(Message, kw_only=True):
     wall_start: Annotated[Number, doc("the clock's start on the wall clock, Unix seconds")] | U = UNSET
 
 
-H = TypeVar("H", HeaderFile, HeaderJob, HeaderPlanner, HeaderScene, HeaderConfig, HeaderClock)
+class HeaderSlot(Message, kw_only=True):
+    """One of ``job.carried``'s ``on_tray`` slots: a mug an earlier job placed
+    (``planning.interfaces.TraySlot`` as JSON)."""
+
+    mug_id: Annotated[str, doc("the job's id of the mug")] | U = UNSET
+    type: Annotated[str, doc("mug type")] | U = UNSET
+    x_m: Annotated[Number, doc("the slot's axis, world x, m")] | U = UNSET
+    y_m: Annotated[Number, doc("the slot's axis, world y, m")] | U = UNSET
+    rotated: Annotated[bool, doc("footprint turned by 90 degrees")] | U = UNSET
+    handle_yaw_rad: Annotated[Number | None, doc("where the handle points, world yaw, rad")] | U = UNSET
+
+
+class HeaderSceneMug(Message, kw_only=True):
+    """One of ``scene.mugs`` in an older simulated recording's header: the simulated world's own table of
+    a mug (its ids are the world's, not the job's)."""
+
+    id: Annotated[str, doc("the simulated world's id of the mug")] | U = UNSET
+    type: Annotated[str, doc("mug type")] | U = UNSET
+    x_m: Annotated[Number, doc("world x, m")] | U = UNSET
+    y_m: Annotated[Number, doc("world y, m")] | U = UNSET
+    where: Annotated[str, doc("counter, tray or gripper")] | U = UNSET
+    upside_down: Annotated[bool, doc("the mug stands on its brim")] | U = UNSET
+    handle_yaw_rad: Annotated[Number, doc("direction of the handle about world z, rad")] | U = UNSET
+
+
+H = TypeVar(
+    "H",
+    HeaderFile,
+    HeaderJob,
+    HeaderPlanner,
+    HeaderScene,
+    HeaderConfig,
+    HeaderClock,
+    HeaderSlot,
+    HeaderSceneMug,
+)
 
 
 def header_part(document: object, kind: type[H]) -> H:
