@@ -36,7 +36,22 @@ from planning.arm import ArmModel
 from replay.errors import ReplayError
 from replay.session import RecordedSession
 from sim.kinematic import SimMug
-from wire.messages import Command, HeaderJob, Holding, State, UnsetType, header_part
+from validation import Invalid, convert
+from wire.messages import (
+    Command,
+    Detections,
+    Force,
+    Gripper,
+    HeaderJob,
+    HeaderSceneMug,
+    HeaderSlot,
+    Holding,
+    InputJoints,
+    MugPlacedEvent,
+    State,
+    UnsetType,
+    header_part,
+)
 from wire.schemas import topic_suffix
 
 if TYPE_CHECKING:
@@ -147,23 +162,30 @@ def world_at(session: RecordedSession, t_s: float, *, arm: ArmModel | None = Non
             break
         at = (m.log_time_ns - session.start_ns) / 1e9
         suffix = topic_suffix(m.topic)
-        p = m.payload
+        # Each message read as its topic's declared one (a malformed one is left out: what it would have
+        # said stays as before it); the older recordings' shapes are those (``tests/data``).
         if suffix == "input/joints":
-            names = tuple(str(n) for n in _list(p, "names"))
-            q = tuple(float(v) for v in _list(p, "position_rad") if isinstance(v, int | float))
+            joints = m.decoded(InputJoints)
+            if joints is not None:
+                names, q = tuple(joints.names), tuple(float(v) for v in joints.position_rad)
         elif suffix == "input/force":
-            force = _float(p, "force_n", force)
+            read = m.decoded(Force)
+            force = _finite(read.force_n, force) if read is not None else force
         elif suffix == "gripper":
-            aperture = _float(p, "aperture_m", aperture if aperture is not None else 0.0)
+            gripper = m.decoded(Gripper)
+            if gripper is not None:
+                aperture = _finite(gripper.aperture_m, aperture if aperture is not None else 0.0)
         elif suffix == "state":
             state = m.decoded(State)  # (None: a malformed one, which says no mug is being handled)
             named = state.current_mug if state is not None else None
             current = named if isinstance(named, str) and named else None
         elif suffix == "detections":
-            looked = True
-            mugs = _after_look(mugs, p, at, keep=current if holding else None, sizes=sizes)
-        elif suffix == "events" and p.get("kind") == "mug_placed":
-            mugs = _placed(mugs, p, at, sizes=sizes)
+            seen = m.decoded(Detections)
+            if seen is not None:
+                looked = True
+                mugs = _after_look(mugs, seen, at, keep=current if holding else None, sizes=sizes)
+        elif suffix == "events" and (placed := m.decoded(MugPlacedEvent)) is not None:
+            mugs = _placed(mugs, placed, at, sizes=sizes)
         elif suffix == "input/holding":
             says = m.decoded(Holding)
             now = says is not None and says.holding
@@ -177,9 +199,9 @@ def world_at(session: RecordedSession, t_s: float, *, arm: ArmModel | None = Non
             holding = now
     if not any(m.where == "counter" for m in mugs.values()) and not looked:
         # Before the job's first look the counter is as that look found it (nothing took a mug before it).
-        first = next((m for m in session.read.messages if topic_suffix(m.topic) == "detections"), None)
+        first = next((d for d in _looks(session) if d is not None), None)
         if first is not None:
-            mugs = _after_look(mugs, first.payload, 0.0, keep=None, sizes=sizes)
+            mugs = _after_look(mugs, first, 0.0, keep=None, sizes=sizes)
     held = current if holding and current is not None and current in mugs else None
     if held is not None and len(q) == arm.dof:
         mugs[held] = _in_gripper(mugs[held], arm, q, grip, sizes, t_s, "held")
@@ -205,33 +227,29 @@ def _header_tray(session: RecordedSession, sizes: Mapping[str, tuple[float, floa
     by the simulated world's ids (one the job uses for another mug is renamed ``earlier-<id>``); the tray
     is empty otherwise."""
     carried = header_part(session.job, HeaderJob).carried
-    # (Its slots are ``planning.interfaces.TraySlot`` as JSON, each read as far as it goes.)
+    # (Its slots are ``planning.interfaces.TraySlot`` as JSON, each read through ``HeaderSlot``.)
     slots = None if isinstance(carried, UnsetType) else carried.get("on_tray")
     if isinstance(slots, list):
-        return [_carried_mug(slot, sizes) for slot in slots if isinstance(slot, Mapping)]
-    taken = {
-        str(d.get("id"))
-        for m in session.read.messages
-        if topic_suffix(m.topic) == "detections"
-        for d in _list(m.payload, "mugs")
-        if isinstance(d, Mapping)
-    }
+        return [
+            _carried_mug(header_part(slot, HeaderSlot), sizes) for slot in slots if isinstance(slot, Mapping)
+        ]
+    taken = {_text(d.id) for look in _looks(session) if look is not None for d in look.mugs}
     out = []
-    # An older recording's scene mugs: the simulated world's own table of each, not a declared message (the
-    # header view ``HeaderScene`` does not take them); read key by key as far as each goes.
+    # An older recording's scene mugs: the simulated world's own table of each (``HeaderSceneMug``), not in
+    # the header view ``HeaderScene`` (one odd mug would empty the whole view).
     scene_mugs = session.scene.get("mugs")
-    for m in scene_mugs if isinstance(scene_mugs, list) else []:
-        if isinstance(m, Mapping) and m.get("where") == "tray":
-            mug_id = str(m.get("id", ""))
-            kind, x, y = str(m.get("type", "")), _float(m, "x_m"), _float(m, "y_m")
-            upside_down = bool(m.get("upside_down", True))
+    for m in (header_part(m, HeaderSceneMug) for m in (scene_mugs if isinstance(scene_mugs, list) else [])):
+        if m.where == "tray":
+            mug_id, kind = _text(m.id), _text(m.type)
+            x, y = _finite(m.x_m), _finite(m.y_m)
+            upside_down = True if isinstance(m.upside_down, UnsetType) else m.upside_down
             out.append(
                 WorldMug(
                     mug_id=f"earlier-{mug_id}" if mug_id in taken else mug_id,
                     type=kind,
                     x_m=x,
                     y_m=y,
-                    handle_yaw_rad=_float(m, "handle_yaw_rad"),
+                    handle_yaw_rad=_finite(m.handle_yaw_rad),
                     upside_down=upside_down,
                     where="tray",
                     source="header",
@@ -242,16 +260,21 @@ def _header_tray(session: RecordedSession, sizes: Mapping[str, tuple[float, floa
     return out
 
 
-def _carried_mug(slot: Mapping[str, object], sizes: Mapping[str, tuple[float, float]]) -> WorldMug:
-    """The mug on one of the header's carried tray slots (``planning.interfaces.TraySlot`` as JSON)."""
-    kind, x, y = str(slot.get("type", "")), _float(slot, "x_m"), _float(slot, "y_m")
-    handle = slot.get("handle_yaw_rad")
+def _looks(session: RecordedSession) -> list[Detections | None]:
+    """Every look at the counter the job published (``detections``), in order; None for a malformed one."""
+    return [m.decoded(Detections) for m in session.read.messages if topic_suffix(m.topic) == "detections"]
+
+
+def _carried_mug(slot: HeaderSlot, sizes: Mapping[str, tuple[float, float]]) -> WorldMug:
+    """The mug on one of the header's carried tray slots."""
+    kind, x, y = _text(slot.type), _finite(slot.x_m), _finite(slot.y_m)
+    handle = slot.handle_yaw_rad
     if isinstance(handle, int | float) and math.isfinite(handle):
         yaw = float(handle)
     else:
-        yaw = math.pi / 2.0 if slot.get("rotated") else 0.0
+        yaw = math.pi / 2.0 if slot.rotated is True else 0.0
     return WorldMug(
-        mug_id=str(slot.get("mug_id", "")),
+        mug_id=_text(slot.mug_id),
         type=kind,
         x_m=x,
         y_m=y,
@@ -266,7 +289,7 @@ def _carried_mug(slot: Mapping[str, object], sizes: Mapping[str, tuple[float, fl
 
 def _after_look(
     mugs: Mapping[str, WorldMug],
-    detections: Mapping[str, object],
+    detections: Detections,
     at: float,
     *,
     keep: str | None,
@@ -275,25 +298,18 @@ def _after_look(
     """The mugs after a look at the counter: the counter is what the camera saw (by the job's ids); the
     tray, and the mug in the gripper, stay as they were."""
     out = {k: m for k, m in mugs.items() if m.where != "counter" or k == keep}
-    for d in _list(detections, "mugs"):
-        if not isinstance(d, Mapping):
-            continue
-        mug_id = str(d.get("id", ""))
+    for d in detections.mugs:
+        mug_id = _text(d.id)
         known = out.get(mug_id)
         if not mug_id or (known is not None and known.where != "counter"):
             continue
-        kind, x, y, upside_down = (
-            str(d.get("type", "")),
-            _float(d, "x_m"),
-            _float(d, "y_m"),
-            bool(d.get("upside_down")),
-        )
+        kind, x, y, upside_down = d.type, _finite(d.x_m), _finite(d.y_m), d.upside_down is True
         out[mug_id] = WorldMug(
             mug_id=mug_id,
             type=kind,
             x_m=x,
             y_m=y,
-            handle_yaw_rad=_float(d, "handle_yaw_rad"),
+            handle_yaw_rad=_finite(d.handle_yaw_rad),
             upside_down=upside_down,
             where="counter",
             source="seen",
@@ -326,7 +342,7 @@ class _Grip:
 
 def _placed(
     mugs: Mapping[str, WorldMug],
-    event: Mapping[str, object],
+    event: MugPlacedEvent,
     at: float,
     *,
     sizes: Mapping[str, tuple[float, float]],
@@ -334,16 +350,16 @@ def _placed(
     """The mugs after the job placed one on the tray (brim down, bottom and axis as it stands on the
     surface: a physics world puts it on the tray's)."""
     out = dict(mugs)
-    mug_id = str(event.get("mug_id", ""))
+    mug_id = event.mug_id
     known = out.get(mug_id)
     kind = known.type if known is not None else ""
-    x, y = _float(event, "x_m"), _float(event, "y_m")
+    x, y = _finite(event.x_m), _finite(event.y_m)
     out[mug_id] = WorldMug(
         mug_id=mug_id,
         type=kind,
         x_m=x,
         y_m=y,
-        handle_yaw_rad=_float(event, "handle_yaw_rad", known.handle_yaw_rad if known is not None else 0.0),
+        handle_yaw_rad=_finite(event.handle_yaw_rad, known.handle_yaw_rad if known is not None else 0.0),
         upside_down=True,  # every mug goes into the dishwasher's tray brim down
         where="tray",
         source="placed",
@@ -395,14 +411,13 @@ def _triple(v: np.ndarray) -> tuple[float, float, float]:
     return float(v[0]), float(v[1]), float(v[2])
 
 
-def _list(payload: Mapping[str, object], key: str) -> Sequence[object]:
-    value = payload.get(key)
-    return value if isinstance(value, list) else []
-
-
-def _float(payload: Mapping[str, object], key: str, default: float = 0.0) -> float:
-    value = payload.get(key)
+def _finite(value: float | UnsetType | None, default: float = 0.0) -> float:
+    """A read number, or ``default`` when the message leaves it out (or it is not finite)."""
     return float(value) if isinstance(value, int | float) and math.isfinite(value) else default
+
+
+def _text(value: str | UnsetType) -> str:
+    return "" if isinstance(value, UnsetType) else value
 
 
 # --- the stand-in cell -------------------------------------------------------------------------------------
@@ -583,18 +598,20 @@ class Resimulation:
 def continues_earlier_job(session: RecordedSession) -> bool:
     """Whether the job went on with the scene an earlier job of its daemon left (the mugs on the tray, the
     counter it knew): it was started by a ``start`` command that named neither a dataset nor mugs."""
+    from daemon.commands_handler import StartBody
+
     for r in session.commands():
         command = r.message
         assert isinstance(command, Command)  # (``commands()`` keeps only those)
         if command.verb != "start" or r.t_ns > session.start_ns:
             continue
-        # The start body as the operator sent it: an open document the daemon's own parser judges; only
-        # whether it named a dataset or mugs matters here.
+        # The start body as the operator sent it, read as the daemon reads it (``StartBody``); one the
+        # daemon refuses started nothing.
         try:
-            body = json.loads(command.payload or "{}")
-        except ValueError:
+            body = convert(json.loads(command.payload or "{}"), StartBody, root="start")
+        except (ValueError, Invalid):
             return False
-        return isinstance(body, Mapping) and body.get("dataset") is None and body.get("mugs") is None
+        return body.dataset is None and body.mugs is None
     return False
 
 
