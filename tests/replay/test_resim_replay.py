@@ -20,12 +20,11 @@ from typing import Any
 import pytest
 
 from cli.main import main
-from daemon.app import RunOptions, ServeContext, ServeHooks, serve
+from daemon.app import ServeContext
 from daemon.backend import SimOptions
 from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
-from daemon.sdnotify import SdNotifier
 from recorder.files import is_job_file
 from replay.engine import ReplayOptions, ReplayReport, fault_text, replay
 from replay.faults import FaultInjector, parse_faults
@@ -33,6 +32,7 @@ from replay.harness import DishbotReplay
 from replay.record import record_job
 from replay.resim import continues_earlier_job
 from replay.session import RecordedSession
+from tests.fakes.daemon import serve_daemon
 
 RIG_RECORDING = Path(__file__).parents[1] / "data" / "rig-2mugs-job.mcap"
 # The rig recording's mugs (its README says how it was made), for the live runs to compare with.
@@ -227,16 +227,8 @@ def record_continued_job(record_dir: Path) -> Path:
         def on_ready(ctx: ServeContext) -> None:
             tasks.append(asyncio.create_task(drive(ctx)))
 
-        from perception import associate
-
-        result = await serve(
-            config,
-            backend,
-            associate,
-            RunOptions(listen=(), connect=(), record_dir=record_dir),
-            notifier=SdNotifier(None),
-            stop=asyncio.Event(),
-            hooks=ServeHooks(on_publish=(on_publish,), on_ready=on_ready),
+        result = await serve_daemon(
+            config, backend, record_dir, listen=(), on_publish=(on_publish,), on_ready=on_ready
         )
         return result.files
 
