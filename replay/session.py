@@ -681,9 +681,12 @@ class RecordedSession:
             if suffix != "events":
                 continue
             started = started or m is start
+            if not started:
+                continue
             event_payload = m.payload  # (decoded once: a compact read decodes at each ``payload``)
-            kind = m.decoded(EventKind)
-            if not started or kind is None:
+            try:
+                kind = convert(event_payload, EventKind, name=suffix)
+            except BadMessage:  # not an event: neither a transition nor a device's
                 continue
             if kind.kind == "transition":
                 t_device = _position(event_payload).t_device
