@@ -238,7 +238,7 @@ def _header_tray(session: RecordedSession, sizes: Mapping[str, tuple[float, floa
     # An older recording's scene mugs: the simulated world's own table of each (``HeaderSceneMug``), not in
     # the header view ``HeaderScene`` (one odd mug would empty the whole view).
     scene_mugs = session.scene.get("mugs")
-    for m in (header_part(m, HeaderSceneMug) for m in (scene_mugs if isinstance(scene_mugs, list) else [])):
+    for m in (header_part(d, HeaderSceneMug) for d in (scene_mugs if isinstance(scene_mugs, list) else [])):
         if m.where == "tray":
             mug_id, kind = _text(m.id), _text(m.type)
             x, y = _finite(m.x_m), _finite(m.y_m)
