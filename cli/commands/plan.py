@@ -250,6 +250,9 @@ def picture_text(problem: Problem, result: PlanResult) -> dict[str, str]:
     ]
     if problem.placed:
         lines.append("already on the tray (grey): " + ", ".join(q.id for q in problem.placed))
+    if problem.strays:
+        strays = ", ".join(q.id for q in problem.strays)
+        lines.append(f"lying on the tray where no plan put them (grey): {strays}")
     if result.unplaced:
         lines.append("left on the counter: " + ", ".join(result.unplaced))
     title = f"dishbot plan: {result.method}, {result.n} of {result.n + len(result.unplaced)} mugs on the tray"
