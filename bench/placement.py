@@ -25,6 +25,7 @@ from planning.placement import METHODS, PlanOptions, PlanResult, Problem, plan
 from planning.placement.cost import CostFunction, Fitness, FitnessMethod, Metrics
 from planning.placement.datasets import cell_dataset_problem
 from planning.placement.heuristics import Heuristic
+from planning.placement.mugrefine import one_more as find_one_more
 from planning.placement.packing import Packer
 from planning.placement.sorts import Sort, sorted_order
 
@@ -73,6 +74,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         action="store_true",
         help="with --layouts: skip the unchecked baseline (the packer's own order; a second packing and job "
         "run per layout, which the order target does not need)",
+    )
+    parser.add_argument(
+        "--one-more",
+        action="store_true",
+        help="add to the mug-shaped table how close each tray is to one more mug: the count the planner "
+        "packs at a smaller clearance (1 mm less at a time) and the largest clearance a continuous search "
+        "from that layout keeps (below the problem's: not a valid layout; a local optimum, not a bound)",
     )
     add_json_flag(parser)
     parser.set_defaults(handler=run)
@@ -142,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
         progress.next(f"dataset {n}: proving the rectangle optimum")
         optimum = plan(problem, PlanOptions(method="exact", time_limit_s=30.0))
         progress.next(f"dataset {n}: mug-shaped footprints")
-        mug_rows.append(mug_shaped_row(problem, n, optimum))
+        mug_rows.append(mug_shaped_row(problem, n, optimum, one_more=args.one_more))
         runs: dict[str, list[tuple[PlanResult, float, float]]] = {}
         for method in methods:
             progress.next(f"dataset {n}: {method}, {n_runs} runs")
@@ -214,15 +222,16 @@ def run(args: argparse.Namespace) -> int:
         "wall_s, cpu_s": "median per run",
         **targets,
     }
+    mug_columns = MUG_COLUMNS + (ONE_MORE_COLUMNS if args.one_more else [])
     if args.json:
-        extra["mug_shaped"] = [dict(zip(MUG_COLUMNS, r, strict=True)) for r in mug_rows]
+        extra["mug_shaped"] = [dict(zip(mug_columns, r, strict=True)) for r in mug_rows]
         extra["packer_speed"] = [dict(zip(speed_columns, r, strict=True)) for r in speed_rows]
         emit("placement", columns, rows, as_json=True, extra=extra)
         return 0
     emit("placement", columns, rows, as_json=False, extra=extra)
     print()
     print("mug-shaped footprints (brim disc + handle as the arm turns it, 10 mm clearance) beside rectangles")
-    print(format_table(MUG_COLUMNS, mug_rows))
+    print(format_table(mug_columns, mug_rows))
     print()
     print("fast packer vs literal 1 mm occupancy matrix (same orders, no caching)")
     print(format_table(speed_columns, speed_rows))
@@ -230,13 +239,27 @@ def run(args: argparse.Namespace) -> int:
 
 
 MUG_COLUMNS = ["ds", "rect_optimum", "mug", "upper_bound", "people", "wall_s", "cpu_s"]
+# --one-more: the count packed at a smaller clearance, that clearance, and what the refined layout keeps
+ONE_MORE_COLUMNS = ["one_more", "packed_at_mm", "refined_mm"]
 
 
-def mug_shaped_row(problem: Problem, n: int, rect_optimum: PlanResult) -> list[object]:
-    """One dataset planned with mug-shaped footprints: count, its proven bound, people's figure, time."""
+def mug_shaped_row(
+    problem: Problem, n: int, rect_optimum: PlanResult, *, one_more: bool = False
+) -> list[object]:
+    """One dataset planned with mug-shaped footprints: count, its proven bound, people's figure, time;
+    with ``one_more`` also ``mugrefine.one_more``'s count, packing clearance and refined clearance (mm)."""
+    mug_problem = replace(problem, footprint_kind="mug")
     wall, cpu = time.perf_counter(), time.process_time()
-    result = plan(replace(problem, footprint_kind="mug"), PlanOptions())
+    result = plan(mug_problem, PlanOptions())
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    more: list[object] = []
+    if one_more:
+        found = find_one_more(mug_problem, result.n, options=PlanOptions())
+        more = (
+            ["-", "-", "-"]
+            if found is None
+            else [found.count, found.packed_at, round(found.refined.clearance, 2)]
+        )
     return [
         n,
         rect_optimum.n if rect_optimum.optimal else f"<= {rect_optimum.upper_bound}",
@@ -245,6 +268,7 @@ def mug_shaped_row(problem: Problem, n: int, rect_optimum: PlanResult) -> list[o
         thesis.DATASETS[n].human_placed,
         round(wall, 2),
         round(cpu, 2),
+        *more,
     ]
 
 

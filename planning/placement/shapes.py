@@ -181,17 +181,17 @@ def _point_segment(
 
 
 def _segment_segment(
-    ax: FloatArray,
-    ay: FloatArray,
-    bx: FloatArray,
-    by: FloatArray,
-    cx: float,
-    cy: float,
-    dx: float,
-    dy: float,
+    ax: FloatArray | float,
+    ay: FloatArray | float,
+    bx: FloatArray | float,
+    by: FloatArray | float,
+    cx: FloatArray | float,
+    cy: FloatArray | float,
+    dx: FloatArray | float,
+    dy: FloatArray | float,
 ) -> FloatArray:
-    """Distance between segments AB (arrays) and CD (one segment): 0 where they cross, else the least
-    endpoint-to-segment distance."""
+    """Distance between segments AB and CD (arrays broadcast elementwise): 0 where they cross, else the
+    least endpoint-to-segment distance."""
     ends = np.minimum.reduce(
         [
             _point_segment(ax, ay, cx, cy, dx, dy),
@@ -206,6 +206,11 @@ def _segment_segment(
     d4 = _cross(ax, ay, bx, by, dx, dy)
     crossing = (d1 * d2 < 0) & (d3 * d4 < 0)
     return np.where(crossing, 0.0, ends)
+
+
+# The distances above for callers outside this module (elementwise over arrays).
+point_segment = _point_segment
+segment_segment = _segment_segment
 
 
 def _cross(
@@ -239,7 +244,7 @@ def clear_of_all(mine: Bodies, others: Bodies, clearance: float) -> npt.NDArray[
     ok = d[i, k] - r - orad >= limit
     ok &= _point_segment(ox, oy, ax, ay, bx, by) - t - orad >= limit
     ok &= _point_segment(cx, cy, oax, oay, obx, oby) - r - ot >= limit
-    ok &= _segment_segment(ax, ay, bx, by, oax, oay, obx, oby) - t - ot >= limit  # type: ignore[arg-type]
+    ok &= _segment_segment(ax, ay, bx, by, oax, oay, obx, oby) - t - ot >= limit
     clear = np.ones(mine.cx.shape, dtype=np.bool_)
     clear[i[~ok]] = False
     return clear
