@@ -5,8 +5,9 @@ wall and CPU time per run, and the thesis's run time and best count. The cost is
 n, E and t normalised over every run of every method on that dataset, as the thesis compared its methods in
 §5.3.2. A second table puts the mug-shaped planner (``footprint = "mug"``, seed 0, default budget) beside the
 rectangle optimum, its upper bound and what people placed in the thesis's observational study; a third times
-the fast packer against the literal occupancy-matrix packer on the same orders. Progress lines (case k of
-N, elapsed, time left) go to stderr (none with --json).
+the fast packer against the literal occupancy-matrix packer on the same orders. ``--one-more`` adds to the
+second table how close each tray is to one more mug (``planning.placement.mugrefine.one_more``). Progress
+lines (case k of N, elapsed, time left) go to stderr (none with --json).
 """
 
 from __future__ import annotations

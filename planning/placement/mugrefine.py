@@ -5,9 +5,11 @@ The planner packs the same mugs with smaller clearances (the problem's less 1 mm
 more than it does with the problem's own; that layout is a start for ``refine``, which moves the brim
 centres freely (off the packer's 2 mm grid; each handle turning with its brim's bearing, as the arm turns
 it) to make the least gap between two outlines, and twice the least gap to a wall, as large as it can
-(SLSQP from scipy; the gaps are the packer's exact distances from ``shapes``, their derivatives taken by
-finite differences, all positions at once). A result at or above the problem's clearance would be a valid
-layout with one more mug; below it, it says by how much the search missed (a local optimum, not a bound).
+(SLSQP from scipy; the gaps are the packer's exact distances from ``shapes``, each smooth piece of each a
+constraint of its own, their derivatives taken by finite differences for all positions at once). A result
+at or above the problem's clearance would be a valid layout with one more mug; below it, it says by how much
+the search missed (a local optimum, not a bound). Mugs already on the tray are not modelled: problems with
+any are refused.
 """
 
 from __future__ import annotations
@@ -33,7 +35,8 @@ _STEP_MM = 1e-4  # finite-difference step
 @dataclass(frozen=True)
 class Refined:
     """The brim centres after the search (tray mm, same order) and the clearance they keep: the least gap
-    between two outlines and twice the least gap to a wall."""
+    between two outlines and twice the least gap to a wall; ``iterations``: SLSQP's, 0 when it found
+    nothing better than the start (which is then returned)."""
 
     brims: tuple[tuple[float, float], ...]
     clearance: float
@@ -55,49 +58,51 @@ class _Layout:
         n = len(mugs)
         self.i, self.j = np.triu_indices(n, 1)
 
-    def gaps(self, xy: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """``xy`` (..., n, 2): the gaps of every pair (..., n (n - 1) / 2) and to the walls (..., n)."""
+    def pieces(self, xy: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``xy`` (..., n, 2): every pair's gap between its parts (..., n (n - 1) / 2, 7: the discs, each
+        disc to the other's handle, each handle's ends to the other handle), every mug's gap to the walls
+        by part (..., n, 12: the disc and both handle ends to each wall), and the handles' distance (0 where
+        they cross; the pieces' least is the pair's gap unless they do). Each piece is smooth almost
+        everywhere, so SLSQP is given them one by one, not their least (which has kinks where two tie)."""
         cx, cy = xy[..., 0], xy[..., 1]
         yaw = np.arctan2(cy + self.origin[1], cx + self.origin[0]) + self.rel
         c, s = np.cos(yaw), np.sin(yaw)
         ax, ay = cx + self.h0 * c, cy + self.h0 * s
         bx, by = cx + self.h1 * c, cy + self.h1 * s
         i, j = self.i, self.j
-        discs = np.hypot(cx[..., i] - cx[..., j], cy[..., i] - cy[..., j]) - self.r[i] - self.r[j]
-        pairs = np.minimum.reduce(
+        ri, rj, ti, tj = self.r[i], self.r[j], self.t[i], self.t[j]
+        seg_i = (ax[..., i], ay[..., i], bx[..., i], by[..., i])
+        seg_j = (ax[..., j], ay[..., j], bx[..., j], by[..., j])
+        pairs = np.stack(
             [
-                discs,
-                point_segment(cx[..., j], cy[..., j], ax[..., i], ay[..., i], bx[..., i], by[..., i])
-                - self.t[i]
-                - self.r[j],
-                point_segment(cx[..., i], cy[..., i], ax[..., j], ay[..., j], bx[..., j], by[..., j])
-                - self.t[j]
-                - self.r[i],
-                segment_segment(
-                    ax[..., i],
-                    ay[..., i],
-                    bx[..., i],
-                    by[..., i],
-                    ax[..., j],
-                    ay[..., j],
-                    bx[..., j],
-                    by[..., j],
-                )
-                - self.t[i]
-                - self.t[j],
-            ]
+                np.hypot(cx[..., i] - cx[..., j], cy[..., i] - cy[..., j]) - ri - rj,
+                point_segment(cx[..., j], cy[..., j], *seg_i) - ti - rj,
+                point_segment(cx[..., i], cy[..., i], *seg_j) - tj - ri,
+                point_segment(seg_i[0], seg_i[1], *seg_j) - ti - tj,
+                point_segment(seg_i[2], seg_i[3], *seg_j) - ti - tj,
+                point_segment(seg_j[0], seg_j[1], *seg_i) - ti - tj,
+                point_segment(seg_j[2], seg_j[3], *seg_i) - ti - tj,
+            ],
+            axis=-1,
         )
         tx, ty = self.size
-        disc = np.minimum.reduce([cx - self.r, tx - cx - self.r, cy - self.r, ty - cy - self.r])
-        bar = np.minimum.reduce(
-            [
-                np.minimum(ax, bx) - self.t,
-                tx - np.maximum(ax, bx) - self.t,
-                np.minimum(ay, by) - self.t,
-                ty - np.maximum(ay, by) - self.t,
-            ]
+        r, t = self.r, self.t
+        walls = np.stack(
+            [cx - r, tx - cx - r, cy - r, ty - cy - r]
+            + [v - t for v in (ax, bx, ay, by)]
+            + [tx - v - t for v in (ax, bx)]
+            + [ty - v - t for v in (ay, by)],
+            axis=-1,
         )
-        return np.asarray(pairs, np.float64), np.asarray(np.minimum(disc, bar), np.float64)
+        handles = segment_segment(*seg_i, *seg_j)
+        return np.asarray(pairs, np.float64), np.asarray(walls, np.float64), np.asarray(handles, np.float64)
+
+    def gaps(self, xy: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """``xy`` (..., n, 2): the gaps of every pair (..., n (n - 1) / 2) and to the walls (..., n): the
+        packer's distances (``shapes``), below 0 where outlines overlap."""
+        pairs, walls, handles = self.pieces(xy)
+        crossing = np.where(handles > 0, np.inf, -self.t[self.i] - self.t[self.j])
+        return np.minimum(pairs.min(axis=-1), crossing), walls.min(axis=-1)
 
 
 def clearance_of(problem: Problem, mugs: Sequence[tuple[str, float]], brims: FloatArray) -> float:
@@ -115,17 +120,21 @@ def refine(
 ) -> Refined:
     """Moves the brims (tray mm; ``mugs``: type and handle angle to the slot's bearing, ``Problem.
     relative_yaw``) to keep as large a clearance as it can find; never returns less than the start's."""
+    if problem.placed:
+        raise ValueError("refine: mugs already on the tray are not modelled")
     lay = _Layout(problem, mugs)
     n = len(mugs)
     start = np.asarray(brims, np.float64).reshape(n, 2)
     pairs, walls = lay.gaps(start)
     s0 = float(min(pairs.min(initial=math.inf), 2.0 * walls.min(initial=math.inf)))
-    # Variables: the brims (2n) and s. Constraints: pair gaps - s >= 0, wall gaps - s / 2 >= 0.
-    m = len(lay.i)
+    # Variables: the brims (2n) and s. Constraints: every piece of a pair's gap - s >= 0, every piece of a
+    # gap to a wall - s / 2 >= 0.
+    m = 7 * len(lay.i)
 
     def values(z: FloatArray) -> FloatArray:
-        p, w = lay.gaps(z[:, :-1].reshape(-1, n, 2))
-        return np.concatenate([p - z[:, -1:], w - z[:, -1:] / 2.0], axis=-1)
+        p, w, _ = lay.pieces(z[:, :-1].reshape(-1, n, 2))
+        size = z[:, -1:]
+        return np.concatenate([p.reshape(len(z), -1) - size, w.reshape(len(z), -1) - size / 2.0], axis=-1)
 
     def fun(z: FloatArray) -> FloatArray:
         return np.asarray(values(z[None, :])[0], np.float64)
@@ -135,7 +144,7 @@ def refine(
         batch[1:, : 2 * n] += _STEP_MM * np.eye(2 * n)
         v = values(batch)
         d = (v[1:] - v[0]) / _STEP_MM  # (2n, constraints)
-        ds = np.concatenate([-np.ones(m), -0.5 * np.ones(n)])
+        ds = np.concatenate([-np.ones(m), -0.5 * np.ones(12 * n)])
         return np.concatenate([d.T, ds[:, None]], axis=1)
 
     best = (s0, start, 0)
@@ -160,8 +169,8 @@ def refine(
 
 @dataclass(frozen=True)
 class OneMore:
-    """A layout of ``count`` mugs (one more than the problem's plan) found with the planner at ``packed_at``
-    mm of clearance, then refined: it keeps ``clearance`` mm (``Refined``); ``mugs`` as for ``refine``."""
+    """A layout of ``count`` mugs (more than the problem's plan) that the planner packed at ``packed_at`` mm
+    of clearance, then ``refined`` under the problem's clearance; ``mugs`` as for ``refine``."""
 
     count: int
     packed_at: int
@@ -173,6 +182,8 @@ def one_more(problem: Problem, planned: int, *, options: PlanOptions, lowest_mm:
     """The first layout with more than ``planned`` mugs that the planner packs at a clearance below the
     problem's (1 mm less each time, down to ``lowest_mm``), refined under the problem's clearance; None
     when no clearance down to ``lowest_mm`` packs more (or there is nothing more to place)."""
+    if problem.placed:
+        raise ValueError("one_more: mugs already on the tray are not modelled")
     if planned >= len(problem.mugs):
         return None
     for tolerance in range(problem.tolerance_mm - 1, lowest_mm - 1, -1):

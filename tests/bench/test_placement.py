@@ -60,6 +60,17 @@ def test_bench_table_shows_progress_on_stderr_and_the_mug_shaped_table(
     assert table[3].split()[:2] == ["1", "10"]
 
 
+@pytest.mark.slow
+def test_bench_one_more_says_how_close_dataset_1_is_to_its_twelfth_mug(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    argv = ["bench", "placement", "--runs", "1", "--datasets", "1", "--methods", "bh", "--one-more", "--json"]
+    assert main(argv) == 0
+    (mug,) = json.loads(capsys.readouterr().out)["mug_shaped"]
+    assert (mug["mug"], mug["one_more"], mug["packed_at_mm"]) == (11, 12, 8)
+    assert 8 < mug["refined_mm"] < 10  # widened beyond its packing's 8 mm, short of the 10 mm asked
+
+
 def test_bench_refuses_an_unknown_method(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "placement", "--methods", "sa,magic"]) == 2
     assert capsys.readouterr().err == (

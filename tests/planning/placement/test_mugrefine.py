@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from shapely.geometry import box
 
-from planning.placement import PlanOptions, Problem, dataset_problem
+from planning.placement import PlanOptions, Problem, TrayMug, dataset_problem
 from planning.placement.mugpack import fixed_bodies
 from planning.placement.mugrefine import clearance_of, one_more, refine
 from planning.placement.shapes import Bodies, MugOutline
@@ -117,3 +117,13 @@ def test_its_distances_are_the_packers_where_outlines_keep_apart(
         assert mine == pytest.approx(packer, abs=1e-9)
     else:  # the packer's gaps stop at 0 where outlines touch or overlap; these go on below it
         assert mine <= 1e-9
+
+
+def test_mugs_already_on_the_tray_are_refused_not_ignored() -> None:
+    problem = replace(
+        dataset_problem(1),
+        footprint_kind="mug",
+        placed=(TrayMug("p1", "small", 0, 0, False),),
+    )
+    with pytest.raises(ValueError, match="mugs already on the tray are not modelled"):
+        refine(problem, [("big", 0.0)], [(200.0, 200.0)])
