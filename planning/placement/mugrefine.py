@@ -3,10 +3,11 @@
 ``dishbot bench placement --one-more`` asks this per dataset (issue 24: dataset 1 plans 11 of its 12 mugs).
 The planner packs the same mugs with smaller clearances (the problem's less 1 mm, 2 mm, ...) until it places
 more than it does with the problem's own; that layout is a start for ``refine``, which moves the brim
-centres freely (off the packer's 2 mm grid; each handle turning with its brim's bearing, as the arm turns
-it) to make the least gap between two outlines, and twice the least gap to a wall, as large as it can
-(SLSQP from scipy; the gaps are the packer's exact distances from ``shapes``, each smooth piece of each a
-constraint of its own, their derivatives taken by finite differences for all positions at once). A result
+centres freely (off the packer's 2 mm grid, each within ``REACH_MM`` of its start; each handle turning with
+its brim's bearing, as the arm turns it) to make the least gap between two outlines, and twice the least
+gap to a wall, as large as it can (SLSQP from scipy; the gaps are the packer's exact distances from
+``shapes``, each smooth piece of each a constraint of its own, their derivatives taken by finite differences
+for all positions at once). A result
 at or above the problem's clearance would be a valid layout with one more mug; below it, it says by how much
 the search missed (a local optimum, not a bound). Mugs already on the tray are not modelled: problems with
 any are refused.
@@ -30,6 +31,7 @@ from planning.placement.shapes import MugOutline, point_segment, segment_segment
 
 FloatArray = npt.NDArray[np.float64]
 _STEP_MM = 1e-4  # finite-difference step
+REACH_MM = 15.0  # how far ``refine`` moves a brim from its start at most
 
 
 @dataclass(frozen=True)
@@ -156,6 +158,9 @@ def refine(
             z,
             jac=lambda z: np.concatenate([np.zeros(2 * n), [-1.0]]),
             constraints=[{"type": "ineq", "fun": fun, "jac": jac}],
+            # a local search: each brim within REACH_MM of its start, which keeps SLSQP's steps from
+            # running off (with hundreds of constraints they did, to negative clearances)
+            bounds=[(v - REACH_MM, v + REACH_MM) for v in start.ravel()] + [(0.0, None)],
             method="SLSQP",
             options={"maxiter": max_iterations, "ftol": 1e-9},
         )
