@@ -122,7 +122,7 @@ def refine(
 ) -> Refined:
     """Moves the brims (tray mm; ``mugs``: type and handle angle to the slot's bearing, ``Problem.
     relative_yaw``) to keep as large a clearance as it can find; never returns less than the start's."""
-    if problem.placed:
+    if problem.placed or problem.strays:
         raise ValueError("refine: mugs already on the tray are not modelled")
     lay = _Layout(problem, mugs)
     n = len(mugs)
@@ -187,7 +187,7 @@ def one_more(problem: Problem, planned: int, *, options: PlanOptions, lowest_mm:
     """The first layout with more than ``planned`` mugs that the planner packs at a clearance below the
     problem's (1 mm less each time, down to ``lowest_mm``), refined under the problem's clearance; None
     when no clearance down to ``lowest_mm`` packs more (or there is nothing more to place)."""
-    if problem.placed:
+    if problem.placed or problem.strays:
         raise ValueError("one_more: mugs already on the tray are not modelled")
     if planned >= len(problem.mugs):
         return None
