@@ -49,7 +49,7 @@ from daemon.errors import ConfigError, UsageError
 from daemon.job import Job, JobSummary, StartRequest
 from daemon.log_relay import LogRelay, LostLines, RecordQueue, output_guarded, plain_record
 from daemon.messages import gripper_message, joints_message
-from daemon.recorded import JobPosition, recorded
+from daemon.recorded import TELEMETRY_READER, JobPosition, joint_reader, recorded
 from daemon.sdnotify import SdNotifier
 from daemon.security import exposure_error
 from daemon.zenoh_session import ZenohSession, error_text
@@ -662,7 +662,8 @@ async def _joints_loop(session: ZenohSession, backend: Backend, job: Job, rate_h
     clock = backend.clock
 
     async def read() -> None:
-        js = await backend.arm.read_joints()
+        with joint_reader(TELEMETRY_READER):  # (recorded as the telemetry's read, not the job's)
+            js = await backend.arm.read_joints()
         session.publish("joints", joints_message(js, t=clock.now()))
 
     await _polled(clock, 1.0 / rate_hz, read, job, "joints")

@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Awaitable, Callable, Mapping
+import contextvars
+from collections.abc import Awaitable, Callable, Iterator, Mapping
 from dataclasses import replace
-from typing import TypeVar
+from typing import Final, TypeVar
 
 import msgspec
 
@@ -54,6 +55,31 @@ T = TypeVar("T")
 
 
 Sink = Callable[[str, Payload], None]
+
+# Who reads the arm's joints (``input/joints``'s ``reader``): the job (its plans and moves start from its own
+# reads: ``daemon.job``) unless a reader says otherwise, as the telemetry's joints poll does
+# (``daemon.app``). The two can read within milliseconds of each other, in either order: a replay hands each
+# reader its own recorded samples, not whichever is nearest in time.
+JOB_READER: Final = "job"
+TELEMETRY_READER: Final = "telemetry"
+_joint_reader: contextvars.ContextVar[str] = contextvars.ContextVar(
+    "dishbot_joint_reader", default=JOB_READER
+)
+
+
+@contextlib.contextmanager
+def joint_reader(name: str) -> Iterator[None]:
+    """The arm's joints read within this block (in this task) are read by ``name``."""
+    token = _joint_reader.set(name)
+    try:
+        yield
+    finally:
+        _joint_reader.reset(token)
+
+
+def current_joint_reader() -> str:
+    """Who reads the arm's joints now (``joint_reader``; the job by default)."""
+    return _joint_reader.get()
 
 
 class JobPosition:
@@ -180,10 +206,14 @@ class _RecordedArm:
         return self._inner.joint_names
 
     async def read_joints(self) -> JointState:
+        reader = current_joint_reader()
         try:
             js = await self._inner.read_joints()
         except (DriverError, BusLost) as e:
-            self._sink("input/joints_failed", _read_failed(self._clock, self._clock.monotonic(), e))
+            failed = msgspec.structs.replace(
+                _read_failed(self._clock, self._clock.monotonic(), e), reader=reader
+            )
+            self._sink("input/joints_failed", failed)
             raise
         self._sink(
             "input/joints",
@@ -195,6 +225,7 @@ class _RecordedArm:
                 velocity_rad_s=list(js.velocity_rad_s),
                 load=list(js.load),
                 t_read=self._clock.monotonic(),
+                reader=reader,
             ),
         )
         return js

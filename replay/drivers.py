@@ -40,6 +40,7 @@ import structlog
 
 from daemon.backend import Backend, EventListener, MotionCalls, PlanPlacement
 from daemon.clock import SessionClock, SimulatedClock
+from daemon.recorded import JOB_READER, current_joint_reader
 from drivers.errors import BusLost, DriverError
 from drivers.interfaces import (
     ArmDriver,
@@ -144,11 +145,40 @@ class Replayer:
         # Each read time is taken once: a loaded record decodes its JSON at every look.
         self._timed: dict[str, list[Recorded]] = {}
         self._timed_t: dict[str, list[float]] = {}
+        joint_readers: list[str | None] = []  # who took each joint sample, in the order sorted below
         for name, topics in _TIMED.items():
-            timed = [(self._read_time(r), r) for t in topics for r in session.streams.get(t, ())]
-            timed.sort(key=lambda pair: pair[0])  # stable: the order consumed
-            self._timed[name] = [r for _, r in timed]
-            self._timed_t[name] = [t for t, _ in timed]
+            timed = []
+            for topic in topics:
+                for r in session.streams.get(topic, ()):
+                    m = r.message  # (decoded once here)
+                    timed.append((self._read_time(r, m), _reader(m), r))
+            timed.sort(key=lambda item: item[0])  # stable: the order consumed
+            self._timed[name] = [r for _, _, r in timed]
+            self._timed_t[name] = [t for t, _, _ in timed]
+            if name == "input/joints":
+                joint_readers = [reader for _, reader, _ in timed]
+        # Joint samples by reader (the job, the telemetry: ``daemon.recorded.joint_reader``), each reader's
+        # a timed stream of its own; None for a recording that does not say (an older one): every reader
+        # then gets the sample its read time matches among them all.
+        self._joint_readers: dict[str, str] | None = None
+        if joint_readers and all(reader is not None for reader in joint_readers):
+            self._joint_readers = {}
+            for reader in sorted({str(reader) for reader in joint_readers}):
+                stream = f"input/joints:{reader}"
+                self._joint_readers[reader] = stream
+                own = [k for k, by in enumerate(joint_readers) if by == reader]
+                self._timed[stream] = [self._timed["input/joints"][k] for k in own]
+                self._timed_t[stream] = [self._timed_t["input/joints"][k] for k in own]
+        # The job's own reads since its start, served by order: the n-th read the replay's job makes gets the
+        # n-th the recorded job made (it reads at a point of its work, not at a time: the robot's job read
+        # later than the replay's, by as long as its computing took, and the telemetry may have read between).
+        job_stream = f"input/joints:{JOB_READER}"
+        self._job_reads = [
+            r
+            for t, r in zip(self._timed_t.get(job_stream, ()), self._timed.get(job_stream, ()), strict=True)
+            if t >= session.start_monotonic - _SAME_S
+        ]
+        self._job_reads_next = 0
         self._ordered: dict[str, list[Recorded]] = {}
         for name, topics in _ORDERED.items():
             items = [r for t in topics for r in session.streams.get(t, ())]
@@ -345,8 +375,8 @@ class Replayer:
             await self._moved.wait()
         return False
 
-    def _read_time(self, r: Recorded) -> float:
-        m = r.message
+    def _read_time(self, r: Recorded, message: Message | UnsetType | None = UNSET) -> float:
+        m = r.message if isinstance(message, UnsetType) else message
         t = m.t_read if isinstance(m, InputJoints | Force | Holding | ReadFailed) else UNSET
         if not isinstance(t, UnsetType):
             return float(t)
@@ -479,6 +509,22 @@ class Replayer:
             self.served[stream] = self.served.get(stream, 0) + 1
         return due
 
+    def joints(self) -> Recorded | None:
+        """The recorded joint sample the arm's reader now (``daemon.recorded.joint_reader``) gets: the job's
+        next own read (by order); a telemetry poll's (any other reader's) by time among its own samples
+        (``latest``). A recording that does not say who read (an older one): by time among them all. After
+        the recorded job's last own read (a replay's job reading more than it did), by time among its own."""
+        if self._joint_readers is None:
+            return self.latest("input/joints")
+        reader = current_joint_reader()
+        if reader == JOB_READER and self._job_reads_next < len(self._job_reads):
+            rec = self._job_reads[self._job_reads_next]
+            self._job_reads_next += 1
+            self.served["input/joints"] = self.served.get("input/joints", 0) + 1
+            return rec
+        stream = self._joint_readers.get(reader)
+        return None if stream is None else self.latest(stream)  # (None: a reader the recording never saw)
+
     def latest(self, stream: str) -> Recorded | None:
         """The input of ``stream`` the daemon consumed at this moment: of those recorded at the same time
         , the next in the order they were consumed; else the last one recorded
@@ -493,21 +539,23 @@ class Replayer:
             if i < 0:
                 return None
             last = self._last_served.get(stream, -1)
-            if stream == "input/joints" and not self.session.simulated:
-                i = self._wall_joint_read(i, last, now)
+            if stream.startswith("input/joints") and not self.session.simulated:
+                i = self._wall_joint_read(stream, i, last, now)
         self._last_served[stream] = max(i, self._last_served.get(stream, -1))
-        self.served[stream] = self.served.get(stream, 0) + 1
+        served = stream.partition(":")[0]  # (one reader's joint samples count as joints)
+        self.served[served] = self.served.get(served, 0) + 1
         return self._timed[stream][i]
 
-    def _wall_joint_read(self, i: int, last: int, now: float) -> int:
+    def _wall_joint_read(self, stream: str, i: int, last: int, now: float) -> int:
         """The joint sample of a wall-clock recording a read at ``now`` (recorded monotonic) gets, ``i`` being
         the last one recorded at or before it and ``last`` the latest one served so far. On the wall clock
         each recorded read was one read, and the robot's job read no earlier than the replay's does (its
         computing and its bus took time): a sample read before now was another read's (a poll's), one
         served already too. So the next sample not served yet is the one the job read, when it comes within
         ``_WALL_READ_S``. A failed read is never taken early (it comes at its time); neither is a sample
-        that is not served yet when its read failed."""
-        items, times = self._timed["input/joints"], self._timed_t["input/joints"]
+        that is not served yet when its read failed. ``stream``: every sample (a recording that does not say
+        who read), or one reader's."""
+        items, times = self._timed[stream], self._timed_t[stream]
         j = max(i, last) + 1
         if j >= len(times) or times[j] - now > _WALL_READ_S:
             return i
@@ -742,7 +790,7 @@ class ReplayArm:
         return self._inner.joint_names
 
     async def read_joints(self) -> JointState:
-        rec = self._r.latest("input/joints") if self._r.serving() else None
+        rec = self._r.joints() if self._r.serving() else None
         if rec is None:  # (a read changes nothing in the cell: while served, the cell is not read)
             return await self._inner.read_joints()
         _raise_recorded(rec)
@@ -1092,6 +1140,13 @@ def _raise_recorded(rec: Recorded) -> None:
     failure = _failure(rec)
     if isinstance(failure.error, str):
         raise recorded_failure(failure.error, failure)
+
+
+def _reader(m: Message | None) -> str | None:
+    """Who took a recorded joint sample (``daemon.recorded.joint_reader``); None when the recording does
+    not say (an older one), or for another input."""
+    reader = m.reader if isinstance(m, InputJoints | ReadFailed) else UNSET
+    return None if isinstance(reader, UnsetType) else reader
 
 
 def _floats(values: list[int | float] | UnsetType) -> tuple[float, ...]:

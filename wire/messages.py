@@ -80,10 +80,21 @@ class Joints(Message, kw_only=True):
     load: Annotated[list[Number], doc("servo load, fraction of full torque (signed)")] | UnsetType = UNSET
 
 
+# Who read the arm's joints (``daemon.recorded.joint_reader``): a replay hands each reader its own samples.
+JointReader = Annotated[
+    str,
+    doc(
+        "who read the arm: job (the job's own read) or telemetry (the joints poll); left out by recordings "
+        "made before it was recorded"
+    ),
+]
+
+
 class InputJoints(Joints, kw_only=True):
-    """``input/joints``: a read of the arm as the job got it (unrounded), with the session's time of it."""
+    """``input/joints``: a read of the arm as its reader got it (unrounded), with the session's time of it."""
 
     t_read: DeviceT | UnsetType = UNSET
+    reader: JointReader | UnsetType = UNSET
 
 
 class Gripper(Message, kw_only=True):
@@ -565,6 +576,7 @@ class ReadFailed(Message, kw_only=True):
     error_servo_id: ErrorServo | U = UNSET
     error_bits: ErrorBits | U = UNSET
     error_port: ErrorPort | U = UNSET
+    reader: JointReader | U = UNSET  # (``input/joints_failed`` only)
 
 
 class CallFailed(Message, kw_only=True):
