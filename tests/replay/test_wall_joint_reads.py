@@ -7,14 +7,18 @@ own read, and diverged)."""
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 from pathlib import Path
 from typing import cast
 
+import msgspec
 import pytest
 
 from daemon.clock import SessionClock
-from replay.drivers import Replayer
-from replay.session import RecordedSession
+from daemon.recorded import JOB_READER, TELEMETRY_READER, joint_reader
+from drivers.interfaces import ArmDriver
+from replay.drivers import ReplayArm, Replayer
+from replay.session import Recorded, RecordedSession
 from wire.messages import InputJoints
 
 RECORDING = Path(__file__).parents[1] / "data" / "rig-fault-while-planning-job.mcap"
@@ -87,3 +91,66 @@ def test_a_sample_too_far_ahead_is_not_taken_the_latest_before_is(session: Recor
     replayer, clock = _replayer(session)
     clock.t = samples[k][0] + 0.01 - session.start_monotonic
     assert replayer.latest("input/joints") is replayer._timed["input/joints"][k]
+
+
+# --- who read (``input/joints``'s ``reader``) --------------------------------------------------------------
+
+_TELEMETRY_AT = (0.90, 1.00, 1.10)  # the telemetry's polls, s after the job's start (recorded monotonic)
+
+
+def _with_readers(session: RecordedSession, job_at: tuple[float, ...]) -> RecordedSession:
+    """``session`` with its joint samples replaced by the telemetry's at ``_TELEMETRY_AT`` and the job's own
+    at ``job_at``: each sample's first joint angle says whose it is (10 + its number for the telemetry's, 20
+    + its number for the job's)."""
+    template = next(r.message for r in session.streams["input/joints"] if isinstance(r.message, InputJoints))
+    assert isinstance(template, InputJoints)
+    start = session.start_monotonic
+
+    def sample(at: float, reader: str, first: float) -> Recorded:
+        message = msgspec.structs.replace(
+            template, t_read=start + at, reader=reader, position_rad=[first, *template.position_rad[1:]]
+        )
+        t_ns = round((start + at + session.mono_offset_s) * 1e9)
+        return Recorded("input/joints", t_ns, msgspec.to_builtins(message), message)
+
+    samples = [sample(at, TELEMETRY_READER, 10.0 + k) for k, at in enumerate(_TELEMETRY_AT)]
+    samples += [sample(at, JOB_READER, 20.0 + k) for k, at in enumerate(job_at)]
+    samples.sort(key=lambda r: r.t_ns)
+    return dataclasses.replace(
+        session, streams={**session.streams, "input/joints": tuple(samples), "input/joints_failed": ()}
+    )
+
+
+def _read(replayer: Replayer, reader: str) -> float:
+    """The first joint angle a read by ``reader`` gets through the replay's arm now."""
+    arm = ReplayArm(cast("ArmDriver", None), replayer)  # (while served, the cell's arm is never read)
+
+    async def read() -> float:
+        with joint_reader(reader):
+            return (await arm.read_joints()).position_rad[0]
+
+    return asyncio.run(read())
+
+
+@pytest.mark.parametrize(
+    ("job_at", "reads"),
+    [
+        # The robot's job read 30 ms after the poll at 1.00 s; the replay's job reads at 0.99 s, just before
+        # that poll: the next sample not served yet, the poll's, is not the job's.
+        ((1.03,), [(0.99, JOB_READER, 20.0), (1.00, TELEMETRY_READER, 11.0)]),
+        # The other order: the robot's job read at 0.98 s, just before the poll at 1.00 s; the replay's
+        # telemetry polls first (the poll it is is the one at 1.00 s), then its job reads.
+        ((0.98,), [(0.97, TELEMETRY_READER, 11.0), (0.975, JOB_READER, 20.0), (1.0, TELEMETRY_READER, 11.0)]),
+        # Two reads of the job close together, a poll between them: each its own, in order.
+        ((1.02, 1.05), [(1.01, JOB_READER, 20.0), (1.01, TELEMETRY_READER, 12.0), (1.01, JOB_READER, 21.0)]),
+    ],
+)
+def test_each_reader_gets_its_own_sample_whatever_came_between(
+    session: RecordedSession, job_at: tuple[float, ...], reads: list[tuple[float, str, float]]
+) -> None:
+    """The race of the MuJoCo ds4 rig session (issue 20): the telemetry's poll and the job's own read within
+    ``_WALL_READ_S`` of each other. Matched by time, one reader got the other's sample."""
+    replayer, clock = _replayer(_with_readers(session, job_at))
+    for at, reader, first in reads:
+        clock.t = at  # (the job started at 0 on the replay's clock, at start_monotonic on the recording's)
+        assert _read(replayer, reader) == first, f"{reader} at {at} s"
