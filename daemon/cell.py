@@ -23,6 +23,7 @@ async def open_backend(
     sim: SimOptions | None = None,
     clock: SessionClock | None = None,
     executor: concurrent.futures.Executor | None = None,
+    check_reach: bool = True,
 ) -> Backend:
     """The cell a job runs on, for ``dishbot run`` and every bench alike: the robot on the ``[hardware]``
     ports, or with ``sim`` the simulated cell (``daemon.sim_backend``, imported only then: the hardware
@@ -33,9 +34,11 @@ async def open_backend(
     configured cell with the configured catalogue and the arm's position correction; the detector looks for
     the configured mug types; a simulated arm starts at ``sim.start_q_rad``. With ``executor`` (a process
     pool) motion planning runs there and the planner starts building in it at once. Call it on the event
-    loop that will use the devices."""
+    loop that will use the devices. A replay (``check_reach`` False) skips the reach check: the recorded
+    daemon made it with the same cell, catalogue and arm when it started."""
     arm = ArmModel.load()
-    check_cell_reachable(config, arm)
+    if check_reach:
+        check_cell_reachable(config, arm)
     clock = clock or RealClock()
     if sim is None:
         backend = await open_hardware_backend(config, arm=arm, executor=executor, clock=clock)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import concurrent.futures
 from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -38,7 +39,11 @@ from planning.arm import ArmModel
 from planning.interfaces import MotionPlanner
 from sim.counter import Counter, dataset_counter, listed_counter, require_cell_tray
 from sim.kinematic import KinematicCell, MugGeometry, SimMug, start_kinematic_cell
-from sim.mujoco.cell import SimCell, start_sim_cell
+
+if (
+    TYPE_CHECKING
+):  # (imported when a MuJoCo cell is opened: a kinematic cell, a replay's stand-in, loads no MuJoCo)
+    from sim.mujoco.cell import SimCell
 
 WORLDS = ("kinematic", "mujoco")
 
@@ -192,6 +197,8 @@ async def open_mujoco_backend(
     def observer_factory(camera: Camera) -> MugObserver:
         cameras.append(FaultyCamera(camera, clock=clock))
         return make_observer(cameras[-1])
+
+    from sim.mujoco.cell import start_sim_cell
 
     try:
         cell, closer = await start_sim_cell(

@@ -145,18 +145,23 @@ class Replayer:
         # Each read time is taken once: a loaded record decodes its JSON at every look.
         self._timed: dict[str, list[Recorded]] = {}
         self._timed_t: dict[str, list[float]] = {}
+        # Per timed stream, whether each record is a read that worked (``_wall_joint_read`` looks ahead at
+        # it for every joint read).
+        self._timed_ok: dict[str, list[bool]] = {}
         joint_readers: list[str | None] = []  # who took each joint sample, in the order sorted below
         for name, topics in _TIMED.items():
             timed = []
             for topic in topics:
                 for r in session.streams.get(topic, ()):
                     m = r.message  # (decoded once here)
-                    timed.append((self._read_time(r, m), _reader(m), r))
+                    ok = not isinstance(m, ReadFailed) and not _failed_message(m)
+                    timed.append((self._read_time(r, m), _reader(m), ok, r))
             timed.sort(key=lambda item: item[0])  # stable: the order consumed
-            self._timed[name] = [r for _, _, r in timed]
-            self._timed_t[name] = [t for t, _, _ in timed]
+            self._timed[name] = [r for _, _, _, r in timed]
+            self._timed_t[name] = [t for t, _, _, _ in timed]
+            self._timed_ok[name] = [ok for _, _, ok, _ in timed]
             if name == "input/joints":
-                joint_readers = [reader for _, reader, _ in timed]
+                joint_readers = [reader for _, reader, _, _ in timed]
         # Joint samples by reader (the job, the telemetry: ``daemon.recorded.joint_reader``), each reader's
         # a timed stream of its own; None for a recording that does not say (an older one): every reader
         # then gets the sample its read time matches among them all.
@@ -169,6 +174,7 @@ class Replayer:
                 own = [k for k, by in enumerate(joint_readers) if by == reader]
                 self._timed[stream] = [self._timed["input/joints"][k] for k in own]
                 self._timed_t[stream] = [self._timed_t["input/joints"][k] for k in own]
+                self._timed_ok[stream] = [self._timed_ok["input/joints"][k] for k in own]
         # The job's own reads since its start, served by order: the n-th read the replay's job makes gets the
         # n-th the recorded job made (it reads at a point of its work, not at a time: the robot's job read
         # later than the replay's, by as long as its computing took, and the telemetry may have read between).
@@ -555,14 +561,13 @@ class Replayer:
         ``_WALL_READ_S``. A failed read is never taken early (it comes at its time); neither is a sample
         that is not served yet when its read failed. ``stream``: every sample (a recording that does not say
         who read), or one reader's."""
-        items, times = self._timed[stream], self._timed_t[stream]
+        times, ok = self._timed_t[stream], self._timed_ok[stream]
         j = max(i, last) + 1
         if j >= len(times) or times[j] - now > _WALL_READ_S:
             return i
         if i <= last:
             return j  # (the latest at or before now was served already: always the next one)
-        ok = (isinstance(items[k].message, InputJoints) and not _failed(items[k]) for k in (i, j))
-        return j if all(ok) else i
+        return j if ok[i] and ok[j] else i
 
     def take(self, stream: str, got: str) -> Recorded | None:
         """The next recorded result of ``stream``; at the end of the recording, divergence (None)."""
@@ -793,8 +798,10 @@ class ReplayArm:
         rec = self._r.joints() if self._r.serving() else None
         if rec is None:  # (a read changes nothing in the cell: while served, the cell is not read)
             return await self._inner.read_joints()
-        _raise_recorded(rec)
-        p = _as(rec, InputJoints)
+        p = rec.message  # (decoded once)
+        _raise_recorded(p)
+        if not isinstance(p, InputJoints):
+            raise ReplayError(f"{rec.kind}: recorded as {type(p).__name__}, not InputJoints")
         return JointState(
             t=self._r.clock.monotonic(),
             names=tuple(p.names),
@@ -1100,7 +1107,11 @@ def _as(rec: Recorded, kind: type[M]) -> M:
 def _failure(rec: Recorded) -> Failure:
     """How a recorded call failed: its error fields and whether it was cancelled (none for a call that
     did not fail)."""
-    m = rec.message
+    return _failure_of(rec.message)
+
+
+def _failure_of(m: Message | None) -> Failure:
+    """``_failure`` of a recorded call's decoded message."""
     if isinstance(m, Follow | GripperCommand | CallFailed):
         return Failure(
             error=m.error,
@@ -1132,12 +1143,16 @@ def _t_end(rec: Recorded) -> float | None:
 
 
 def _failed(rec: Recorded) -> bool:
-    failure = _failure(rec)
+    return _failed_message(rec.message)
+
+
+def _failed_message(m: Message | None) -> bool:
+    failure = _failure_of(m)
     return isinstance(failure.error, str) or failure.cancelled is True
 
 
-def _raise_recorded(rec: Recorded) -> None:
-    failure = _failure(rec)
+def _raise_recorded(rec: Recorded | Message | None) -> None:
+    failure = _failure_of(rec.message if isinstance(rec, Recorded) else rec)
     if isinstance(failure.error, str):
         raise recorded_failure(failure.error, failure)
 

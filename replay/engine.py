@@ -418,6 +418,7 @@ async def _replay(
                 seed=seed if isinstance(seed, int) else None,
             ),
             clock=clock,
+            check_reach=False,  # (the recorded daemon checked this cell when it started)
         )
     except UsageError as e:
         raise ReplayError(f"{session.path}: the {stand_in} stand-in cannot be built: {e}") from e
