@@ -203,7 +203,10 @@ class Replayer:
         self._cursor: dict[str, int] = {}  # per timed stream: the first record not yet consumed
         self._last_served: dict[str, int] = {}  # per timed stream: the latest record served so far
         # Health polls and gripper reads that failed, served once each at or after their time.
-        self._failures = {k: sorted(session.streams.get(k, ()), key=self._read_time) for k in _FAILURES}
+        self._failures: dict[str, list[tuple[float, Recorded]]] = {}
+        for k in _FAILURES:
+            failures = [(self._read_time(r), r) for r in session.streams.get(k, ())]
+            self._failures[k] = sorted(failures, key=lambda pair: pair[0])  # (read times taken once)
         self._failures_next = dict.fromkeys(_FAILURES, 0)
         # Where the replay's job is (``JobPosition``): the replay's monotonic time of each transition from
         # its start on and of the start of each device command since.
@@ -507,8 +510,8 @@ class Replayer:
         now = self.recorded_monotonic() + _SAME_S
         i = self._failures_next[stream]
         due: Recorded | None = None
-        while i < len(items) and self._read_time(items[i]) <= now:
-            due = items[i]
+        while i < len(items) and items[i][0] <= now:
+            due = items[i][1]
             i += 1
         self._failures_next[stream] = i
         if due is not None:
