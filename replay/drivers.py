@@ -1037,9 +1037,12 @@ class ReplayEvents:
         """Hand the daemon a recorded device event now (on the event loop)."""
         # A device event is an open document: its keys beyond the declared ones are the driver's own, and
         # the daemon's listeners take it as a table: it is handed on as recorded, its times the replay's.
+        # (Read as the declared ``Event`` it could be refused for a driver's own key of a declared name, so
+        # its device time is read from the table too; what its record added, ``t_read`` among it, is gone:
+        # ``RecordedSession.device_event_payload``.)
         event = dict(payload)
         event["t"] = self._r.clock.now()
-        device_t = payload.get("t_read", payload.get("t_device"))
+        device_t = payload.get("t_device")
         if isinstance(device_t, int | float) and not isinstance(device_t, bool):
             event["t_device"] = self._r.replay_monotonic(float(device_t))
         self._r.served["device_event"] = self._r.served.get("device_event", 0) + 1

@@ -58,13 +58,16 @@ from replay.session import (
 from validation import toml
 from wire.messages import (
     UNSET,
+    BadMessage,
     Command,
+    Event,
     HeaderClock,
     HeaderJob,
     HeaderScene,
     Payload,
     Reply,
     UnsetType,
+    convert,
     header_part,
     plain,
     reply_of,
@@ -433,10 +436,14 @@ async def _replay(
         nonlocal entered
         if topic != "events":
             return
-        kind = payload.get("kind")
+        try:
+            event = convert(payload, Event, name=topic)
+        except BadMessage:  # not an event as declared: nothing of it in the trace either (``trace_of``)
+            return
+        kind = event.kind
         if kind == "transition":
-            dest = str(payload.get("dest", ""))
-            if not replayer.started and payload.get("trigger") == "start":
+            dest = "" if isinstance(event.dest, UnsetType) else event.dest
+            if not replayer.started and event.trigger == "start":
                 replayer.job_started()
                 resim.job_started()
             if replayer.started:
@@ -450,7 +457,7 @@ async def _replay(
             replayer.state = dest
         elif kind == "fault_injected" and replayer.started:
             replayer.diverge(
-                "fault", "no fault", f"{payload.get('fault', payload.get('fault_kind', 'a fault'))}"
+                "fault", "no fault", "a fault" if isinstance(event.fault, UnsetType) else event.fault
             )
 
     stop = asyncio.Event()
