@@ -556,13 +556,30 @@ async def _drive(session: RecordedSession, replayer: Replayer, ctx: ServeContext
             if not finished:
                 replayer.overran_s = limit
                 log.error("replay_overran", limit_s=limit, state=replayer.state)
-            await clock.sleep(ctx.config.recording.job_tail_s)
+            await clock.sleep(_tail_s(session, replayer, ctx.config.recording.job_tail_s))
     finally:
         events.cancel()
         with contextlib.suppress(asyncio.CancelledError):
             await events
     ctx.stop.set()
 
+
+def _tail_s(session: RecordedSession, replayer: Replayer, job_tail_s: float) -> float:
+    """How long the replay's daemon goes on after its job ended. While the replay follows the recording, as
+    long as the recording goes on after the recorded job's end (a job file ends ``job_tail_s`` after it, or
+    as soon as its daemon stopped: a ``run --once`` job's about 40 ms after), and ``_TAIL_MARGIN_S`` more
+    for what came at its very last instant: the trace is compared over what the recording holds, and past
+    its end the recorded daemon did nothing to compare with (a short job faulted at once replayed its 2 s
+    tail for nothing, most of its replay). A replay that went on in the re-simulated world (a divergence, a
+    fault) goes on as the daemon does, ``job_tail_s``."""
+    if not replayer.replaying:
+        return job_tail_s
+    recorded = max(0.0, session.end_s - session.trace.duration_s)
+    return min(job_tail_s, recorded + _TAIL_MARGIN_S)
+
+
+# What a faithful replay's daemon goes on for past the recording's last instant after its job (simulated s).
+_TAIL_MARGIN_S = 0.01
 
 # How far past the recorded time of an operator's command the replay's job may be before the command is
 # sent anyway, as a divergence (simulated s): the job never got to where the command came.
