@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from replay.engine import ReplayReport, replay
+from replay.engine import ReplayOptions, ReplayReport, replay
 from replay.session import RecordedSession
 
 RECORDING = Path(__file__).parents[1] / "data" / "rig-fault-while-planning-job.mcap"
@@ -130,3 +130,19 @@ def _as_on_the_robot(recorded: RecordedSession, report: ReplayReport) -> None:
     assert [e.kind for e in report.replayed.events] == [e.kind for e in recorded.trace.events]
     for t, t_replay in zip(recorded.trace.state_times_s, report.replayed.state_times_s, strict=True):
         assert t_replay == pytest.approx(t, abs=0.05)
+
+
+@pytest.mark.slow
+def test_a_faithful_replay_ends_where_the_recording_does_not_a_job_tail_later(
+    recorded: RecordedSession, tmp_path: Path
+) -> None:
+    """The robot's daemon (``run --once``) stopped about 40 ms after its job faulted, so the job file ends
+    there; the replay's daemon stops as long after its job's end (it ran ``recording.job_tail_s``, 2 s, of
+    telemetry past anything the recording holds: most of a short replay)."""
+    recorded_tail = recorded.end_s - recorded.trace.duration_s
+    assert 0.0 < recorded_tail < 0.5 < recorded.config.recording.job_tail_s
+    report = replay(recorded, ReplayOptions(record=tmp_path / "again.mcap"))
+    assert report.match, report.first_divergence
+    again = RecordedSession.load(tmp_path / "again.mcap")
+    assert again.trace.states == recorded.trace.states
+    assert again.end_s - again.trace.duration_s == pytest.approx(recorded_tail, abs=0.05)
