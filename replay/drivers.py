@@ -162,6 +162,8 @@ class Replayer:
             self._timed_ok[name] = [ok for _, _, ok, _ in timed]
             if name == "input/joints":
                 joint_readers = [reader for _, reader, _, _ in timed]
+        # The holding flags, as read at load (the daemon reads one at every force poll).
+        self._holding = [_as(r, Holding).holding for r in self._timed["input/holding"]]
         # Joint samples by reader (the job, the telemetry: ``daemon.recorded.joint_reader``), each reader's
         # a timed stream of its own; None for a recording that does not say (an older one): every reader
         # then gets the sample its read time matches among them all.
@@ -535,9 +537,17 @@ class Replayer:
         return None if stream is None else self.latest(stream)  # (None: a reader the recording never saw)
 
     def latest(self, stream: str) -> Recorded | None:
-        """The input of ``stream`` the daemon consumed at this moment: of those recorded at the same time
-        , the next in the order they were consumed; else the last one recorded
-         before."""
+        """The input of ``stream`` the daemon consumed at this moment: of those recorded at the same time,
+        the next in the order they were consumed; else the last one recorded before."""
+        i = self._latest_index(stream)
+        return None if i is None else self._timed[stream][i]
+
+    def holding(self) -> bool | None:
+        """The holding flag the daemon read at this moment (``latest``); None before the first recorded."""
+        i = self._latest_index("input/holding")
+        return None if i is None else self._holding[i]
+
+    def _latest_index(self, stream: str) -> int | None:
         times = self._timed_t[stream]
         now = self.recorded_monotonic()
         i = max(self._cursor.get(stream, 0), bisect.bisect_left(times, now - _SAME_S))
@@ -553,7 +563,7 @@ class Replayer:
         self._last_served[stream] = max(i, self._last_served.get(stream, -1))
         served = stream.partition(":")[0]  # (one reader's joint samples count as joints)
         self.served[served] = self.served.get(served, 0) + 1
-        return self._timed[stream][i]
+        return i
 
     def _wall_joint_read(self, stream: str, i: int, last: int, now: float) -> int:
         """The joint sample of a wall-clock recording a read at ``now`` (recorded monotonic) gets, ``i`` being
@@ -915,8 +925,8 @@ class ReplayForce:
         )
 
     def holding(self) -> bool:
-        rec = self._r.latest("input/holding") if self._r.serving() else None
-        return self._inner.holding() if rec is None else _as(rec, Holding).holding
+        held = self._r.holding() if self._r.serving() else None
+        return self._inner.holding() if held is None else held
 
 
 class ReplayObserver:

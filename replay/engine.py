@@ -194,7 +194,7 @@ class ReplayReport:
             out.append(f"trace {self.first_divergence.line()}")
         if self.resim is not None:
             out.extend(self.resim.lines())
-        for f in self.faults:
+        for f in self.faults:  # (a fired fault's record is open: its target keys are its kind's own)
             target = f" servo {f['servo']}" if f.get("servo") is not None else ""
             out.append(f"fault fired: {f.get('kind')}{target} at {float(f.get('fired_at_s', 0.0)):.3f} s")  # type: ignore[arg-type]
         out.extend(o.line() for o in self.unfired)
