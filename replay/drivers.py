@@ -8,7 +8,9 @@ cell says (and does not read the cell):
 
 - joint feedback, force readings and the holding flag by time: the last one recorded at or before the
   moment the daemon reads (the recording's clock laid over the replay's at the job's start); a joint read
-  that failed then fails now, and so does a gripper read or a health poll (once each);
+  that failed then fails now, and so does a gripper read or a health poll (once each). A recording that
+  says who read each joint sample (``reader``) hands each reader its own: the job's own reads by order,
+  the telemetry's by time among its samples;
 - grasp results, observations, placement plans and motion plans by order: the n-th call gets the n-th
   recorded result, after as long as it took then; a call that failed then fails the same way now (the
   same driver error class, ``recorded_failure``), and the cell's side of it stops where it ended then; a
@@ -84,7 +86,7 @@ log = structlog.get_logger("replay")
 # Reads this close together are the same instant (simulated time is exact; the wall clock never is).
 _SAME_S = 1e-7
 # How far ahead of a wall-clock recording's read time the next joint sample not served yet may be and still
-# be the one the robot's job read (it read later than the replay, its computation taking time).
+# be the one the robot's reader took (it read later than the replay, its computation taking time).
 _WALL_READ_S = 0.1
 # Streams served by time (a read that failed then fails now), and those served by order (several
 # recorded topics make one stream).
