@@ -316,10 +316,11 @@ def test_a_recorded_command_is_written_as_before(
 
 # --- the recorded backend, key by key ---------------------------------------------------------------------
 
-# The keys each recorded message had, in order, as the wrappers wrote them before they built the structs.
+# The keys each recorded message had, in order, as the wrappers wrote them before they built the structs
+# (and a joint read's ``reader``, added since: issue 20).
 FAILED = ["error", "error_class"]
 GOLDEN: dict[str, list[str]] = {
-    "input/joints": ["t", "t_device", "names", "position_rad", "velocity_rad_s", "load", "t_read"],
+    "input/joints": ["t", "t_device", "names", "position_rad", "velocity_rad_s", "load", "t_read", "reader"],
     "output/follow": ["label", "points", "duration_s", "end_rad", "t_start", "t_end"],
     "output/arm": ["action", "t_start"],
     "output/gripper open": ["action", "aperture_m", "t_start", "t_end"],
@@ -340,7 +341,7 @@ GOLDEN: dict[str, list[str]] = {
     "input/motion": ["call", "args_digest", "result"],
     "input/motion refused": ["call", "args_digest", "refused", "blockers"],
     "input/motion failed": ["call", "args_digest", *FAILED],
-    "input/joints_failed": ["t", "t_read", *FAILED, "error_servo_id", "error_bits"],
+    "input/joints_failed": ["t", "t_read", *FAILED, "error_servo_id", "error_bits", "reader"],
     "input/gripper_failed": ["t", "t_read", *FAILED, "error_port"],
     "output/follow cancelled": ["label", "points", "duration_s", "end_rad", "t_start", "t_end", "cancelled"],
     "output/gripper failed": ["action", "aperture_m", "t_start", "t_end", *FAILED],
