@@ -40,9 +40,8 @@ from planning.interfaces import MotionPlanner
 from sim.counter import Counter, dataset_counter, listed_counter, require_cell_tray
 from sim.kinematic import KinematicCell, MugGeometry, SimMug, start_kinematic_cell
 
-if (
-    TYPE_CHECKING
-):  # (imported when a MuJoCo cell is opened: a kinematic cell, a replay's stand-in, loads no MuJoCo)
+# sim.mujoco is imported when a MuJoCo cell is opened: a kinematic cell (a replay's stand-in) loads no MuJoCo.
+if TYPE_CHECKING:
     from sim.mujoco.cell import SimCell
 
 WORLDS = ("kinematic", "mujoco")
