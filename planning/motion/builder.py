@@ -208,7 +208,7 @@ class Builder:
         correction = self.scene.settings.correction
         if correction is not None:
             command = GraspTarget(correction.correct(target.position_m), target.kind)
-        result = self.scene.arm.ik(command, seeds=[seed])
+        result = self.scene.ik(command, seed)
         if not result.ok or result.q is None:
             x, y, z = target.position_m
             raise MotionRefused(f"{phase}: ({x:.3f}, {y:.3f}, {z:.3f}) m unreachable: {result.reason}")

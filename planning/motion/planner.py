@@ -33,6 +33,7 @@ from planning.interfaces import CyclePlan, MotionRefused, MugPose, Step, StepKin
 from planning.motion.builder import Builder, Motion, at_z
 from planning.motion.energy import DynamicsEnergyModel
 from planning.motion.handle import check_handle, handle_yaw_on_tray
+from planning.motion.remembered import RememberedCycles
 from planning.motion.scene import Scene, Settings
 from planning.motion.stages import (
     ROLLS,
@@ -95,6 +96,8 @@ class CyclePlanner:
         self._shared: dict[
             tuple[TraySlot, tuple[TraySlot, ...]], tuple[MotionRefused | None, MotionRefused | None] | None
         ] = {}
+        # Every cycle planned, by exactly what it was asked (the plan check and the job ask many again).
+        self.remembered = RememberedCycles()
 
     # What the planner was built with (``scene.settings`` has the rest).
 
@@ -133,6 +136,7 @@ class CyclePlanner:
         state = dict(self.__dict__)
         del state["_lock"]
         state["_shared"] = {}
+        state["remembered"] = RememberedCycles()
         return state
 
     def __setstate__(self, state: dict[str, object]) -> None:
@@ -196,14 +200,38 @@ class CyclePlanner:
             if not math.isfinite(v):
                 raise MotionRefused(f"mug {mug.mug_id}: {name} is not finite")
         self._check_slot_in_tray(slot, spec)
+        keys = RememberedCycles.keys(start, mug, slot, on_tray, counter)
         with self._lock:
-            motions = self._cycle_motions(start, mug, spec, slot, on_tray, counter)
-            if not mug.handle_seen:
-                # Nothing to predict from: the packing's assumption (handle along +x) stands.
-                return self._costed(mug, motions)
-            handle_yaw = handle_yaw_on_tray(self.arm, mug, motions)
-            check_handle(self.scene, mug, slot, spec, handle_yaw, on_tray)
-            return replace(self._costed(mug, motions), handle_yaw_rad=handle_yaw)
+            remembered = self.remembered.plan(keys)  # raises the refusal remembered
+            if remembered is not None:
+                log.debug("cycle_remembered", mug_id=mug.mug_id)
+                self._log_planned(mug, remembered)
+                return remembered
+            try:
+                plan = self._planned_cycle(start, mug, spec, slot, on_tray, counter)
+            except MotionRefused as e:
+                self.remembered.keep_refusal(keys, e)
+                raise
+            self.remembered.keep_plan(keys, plan)
+            return plan
+
+    def _planned_cycle(
+        self,
+        start: FloatArray,
+        mug: MugPose,
+        spec: MugSpec,
+        slot: TraySlot,
+        on_tray: Sequence[TraySlot],
+        counter: Sequence[MugPose],
+    ) -> CyclePlan:
+        """``plan_cycle`` worked out (the lock held)."""
+        motions = self._cycle_motions(start, mug, spec, slot, on_tray, counter)
+        if not mug.handle_seen:
+            # Nothing to predict from: the packing's assumption (handle along +x) stands.
+            return self._costed(mug, motions)
+        handle_yaw = handle_yaw_on_tray(self.arm, mug, motions)
+        check_handle(self.scene, mug, slot, spec, handle_yaw, on_tray)
+        return replace(self._costed(mug, motions), handle_yaw_rad=handle_yaw)
 
     def _costed(self, mug: MugPose, motions: Sequence[Motion]) -> CyclePlan:
         """The plan of a cycle's motions with its predicted duration and electrical energy."""
@@ -225,8 +253,15 @@ class CyclePlanner:
                 duration += wait
                 energy += self.energy_model.hold_energy_j(m.path.waypoints[0], wait)
         energy += self.energy_model.idle_energy_j(duration)
-        log.info("cycle_planned", mug_id=mug.mug_id, steps=len(steps), duration_s=round(duration, 2))
-        return CyclePlan(mug_id=mug.mug_id, steps=tuple(steps), duration_s=duration, energy_j=energy)
+        plan = CyclePlan(mug_id=mug.mug_id, steps=tuple(steps), duration_s=duration, energy_j=energy)
+        self._log_planned(mug, plan)
+        return plan
+
+    @staticmethod
+    def _log_planned(mug: MugPose, plan: CyclePlan) -> None:
+        log.info(
+            "cycle_planned", mug_id=mug.mug_id, steps=len(plan.steps), duration_s=round(plan.duration_s, 2)
+        )
 
     def plan_for_slot(
         self,

@@ -19,11 +19,12 @@ from description.thesis import MugSpec
 from drivers.interfaces import FloatArray, JointTrajectory
 from planning.arm.calibration import PositionCorrection
 from planning.arm.grasp import side_grasp
-from planning.arm.model import ArmModel
-from planning.arm.targets import GraspKind, GraspTarget
+from planning.arm.model import ArmModel, JointValues
+from planning.arm.targets import GraspKind, GraspTarget, IkResult
 from planning.interfaces import MotionRefused, MugPose, TraySlot
 from planning.motion.cell import carry_height_m
 from planning.motion.collision import BASE_COLUMN, Box, CollisionWorld, Cylinder, mug_obstacles, tray_walls
+from planning.motion.remembered import Lru
 from planning.motion.trajectory import JointPath, plan_path
 
 
@@ -40,6 +41,14 @@ class Settings:
     correction: PositionCorrection | None = None
 
 
+# How many IK solutions and timed paths a scene remembers (a ds4 plan check computes about 6,000 and 700
+# distinct ones; an entry is a few kB).
+_IK_REMEMBERED = 16384
+_PATHS_REMEMBERED = 4096
+_IkKey = tuple[bytes, GraspKind, bytes]
+_PathKey = tuple[bytes, tuple[int, ...], str, str, bool]
+
+
 class Scene:
     """The arm in its cell with the mugs it may meet, and the settings of the planner that plans in it."""
 
@@ -54,6 +63,24 @@ class Scene:
         # Mugs on the tray stand on its base, so the tallest obstacle is that much higher there.
         self.carry_z_m = carry_height_m(tallest + max(0.0, cell.tray.base_m))
         self.open_aperture_m = arm.gripper.aperture_m(JOINT_LIMITS["gripper"].lower_rad)
+        self._forget()
+
+    def _forget(self) -> None:
+        # IK and timing are pure functions of their arguments, computed again and again by a plan check
+        # (the same move tried against other obstacles, with another opening, from the same start): each
+        # is remembered by its exact arguments. Only the collision checks depend on the obstacles.
+        self._ik: Lru[_IkKey, IkResult] = Lru(_IK_REMEMBERED)
+        self._paths: Lru[_PathKey, tuple[JointTrajectory, JointPath]] = Lru(_PATHS_REMEMBERED)
+
+    def __getstate__(self) -> dict[str, object]:
+        """Picklable without what it remembers."""
+        state = dict(self.__dict__)
+        del state["_ik"], state["_paths"]
+        return state
+
+    def __setstate__(self, state: dict[str, object]) -> None:
+        self.__dict__.update(state)
+        self._forget()
 
     def spec(self, type_name: str, what: str) -> MugSpec:
         """The catalogue's mug type ``type_name``; refused naming ``what`` has it when it is unknown."""
@@ -67,17 +94,30 @@ class Scene:
     def path(
         self, waypoints: FloatArray, label: str, *, tool_length_m: float = 0.0, fine: bool = False
     ) -> tuple[JointTrajectory, JointPath]:
-        """The timed path through ``waypoints`` within the servo limits, at fine speed when ``fine``."""
-        return plan_path(
-            waypoints,
-            names=self.arm.joint_names,
-            max_velocity=self.arm.max_velocity,
-            max_acceleration=self.arm.max_acceleration,
-            rate_hz=self.settings.control_rate_hz,
-            label=label,
-            tool_path_length_m=tool_length_m,
-            max_tool_speed_m_s=self.settings.fine_speed_m_s if fine else math.inf,
+        """The timed path through ``waypoints`` within the servo limits, at fine speed when ``fine``
+        (remembered by its exact arguments: the trajectory and path returned are shared, never changed)."""
+        arr = np.ascontiguousarray(waypoints, dtype=np.float64)
+        key = (arr.tobytes(), arr.shape, label, float(tool_length_m).hex(), fine)
+        return self._paths.get(
+            key,
+            lambda: plan_path(
+                arr,
+                names=self.arm.joint_names,
+                max_velocity=self.arm.max_velocity,
+                max_acceleration=self.arm.max_acceleration,
+                rate_hz=self.settings.control_rate_hz,
+                label=label,
+                tool_path_length_m=tool_length_m,
+                max_tool_speed_m_s=self.settings.fine_speed_m_s if fine else math.inf,
+            ),
         )
+
+    def ik(self, target: GraspTarget, seed: JointValues) -> IkResult:
+        """``ArmModel.ik`` of ``target`` from ``seed`` (remembered by their exact values)."""
+        start = np.ascontiguousarray(seed, dtype=np.float64)
+        # Bytes, not floats: -0.0 and 0.0 are equal floats but may not give the same solution.
+        key = (np.array(target.position_m, dtype=np.float64).tobytes(), target.kind, start.tobytes())
+        return self._ik.get(key, lambda: self.arm.ik(target, seeds=[start]))
 
     def grasp(self, x: float, y: float, spec: MugSpec, kind: GraspKind, z: float, what: str) -> GraspTarget:
         """The side grasp of a mug standing at (x, y), at height ``z``; refused naming ``what``."""
