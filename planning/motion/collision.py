@@ -12,17 +12,19 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Final
 
 import numpy as np
+import numpy.typing as npt
 
 from description import thesis
 from description.arm import GripperGeometry
 from description.thesis import MugSpec
 from drivers.interfaces import FloatArray
 from planning.arm.model import ArmModel
+from planning.motion.remembered import Lru
 
 _FLOOR_MARGIN_M = 0.002
 _LINK_FLOOR_MARGIN_M = 0.01
@@ -33,6 +35,7 @@ _BOUND_SLACK_M = 1e-9
 
 # A collision found at one pose of a motion: the pose's index, why, and the obstacle's name.
 _Finding = tuple[int, str, str]
+IntArray = npt.NDArray[np.intp]
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,6 +152,36 @@ def _gripper_spheres(gripper: GripperGeometry, aperture_m: float) -> tuple[Float
     return centres, radii
 
 
+@dataclass(frozen=True, slots=True)
+class Sweep:
+    """The gripper along the sampled poses of a motion, which no obstacle changes: the grasp point's
+    positions (N, 3) and rotations (N, 3, 3), the joints' heights (N, n-1), the lowest point of its spheres
+    (N,), the bounding box of its spheres (``lo``, ``hi``, (N, 3)) and, when kept, the spheres' centres
+    (N, S, 3). Shared when remembered: never changed."""
+
+    positions: FloatArray
+    rotations: FloatArray
+    joint_z: FloatArray
+    low: FloatArray
+    lo: FloatArray
+    hi: FloatArray
+    centres: FloatArray | None
+
+    def centres_at(self, spheres: FloatArray) -> Callable[[IntArray], FloatArray]:
+        """The spheres' centres at some of the poses (worked out as ``CollisionWorld._sweep`` does: the
+        same numbers)."""
+        if self.centres is not None:
+            kept = self.centres
+            return lambda poses: kept[poses]
+        return lambda poses: (
+            self.positions[poses][:, None, :] + np.einsum("nij,sj->nsi", self.rotations[poses], spheres)
+        )
+
+
+# A sweep remembered by its sampled joint angles (bytes, shape) and the gripper's opening (hex).
+SweepKey = tuple[bytes, tuple[int, ...], str]
+
+
 class CollisionWorld:
     """The obstacles of one planning problem; checks sampled arm poses against them."""
 
@@ -160,8 +193,11 @@ class CollisionWorld:
         *,
         floor_z: float = 0.0,
         clearance_m: float = thesis.TRANSIT_CLEARANCE_M,
+        sweeps: Lru[SweepKey, Sweep] | None = None,
     ) -> None:
         self.arm = arm
+        # The gripper's sweeps along motions checked before (they do not depend on the obstacles).
+        self.sweeps = sweeps
         self.cylinders = tuple(cylinders)
         self.boxes = tuple(boxes)
         self.floor_z = floor_z
@@ -185,7 +221,13 @@ class CollisionWorld:
             [c.name not in ignore and c.name.removesuffix(" handle") not in ignore for c in self.cylinders],
             dtype=bool,
         )
-        positions, rotations, joint_z = self._poses(q_samples)
+        samples = np.ascontiguousarray(q_samples, dtype=np.float64)
+        if self.sweeps is None:
+            sweep = self._sweep(samples, spheres, radii)
+        else:
+            key = (samples.tobytes(), samples.shape, float(aperture_m).hex())
+            sweep = self.sweeps.get(key, lambda: self._sweep(samples, spheres, radii, keep_centres=False))
+        positions, rotations, joint_z = sweep.positions, sweep.rotations, sweep.joint_z
         findings: list[_Finding] = []
         low_joint = np.min(joint_z, axis=1) if joint_z.shape[1] else np.full(len(positions), np.inf)
         bad = np.flatnonzero(low_joint < self.floor_z + _LINK_FLOOR_MARGIN_M)
@@ -195,13 +237,12 @@ class CollisionWorld:
             joint = self.arm.joint_names[j + 1]
             why = f"the {joint} joint would go below the counter (z={joint_z[i, j]:.3f} m)"
             findings.append((i, why, _COUNTER))
-        world = positions[:, None, :] + np.einsum("nij,sj->nsi", rotations, spheres)
-        low = np.min(world[:, :, 2] - radii[None, :], axis=1)
+        low = sweep.low
         bad = np.flatnonzero(low < self.floor_z + _FLOOR_MARGIN_M)
         if len(bad):
             i = int(bad[0])
             findings.append((i, f"the gripper would touch the counter (z={low[i]:.3f} m)", _COUNTER))
-        hit_pose, name = self._spheres_vs_obstacles(world, radii, active)
+        hit_pose, name = self._near_vs_obstacles(sweep.lo, sweep.hi, sweep.centres_at(spheres), radii, active)
         if name:
             findings.append((hit_pose, f"the gripper would hit {name}", name))
         if held is not None:
@@ -232,6 +273,17 @@ class CollisionWorld:
         )
         return frozenset(n.removeprefix("mug ") for n in names if n.startswith("mug "))
 
+    def _sweep(
+        self, samples: FloatArray, spheres: FloatArray, radii: FloatArray, *, keep_centres: bool = True
+    ) -> Sweep:
+        """The gripper's spheres along ``samples`` (see ``Sweep``); their centres kept when ``keep_centres``
+        (a sweep remembered keeps only the poses and bounds, its centres are worked out again as needed)."""
+        positions, rotations, joint_z = self._poses(samples)
+        world = positions[:, None, :] + np.einsum("nij,sj->nsi", rotations, spheres)
+        low = np.min(world[:, :, 2] - radii[None, :], axis=1)
+        lo, hi = _bounds(world, radii)
+        return Sweep(positions, rotations, joint_z, low, lo, hi, world if keep_centres else None)
+
     def _poses(self, q_samples: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Grasp-point positions (N, 3), rotations (N, 3, 3) and the heights of the joints after the shoulder
         turn (N, n-1), densified so the grasp point moves at most 1 cm between poses."""
@@ -255,17 +307,27 @@ class CollisionWorld:
     def _spheres_vs_obstacles(
         self, centres: FloatArray, radii: FloatArray, active: FloatArray
     ) -> tuple[int, str]:
-        """First pose (axis 0 of ``centres`` (N, S, 3)) where a sphere meets an obstacle, and its name.
+        """First pose (axis 0 of ``centres`` (N, S, 3)) where a sphere meets an obstacle, and its name."""
+        lo, hi = _bounds(centres, radii)
+        return self._near_vs_obstacles(lo, hi, lambda poses: centres[poses], radii, active)
+
+    def _near_vs_obstacles(
+        self,
+        lo: FloatArray,
+        hi: FloatArray,
+        centres_at: Callable[[IntArray], FloatArray],
+        radii: FloatArray,
+        active: FloatArray,
+    ) -> tuple[int, str]:
+        """First pose where a sphere meets an obstacle, and its name: ``lo``, ``hi`` (N, 3) bound each pose's
+        spheres, ``centres_at(poses)`` gives the spheres' centres (len(poses), S, 3) at those poses.
 
         Only the (pose, obstacle) pairs whose bounding boxes overlap are checked sphere by sphere: a pose's
         spheres are near a few obstacles at most."""
-        first = len(centres)
+        first = len(lo)
         name = ""
-        if not len(centres):
+        if not len(lo):
             return first, name
-        r = radii[None, :, None]
-        lo = np.min(centres - r, axis=1) - _BOUND_SLACK_M  # (N, 3): each pose's spheres' bounding box
-        hi = np.max(centres + r, axis=1) + _BOUND_SLACK_M
         cyl = self._cyl[active]
         if len(cyl):
             near = (
@@ -278,7 +340,7 @@ class CollisionWorld:
             )
             pose, which = np.nonzero(near)
             if len(pose):
-                c = centres[pose]  # (P, S, 3) against cyl[which] (P, 5)
+                c = centres_at(pose)  # (P, S, 3) against cyl[which] (P, 5)
                 o = cyl[which][:, None, :]
                 rr = radii[None, :]
                 dxy = np.hypot(c[:, :, 0] - o[:, :, 0], c[:, :, 1] - o[:, :, 1])
@@ -297,7 +359,7 @@ class CollisionWorld:
             )
             pose, which = np.nonzero(near[:first])
             if len(pose):
-                c = centres[pose]
+                c = centres_at(pose)
                 nearest = np.clip(c, self._box_lo[which][:, None, :], self._box_hi[which][:, None, :])
                 dist = np.linalg.norm(c - nearest, axis=2)
                 hit = np.flatnonzero(np.any(dist < radii[None, :], axis=1))
@@ -379,6 +441,12 @@ class CollisionWorld:
             & (z_hi[:, None] > lo[None, :, 2] - gap)
         )
         return cyl_hits, box_hits
+
+
+def _bounds(centres: FloatArray, radii: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Lower and upper corners (N, 3) of each pose's spheres' bounding box (axis 0 of ``centres``)."""
+    r = radii[None, :, None]
+    return np.min(centres - r, axis=1) - _BOUND_SLACK_M, np.max(centres + r, axis=1) + _BOUND_SLACK_M
 
 
 def tray_walls(bounds: tuple[float, float, float, float], *, height: float, thickness: float) -> list[Box]:

@@ -23,7 +23,16 @@ from planning.arm.model import ArmModel, JointValues
 from planning.arm.targets import GraspKind, GraspTarget, IkResult
 from planning.interfaces import MotionRefused, MugPose, TraySlot
 from planning.motion.cell import carry_height_m
-from planning.motion.collision import BASE_COLUMN, Box, CollisionWorld, Cylinder, mug_obstacles, tray_walls
+from planning.motion.collision import (
+    BASE_COLUMN,
+    Box,
+    CollisionWorld,
+    Cylinder,
+    Sweep,
+    SweepKey,
+    mug_obstacles,
+    tray_walls,
+)
 from planning.motion.remembered import Lru
 from planning.motion.trajectory import JointPath, plan_path
 
@@ -45,6 +54,8 @@ class Settings:
 # distinct ones; an entry is a few kB).
 _IK_REMEMBERED = 16384
 _PATHS_REMEMBERED = 4096
+# The gripper's sweeps along checked motions (about 20 kB each; a ds4 check checks about 800 distinct ones).
+_SWEEPS_REMEMBERED = 2048
 _IkKey = tuple[bytes, GraspKind, bytes]
 _PathKey = tuple[bytes, tuple[int, ...], str, str, bool]
 
@@ -71,11 +82,12 @@ class Scene:
         # is remembered by its exact arguments. Only the collision checks depend on the obstacles.
         self._ik: Lru[_IkKey, IkResult] = Lru(_IK_REMEMBERED)
         self._paths: Lru[_PathKey, tuple[JointTrajectory, JointPath]] = Lru(_PATHS_REMEMBERED)
+        self._sweeps: Lru[SweepKey, Sweep] = Lru(_SWEEPS_REMEMBERED)
 
     def __getstate__(self) -> dict[str, object]:
         """Picklable without what it remembers."""
         state = dict(self.__dict__)
-        del state["_ik"], state["_paths"]
+        del state["_ik"], state["_paths"], state["_sweeps"]
         return state
 
     def __setstate__(self, state: dict[str, object]) -> None:
@@ -177,7 +189,7 @@ class Scene:
             height=self.cell.tray.wall_height_m,
             thickness=self.cell.tray.wall_thickness_m,
         )
-        return CollisionWorld(self.arm, cylinders, walls)
+        return CollisionWorld(self.arm, cylinders, walls, sweeps=self._sweeps)
 
     def checked_q(self, q: Sequence[float], name: str) -> FloatArray:
         """``q`` as joint angles of the arm; refused when it has the wrong size, is not finite or is out of
