@@ -33,7 +33,7 @@ _V = TypeVar("_V")
 class RememberedCycles:
     """Plans and refusals of ``plan_cycle``, each under the key that decides it (see the module)."""
 
-    def __init__(self, limit: int = 512) -> None:
+    def __init__(self, limit: int = 256) -> None:
         if limit < 1:
             raise ValueError(f"limit must be at least 1, got {limit}")
         self.limit = limit

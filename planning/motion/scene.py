@@ -50,12 +50,11 @@ class Settings:
     correction: PositionCorrection | None = None
 
 
-# How many IK solutions and timed paths a scene remembers (a ds4 plan check computes about 6,000 and 700
-# distinct ones; an entry is a few kB).
-_IK_REMEMBERED = 16384
-_PATHS_REMEMBERED = 4096
-# The gripper's sweeps along checked motions (about 20 kB each; a ds4 check checks about 800 distinct ones).
-_SWEEPS_REMEMBERED = 2048
+# How many IK solutions, timed paths and gripper sweeps a scene remembers: a ds4 plan check computes about
+# 5,700, 700 and 800 distinct ones, and all it remembers (with the planner's cycles) takes about 15 MB.
+_IK_REMEMBERED = 8192
+_PATHS_REMEMBERED = 2048
+_SWEEPS_REMEMBERED = 1024
 _IkKey = tuple[bytes, GraspKind, bytes]
 _PathKey = tuple[bytes, tuple[int, ...], str, str, bool]
 
