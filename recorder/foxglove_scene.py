@@ -394,10 +394,11 @@ class SceneView:
             out.append(_derived(MUGS, self._mugs_scene(t), t))
         elif kind == "scene_set":
             tray = header_part(event.scene if event.scene is not UNSET else None, HeaderScene).tray
-            if tray is not UNSET and len(tray.origin_m) >= 2 and len(tray.size_mm) >= 2:
-                origin, size = tray.origin_m, tray.size_mm
+            size = None if tray is UNSET else tray.size_mm_of()
+            if tray is not UNSET and tray.origin_m is not UNSET and len(tray.origin_m) >= 2 and size:
+                origin = tray.origin_m
                 s.tray_origin_m = (float(origin[0]), float(origin[1]))
-                s.tray_size_m = (float(size[0]) / 1000.0, float(size[1]) / 1000.0)
+                s.tray_size_m = (size[0] / 1000.0, size[1] / 1000.0)
             s.counter, s.loose, s.placed, s.carried, s.slots = {}, {}, {}, None, []
             out += [
                 _derived(CELL, self._cell_scene(t), t),

@@ -735,8 +735,21 @@ class HeaderJob(Message, kw_only=True):
 
 
 class HeaderTray(Message, kw_only=True):
-    origin_m: Annotated[list[Number], doc("the tray's corner, world x and y, m")]
-    size_mm: Annotated[list[Number], doc("the tray's size, mm")]
+    """A scene's tray. The backend writes its size in mm; the kinematic world's own scene, which overrides
+    it in a kinematic cell's header, in m (``size_m``). Each is optional, so that neither empties the view
+    (``header_part`` reads a document that does not fit as an empty view): ``size_mm_of`` reads either."""
+
+    origin_m: Annotated[list[Number], doc("the tray's corner, world x and y, m")] | U = UNSET
+    size_mm: Annotated[list[Number], doc("the tray's size, mm")] | U = UNSET
+    size_m: Annotated[list[Number], doc("the tray's size, m (the kinematic world's scene)")] | U = UNSET
+
+    def size_mm_of(self) -> tuple[float, float] | None:
+        """The tray's size in mm, from whichever unit the scene wrote; None when neither is there."""
+        if not isinstance(self.size_mm, UnsetType) and len(self.size_mm) >= 2:
+            return float(self.size_mm[0]), float(self.size_mm[1])
+        if not isinstance(self.size_m, UnsetType) and len(self.size_m) >= 2:
+            return float(self.size_m[0]) * 1000.0, float(self.size_m[1]) * 1000.0
+        return None
 
 
 class HeaderScene(Message, kw_only=True):

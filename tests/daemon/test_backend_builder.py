@@ -25,6 +25,7 @@ from daemon.job import CommandRefused, Job, StartRequest
 from description.thesis import MugSpec
 from perception import CameraObserver, associate
 from planning.arm.calibration import PositionCorrection
+from wire.messages import HeaderScene, UnsetType, header_part
 
 FULL_TRAY_REFUSAL = (
     "dataset 4 needs the full-size tray (475 x 520 mm), which the MuJoCo cell does not have (its tray is "
@@ -143,6 +144,27 @@ def test_the_kinematic_cell_sets_a_full_size_tray_dataset_out_on_its_own_tray() 
         assert backend.counter is not None
         assert len(backend.counter.scene()["mugs"]) == 30  # type: ignore[arg-type]
         await backend.close()
+
+    clock.run(body())
+
+
+@pytest.mark.parametrize("dataset", [2, 4])
+def test_the_kinematic_cell_s_header_scene_reads_through_its_view_with_dataset_and_tray(dataset: int) -> None:
+    """The header's scene is the backend's, overridden by the kinematic world's own (its tray in m): the view
+    the replay and the recorder read it through keeps the dataset and the tray. (A view that did not fit
+    read as empty: every kinematic recording of a dataset other than 1 replayed in a dataset-1 stand-in.)"""
+    config = load_config()
+    clock = SimulatedClock()
+
+    async def body() -> None:
+        backend = await open_backend(config, sim=SimOptions(world="kinematic", dataset=dataset), clock=clock)
+        scene = backend.scene()
+        await backend.close()
+        view = header_part(scene, HeaderScene)
+        assert view.dataset == dataset
+        assert view.backend == backend.name
+        assert not isinstance(view.tray, UnsetType)
+        assert view.tray.size_mm_of() == pytest.approx(backend.tray.size_mm)
 
     clock.run(body())
 
