@@ -42,7 +42,7 @@ T = TypeVar("T")
 
 
 @dataclass(frozen=True, slots=True)
-class CounterMug:
+class SetupMug:
     """A mug a simulated counter is set up with (``start`` body ``mugs``)."""
 
     mug_id: str
@@ -54,7 +54,7 @@ class CounterMug:
 class CounterSetup(Protocol):
     """Only a simulated cell can put mugs on its counter; it returns the tray the job should fill."""
 
-    def set_counter(self, *, dataset: int | None, mugs: Sequence[CounterMug] | None) -> Tray: ...
+    def set_counter(self, *, dataset: int | None, mugs: Sequence[SetupMug] | None) -> Tray: ...
 
     def scene(self) -> dict[str, object]: ...
 

@@ -21,7 +21,7 @@ from typing import Annotated, Any
 
 import msgspec
 
-from daemon.backend import CounterMug
+from daemon.backend import SetupMug
 from daemon.config import Config, PlannerCost, PlannerFitness, PlannerMethod, PlannerTimeLimit, Seed
 from daemon.job import CommandRefused, Job, PlannerRequest, StartRequest
 from daemon.security import FLEET_VERBS
@@ -165,7 +165,7 @@ def nested_deeper_than(text: str, levels: int) -> bool:
     return False
 
 
-def _mugs(mugs: list[MugBody], config: Config) -> tuple[CounterMug, ...]:
+def _mugs(mugs: list[MugBody], config: Config) -> tuple[SetupMug, ...]:
     """The mugs' types are the config's, and no id is used twice."""
     types = [m.name for m in config.mug_types]
     for i, mug in enumerate(mugs):
@@ -177,7 +177,7 @@ def _mugs(mugs: list[MugBody], config: Config) -> tuple[CounterMug, ...]:
     duplicate = next((i for i in ids if ids.count(i) > 1), None)
     if duplicate is not None:
         raise BadCommand(f"mugs: id {duplicate!r} is used twice")
-    return tuple(CounterMug(m.id, m.type, m.x_m, m.y_m) for m in mugs)
+    return tuple(SetupMug(m.id, m.type, m.x_m, m.y_m) for m in mugs)
 
 
 def _kind(value: object) -> str:

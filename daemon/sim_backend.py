@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from daemon.backend import Backend, CounterMug, EventListener, SimOptions
+from daemon.backend import Backend, EventListener, SetupMug, SimOptions
 from daemon.clock import SessionClock
 from daemon.config import Config
 from daemon.errors import UsageError
@@ -70,7 +70,7 @@ def counter_for(
     catalogue: Mapping[str, MugSpec],
     *,
     dataset: int | None,
-    mugs: Sequence[CounterMug] | None,
+    mugs: Sequence[SetupMug] | None,
 ) -> Counter:
     """The counter a ``start`` command (or start-up) asks for: the listed mugs, else dataset ``dataset``
     (default 1)."""
@@ -154,7 +154,7 @@ class KinematicCounter:
         """The camera the observer looks through, whose faults act there."""
         return self.cell.camera
 
-    def set_counter(self, *, dataset: int | None, mugs: Sequence[CounterMug] | None) -> Tray:
+    def set_counter(self, *, dataset: int | None, mugs: Sequence[SetupMug] | None) -> Tray:
         return self.set_up(counter_for(self._layout, self._catalogue, dataset=dataset, mugs=mugs))
 
     def set_up(self, counter: Counter) -> Tray:
@@ -267,7 +267,7 @@ class MujocoCounter:
         self._catalogue = dict(catalogue)
         self.dataset = dataset
 
-    def set_counter(self, *, dataset: int | None, mugs: Sequence[CounterMug] | None) -> Tray:
+    def set_counter(self, *, dataset: int | None, mugs: Sequence[SetupMug] | None) -> Tray:
         counter = counter_for(self._layout, self._catalogue, dataset=dataset, mugs=mugs)
         require_cell_tray(counter, self._layout)
         self.cell.set_counter(counter.mugs)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Protocol
 
-from drivers.sim.camera import CameraFault
+from drivers.sim.camera import CameraFaultKind
 
 if TYPE_CHECKING:
     from daemon.app import ServeContext
@@ -29,9 +29,9 @@ if TYPE_CHECKING:
 class FailingCamera(Protocol):
     """A camera whose captures can be made to fail (``drivers.sim.camera.FaultyCamera``)."""
 
-    fault: CameraFault | None
+    fault: CameraFaultKind | None
 
-    def set_fault(self, fault: CameraFault) -> None: ...
+    def set_fault(self, fault: CameraFaultKind) -> None: ...
 
     def clear(self) -> None: ...
 
@@ -79,7 +79,7 @@ class FaultCell(Protocol):
         """Move a counter mug; ``ValueError`` when it cannot go there."""
 
 
-def set_camera_fault(camera: FailingCamera, fault: CameraFault | None) -> None:
+def set_camera_fault(camera: FailingCamera, fault: CameraFaultKind | None) -> None:
     """Make ``camera`` fail in the ``fault`` way (None: work again). A hung capture is released when the
     hang gives way to another fault, as it is when the hang ends."""
     if camera.fault == fault:

@@ -41,7 +41,7 @@ import msgspec
 import structlog
 
 from daemon.errors import UsageError
-from drivers.sim.camera import CameraFault
+from drivers.sim.camera import CameraFaultKind
 from statechart.chart import LEAVES, STATES, top_level
 from validation import OneOf, above, convert, show, toml, within
 from wire.messages import BadMessage, Detections, Event
@@ -166,7 +166,7 @@ FAULT_KINDS: Final[Mapping[str, KindSpec]] = {
 }
 
 SERVO_KINDS: Final = frozenset({"servo_overload", "servo_overheat", "servo_voltage", "servo_silent"})
-CAMERA_KINDS: Final[Mapping[str, CameraFault]] = {
+CAMERA_KINDS: Final[Mapping[str, CameraFaultKind]] = {
     "camera_no_frame": "no_frame",
     "camera_stale": "stale",
     "camera_bad_frame": "bad_frame",

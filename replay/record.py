@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.app import RunOptions, RunResult, ServeHooks, serve
-from daemon.backend import CounterMug, SimOptions
+from daemon.backend import SetupMug, SimOptions
 from daemon.cell import open_backend
 from daemon.clock import RealClock, SessionClock, SimulatedClock
 from daemon.config import Config, load_config
@@ -50,7 +50,7 @@ def record_job(
     config = load_config(overrides=_merge(base, dict(overrides or {})))
     if clock is None:
         clock = RealClock() if transport == "pty" else SimulatedClock()
-    request = StartRequest(mugs=tuple(CounterMug(*m) for m in mugs) if mugs is not None else None)
+    request = StartRequest(mugs=tuple(SetupMug(*m) for m in mugs) if mugs is not None else None)
     result = clock.run(_run(config, clock, record_dir, dataset, request, hooks))
     jobs = [p for p in result.files if is_job_file(p)]
     if not jobs:

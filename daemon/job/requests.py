@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from daemon.backend import CounterMug
+from daemon.backend import SetupMug
 from daemon.config import PlannerConfig
 from planning.placement import PlanOptions
 
@@ -35,5 +35,5 @@ class StartRequest:
     """A validated ``start`` command body."""
 
     dataset: int | None = None
-    mugs: tuple[CounterMug, ...] | None = None
+    mugs: tuple[SetupMug, ...] | None = None
     planner: PlannerRequest = PlannerRequest()

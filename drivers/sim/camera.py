@@ -23,8 +23,8 @@ import numpy as np
 from drivers.camera.realsense import CameraUnavailable
 from drivers.interfaces import Camera, Clock, RGBDFrame
 
-CameraFault = Literal["no_frame", "stale", "bad_frame", "hang"]
-CAMERA_FAULTS: Final[tuple[CameraFault, ...]] = ("no_frame", "stale", "bad_frame", "hang")
+CameraFaultKind = Literal["no_frame", "stale", "bad_frame", "hang"]
+CAMERA_FAULTS: Final[tuple[CameraFaultKind, ...]] = ("no_frame", "stale", "bad_frame", "hang")
 
 
 class FaultyCamera:
@@ -35,12 +35,12 @@ class FaultyCamera:
         self._camera = camera
         self._clock = clock
         self.timeout_s = timeout_s
-        self.fault: CameraFault | None = None
+        self.fault: CameraFaultKind | None = None
         self._last: RGBDFrame | None = None
         self._cleared: asyncio.Event | None = None
         self.faulty_captures = 0  # captures a fault changed (for tests and the replay's report)
 
-    def set_fault(self, fault: CameraFault) -> None:
+    def set_fault(self, fault: CameraFaultKind) -> None:
         """Fail every capture from now on in the ``fault`` way, until :meth:`clear`."""
         if fault not in CAMERA_FAULTS:
             raise ValueError(f"camera fault {fault!r}: choose one of {', '.join(CAMERA_FAULTS)}")

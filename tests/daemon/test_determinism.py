@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 
 from daemon.app import RunResult
-from daemon.backend import Backend, CounterMug, SimOptions
+from daemon.backend import Backend, SetupMug, SimOptions
 from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
@@ -79,7 +79,7 @@ def test_the_mujoco_cell_gives_the_same_states_and_the_same_mugs_placed_failed_a
     tmp_path: Path,
 ) -> None:
     problem = cell_dataset_problem(load_config().cell, 1)
-    two = tuple(CounterMug(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs[:2])
+    two = tuple(SetupMug(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs[:2])
     request = StartRequest(mugs=two)
     first, first_path = _run_once(tmp_path / "a", "mujoco", request)
     second, second_path = _run_once(tmp_path / "b", "mujoco", request)

@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 
 from daemon.app import RunResult
-from daemon.backend import CounterMug, SimOptions
+from daemon.backend import SetupMug, SimOptions
 from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
@@ -24,9 +24,9 @@ from tests.recorder.foxglove_decode import Decoded, decode_all
 ROBOT = "fox"
 
 
-def four_mugs() -> tuple[CounterMug, ...]:
+def four_mugs() -> tuple[SetupMug, ...]:
     problem = cell_dataset_problem(load_config().cell, 1)
-    return tuple(CounterMug(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs[:4])
+    return tuple(SetupMug(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs[:4])
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.app import RunResult, ServeContext
-from daemon.backend import Backend, CounterMug, SimOptions
+from daemon.backend import Backend, SetupMug, SimOptions
 from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import Config, load_config
@@ -27,10 +27,10 @@ def robot_config(**overrides: Any) -> Config:
     return load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}, **overrides})
 
 
-def counter_mugs(config: Config, count: int) -> tuple[CounterMug, ...]:
+def counter_mugs(config: Config, count: int) -> tuple[SetupMug, ...]:
     """The first ``count`` mugs of dataset 1 on the configured counter."""
     problem = cell_dataset_problem(config.cell, 1)
-    return tuple(CounterMug(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs[:count])
+    return tuple(SetupMug(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs[:count])
 
 
 @dataclass
