@@ -157,6 +157,7 @@ async def running_daemon(
     connect: Sequence[str] = (),
     notifier: SdNotifier | None = None,
     on_publish: Sequence[Tap] = (),
+    foxglove: tuple[str, int] | None = None,
     worker_logs: Any = None,
     ready_timeout_s: float = 20.0,
     stop_timeout_s: float = 20.0,
@@ -179,6 +180,7 @@ async def running_daemon(
             notifier=notifier,
             on_publish=(record, *on_publish),
             on_ready=ready.set_result,
+            foxglove=foxglove,
             worker_logs=worker_logs,
         )
     )

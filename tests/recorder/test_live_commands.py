@@ -14,15 +14,12 @@ import websockets
 from structlog.testing import capture_logs
 from websockets.typing import Subprotocol
 
-from daemon.app import RunOptions, serve
 from daemon.commands_handler import VERBS
 from daemon.config import load_config
-from daemon.sdnotify import SdNotifier
-from perception import associate
 from recorder import read_messages
 from recorder.foxglove_server import LiveServer
-from tests.daemon.conftest import free_port
 from tests.daemon.test_commands import BAD
+from tests.fakes.daemon import running_daemon
 from tests.fakes.job import make_backend, make_world
 from tests.recorder.foxglove_client import FoxgloveClient
 
@@ -33,45 +30,26 @@ def _with_daemon(tmp_path: Path, scenario: Callable[[FoxgloveClient], Awaitable[
     """An in-process daemon (the fake cell) serving Foxglove on loopback; ``scenario(client)`` against it.
     Returns the daemon's log events."""
     config = load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}})
-    options = RunOptions(
-        listen=(f"tcp/127.0.0.1:{free_port()}",),
-        connect=(),
-        record_dir=tmp_path,
-        foxglove=("127.0.0.1", 0),
-    )
 
     async def go() -> None:
-        stop = asyncio.Event()
-        ready = asyncio.Event()
-        daemon = asyncio.create_task(
-            serve(
-                config,
-                make_backend(make_world(2)),
-                associate,
-                options,
-                notifier=SdNotifier(None),
-                on_ready=lambda bus, path: ready.set(),
-                stop=stop,
-            )
-        )
-        await asyncio.wait_for(ready.wait(), 10)
-        url = next(e["foxglove"] for e in logs if e["event"] == "daemon_ready")
-        client = await FoxgloveClient.connect(url)
-        try:
-            deadline = time.monotonic() + 10
-            while len(client.services) < len(VERBS):
-                await client.receive(deadline)
-            await scenario(client)
-        finally:
-            await client.close()
-            stop.set()
-            await asyncio.wait_for(daemon, 20)
+        backend = make_backend(make_world(2))
+        async with running_daemon(config, backend, tmp_path, foxglove=("127.0.0.1", 0), ready_timeout_s=10):
+            url = next(e["foxglove"] for e in logs if e["event"] == "daemon_ready")
+            client = await FoxgloveClient.connect(url)
+            try:
+                deadline = time.monotonic() + 10
+                while len(client.services) < len(VERBS):
+                    await client.receive(deadline)
+                await scenario(client)
+            finally:
+                await client.close()
 
     with capture_logs() as logs:
         asyncio.run(go())
     return logs
 
 
+@pytest.mark.slow
 def test_every_verb_is_a_service_and_a_bad_command_gets_the_zenoh_reply(tmp_path: Path) -> None:
     async def scenario(client: FoxgloveClient) -> None:
         assert sorted(client.services) == sorted(f"dishbot/{ROBOT}/cmd/{v}" for v in VERBS)
@@ -88,6 +66,7 @@ def test_every_verb_is_a_service_and_a_bad_command_gets_the_zenoh_reply(tmp_path
     _with_daemon(tmp_path, scenario)
 
 
+@pytest.mark.slow
 def test_a_service_call_starts_and_another_stops_a_simulated_job(tmp_path: Path) -> None:
     async def scenario(client: FoxgloveClient) -> None:
         started = await client.call(f"dishbot/{ROBOT}/cmd/start", {"planner": {"method": "bh"}})

@@ -15,15 +15,13 @@ from pathlib import Path
 import pytest
 
 from cli.main import main
-from daemon.app import RunOptions, RunResult, ServeContext, ServeHooks, serve
+from daemon.app import RunResult, ServeContext
 from daemon.backend import SimOptions
 from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
-from daemon.sdnotify import SdNotifier
 from drivers.dynamixel.bus import BusTimeout
 from drivers.dynamixel.health import ServoHealthFault
 from drivers.errors import BusLost, ServoFault
-from perception import associate
 from perception.errors import CameraFault
 from recorder import read_messages
 from recorder.files import is_job_file
@@ -31,7 +29,7 @@ from replay.drivers import recorded_failure
 from replay.engine import ReplayReport, replay
 from replay.record import record_job
 from replay.session import RecordedSession
-from tests.daemon.conftest import free_port
+from tests.fakes.daemon import loopback, serve_daemon
 from tests.replay.conftest import THREE_MUGS, copy_recording
 from tests.replay.faulty import counter_mugs, robot_config, run_with_faults
 from wire.messages import Failure, convert
@@ -64,10 +62,8 @@ def _daemon_job(
     simulated hour). ``speed``: the simulated clock's pace (a job started from another thread, over
     Zenoh, should not find the idle daemon simulated hours ahead)."""
     config = robot_config()
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    options = RunOptions(listen=(endpoint,), connect=(), record_dir=tmp_path / "rec")
+    endpoint = loopback()
     clock = SimulatedClock(speed=speed)
-    stop = asyncio.Event()
     ended: list[dict[str, object]] = []
 
     def tap(topic: str, payload: Mapping[str, object]) -> None:
@@ -83,15 +79,14 @@ def _daemon_job(
                     break
                 await ctx.clock.sleep(0.5)
             await ctx.clock.sleep(ctx.config.recording.job_tail_s)
-            stop.set()
+            ctx.stop.set()
 
         asyncio.get_running_loop().create_task(stop_once_ended())
 
     async def run() -> RunResult:
         backend = await open_backend(config, sim=SimOptions(world="kinematic", seed=0), clock=clock)
-        hooks = ServeHooks(on_publish=(tap,), on_ready=ready)
-        return await serve(
-            config, backend, associate, options, notifier=SdNotifier(None), stop=stop, hooks=hooks
+        return await serve_daemon(
+            config, backend, tmp_path / "rec", listen=(endpoint,), on_publish=(tap,), on_ready=ready
         )
 
     result = clock.run(run())
