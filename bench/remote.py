@@ -283,6 +283,7 @@ class _AgentState:
         from cli.main import main
         from daemon.security import load_profile
         from daemon.zenoh_session import session_config
+        from wire.messages import reply_of
 
         op = request["op"]
         if op == "cli":
@@ -311,7 +312,7 @@ class _AgentState:
                 try:
                     with client_session(t) as session:
                         replies = ask(session, t, "status", {}, timeout_s=1.0)
-                    if replies and replies[0].get("ok"):
+                    if replies and reply_of(replies[0]).ok is True:
                         return {"t": time.time(), "tries": tries, "reply": replies[0]}
                 except Unreachable:
                     pass

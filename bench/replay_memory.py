@@ -107,15 +107,16 @@ def record_paused_job(directory: Path, *, world: str, paused_s: float, seed: int
     its first ``flip.transit`` (0: not paused) and then resumed to its end; the job file. Blocking."""
     from daemon.app import ServeContext, ServeHooks
     from replay.record import record_job
+    from wire.messages import reply_of
 
     def operator(ctx: ServeContext) -> None:
         async def go() -> None:
             while ctx.job is None or ctx.job.chart.state != PAUSE_IN:
                 await ctx.clock.sleep(0.01)
-            if not (await ctx.handle("pause", b"", False)).get("ok"):
+            if reply_of(await ctx.handle("pause", b"", False)).ok is not True:
                 raise RuntimeError("the job refused the operator's pause")
             await ctx.clock.sleep(paused_s)
-            if not (await ctx.handle("resume", b"", False)).get("ok"):
+            if reply_of(await ctx.handle("resume", b"", False)).ok is not True:
                 raise RuntimeError("the job refused the operator's resume")
 
         asyncio.get_running_loop().create_task(go())

@@ -31,7 +31,7 @@ from cli.progress import Progress
 from daemon.config import Config, load_config
 from daemon.errors import UsageError
 from description import thesis
-from wire.messages import Payload, plain
+from wire.messages import Event, Payload, convert, plain
 
 if TYPE_CHECKING:
     from daemon.clock import SimulatedClock
@@ -115,7 +115,7 @@ def _log_job_event(key: str, payload: Mapping[str, object]) -> None:
     run shows why mugs were not placed."""
     import structlog
 
-    if key == "events" and payload.get("kind") != "transition":
+    if key == "events" and convert(payload, Event, name="events").kind != "transition":
         structlog.get_logger("daemon.bench_sim").info("job_event", **{str(k): v for k, v in payload.items()})
 
 

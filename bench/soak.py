@@ -27,7 +27,7 @@ import structlog
 from cli.commands.output import add_json_flag, emit
 from cli.progress import Progress
 from daemon.errors import UsageError
-from wire.messages import BadMessage, Event, convert
+from wire.messages import BadMessage, Event, convert, reply_of
 
 log = structlog.get_logger("bench.soak")
 
@@ -254,7 +254,7 @@ def soak(jobs: int, seed: int, record_dir: Path, *, progress: Progress | None = 
                     "mugs": [{"id": m.mug_id, "type": m.spec.name, "x_m": m.x_m, "y_m": m.y_m} for m in mugs]
                 }
                 reply = await ctx.handle("start", json.dumps(body).encode(), False)
-                if not reply.get("ok"):
+                if reply_of(reply).ok is not True:
                     out.jobs.append(JobRun(k + 1, _name(table), "refused", expected, False, str(reply)))
                     injector.close()
                     continue
