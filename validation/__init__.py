@@ -317,7 +317,7 @@ def _worded(message: str, data: object, info: Any, name: str, missing: str, root
     if _STR_TOO_LONG.match(what) is not None and isinstance(value, str):
         return f"{shown}: expected at most {field.max_length} characters, got {len(value)}"
     if (m := _ENUM.match(what)) is not None:
-        values = getattr(field, "values", ())
+        values = field.values if hasattr(field, "values") else [m.value for m in getattr(field, "cls", ())]
         return f"{shown}: {show(value)} is not one of {', '.join(str(v) for v in values)}"
     if _TYPE.match(what) is not None:
         return f"{shown}: expected {_expected(field)}{unit}, got {show(value)}"

@@ -14,13 +14,15 @@ import base64
 import dataclasses
 import hashlib
 import json
-from collections.abc import Mapping, Sequence
-from typing import Any, Final
+from collections.abc import Sequence
+from typing import Any, ClassVar, Final, TypeVar
 
+import msgspec
 import numpy as np
 
 from drivers.interfaces import JointTrajectory
 from planning.interfaces import CyclePlan, MugPose, Step, StepKind
+from validation import UNKNOWN_KEYS_IGNORED, convert
 
 ENCODING: Final = "float64_le_base64"
 CALLS: Final = ("plan_cycle", "plan_for_slot", "plan_move")
@@ -60,9 +62,7 @@ def _array(values: np.ndarray) -> str:
     return base64.b64encode(np.ascontiguousarray(values, dtype="<f8").tobytes()).decode("ascii")
 
 
-def _floats(text: object, what: str) -> np.ndarray:
-    if not isinstance(text, str):
-        raise BadMotionRecord(f"{what} is not {ENCODING} text")
+def _floats(text: str, what: str) -> np.ndarray:
     try:
         data = base64.b64decode(text.encode("ascii"), validate=True)
     except (ValueError, UnicodeEncodeError) as e:
@@ -70,6 +70,71 @@ def _floats(text: object, what: str) -> np.ndarray:
     if len(data) % 8:
         raise BadMotionRecord(f"{what} is {len(data)} bytes, not whole float64 values")
     return np.frombuffer(data, dtype="<f8").astype(np.float64)
+
+
+# How a recorded result is read back: typed views of the result's JSON (``Motion.result``), checked by the
+# one validator. They are not a topic's declared type: ``input/motion``'s schema keeps ``result`` an object.
+# Keys a later version adds are let through unread, as on every recorded message.
+
+
+class TrajectoryView(msgspec.Struct, kw_only=True):
+    """A recorded trajectory: joint names, and times and positions as ``ENCODING`` text."""
+
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
+    names: list[str]
+    times: str
+    positions: str
+    label: str = ""
+
+
+class StepView(msgspec.Struct, kw_only=True):
+    """A recorded cycle plan's step."""
+
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
+    kind: StepKind
+    phase: str = ""
+    trajectory: TrajectoryView | None = None
+    aperture_m: float | None = None
+
+
+class CyclePlanView(msgspec.Struct, kw_only=True):
+    """A recorded cycle plan."""
+
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
+    steps: list[StepView]
+    duration_s: float
+    energy_j: float
+    mug_id: str = ""
+    handle_yaw_rad: float | None = None
+
+
+class MugPoseView(msgspec.Struct, kw_only=True):
+    """A recorded mug pose (``plan_for_slot``'s mug)."""
+
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
+    x_m: float
+    y_m: float
+    handle_yaw_rad: float
+    mug_id: str = ""
+    type: str = ""
+    upside_down: bool = False
+    handle_seen: bool = True
+
+
+class SlotResultView(msgspec.Struct, kw_only=True):
+    """A recorded ``plan_for_slot`` result: the mug as the planner took it, and its cycle plan."""
+
+    unknown_keys: ClassVar[str] = UNKNOWN_KEYS_IGNORED
+    mug: MugPoseView
+    plan: CyclePlanView
+
+
+View = TypeVar("View", TrajectoryView, CyclePlanView, MugPoseView, SlotResultView)
+
+
+def _view(doc: object, kind: type[View], name: str) -> View:
+    """``doc`` read as ``kind``; ``BadMotionRecord`` (one line naming the field) when it is not one."""
+    return convert(doc, kind, name=name, error=BadMotionRecord, root=name)
 
 
 def trajectory_json(traj: JointTrajectory) -> dict[str, object]:
@@ -82,24 +147,15 @@ def trajectory_json(traj: JointTrajectory) -> dict[str, object]:
     }
 
 
-def trajectory_from_json(doc: object) -> JointTrajectory:
-    if not isinstance(doc, Mapping):
-        raise BadMotionRecord("a trajectory is not an object")
-    names = doc.get("names")
-    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
-        raise BadMotionRecord("a trajectory's names are not a list of strings")
-    times = _floats(doc.get("times"), "a trajectory's times")
-    positions = _floats(doc.get("positions"), "a trajectory's positions")
+def _trajectory(view: TrajectoryView) -> JointTrajectory:
+    times = _floats(view.times, "a trajectory's times")
+    positions = _floats(view.positions, "a trajectory's positions")
+    names = view.names
     if len(positions) != len(times) * len(names):
         raise BadMotionRecord(
             f"a trajectory has {len(times)} times and {len(positions)} positions for {len(names)} joints"
         )
-    return JointTrajectory(
-        tuple(names),
-        times,
-        positions.reshape(len(times), len(names)),
-        label=str(doc.get("label", "")),
-    )
+    return JointTrajectory(tuple(names), times, positions.reshape(len(times), len(names)), label=view.label)
 
 
 def cycle_plan_json(plan: CyclePlan) -> dict[str, object]:
@@ -120,34 +176,17 @@ def cycle_plan_json(plan: CyclePlan) -> dict[str, object]:
     }
 
 
-def cycle_plan_from_json(doc: object) -> CyclePlan:
-    if not isinstance(doc, Mapping) or not isinstance(doc.get("steps"), list):
-        raise BadMotionRecord("a cycle plan is not an object with steps")
-    steps: list[Step] = []
-    for s in doc["steps"]:
-        if not isinstance(s, Mapping):
-            raise BadMotionRecord("a cycle plan's step is not an object")
-        try:
-            kind = StepKind(str(s.get("kind")))
-        except ValueError as e:
-            raise BadMotionRecord(f"a cycle plan's step has kind {s.get('kind')!r}") from e
-        traj = s.get("trajectory")
-        aperture = s.get("aperture_m")
-        steps.append(
-            Step(
-                str(s.get("phase", "")),
-                kind,
-                None if traj is None else trajectory_from_json(traj),
-                float(aperture) if isinstance(aperture, int | float) else None,
-            )
-        )
-    yaw = doc.get("handle_yaw_rad")
+def _cycle_plan(view: CyclePlanView) -> CyclePlan:
+    steps = tuple(
+        Step(s.phase, s.kind, None if s.trajectory is None else _trajectory(s.trajectory), s.aperture_m)
+        for s in view.steps
+    )
     return CyclePlan(
-        mug_id=str(doc.get("mug_id", "")),
-        steps=tuple(steps),
-        duration_s=_number(doc, "duration_s"),
-        energy_j=_number(doc, "energy_j"),
-        handle_yaw_rad=float(yaw) if isinstance(yaw, int | float) else None,
+        mug_id=view.mug_id,
+        steps=steps,
+        duration_s=view.duration_s,
+        energy_j=view.energy_j,
+        handle_yaw_rad=view.handle_yaw_rad,
     )
 
 
@@ -155,25 +194,16 @@ def mug_pose_json(mug: MugPose) -> dict[str, object]:
     return {f.name: getattr(mug, f.name) for f in dataclasses.fields(mug)}
 
 
-def mug_pose_from_json(doc: object) -> MugPose:
-    if not isinstance(doc, Mapping):
-        raise BadMotionRecord("a mug pose is not an object")
+def _mug_pose(view: MugPoseView) -> MugPose:
     return MugPose(
-        mug_id=str(doc.get("mug_id", "")),
-        type=str(doc.get("type", "")),
-        x_m=_number(doc, "x_m"),
-        y_m=_number(doc, "y_m"),
-        handle_yaw_rad=_number(doc, "handle_yaw_rad"),
-        upside_down=bool(doc.get("upside_down", False)),
-        handle_seen=bool(doc.get("handle_seen", True)),
+        mug_id=view.mug_id,
+        type=view.type,
+        x_m=view.x_m,
+        y_m=view.y_m,
+        handle_yaw_rad=view.handle_yaw_rad,
+        upside_down=view.upside_down,
+        handle_seen=view.handle_seen,
     )
-
-
-def _number(doc: Mapping[str, object], key: str) -> float:
-    value = doc.get(key)
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise BadMotionRecord(f"{key} is {value!r}, not a number")
-    return float(value)
 
 
 def result_json(call: str, result: object) -> dict[str, Any]:
@@ -191,14 +221,14 @@ def result_json(call: str, result: object) -> dict[str, Any]:
 
 def result_from_json(call: str, doc: object) -> JointTrajectory | CyclePlan | tuple[MugPose, CyclePlan]:
     """A planner call's result read back (``BadMotionRecord`` when it cannot be)."""
+    name = f"{call} result"
     if call == "plan_move":
-        return trajectory_from_json(doc)
+        return _trajectory(_view(doc, TrajectoryView, name))
     if call == "plan_cycle":
-        return cycle_plan_from_json(doc)
+        return _cycle_plan(_view(doc, CyclePlanView, name))
     if call == "plan_for_slot":
-        if not isinstance(doc, Mapping):
-            raise BadMotionRecord("a plan_for_slot result is not an object")
-        return mug_pose_from_json(doc.get("mug")), cycle_plan_from_json(doc.get("plan"))
+        slot = _view(doc, SlotResultView, name)
+        return _mug_pose(slot.mug), _cycle_plan(slot.plan)
     raise BadMotionRecord(f"unknown planner call {call!r}")
 
 

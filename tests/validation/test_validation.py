@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Annotated, Any, ClassVar, Literal
 
 import msgspec
@@ -200,3 +201,20 @@ def test_the_public_names_are_the_modules_own() -> None:
     import validation
 
     assert all(hasattr(validation, name) for name in validation.__all__)
+
+
+class Colour(StrEnum):
+    RED = "red"
+    GREEN = "green"
+
+
+@dataclass(frozen=True, slots=True)
+class Paint:
+    colour: Colour
+
+
+def test_an_enum_field_names_its_values_and_is_built_as_the_enum() -> None:
+    assert convert({"colour": "green"}, Paint).colour is Colour.GREEN
+    with pytest.raises(Invalid) as e:
+        convert({"colour": "blue"}, Paint, name="paint")
+    assert str(e.value) == "paint.colour: 'blue' is not one of red, green"
