@@ -15,6 +15,9 @@ A job that can make no progress always ends in ``fault`` at its state's bound: w
 (a log line that cannot be written, a bug in handling one outcome) is reported and never keeps a unit's
 outcome from reaching the control task, the deadline's fault from being sent, or the control task from
 taking the next item.
+
+Beside the dispatch, the runner only holds the parts together: the state bounds are ``deadlines``', the
+recording's health ``recording_health``'s, what one job carries over to the next ``carry``'s.
 """
 
 from __future__ import annotations
@@ -22,19 +25,19 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
-import dataclasses
 from collections.abc import Callable, Mapping
-from typing import Protocol
 
 import structlog
 
 from daemon.backend import Backend
 from daemon.config import Config
+from daemon.job.carry import carried, carry_over
 from daemon.job.commands import Command, Commands
 from daemon.job.context import JobContext, JobSummary, Outcome
+from daemon.job.deadlines import Deadlines
 from daemon.job.devices import DeviceSupervisor
 from daemon.job.errors import CommandRefused
-from daemon.job.progress import Deadline, Progress
+from daemon.job.recording_health import RecordingHealth, RecordingWatch
 from daemon.job.registry import UNITS
 from daemon.job.requests import PlannerRequest, StartRequest
 from daemon.job.services import Publish, Services
@@ -46,17 +49,9 @@ from planning.interfaces import MotionRefused
 from statechart.chart import JOB_STATES, top_level
 from statechart.errors import EventRefused
 from statechart.machine import StateChart, Transition
-from wire.messages import FaultEvent, RecordingFailedEvent, RecordingRestoredEvent, State
+from wire.messages import FaultEvent, State
 
 log = structlog.get_logger("daemon.job")
-
-
-class RecordingHealth(Protocol):
-    """What the job asks of the session's recording (``recorder.SessionRecording``)."""
-
-    def dropped(self) -> int: ...
-
-    def health(self) -> dict[str, object]: ...
 
 
 class Job:
@@ -90,10 +85,8 @@ class Job:
         self._generation = 0
         self._ctx = JobContext(planner=PlannerRequest().options(config.planner))
         self._transitions = 0
-        self._recording = recording
-        self._dropped_before = 0  # the recording's losses when the job started
-        self._progress = Progress(config.daemon.state_bound_s)
-        self._deadline: asyncio.Task[None] | None = None  # faults the job when its state passes its bound
+        self._recording = RecordingWatch(self._services, recording)
+        self._deadlines = Deadlines(self._services, config.daemon.state_bound_s, self.fault)
         self.finished = asyncio.Event()
         self.chart.subscribe(self._on_transition)
 
@@ -103,47 +96,35 @@ class Job:
         """Take ``earlier`` as what the jobs before this daemon's first one left (the mugs on the tray, the
         counter it knew, the next mug id): a replay of a job that continued an earlier job's tray starts
         from it, as the recorded daemon did. Only while idle, before a job starts."""
-        if self.chart.state != "idle":
-            raise CommandRefused(f"cannot carry an earlier job over in state {self.chart.state}")
-        self._ctx = earlier.next_job(self._ctx.planner)
+        self._ctx = carry_over(self.chart.state, self._ctx, earlier)
 
     @property
     def summary(self) -> JobSummary:
-        if self._recording is not None and self._ctx.summary.started_at is not None:
-            self._ctx.summary.recording_dropped = self._recording.dropped() - self._dropped_before
+        dropped = self._recording.dropped_since_start()
+        if dropped is not None and self._ctx.summary.started_at is not None:
+            self._ctx.summary.recording_dropped = dropped
         return self._ctx.summary
 
     def overdue(self) -> str | None:
         """Why the job is not making progress: its state has passed its time bound and the job has not left
         it yet (None: within its bound, or not working). The watchdog is not pinged meanwhile."""
-        deadline = self._progress.overdue(self._services.monotonic())
-        return deadline.reason if deadline is not None else None
+        return self._deadlines.overdue()
 
     def recording(self) -> dict[str, object] | None:
         """The recording's health for ``status`` (None: this job records nothing)."""
-        return self._recording.health() if self._recording is not None else None
+        return self._recording.health()
 
     def recording_health(self, path: str, error: str | None) -> None:
         """Writing the recording failed (``error``) or works again (None), on the event loop: published on
         ``events`` (``recording_failed``, ``recording_restored``). The job carries on either way: a robot
         that loses its recording is still safe."""
-        if error is not None:
-            dropped = self._recording.dropped() if self._recording is not None else 0
-            self._services.event(RecordingFailedEvent(path=path, error=error, dropped=dropped))
-        else:
-            self._services.event(RecordingRestoredEvent(path=path))
+        self._recording.report(path, error)
 
     def carried(self) -> dict[str, object]:
         """What a job started now without a new counter carries over from the jobs before it (the mugs on
         the tray as they were placed, the counter it knew, the next mug id), for its recording's header: a
         replay of it starts from exactly that (``carry_over``)."""
-        ctx = self._ctx
-        return {
-            "on_tray": [dataclasses.asdict(slot) for slot in ctx.on_tray],
-            "tray_mugs": [dataclasses.asdict(mug) for mug in ctx.tray_mugs],
-            "counter": [dataclasses.asdict(mug) for mug in ctx.counter.values()],
-            "next_id": ctx.next_id,
-        }
+        return carried(self._ctx)
 
     def status(self) -> State:
         """The ``state`` message: where the chart is and how far the job got."""
@@ -208,8 +189,7 @@ class Job:
 
     async def shutdown(self) -> None:
         """Stop any motion safely (the process is exiting)."""
-        if self._deadline is not None:
-            self._deadline.cancel()
+        self._deadlines.cancel()
         await self._cancel_work()
         await self._devices.stop_arm()
 
@@ -242,7 +222,7 @@ class Job:
         self._ctx = ctx
         self._ctx.summary.started_at = self._services.monotonic()
         self._ctx.summary.clock = self._services.clock
-        self._dropped_before = self._recording.dropped() if self._recording is not None else 0
+        self._recording.job_started()
         self.finished.clear()
 
     async def cancel_work(self) -> None:
@@ -278,33 +258,11 @@ class Job:
         detail = {k: v for k, v in change.detail.items() if isinstance(v, str | int | float | bool)}
         self._services.transition(trigger=change.trigger, source=change.source, dest=change.dest, **detail)
         self._services.publish("state", self.status())
-        self._progress.entered(
-            change.source,
-            change.dest,
-            self._services.monotonic(),
-            plan_time_limit_s=self._ctx.planner.time_limit_s,
-        )
-        self._watch_deadline()
+        self._deadlines.entered(change.source, change.dest, plan_time_limit_s=self._ctx.planner.time_limit_s)
         if change.dest in ("done", "fault", "estop") or (change.dest == "idle" and change.trigger == "stop"):
             self._ctx.summary.ended_at = self._services.monotonic()
             self._ctx.summary.end_state = change.dest
             self.finished.set()
-
-    def _watch_deadline(self) -> None:
-        """Fault the job when the state just entered passes its bound (the last state's watch ends)."""
-        if self._deadline is not None:
-            self._deadline.cancel()
-        deadline = self._progress.deadline()
-        self._deadline = None
-        if deadline is not None:
-            self._deadline = asyncio.get_running_loop().create_task(
-                self._fault_at(deadline), name=f"deadline:{deadline.state}"
-            )
-
-    async def _fault_at(self, deadline: Deadline) -> None:
-        await self._services.clock.sleep_until(deadline.at)
-        _say(log.error, "state_stalled", state=deadline.state, bound_s=deadline.bound_s)
-        await self.fault(deadline.reason)
 
     def _working(self) -> bool:
         return top_level(self.chart.state) in JOB_STATES
