@@ -26,7 +26,6 @@ from planning.placement import METHODS, PlanOptions, PlanResult, Problem, plan
 from planning.placement.cost import CostFunction, Fitness, FitnessMethod, Metrics
 from planning.placement.datasets import cell_dataset_problem
 from planning.placement.heuristics import Heuristic
-from planning.placement.mugrefine import one_more as find_one_more
 from planning.placement.packing import Packer
 from planning.placement.sorts import Sort, sorted_order
 
@@ -255,6 +254,8 @@ def mug_shaped_row(
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     more: list[object] = []
     if one_more:
+        from planning.placement.mugrefine import one_more as find_one_more  # SciPy: only when asked
+
         found = find_one_more(mug_problem, result.n, options=PlanOptions())
         more = (
             ["-", "-", "-"]
