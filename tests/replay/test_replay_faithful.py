@@ -283,6 +283,17 @@ def test_motion_plans_are_served_from_the_recording_while_the_job_asks_the_same(
 
 
 @pytest.mark.slow
+def test_a_kinematic_job_on_the_full_size_tray_replays_to_a_match(tmp_path: Path) -> None:
+    """A dataset other than 1, on the other tray: the stand-in is built from the header's scene (its dataset
+    and tray). When the scene's view did not fit the kinematic world's tray, every such recording replayed
+    in a dataset-1 stand-in on the robot tray and diverged at its first plan."""
+    job = record_job(tmp_path, world="kinematic", dataset=4).path
+    report = _check(job)
+    assert report.served["motion"] > 0
+    assert report.recorded.final_state == "done"
+
+
+@pytest.mark.slow
 def test_twenty_replays_of_one_recording_give_identical_traces(tmp_path: Path) -> None:
     session = RecordedSession.load(record_job(tmp_path, world="kinematic", mugs=THREE_MUGS[:1]).path)
 
