@@ -97,6 +97,10 @@ class Tray:
         """A point in tray coordinates (mm from the corner nearest the arm) in the world frame (m)."""
         return self.origin_m[0] + x_mm / 1000.0, self.origin_m[1] + y_mm / 1000.0
 
+    def to_tray_mm(self, x_m: float, y_m: float) -> tuple[float, float]:
+        """A point of the world frame (m) in tray coordinates (mm from the corner nearest the arm)."""
+        return x_m * 1000.0 - self.origin_m[0] * 1000.0, y_m * 1000.0 - self.origin_m[1] * 1000.0
+
 
 @dataclass(frozen=True, slots=True)
 class CellLayout:

@@ -634,11 +634,8 @@ def carried_over(session: RecordedSession) -> JobContext:
         on_tray.append(TraySlot(m.mug_id, m.type, m.x_m, m.y_m))
         spec = catalogue.get(m.type)
         r_mm = ((spec.diameter_mm if spec else 0.0) + config.planner.tolerance_mm) / 2.0
-        corner = (
-            m.x_m * 1000.0 - tray.origin_m[0] * 1000.0 - r_mm,
-            m.y_m * 1000.0 - tray.origin_m[1] * 1000.0 - r_mm,
-        )
-        tray_mugs.append(TrayMug(m.mug_id, m.type, round(corner[0]), round(corner[1])))
+        bx, by = tray.to_tray_mm(m.x_m, m.y_m)
+        tray_mugs.append(TrayMug(m.mug_id, m.type, round(bx - r_mm), round(by - r_mm)))
     counter = {
         m.mug_id: MugPose(m.mug_id, m.type, m.x_m, m.y_m, m.handle_yaw_rad, m.upside_down)
         for m in seen.on("counter")

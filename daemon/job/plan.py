@@ -128,10 +128,7 @@ def problem_of(services: Services, ctx: JobContext) -> Problem:
         footprint_kind=config.planner.footprint,
         strays=tuple(
             TrayStray(
-                m.mug_id,
-                m.type,
-                (m.x_m * 1000.0 - tray.origin_m[0] * 1000.0, m.y_m * 1000.0 - tray.origin_m[1] * 1000.0),
-                m.handle_yaw_rad if m.handle_seen else None,
+                m.mug_id, m.type, tray.to_tray_mm(m.x_m, m.y_m), m.handle_yaw_rad if m.handle_seen else None
             )
             for m in ctx.strays
         ),
