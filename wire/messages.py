@@ -26,6 +26,7 @@ too, keeping the producer's key order: ``Payload``).
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import re
@@ -812,13 +813,26 @@ H = TypeVar(
 )
 
 
+_log = logging.getLogger(__name__)
+
+
 def header_part(document: object, kind: type[H]) -> H:
-    """One of the header's documents as its view; an empty view when it is missing or not one."""
+    """One of the header's documents as its view; an empty view when it is missing or not one.
+
+    A document that is there but does not fit the view is logged as a warning naming the view and what did not
+    fit: read as empty, it would otherwise pass for "missing" (a scene whose tray did not fit once made every
+    kinematic replay of datasets 2-6 stand in dataset 1, silently)."""
+    if document is None or document is UNSET:
+        return kind()
     if not isinstance(document, Mapping):
+        _log.warning(
+            "recording header: %s is a %s, not a table; read as empty", kind.__name__, type(document).__name__
+        )
         return kind()
     try:
         return msgspec.convert(document, type=kind, strict=True)
-    except msgspec.ValidationError:
+    except msgspec.ValidationError as e:
+        _log.warning("recording header: %s does not fit (%s); read as empty", kind.__name__, e)
         return kind()
 
 

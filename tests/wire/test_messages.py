@@ -6,6 +6,7 @@ type and requirement the stored one had. Anything else is refused with one line 
 from __future__ import annotations
 
 import json
+import logging
 from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
@@ -27,6 +28,8 @@ from wire.messages import (
     Event,
     Gripper,
     HeaderClock,
+    HeaderConfig,
+    HeaderFile,
     HeaderJob,
     HeaderScene,
     Joints,
@@ -123,9 +126,10 @@ def test_the_generated_schema_keeps_the_stored_schemas_names_fields_types_and_re
             assert set(was.get("enum", ())) <= set(now.get("enum", ())), (topic, field)
 
 
-def test_the_header_views_read_every_recorded_header_clock_and_job() -> None:
+def test_the_header_views_read_every_recorded_header_clock_and_job(caplog: pytest.LogCaptureFixture) -> None:
     """The views replay/ reads the header through take what each recorded header holds (an empty view
     would silently read as "missing")."""
+    caplog.set_level(logging.WARNING, logger="wire.messages")
     headers = []
     for path in sorted(RECORDING.parent.glob("*.mcap")):
         with path.open("rb") as f:
@@ -144,6 +148,9 @@ def test_the_header_views_read_every_recorded_header_clock_and_job() -> None:
             view = header_part(job, HeaderJob)
             assert view.sim_seed == job.get("sim_seed", view.sim_seed), name
             assert (view.mugs is None) == (job.get("mugs") is None), name
+        header_part(header.get("file"), HeaderFile)
+        header_part(header.get("config"), HeaderConfig)
+    assert [r.getMessage() for r in caplog.records] == []
 
 
 def test_a_carried_job_header_keeps_its_view_and_a_malformed_clock_is_an_empty_one() -> None:
@@ -156,6 +163,20 @@ def test_a_carried_job_header_keeps_its_view_and_a_malformed_clock_is_an_empty_o
     assert header_part(job, HeaderJob).sim_seed == 4
     assert header_part(job, HeaderJob).carried == {"on_tray": [], "counter": []}
     assert header_part({"source": "simulated", "wall_start": "soon"}, HeaderClock) == HeaderClock()
+
+
+def test_a_header_document_that_does_not_fit_its_view_is_logged_not_silent(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    caplog.set_level(logging.WARNING, logger="wire.messages")
+    assert header_part({"source": "simulated", "wall_start": "soon"}, HeaderClock) == HeaderClock()
+    assert header_part(["a", "list"], HeaderScene) == HeaderScene()
+    assert header_part(None, HeaderJob) == HeaderJob()  # missing: not a warning
+    messages = [r.getMessage() for r in caplog.records]
+    assert len(messages) == 2, messages
+    assert "HeaderClock does not fit" in messages[0], messages
+    assert "wall_start" in messages[0], messages
+    assert "HeaderScene is a list, not a table" in messages[1], messages
 
 
 def test_every_topic_has_a_schema_named_after_it() -> None:
