@@ -406,9 +406,12 @@ async def _run(
         session.publish("state", job.status())  # the first message: it opens the first recording file
         path = recording.path or options.record_dir
         # Everything allocated so far lives as long as the process: keep it out of the cyclic collector's
-        # scans, whose full passes over it stalled the loop for tens of milliseconds.
-        gc.collect()
-        gc.freeze()
+        # scans, whose full passes over it stalled the loop for tens of milliseconds. Once per process: a
+        # process that serves again (tests, bench, replays) froze its long-lived part already, and freezing
+        # again would keep each earlier serve's cyclic garbage from the collector for good.
+        if gc.get_freeze_count() == 0:
+            gc.collect()
+            gc.freeze()
         notifier.ready(f"robot {config.robot_id} idle")
         log.info(
             "daemon_ready",
