@@ -600,19 +600,19 @@ def continues_earlier_job(session: RecordedSession) -> bool:
     counter it knew): it was started by a ``start`` command that named neither a dataset nor mugs."""
     from daemon.commands_handler import StartBody
 
-    for r in session.commands():
-        command = r.message
-        assert isinstance(command, Command)  # (``commands()`` keeps only those)
-        if command.verb != "start" or r.t_ns > session.start_ns:
-            continue
-        # The start body as the operator sent it, read as the daemon reads it (``StartBody``); one the
-        # daemon refuses started nothing.
-        try:
-            body = convert(json.loads(command.payload or "{}"), StartBody, root="start")
-        except (ValueError, Invalid):
-            return False
-        return body.dataset is None and body.mugs is None
-    return False
+    # The start that began it: logged with its reply, so after the start transition on the wall clock.
+    starting = session.starting_command()
+    if starting is None:
+        return False
+    command = starting.message
+    assert isinstance(command, Command)  # (``commands()`` keeps only those)
+    # The start body as the operator sent it, read as the daemon reads it (``StartBody``); one the
+    # daemon refuses started nothing.
+    try:
+        body = convert(json.loads(command.payload or "{}"), StartBody, root="start")
+    except (ValueError, Invalid):
+        return False
+    return body.dataset is None and body.mugs is None
 
 
 def carried_over(session: RecordedSession) -> JobContext:

@@ -117,9 +117,9 @@ def test_the_carried_slots_and_an_older_scenes_tray_mugs_are_read_through_their_
     }
 
 
-def _with_start(rig: RecordedSession, body: str) -> RecordedSession:
+def _with_start(rig: RecordedSession, body: str, *, after_ns: int = -1) -> RecordedSession:
     command = Command(t=1.0, verb="start", payload=body, reply={"ok": True})
-    record = Recorded("input/command", rig.start_ns - 1, plain(command), message=command)
+    record = Recorded("input/command", rig.start_ns + after_ns, plain(command), message=command)
     return dataclasses.replace(rig, streams={**rig.streams, "input/command": (record,)})
 
 
@@ -139,3 +139,12 @@ def test_a_job_continues_an_earlier_one_when_its_start_body_names_neither_datase
     rig: RecordedSession, body: str, continues: bool
 ) -> None:
     assert continues_earlier_job(_with_start(rig, body)) is continues
+
+
+def test_a_start_logged_after_the_start_transition_as_on_the_wall_clock_still_continues(
+    rig: RecordedSession,
+) -> None:
+    """The daemon logs a command with its reply, which comes after the transition it caused: on the wall
+    clock a few milliseconds after the job's start."""
+    assert continues_earlier_job(_with_start(rig, "{}", after_ns=5_000_000))
+    assert not continues_earlier_job(_with_start(rig, '{"dataset": 2}', after_ns=5_000_000))
