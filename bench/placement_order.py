@@ -18,7 +18,10 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import multiprocessing
+import multiprocessing.forkserver
+import os
 import statistics
+import threading
 import time
 from collections.abc import Callable, Sequence
 
@@ -76,8 +79,8 @@ def order_table(
     of ``jobs`` worker processes (each keeps one cycle planner per dataset, with what it remembers of the
     tray's shared motions, across layouts). ``unchecked=False`` skips the unchecked baseline (a second
     packing and job run per layout), which the order target does not need. The workers log at
-    ``log_level`` to stderr, as the command line does (they die with the forkserver they were forked from,
-    which outlives a bench killed with SIGKILL)."""
+    ``log_level`` to stderr, as the command line does; they and the forkserver they come from die with
+    the bench, even by SIGKILL (``daemon.lifeline``)."""
     config = load_config()
     tasks: list[tuple[int, int, Problem]] = []
     mugs: dict[int, int] = {}
@@ -94,8 +97,13 @@ def order_table(
             runs[n].append(run_layout(n, problem, unchecked))
     else:
         context = multiprocessing.get_context("forkserver")
+        if threading.current_thread() is threading.main_thread():
+            # As the daemon's planning pool does: the forkserver dies with this process, even by SIGKILL
+            # (its death signal follows the thread that started it), and each worker with the forkserver.
+            context.set_forkserver_preload(["daemon.forkserver_preload"])
+            multiprocessing.forkserver.ensure_running()
         with concurrent.futures.ProcessPoolExecutor(
-            jobs, mp_context=context, initializer=_worker, initargs=(log_level,)
+            jobs, mp_context=context, initializer=_worker, initargs=(log_level, os.getpid())
         ) as pool:
             futures = {pool.submit(run_layout, n, problem, unchecked): (n, k) for n, k, problem in tasks}
             for future in concurrent.futures.as_completed(futures):
@@ -158,11 +166,12 @@ class LayoutRun:
     cpu_s: float
 
 
-def _worker(log_level: str) -> None:
+def _worker(log_level: str, bench_pid: int) -> None:
     from cli.logs import configure_cli_logging
-    from daemon.lifeline import die_with_parent
+    from daemon.lifeline import die_with_parent, exit_with
 
     die_with_parent()
+    exit_with(bench_pid)
     configure_cli_logging(log_level)
 
 

@@ -91,3 +91,38 @@ def test_sigkill_mid_job_leaves_no_helper_process_alive(tmp_path: Path) -> None:
             daemon.wait(timeout=10)
         for p in _alive(daemon.pid):  # without the fix: do not leave them behind on the machine
             os.kill(p.pid, signal.SIGKILL)
+
+
+@pytest.mark.slow
+def test_sigkill_of_a_bench_with_worker_processes_leaves_none_of_them_alive() -> None:
+    """``bench placement --layouts N --jobs 2`` checks layouts in worker processes forked by the forkserver:
+    killed with SIGKILL, it takes them and the forkserver along (they used to keep running to the end)."""
+    bench = ["bench", "placement", "--layouts", "6", "--datasets", "4", "--jobs", "2", "--no-unchecked"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cli.main", *bench],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 60.0
+        helpers: list[_Proc] = []
+        while time.monotonic() < deadline:
+            helpers = [p for p in _alive(proc.pid) if p.pid != proc.pid]
+            if sum("forkserver" in p.cmdline for p in helpers) >= 3:  # the forkserver and two workers
+                break
+            time.sleep(0.1)
+        assert proc.poll() is None, "the bench ended before its workers were seen"
+        assert sum("forkserver" in p.cmdline for p in helpers) >= 3, helpers
+        os.kill(proc.pid, signal.SIGKILL)
+        killed = time.monotonic()
+        proc.wait(timeout=10)
+        while _alive(proc.pid) and time.monotonic() - killed < 10.0:
+            time.sleep(0.05)
+        assert _alive(proc.pid) == []
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+        for p in _alive(proc.pid):  # without the fix: do not leave them behind on the machine
+            os.kill(p.pid, signal.SIGKILL)
