@@ -37,7 +37,7 @@ from drivers.dynamixel.config import BusConfig
 from drivers.dynamixel.tables import MODELS_BY_NUMBER, ModelSpec, model, volts_from_ticks
 from drivers.errors import BusLost, ServoFault
 from drivers.interfaces import Clock
-from drivers.serial_port import OpenSerial
+from drivers.serial_port import OpenSerial, SerialPort
 
 log = structlog.get_logger("drivers.dynamixel")
 
@@ -131,8 +131,9 @@ class DeviceWaits(Protocol):
         """Seconds on the clock the waits run on."""
         ...
 
-    def readable(self, fd: int, timeout_s: float) -> bool:
-        """Wait up to ``timeout_s`` for ``fd`` to have bytes to read; whether it has."""
+    def readable(self, port: SerialPort, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` for ``port`` to have bytes to read (or to read end-of-file); whether it
+        has."""
         ...
 
     def sleep(self, seconds: float) -> None: ...
@@ -144,8 +145,8 @@ class WallWaits:
     def now(self) -> float:
         return time.monotonic()
 
-    def readable(self, fd: int, timeout_s: float) -> bool:
-        return bool(select.select([fd], [], [], max(0.0, timeout_s))[0])
+    def readable(self, port: SerialPort, timeout_s: float) -> bool:
+        return bool(select.select([port.fileno()], [], [], max(0.0, timeout_s))[0])
 
     def sleep(self, seconds: float) -> None:
         time.sleep(seconds)
@@ -433,7 +434,10 @@ class DynamixelBus:
             ) from None
 
     def _counters(self, servo_id: int) -> ServoCounters:
-        return self.counters.setdefault(servo_id, ServoCounters())
+        counters = self.counters.get(servo_id)
+        if counters is None:
+            counters = self.counters[servo_id] = ServoCounters()
+        return counters
 
     def _read_block(self, servo_ids: Sequence[int]) -> dict[int, p.Status]:
         if not servo_ids:
@@ -462,15 +466,15 @@ class DynamixelBus:
             port = self._port
             port.clearPort()
             port.writePort(packet)
-            fd = port.ser.fileno()
+            ser = port.ser
             deadline = waits.now() + timeout
             while len(got) < len(expected):
                 remaining = deadline - waits.now()
                 if remaining <= 0:
                     return
-                if not waits.readable(fd, remaining):
+                if not waits.readable(ser, remaining):
                     return
-                data = port.ser.read(port.ser.in_waiting or 1)
+                data = ser.read(ser.in_waiting or 1)
                 if not data:
                     raise serial.SerialException("device reports readiness to read but returned no data")
                 for frame in framer.feed(data):

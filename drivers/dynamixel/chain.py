@@ -32,7 +32,7 @@ from typing import TypeVar, cast
 from drivers.dynamixel.bus import DeviceEvent, DynamixelBus, ServoCounters
 from drivers.dynamixel.config import BusConfig
 from drivers.interfaces import Clock
-from drivers.serial_port import OpenSerial
+from drivers.serial_port import OpenSerial, SerialPort
 
 T = TypeVar("T")
 EventListener = Callable[[DeviceEvent], None]
@@ -67,6 +67,15 @@ class _Events:
                 self._listener(event)
 
 
+def _readable_now(port: SerialPort) -> bool:
+    """Whether ``port`` has bytes to read (or reads end-of-file) now: an in-process port says so itself
+    (``InProcessPort.pending``, no system call), any other is asked with ``select``."""
+    pending = getattr(port, "pending", None)
+    if pending is not None:
+        return bool(pending())
+    return bool(select.select([port.fileno()], [], [], 0)[0])
+
+
 class _InstantWaits:
     """The bus's waits while the in-process simulator answers at once: what has not arrived will not, and
     no time passes (the clock's)."""
@@ -77,8 +86,8 @@ class _InstantWaits:
     def now(self) -> float:
         return self._clock.monotonic()
 
-    def readable(self, fd: int, timeout_s: float) -> bool:
-        return bool(select.select([fd], [], [], 0)[0])
+    def readable(self, port: SerialPort, timeout_s: float) -> bool:
+        return _readable_now(port)
 
     def sleep(self, seconds: float) -> None:
         return None
@@ -141,11 +150,11 @@ class _SimulatedWaits:
     def now(self) -> float:
         return self._clock.monotonic()
 
-    def readable(self, fd: int, timeout_s: float) -> bool:
-        if select.select([fd], [], [], 0)[0]:
+    def readable(self, port: SerialPort, timeout_s: float) -> bool:
+        if _readable_now(port):
             return True
         self._turns.park(self._clock.monotonic() + timeout_s)
-        return bool(select.select([fd], [], [], 0)[0])
+        return _readable_now(port)
 
     def sleep(self, seconds: float) -> None:
         self._turns.park(self._clock.monotonic() + seconds)

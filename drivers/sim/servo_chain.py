@@ -69,9 +69,23 @@ class SimServo:
     packets: dict[tuple[int, int, int], bytes] = field(default_factory=dict)
     layout: dict[str, tuple[int, int, bool]] = field(default_factory=dict)
 
+    # Where the registers synced from the plant sit (``ServoChainSimulator._sync_from_plant``): (address,
+    # size, signed) of the present position, speed (1.0) or velocity (2.0), load (or current), the goal
+    # position, and the moving flag's and (2.0) Hardware Error Status's addresses (-1: none).
+    present: tuple[tuple[int, int, bool], ...] = ()
+    moving_at: int = -1
+    hardware_error_at: int = -1
+
     def __post_init__(self) -> None:
         # (address, size, signed) by name: the simulator looks registers up several times per packet.
         self.layout = {name: (r.address, r.size, r.signed) for name, r in self.spec.registers.items()}
+        layout = self.layout
+        speed = "present_speed" if self.spec.protocol == 1 else "present_velocity"
+        load = "present_load" if "present_load" in layout else "present_current"
+        self.present = tuple(layout[n] for n in ("present_position", speed, load, "goal_position"))
+        self.moving_at = layout["moving"][0]
+        if self.spec.protocol == 2:
+            self.hardware_error_at = layout["hardware_error_status"][0]
 
     @property
     def servo_id(self) -> int:
@@ -547,32 +561,30 @@ class ServoChainSimulator(SimulatedDevice):
     def _write(self, servo: SimServo, address: int, data: bytes) -> int:
         """Apply a write like the servo's firmware; the status error to answer with."""
         spec = servo.spec
-        if address + len(data) > len(servo.table):
+        end = address + len(data)
+        if end > len(servo.table):
             return self._range_error()
-        written = _registers_in(spec, address, len(data))
-        if (
-            self.protocol == 2
-            and servo.get("torque_enable")
-            and any(spec.registers[n].eeprom for n in written)
-        ):
+        span = _span(spec, address, len(data))
+        written = span.names
+        if self.protocol == 2 and span.eeprom and servo.get("torque_enable"):
             return 7  # access error: EEPROM is locked while the torque is on
         before_torque = servo.get("torque_enable")
         limp_before = self.protocol == 1 and servo.get("torque_limit") == 0
-        checked = "goal_position" in written or "id" in written
-        saved = bytes(servo.table) if checked else b""
-        servo.table[address : address + len(data)] = data
+        checked = span.goal or span.id
+        saved = bytes(servo.table[address:end]) if checked else b""  # all the write changes
+        servo.table[address:end] = data
         servo.synced = None  # the host may have written over the present registers too
         if servo.packets:
             servo.packets.clear()
-        if not _CONDITION_REGISTERS.isdisjoint(written):
+        if span.conditions:
             servo.live = None
-        if "baud_rate" in written or "id" in written:
+        if span.hearing:
             self._heard = None
         if checked and (
-            ("goal_position" in written and not 0 <= servo.get("goal_position") <= spec.max_tick)
-            or ("id" in written and servo.get("id") > p.MAX_ID)
+            (span.goal and not 0 <= servo.get("goal_position") <= spec.max_tick)
+            or (span.id and servo.get("id") > p.MAX_ID)
         ):
-            servo.table[:] = saved
+            servo.table[address:end] = saved
             return self._range_error()
         if self.protocol == 1 and "torque_limit" in written and servo.get("torque_limit") > 0:
             # Restoring the torque limit clears a latched shutdown on the 1.0 servos and powers them again;
@@ -591,12 +603,8 @@ class ServoChainSimulator(SimulatedDevice):
             elif on != bool(before_torque):
                 self.plant.set_torque(servo.servo_id, on)
         limp = self.protocol == 1 and servo.get("torque_limit") == 0
-        if (
-            written & {"goal_position", "moving_speed", "profile_velocity"}
-            and servo.get("torque_enable")
-            and not limp
-        ):
-            if (servo.overload_repeats or "overload" in servo.conditions) and written & {"goal_position"}:
+        if span.motion and servo.get("torque_enable") and not limp:
+            if (servo.overload_repeats or "overload" in servo.conditions) and span.goal:
                 servo.overload_repeats = max(0, servo.overload_repeats - 1)
                 self._trip(servo)
                 return self._error_byte(servo) if self.protocol == 1 else 0
@@ -671,36 +679,69 @@ class ServoChainSimulator(SimulatedDevice):
         are what the table was last synced from, with nothing written since, already reads right: the
         registers are not rewritten (a servo at rest, or read twice at one simulated instant)."""
         spec = servo.spec
-        position, velocity, load = self.plant.present(servo.servo_id)
+        table = servo.table
+        position, velocity, load = self.plant.present(table[servo.layout["id"][0]])
         state = (position, velocity, load, servo.hardware_error)
         if servo.synced == state:
             return
         servo.synced = state
-        servo.set("present_position", spec.ticks_from_rad(position))
-        servo.set(
-            "present_speed" if self.protocol == 1 else "present_velocity", spec.velocity_to_ticks(velocity)
-        )
-        load_name = "present_load" if "present_load" in spec.registers else "present_current"
-        servo.set(load_name, spec.load_to_ticks(load))
-        servo.set("moving", int(abs(servo.get("goal_position") - servo.get("present_position")) > 2))
-        if self.protocol == 2:
-            servo.set("hardware_error_status", servo.hardware_error)
+        # The registers written in place (what ``SimServo.set`` would write, without its per-name lookups):
+        # none of them is one the live conditions are read from.
+        (pa, ps, psigned), (sa, ss, _), (la, ls, _), (ga, gs, gsigned) = servo.present
+        table[pa : pa + ps] = _le(spec.ticks_from_rad(position), ps)
+        table[sa : sa + ss] = _le(spec.velocity_to_ticks(velocity), ss)
+        table[la : la + ls] = _le(spec.load_to_ticks(load), ls)
+        present = int.from_bytes(table[pa : pa + ps], "little", signed=psigned)
+        goal = int.from_bytes(table[ga : ga + gs], "little", signed=gsigned)
+        table[servo.moving_at] = int(abs(goal - present) > 2)
+        if servo.hardware_error_at >= 0:
+            table[servo.hardware_error_at] = servo.hardware_error & 0xFF
+        if servo.packets:
+            servo.packets.clear()
 
 
-_SPANS: dict[tuple[str, int, int], frozenset[str]] = {}
+def _le(value: int, size: int) -> bytes:
+    """``value`` as a register of ``size`` bytes holds it (as ``SimServo.set`` writes it)."""
+    return (value & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
 
 
-def _registers_in(spec: ModelSpec, address: int, length: int) -> frozenset[str]:
+@dataclass(frozen=True, slots=True)
+class _Span:
+    """The registers a write of some bytes at some address touches, and what the simulator must do about
+    it (worked out once per model, address and length: every write asks)."""
+
+    names: frozenset[str]
+    eeprom: bool  # an EEPROM register (locked while a 2.0 servo's torque is on)
+    goal: bool  # the goal position (range-checked; moves the servo)
+    id: bool  # the id (range-checked; changes who hears the host)
+    conditions: bool  # a register the live error conditions are read from
+    hearing: bool  # the id or the baud rate: which servos hear the host
+    motion: bool  # the goal position or the speed: the plant is given a new goal
+
+
+_SPANS: dict[tuple[str, int, int], _Span] = {}
+
+
+def _span(spec: ModelSpec, address: int, length: int) -> _Span:
     """The registers a write of ``length`` bytes at ``address`` touches (cached: a write asks every time)."""
     key = (spec.name, address, length)
-    names = _SPANS.get(key)
-    if names is None:
-        names = _SPANS[key] = frozenset(
+    span = _SPANS.get(key)
+    if span is None:
+        names = frozenset(
             name
             for name, reg in spec.registers.items()
             if reg.address < address + length and address < reg.address + reg.size
         )
-    return names
+        span = _SPANS[key] = _Span(
+            names=names,
+            eeprom=any(spec.registers[n].eeprom for n in names),
+            goal="goal_position" in names,
+            id="id" in names,
+            conditions=not _CONDITION_REGISTERS.isdisjoint(names),
+            hearing="baud_rate" in names or "id" in names,
+            motion=bool(names & {"goal_position", "moving_speed", "profile_velocity"}),
+        )
+    return span
 
 
 @functools.cache
