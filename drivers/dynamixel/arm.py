@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import functools
+import math
 from collections.abc import Sequence
 from types import TracebackType
 
@@ -179,9 +180,10 @@ class DynamixelArm:
             raise LimitViolation(f"{len(positions)} joint values for {len(self.joints)} joints")
         for joint, q in zip(self.joints, positions, strict=True):
             low, high = joint.min_rad - LIMIT_SLACK_RAD, joint.max_rad + LIMIT_SLACK_RAD
-            if not (low <= q <= high) or not np.isfinite(q):
+            value = float(q)  # a Python float compares faster than a NumPy scalar, and the same
+            if not (low <= value <= high) or not math.isfinite(value):
                 raise LimitViolation(
-                    f"joint {joint.name} (servo {joint.servo_id}) goal {float(q):.4f} rad is outside its "
+                    f"joint {joint.name} (servo {joint.servo_id}) goal {value:.4f} rad is outside its "
                     f"limits [{joint.min_rad:.4f}, {joint.max_rad:.4f}] rad; nothing was sent"
                 )
 
@@ -195,13 +197,15 @@ class DynamixelArm:
     async def _stream(self, times: np.ndarray, positions: np.ndarray) -> None:
         t0 = self._clock.monotonic()
         duration = float(times[-1])
+        columns = [np.ascontiguousarray(positions[:, k]) for k in range(positions.shape[1])]
         tick = 0
         while True:
             t = min((tick + 1) * self.period_s, duration)
-            target = np.array([np.interp(t, times, positions[:, k]) for k in range(positions.shape[1])])
-            here = np.array(
-                [np.interp(t - self.period_s, times, positions[:, k]) for k in range(positions.shape[1])]
-            )
+            # Each joint at the tick before and at this one, in one interpolation per joint (each value is
+            # interpolated on its own: the same numbers as one call per value).
+            at = np.array([t - self.period_s, t])
+            both = np.array([np.interp(at, times, column) for column in columns])
+            here, target = both[:, 0], both[:, 1]
             speed = np.clip(np.abs(target - here) / self.period_s * 1.2, 0.05, self.max_speed_rad_s)
             goals = self._goals(target, speed)
             self._state(await self._chain.call(functools.partial(_write_then_read, goals=goals)))

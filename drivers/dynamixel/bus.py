@@ -183,6 +183,7 @@ class DynamixelBus:
         self.corrupt_rate_max = corrupt_rate_max
         self.corrupt_window = corrupt_window
         self._recent: dict[int, collections.deque[bool]] = {}  # per servo: was each recent answer corrupt
+        self._recent_corrupt: dict[int, int] = {}  # per servo: how many of those were (kept as they change)
         self._on_event = on_event
         self._port: Any = None
         self._packets: Any = PacketHandler(float(config.protocol))
@@ -421,6 +422,7 @@ class DynamixelBus:
     def reset_link_stats(self) -> None:
         """Forget the recent answers the corruption rate is judged on (after the cause was dealt with)."""
         self._recent.clear()
+        self._recent_corrupt.clear()
 
     # ------------------------------------------------------------------------------------------ internals
 
@@ -533,13 +535,18 @@ class DynamixelBus:
         window = self._recent.get(servo_id)
         if window is None:
             window = self._recent[servo_id] = collections.deque(maxlen=self.corrupt_window)
+            self._recent_corrupt[servo_id] = 0
+        count = self._recent_corrupt[servo_id]
+        if window and len(window) == window.maxlen and window[0]:
+            count -= 1  # the oldest answer leaves the window
         window.append(corrupt)
+        self._recent_corrupt[servo_id] = count + corrupt if window.maxlen else 0
 
     def _check_corruption(self, servo_ids: Iterable[int]) -> None:
         """BusCorrupt when more of a servo's recent answers were corrupt than ``corrupt_rate_max`` allows."""
         over = []
         for servo_id in servo_ids:
-            if sum(self._recent.get(servo_id, ())) > self.corrupt_rate_max * self.corrupt_window:
+            if self._recent_corrupt.get(servo_id, 0) > self.corrupt_rate_max * self.corrupt_window:
                 over.append(servo_id)
             elif self._faulted.get(servo_id) == ("bus_corrupt",):
                 self._mark_clear(servo_id)  # back under the threshold

@@ -8,9 +8,12 @@ from __future__ import annotations
 from collections.abc import Awaitable, Callable
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from daemon.clock import SimulatedClock, wall_seconds
 from drivers.dynamixel import BusConfig, BusCorrupt, BusTimeout, DeviceEvent, ServoChain
+from drivers.dynamixel.bus import DynamixelBus
 from drivers.dynamixel.health import ChainHealth, HealthLimits, ServoHealthFault
 from drivers.errors import BusLost
 from drivers.sim.plant import FirstOrderPlant
@@ -380,3 +383,24 @@ def test_a_lost_bus_is_reported_once_and_every_access_fails_at_once_until_replug
         assert [e.kind for e in ev] == ["bus_lost", "bus_restored"]
 
     run(body)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    window=st.integers(min_value=0, max_value=8),
+    answers=st.lists(
+        st.tuples(st.integers(min_value=1, max_value=3), st.booleans(), st.booleans()), max_size=80
+    ),
+)
+def test_the_kept_count_of_corrupt_answers_is_the_windows_own(
+    window: int, answers: list[tuple[int, bool, bool]]
+) -> None:
+    """The bus keeps each servo's count of corrupt answers in its window as answers come and go (judged on
+    every read): it is always what counting the window would give, through resets too."""
+    bus = DynamixelBus(BusConfig("inprocess:none"), clock=SimulatedClock(), corrupt_window=window)
+    for servo_id, corrupt, reset in answers:
+        bus._note_answer(servo_id, corrupt=corrupt)
+        if reset:
+            bus.reset_link_stats()
+        for i in (1, 2, 3):
+            assert bus._recent_corrupt.get(i, 0) == sum(bus._recent.get(i, ()))

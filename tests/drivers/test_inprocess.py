@@ -7,8 +7,11 @@ import select
 
 import pytest
 import serial
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from drivers.sim.inprocess import InProcessCable
+from drivers.serial_port import SerialPort
+from drivers.sim.inprocess import InProcessCable, InProcessPort
 
 
 def echo_cable() -> tuple[InProcessCable, list[bytes]]:
@@ -82,3 +85,68 @@ def test_opening_again_hangs_up_the_previous_port() -> None:
     assert cable.host_baudrate() == 57_600
     first.close()
     second.close()
+
+
+def readable(port: SerialPort) -> bool:
+    return bool(select.select([port.fileno()], [], [], 0)[0])
+
+
+def test_the_port_says_what_waits_without_a_system_call_and_select_agrees_once_asked() -> None:
+    cable, _ = echo_cable()
+    port = cable.open_serial(cable.device_path, 1_000_000)
+    assert isinstance(port, InProcessPort)
+    port.write(b"abc")
+    assert port.pending()
+    assert port.in_waiting == 3
+    # Nobody waited on the descriptor so far; asked for it now, it is readable because bytes wait.
+    assert readable(port)
+    assert port.read(1) == b"c"
+    assert readable(port)
+    assert port.pending()
+    assert port.read(10) == b"ba"
+    assert not readable(port)
+    assert not port.pending()
+    port.write(b"xy")
+    assert readable(port)
+    assert port.pending()
+    port.reset_input_buffer()
+    assert not readable(port)
+    assert not port.pending()
+    assert port.in_waiting == 0
+    cable.write(b"")  # nothing sent: nothing to wake for
+    assert not readable(port)
+    assert port.read(5) == b""
+    cable.unplug()
+    assert readable(port)
+    assert port.pending()
+    assert port.read(1) == b""
+    port.close()
+
+
+def test_what_was_sent_before_the_cable_is_pulled_is_read_then_end_of_file() -> None:
+    cable, _ = echo_cable()
+    port = cable.open_serial(cable.device_path, 115_200)
+    assert not readable(port)
+    port.write(b"12")
+    cable.unplug()
+    assert readable(port)
+    assert port.read(10) == b"21"
+    assert readable(port)  # end-of-file now
+    assert port.read(10) == b""
+    port.close()
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.binary(min_size=1, max_size=3000), max_size=60))
+def test_bytes_past_a_full_buffer_are_lost_whole_as_with_a_slow_reader(chunks: list[bytes]) -> None:
+    cable, _ = echo_cable()
+    port = cable.open_serial(cable.device_path, 115_200)
+    kept = b""
+    for chunk in chunks:
+        cable.write(chunk)
+        if len(kept) + len(chunk) <= InProcessPort.CAPACITY:
+            kept += chunk
+    assert port.in_waiting == len(kept)
+    assert port.read(len(kept) + 1) == kept
+    assert not readable(port)
+    port.close()
