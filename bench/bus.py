@@ -6,6 +6,11 @@ Measured: packet encode/decode time, the full bus cycle (sync write of every goa
 on Protocol 1.0 and 2.0, and the event loop's wake-up lateness (p99, target <= 5 ms) while the arm
 streams a trajectory at 50 Hz — idle, with the simulator in another process, and with it on a pty in this
 one (as ``dishbot run --sim --transport pty`` has it). The driver runs on the wall clock, as on the robot.
+
+Then what the simulated cells pay, in CPU time (this machine's load moves wall time, much less CPU time):
+a bus transaction as the cells run it (the real bus on dynamixel-sdk, inline on a simulated clock's loop,
+to the in-process servo chain simulator: the control tick's sync write and read of the arm, the gripper's
+read), and one wake-up of a task on the simulated clock (a timer, one loop iteration, time moved on).
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import functools
 import math
 import statistics
 import subprocess
@@ -99,6 +105,77 @@ def _cycle(
             times.append(time.perf_counter() - t0)
         retries = sum(c.retries for c in bus.counters.values())
     return times, retries
+
+
+def _median_chunk_us(chunks: Sequence[float], per_chunk: int) -> float:
+    return statistics.median(chunks) / per_chunk * 1e6
+
+
+def _inprocess_transaction_us(cycles: int, chunks: int = 5) -> float:
+    """CPU microseconds per bus transaction in the simulated cells' shape: per 20 ms tick a sync write of
+    five goals, a read of the five arm servos and one of the gripper, inline on a simulated clock over the
+    in-process simulator; the median of ``chunks`` runs of ``cycles`` ticks."""
+    from daemon.clock import SimulatedClock
+    from drivers.dynamixel import DynamixelBus, ServoChain
+    from drivers.sim import ServoChainSimulator, default_chain
+    from drivers.sim.plant import FirstOrderPlant
+
+    def _torque_on(bus: DynamixelBus) -> None:
+        for servo_id in range(1, 7):
+            bus.write_register(servo_id, "torque_enable", 1)
+
+    clock = SimulatedClock()
+    arm = [1, 2, 3, 4, 5]
+    spent: list[float] = []
+
+    async def main() -> None:
+        sim = ServoChainSimulator(default_chain(), plant=FirstOrderPlant(clock=clock.monotonic))
+        sim.start_in_process(clock)
+        chain = ServoChain(
+            BusConfig(sim.device_path),
+            default_chain(),
+            clock=clock,
+            open_serial=sim.open_serial,
+            inline=True,
+        )
+        try:
+            async with chain:
+                await chain.call(_torque_on)
+                for _ in range(chunks):
+                    start = time.process_time()
+                    for k in range(cycles):
+                        goals = {i: (0.3 * math.sin(0.01 * k + i), 1.0) for i in arm}
+                        await chain.call(functools.partial(DynamixelBus.write_goals, goals=goals))
+                        await chain.call(lambda bus: bus.read_states(arm))
+                        await chain.call(lambda bus: bus.read_states([6]))
+                        await clock.sleep(0.02)
+                    spent.append(time.process_time() - start)
+        finally:
+            sim.stop()
+
+    clock.run(main())
+    return _median_chunk_us(spent, 3 * cycles)
+
+
+def _simulated_wake_us(wakes: int, chunks: int = 5) -> float:
+    """CPU microseconds per wake-up of a task sleeping on a simulated clock (``sleep_until`` the next 20
+    ms: a timer, a loop iteration and time moved on); the median of ``chunks`` runs."""
+    from daemon.clock import SimulatedClock
+
+    clock = SimulatedClock()
+    spent: list[float] = []
+
+    async def main() -> None:
+        for _ in range(chunks):
+            start = time.process_time()
+            t = clock.monotonic()
+            for _ in range(wakes):
+                t += 0.02
+                await clock.sleep_until(t)
+            spent.append(time.process_time() - start)
+
+    clock.run(main())
+    return _median_chunk_us(spent, wakes)
 
 
 async def _jitter(path: str, seconds: float, *, with_bus: bool) -> tuple[list[float], float]:
@@ -192,6 +269,23 @@ def _run(args: argparse.Namespace) -> int:
             "event-loop jitter p99, bus at 50 Hz, pty simulator in this process",
             round(_pct(shared, 99) * 1e3, 3),
             "ms",
+            "",
+        ]
+    )
+    cycles = max(50, int(args.seconds * 300))
+    rows.append(
+        [
+            "in-process transaction CPU, inline on a simulated clock (cells)",
+            round(_inprocess_transaction_us(cycles), 1),
+            "us",
+            "",
+        ]
+    )
+    rows.append(
+        [
+            "simulated-clock wake-up CPU (timer + loop iteration)",
+            round(_simulated_wake_us(cycles * 3), 1),
+            "us",
             "",
         ]
     )

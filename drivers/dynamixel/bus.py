@@ -21,6 +21,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import select
+import struct
 import termios
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -50,6 +51,10 @@ _COMM_RX_CORRUPT = -3002
 _COMM_PORT_BUSY = -1000
 
 T = TypeVar("T")
+
+# A Protocol 1.0 state block (``_reading``): position, speed and load (little-endian 16 bits), voltage and
+# temperature (a byte each).
+_STATE_1: Final = struct.Struct("<HHHBB")
 
 
 class ChainMismatch(ServoFault):
@@ -491,6 +496,10 @@ class DynamixelBus:
                     got[status.servo_id] = status
 
         self._io(io)
+        if len(got) == len(expected):  # every servo answered: nothing to count but the answers
+            for servo_id in expected:
+                self._note_answer(servo_id, corrupt=False)
+            return got
         for servo_id in expected:
             if servo_id in got:
                 self._note_answer(servo_id, corrupt=False)
@@ -578,8 +587,7 @@ class DynamixelBus:
         spec = self._model(servo_id)
         data = status.data
         if self.config.protocol == 1:  # 36: position, 38: speed, 40: load, 42: voltage, 43: temperature
-            position, speed = p.from_le(data[0:2]), p.from_le(data[2:4])
-            load, volts, temp = p.from_le(data[4:6]), data[6], data[7]
+            position, speed, load, volts, temp = _STATE_1.unpack_from(data)
         else:  # 126: load/current, 128: velocity, 132: position, 144: voltage, 146: temperature
             load = p.from_le(data[0:2], signed=True)
             speed = p.from_le(data[2:6], signed=True)

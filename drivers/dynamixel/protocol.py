@@ -208,6 +208,8 @@ class Framer:
 
     def feed(self, data: bytes) -> list[Frame]:
         self._buf += data
+        if self.protocol == 1:
+            return self._feed_1()
         frames: list[Frame] = []
         while True:
             frame, done = self._next()
@@ -232,6 +234,41 @@ class Framer:
             return None, True
         del self._buf[:start]
         return self._frame_1() if self.protocol == 1 else self._frame_2()
+
+    def _feed_1(self) -> list[Frame]:
+        """``feed`` on Protocol 1.0 in one pass over the buffer: the frames ``_next`` would cut one at a time
+        (the same frames, corrupt count and bytes kept), deleting what was consumed once at the end."""
+        buf = self._buf
+        n = len(buf)
+        frames: list[Frame] = []
+        pos = 0
+        while True:
+            start = buf.find(HEADER_1, pos)
+            if start < 0:
+                # Keep a tail that may be the beginning of a header (a last 0xFF).
+                pos = n - 1 if pos < n and buf[n - 1] == 0xFF else n
+                break
+            if n - start < 4:
+                pos = start
+                break
+            servo_id, length = buf[start + 2], buf[start + 3]
+            if servo_id == 0xFF or length < 2:
+                # FF FF FF ... : the header may start one byte later; not a packet here.
+                pos = start + 1
+                continue
+            end = start + 4 + length
+            if n < end:
+                pos = start
+                break
+            if ~sum(buf[start + 2 : end - 1]) & 0xFF != buf[end - 1]:
+                self.corrupt += 1
+                pos = start + 1
+                continue
+            frames.append(Frame(servo_id, buf[start + 4], bytes(buf[start + 5 : end - 1])))
+            pos = end
+        if pos:
+            del buf[:pos]
+        return frames
 
     def _drop_header_byte(self) -> tuple[None, bool]:
         self.corrupt += 1

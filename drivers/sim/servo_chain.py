@@ -75,6 +75,8 @@ class SimServo:
     present: tuple[tuple[int, int, bool], ...] = ()
     moving_at: int = -1
     hardware_error_at: int = -1
+    torque_at: int = -1  # Torque Enable's address (one byte on both protocols)
+    limit_at: int = -1  # 1.0: Torque Limit's address (two bytes, unsigned); -1 on 2.0
 
     def __post_init__(self) -> None:
         # (address, size, signed) by name: the simulator looks registers up several times per packet.
@@ -84,12 +86,24 @@ class SimServo:
         load = "present_load" if "present_load" in layout else "present_current"
         self.present = tuple(layout[n] for n in ("present_position", speed, load, "goal_position"))
         self.moving_at = layout["moving"][0]
+        self.torque_at = layout["torque_enable"][0]
+        if "torque_limit" in layout:
+            self.limit_at = layout["torque_limit"][0]
         if self.spec.protocol == 2:
             self.hardware_error_at = layout["hardware_error_status"][0]
 
     @property
     def servo_id(self) -> int:
         return self.table[self.layout["id"][0]]  # one byte on both protocols
+
+    def torque_enable(self) -> int:
+        """``get("torque_enable")`` without the lookup by name (asked several times per write)."""
+        return self.table[self.torque_at]
+
+    def torque_limit(self) -> int:
+        """``get("torque_limit")`` (1.0) without the lookup by name."""
+        at = self.limit_at
+        return self.table[at] | self.table[at + 1] << 8
 
     def get(self, name: str) -> int:
         try:
@@ -566,10 +580,10 @@ class ServoChainSimulator(SimulatedDevice):
             return self._range_error()
         span = _span(spec, address, len(data))
         written = span.names
-        if self.protocol == 2 and span.eeprom and servo.get("torque_enable"):
+        if self.protocol == 2 and span.eeprom and servo.torque_enable():
             return 7  # access error: EEPROM is locked while the torque is on
-        before_torque = servo.get("torque_enable")
-        limp_before = self.protocol == 1 and servo.get("torque_limit") == 0
+        before_torque = servo.torque_enable()
+        limp_before = self.protocol == 1 and servo.torque_limit() == 0
         checked = span.goal or span.id
         saved = bytes(servo.table[address:end]) if checked else b""  # all the write changes
         servo.table[address:end] = data
@@ -586,24 +600,24 @@ class ServoChainSimulator(SimulatedDevice):
         ):
             servo.table[address:end] = saved
             return self._range_error()
-        if self.protocol == 1 and "torque_limit" in written and servo.get("torque_limit") > 0:
+        if self.protocol == 1 and "torque_limit" in written and servo.torque_limit() > 0:
             # Restoring the torque limit clears a latched shutdown on the 1.0 servos and powers them again;
             # a servo still too hot trips again at once (a lasting overload trips when next driven).
             # A shutdown for a live condition (heat that has passed) latches no bit but left the torque
             # limit at 0: powering it again is the same.
             latched = faults.bits_for(1, ("overload", "overheating"))
-            if (servo.hardware_error & latched or limp_before) and servo.get("torque_enable"):
+            if (servo.hardware_error & latched or limp_before) and servo.torque_enable():
                 self.plant.set_torque(servo.servo_id, True)
             servo.hardware_error &= ~latched
             self._apply_conditions(servo)  # a cause still present (still too hot) shuts it down again
         if "torque_enable" in written:
-            on = bool(servo.get("torque_enable"))
+            on = bool(servo.torque_enable())
             if on and (self.protocol == 2 and servo.hardware_error & servo.get("shutdown")):
                 servo.set("torque_enable", 0)  # a 2.0 servo in shutdown refuses torque until rebooted
             elif on != bool(before_torque):
                 self.plant.set_torque(servo.servo_id, on)
-        limp = self.protocol == 1 and servo.get("torque_limit") == 0
-        if span.motion and servo.get("torque_enable") and not limp:
+        limp = self.protocol == 1 and servo.torque_limit() == 0
+        if span.motion and servo.torque_enable() and not limp:
             if (servo.overload_repeats or "overload" in servo.conditions) and span.goal:
                 servo.overload_repeats = max(0, servo.overload_repeats - 1)
                 self._trip(servo)

@@ -147,3 +147,57 @@ def test_a_corrupted_status_is_never_accepted_as_data(
     for frame in p.Framer(protocol).feed(bytes(packet)):
         assert p.as_status(protocol, frame) != original
         assert p.encode(protocol, frame.servo_id, frame.code, frame.params) in bytes(packet)
+
+
+def _framed_one_at_a_time(framer: p.Framer, data: bytes) -> list[p.Frame]:
+    """``Framer.feed`` as it cuts frames on Protocol 2.0 (and cut them on 1.0 before its one-pass
+    ``_feed_1``): one ``_next`` at a time, deleting each consumed packet."""
+    framer._buf += data
+    frames: list[p.Frame] = []
+    while True:
+        frame, done = framer._next()
+        if frame is not None:
+            frames.append(frame)
+        if done:
+            return frames
+
+
+_piece_1 = st.one_of(
+    st.builds(
+        lambda i, e, d: p.encode_status(1, i, e, d),
+        st.integers(0, 0xFD),
+        st.integers(0, 0xFF),
+        st.binary(max_size=12),
+    ),
+    st.builds(
+        lambda b, k: b[:k],
+        st.builds(lambda i: p.encode_status(1, i, 0, bytes(8)), st.integers(0, 6)),
+        st.integers(0, 13),
+    ),
+    st.builds(
+        lambda b: b[:-1] + bytes((b[-1] ^ 0x01,)),
+        st.builds(lambda i: p.encode_status(1, i, 0, bytes(8)), st.integers(0, 6)),
+    ),
+    st.sampled_from([b"\xff", b"\xff\xff", b"\xff\xff\xff", b"\xff\xff\x01\x01", b"\x00"]),
+    st.binary(max_size=6),
+)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.lists(_piece_1, max_size=12), st.lists(st.integers(1, 40), min_size=1, max_size=20))
+def test_the_one_pass_protocol_1_framer_cuts_what_one_packet_at_a_time_cuts(
+    pieces: list[bytes], cuts: list[int]
+) -> None:
+    """Packets, torn packets, corrupt ones, header look-alikes and noise, fed in any chunking: the same
+    frames, the same corrupt count and the same bytes held back as cutting one packet at a time."""
+    stream = b"".join(pieces)
+    fast, slow = p.Framer(1), p.Framer(1)
+    k = 0
+    at = 0
+    while at < len(stream):
+        chunk = stream[at : at + cuts[k % len(cuts)]]
+        at += len(chunk)
+        k += 1
+        assert fast.feed(chunk) == _framed_one_at_a_time(slow, chunk)
+        assert fast.corrupt == slow.corrupt
+        assert bytes(fast._buf) == bytes(slow._buf)
