@@ -14,6 +14,7 @@ whole window tested thousands.
 
 from __future__ import annotations
 
+import bisect
 import functools
 import math
 from collections import defaultdict
@@ -27,8 +28,11 @@ from planning.placement.problem import Problem
 from planning.placement.shapes import (
     Bodies,
     MugOutline,
+    Row,
     clear_of_all,
+    clear_of_each,
     keeps_clear,
+    row,
 )
 
 GRID_MM = 2
@@ -55,6 +59,9 @@ SCANS: tuple[Scan, ...] = tuple(
     + [(a, k, d) for a in (2, 3) for k in POLAR_SLANTS for d in (1, -1)]
 )
 BEARING_MM = 500.0
+# ``_first_clear`` tests this many free corners one at a time before it tests the rest in batches.
+SCALAR_TRIES = 16
+BATCH = 64
 # (class, corner x, corner y) of a placed mug, tray coordinates
 Spot = tuple[int, int, int]
 
@@ -92,6 +99,7 @@ class _Group:
     flat_stacked: npt.NDArray[np.float64]
     free: BoolArray  # the members' ``MugClass.free``, shape (members, xs, ys)
     order: dict[Scan, npt.NDArray[np.int32]]  # the flat corner indices in each scan's order
+    corners: tuple[list[int], list[int]]  # xs and ys as lists (bisected for each placed mug)
 
 
 class MugPacker:
@@ -161,6 +169,7 @@ class MugPacker:
                         problem.tray_origin_mm,
                         problem.arm_base_mm,
                     ),
+                    (first.xs.tolist(), first.ys.tolist()),
                 )
             )
 
@@ -197,33 +206,36 @@ class MugPacker:
         # ever get taken, so its next mug starts where its last one went)
         start = [0] * len(self.classes)
         placed: list[npt.NDArray[np.float64]] = []
+        rows: list[Row] = []
         spots: list[Spot] = []
         for k in sequence:
             g, member = self.group_of[k]
             group = self.groups[g]
             flat = free[g][member].reshape(-1)  # a view: what _first_clear rejects stays cleared
+            candidates = group.flat_stacked[:, member]
             cell, start[k] = _first_clear(
-                flat, group.order[scan], start[k], group.flat_stacked[:, member], placed, self.clearance
+                flat, group.order[scan], start[k], candidates, placed, self.clearance, rows
             )
             if cell < 0:
                 continue
             i, j = divmod(cell, len(group.ys))
             spots.append((k, int(group.xs[i]), int(group.ys[j])))
-            placed.append(group.flat_stacked[:, member, cell])
-            self._block_discs(free, k, i, j)
+            placed.append(candidates[:, cell])
+            rows.append(row(candidates[:, cell].tolist()))
+            self._block_discs(free, rows[-1])
         return spots
 
-    def _block_discs(self, free: list[BoolArray], k: int, i: int, j: int) -> None:
+    def _block_discs(self, free: list[BoolArray], placed: Row) -> None:
         """Clears, in every class's mask, the corners whose brim comes closer than both radii and the
-        clearance to the brim of mug ``k`` placed at grid corner (i, j)."""
-        placed = self.classes[k].bodies
-        px, py = float(placed.cx[i, j]), float(placed.cy[i, j])
+        clearance to the brim of the mug ``placed``."""
+        px, py, radius = placed[0], placed[1], placed[2]
         for g, group in enumerate(self.groups):
-            near = group.radius + float(placed.r[i, j]) + self.clearance
-            i0 = int(np.searchsorted(group.xs, px - near - group.offset, side="left"))
-            i1 = int(np.searchsorted(group.xs, px + near - group.offset, side="right"))
-            j0 = int(np.searchsorted(group.ys, py - near - group.offset, side="left"))
-            j1 = int(np.searchsorted(group.ys, py + near - group.offset, side="right"))
+            near = group.radius + radius + self.clearance
+            xs, ys = group.corners
+            i0 = bisect.bisect_left(xs, px - near - group.offset)
+            i1 = bisect.bisect_right(xs, px + near - group.offset)
+            j0 = bisect.bisect_left(ys, py - near - group.offset)
+            j1 = bisect.bisect_right(ys, py + near - group.offset)
             if i0 >= i1 or j0 >= j1:
                 continue
             dx, dy = group.bx[i0:i1] - px, group.by[j0:j1] - py
@@ -284,18 +296,46 @@ def _scan_orders(
     """Every scan's order of the flat corner indices of the grid up to (``x_limit``, ``y_limit``) (corner
     to brim centre ``offset``; the tray corner at ``origin``, the arm base at ``base``, world mm). The same
     for every class of a type and every problem on the tray, so kept for the packings to come (the plan
-    check's rounds and later replans in the same process)."""
+    check's rounds and later replans in the same process).
+
+    Each order is ``_order``'s (a lexicographic sort: primary key, then secondary key, then index), built
+    with one stable sort of the primary key over the corners already in secondary-key order: the tray scans'
+    secondary orders are the grid's rows or columns, and the polar scans share three (bearing up, bearing
+    down, distance) between their slants. An unslanted tray scan needs no sort at all."""
     xs, ys = _axis(x_limit, grid_mm), _axis(y_limit, grid_mm)
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
     cx, cy = np.meshgrid(xs + offset, ys + offset, indexing="ij")
     wx, wy = cx + origin[0] - base[0], cy + origin[1] - base[1]
-    polar = (np.hypot(wx, wy), np.arctan2(wy, wx))
-    orders = {}
+    distance, bearing = np.hypot(wx, wy).ravel(), np.arctan2(wy, wx).ravel()
+    nx, ny = len(xs), len(ys)
+    flat = np.arange(nx * ny, dtype=np.int64).reshape(nx, ny)
+    by_row = flat.ravel()  # x, then y (then index): corner order along each row of the grid
+    by_column = flat.T.ravel()  # y, then x
+    by_distance = np.argsort(distance, kind="stable")
+    by_bearing = {d: np.argsort(d * bearing, kind="stable") for d in (1, -1)}
+    orders: dict[Scan, npt.NDArray[np.int32]] = {}
     for scan in SCANS:
-        order = _order(gx, gy, scan, polar).astype(np.int32)
-        order.flags.writeable = False
-        orders[scan] = order
+        axis, slant, direction = scan
+        order: npt.NDArray[np.int64]
+        if axis in (0, 1) and slant == 0:
+            order = (flat if axis == 0 else flat.T)[:, ::direction].ravel()
+        elif axis in (0, 1):
+            primary, secondary = (gx, gy) if axis == 0 else (gy, gx)
+            assert direction == 1  # a slanted row scan takes its rows one way (``SCANS``)
+            order = _stable_by((primary + slant * secondary).ravel(), by_column if axis == 0 else by_row)
+        elif axis == 2:
+            order = _stable_by(distance + slant * BEARING_MM * bearing, by_bearing[direction])
+        else:
+            order = _stable_by(direction * BEARING_MM * bearing + slant * distance, by_distance)
+        kept = order.astype(np.int32)
+        kept.flags.writeable = False
+        orders[scan] = kept
     return orders
+
+
+def _stable_by(key: npt.NDArray[np.float64], before: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """The indices sorted by ``key``, ties in the order of ``before`` (a permutation of them)."""
+    return before[np.argsort(key[before], kind="stable")]
 
 
 def _order(
@@ -305,7 +345,7 @@ def _order(
     polar: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]],
 ) -> npt.NDArray[np.int64]:
     """The flat corner indices in ``scan``'s order; ``polar``: the brim centre's distance (mm) and bearing
-    (rad) from the arm base at each corner."""
+    (rad) from the arm base at each corner. The definition ``_scan_orders`` computes faster."""
     axis, slant, direction = scan
     if axis in (0, 1):
         primary, secondary = (gx, gy) if axis == 0 else (gy, gx)
@@ -325,18 +365,38 @@ def _first_clear(
     candidates: npt.NDArray[np.float64],
     placed: Sequence[npt.NDArray[np.float64]],
     clearance: float,
+    rows: Sequence[Row],
 ) -> tuple[int, int]:
     """The first corner in ``order`` (from position ``start``) free in ``free`` (flat) whose outline
     (``candidates``: the class's stacked body fields per flat corner) keeps ``clearance`` from every
-    ``placed`` outline (stacked fields); corners found too close are cleared in ``free``. Returns the corner
-    (-1: none) and its position in ``order`` (where the class's next search starts)."""
+    ``placed`` outline (stacked fields; ``rows``: the same as ``Row``); corners found too close are cleared
+    in ``free``. Returns the corner (-1: none) and its position in ``order`` (where the class's next search
+    starts).
+
+    The first ``SCALAR_TRIES`` free corners are tested one at a time in plain floats (``clear_of_each``):
+    the first is usually clear, and for one corner numpy's per-call cost is most of the work. Past them the
+    corners go to ``clear_of_all`` in growing batches."""
     if not placed:  # nothing to keep clear of: the first free corner
         rest = np.flatnonzero(free[order[start:]])
         return (int(order[start + rest[0]]), start + int(rest[0])) if rest.size else (-1, order.size)
-    others = Bodies(*np.array(placed).T)
     chunk = 1024
-    batch = 16
     pos = start
+    tries = SCALAR_TRIES
+    while tries and pos < order.size:
+        idx = order[pos : pos + chunk]
+        for at in np.flatnonzero(free[idx]).tolist():
+            cell = int(idx[at])
+            if clear_of_each(row(candidates[:, cell].tolist()), rows, clearance):
+                return cell, pos + at
+            free[cell] = False
+            tries -= 1
+            if not tries:
+                pos += at + 1
+                break
+        else:
+            pos += idx.size
+    others = Bodies(*np.array(placed).T)
+    batch = BATCH
     while pos < order.size:
         idx = order[pos : pos + chunk]
         found = np.flatnonzero(free[idx])

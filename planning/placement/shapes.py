@@ -19,6 +19,8 @@ placer can test thousands of candidate spots against a placed mug at once.
 from __future__ import annotations
 
 import functools
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -248,3 +250,63 @@ def clear_of_all(mine: Bodies, others: Bodies, clearance: float) -> npt.NDArray[
     clear = np.ones(mine.cx.shape, dtype=np.bool_)
     clear[i[~ok]] = False
     return clear
+
+
+# One mug for the scalar test (``clear_of_each``): the ``Bodies`` fields (cx, cy, r, ax, ay, bx, by, t,
+# extent), then the handle's direction (bx - ax, by - ay) and its squared length (at least 1e-12).
+Row = tuple[float, float, float, float, float, float, float, float, float, float, float, float]
+
+
+def row(fields: Sequence[float]) -> Row:
+    """A mug's ``Bodies`` fields (in their order) as a ``Row``."""
+    cx, cy, r, ax, ay, bx, by, t, extent = fields
+    dx, dy = bx - ax, by - ay
+    return (cx, cy, r, ax, ay, bx, by, t, extent, dx, dy, max(dx * dx + dy * dy, 1e-12))
+
+
+def clear_of_each(mine: Row, others: Sequence[Row], clearance: float) -> bool:
+    """Whether one mug's outline keeps ``clearance`` from every outline of ``others``: ``clear_of_all`` for
+    a single mug, in plain floats (the same distances in the same order of operations; a placer's first
+    candidate is usually clear, and for one mug numpy's per-call cost is most of the work)."""
+    cx, cy, r, ax, ay, bx, by, t, extent, dx, dy, l2 = mine
+    limit = clearance - _EPS_MM
+    for ocx, ocy, orad, oax, oay, obx, oby, ot, oext, odx, ody, ol2 in others:
+        d = math.hypot(cx - ocx, cy - ocy)
+        if d >= extent + oext + clearance:
+            continue
+        if d - r - orad < limit:
+            return False
+        if _ps(ocx, ocy, ax, ay, dx, dy, l2) - t - orad < limit:
+            return False
+        if _ps(cx, cy, oax, oay, odx, ody, ol2) - r - ot < limit:
+            return False
+        # the handles: 0 where they cross (each one's ends strictly on both sides of the other), else the
+        # least distance of an end to the other handle
+        d1 = odx * (ay - oay) - ody * (ax - oax)
+        d2 = odx * (by - oay) - ody * (bx - oax)
+        d3 = dx * (oay - ay) - dy * (oax - ax)
+        d4 = dx * (oby - ay) - dy * (obx - ax)
+        if d1 * d2 < 0 and d3 * d4 < 0:
+            bars = 0.0
+        else:
+            bars = min(
+                _ps(ax, ay, oax, oay, odx, ody, ol2),
+                _ps(bx, by, oax, oay, odx, ody, ol2),
+                _ps(oax, oay, ax, ay, dx, dy, l2),
+                _ps(obx, oby, ax, ay, dx, dy, l2),
+            )
+        if bars - t - ot < limit:
+            return False
+    return True
+
+
+def _ps(px: float, py: float, ax: float, ay: float, dx: float, dy: float, l2: float) -> float:
+    """``_point_segment`` for one point and one segment from (ax, ay) along (dx, dy), ``l2`` its squared
+    length (at least 1e-12)."""
+    rx, ry = px - ax, py - ay
+    u = (rx * dx + ry * dy) / l2
+    if u <= 0.0:
+        return math.hypot(rx, ry)
+    if u >= 1.0:
+        u = 1.0
+    return math.hypot(rx - u * dx, ry - u * dy)

@@ -8,14 +8,21 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from planning.placement import PlanOptions, dataset_problem, plan
-from planning.placement.mugpack import SCANS, MugPacker, Scan, Spot, _scan_orders
+from planning.placement.mugpack import SCANS, MugPacker, Scan, Spot, _axis, _order, _scan_orders
 from planning.placement.mugshaped import PACKS_BASE, area_bound
 from planning.placement.problem import Problem
-from planning.placement.shapes import Bodies, MugOutline, clear_of, clear_of_all
+from planning.placement.shapes import (
+    Bodies,
+    MugOutline,
+    clear_of,
+    clear_of_all,
+    clear_of_each,
+    row,
+)
 from tests.planning.placement.test_mug_footprint import counter_mugs, mug_problem
 
 
@@ -94,6 +101,143 @@ def test_clear_of_all_is_clear_of_every_other_mug(
     for k in range(len(others)):
         expected &= clear_of(a, b, k, clearance)
     assert clear_of_all(a, b, clearance).tolist() == expected.tolist()
+
+
+mug_rows = st.lists(
+    st.tuples(
+        st.floats(0, 300),
+        st.floats(0, 300),
+        st.floats(-4, 4),
+        st.sampled_from(["big", "small"]),
+        st.floats(0, 0.2),
+    ),
+    min_size=1,
+    max_size=12,
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(mine=mug_rows, others=mug_rows, clearance=st.floats(0, 20), grid=st.booleans())
+def test_the_scalar_clearance_agrees_with_the_vectorised_one(
+    mine: list[tuple[float, float, float, str, float]],
+    others: list[tuple[float, float, float, str, float]],
+    clearance: float,
+    grid: bool,
+) -> None:
+    """``clear_of_each`` (one mug, plain floats: the packer's first tries) says what ``clear_of_all``
+    (numpy, the batches) says, for mugs of both types with handles thickened as a class's are; ``grid``
+    snaps the brims to whole millimetres and the clearance to a whole number, where outlines touch exactly
+    at the clearance (the packer's grid)."""
+    types = mug_problem((300, 300), 10, [("big", 0.0, 400.0, None)]).mug_types
+
+    def bodies(rows: list[tuple[float, float, float, str, float]]) -> Bodies:
+        parts = []
+        for x, y, yaw, kind, thicker in rows:
+            o = MugOutline.of(types[kind])
+            o = replace(o, half_thickness=o.half_thickness + thicker * o.handle_to)
+            if grid:
+                x, y = float(round(x)), float(round(y))
+            parts.append(Bodies.build(o, np.array([x]), np.array([y]), np.array([yaw])))
+        return Bodies(*(np.concatenate([getattr(b, f) for b in parts]) for f in Bodies.__dataclass_fields__))
+
+    gap = float(round(clearance)) if grid else clearance
+    a, b = bodies(mine), bodies(others)
+    vectorised = clear_of_all(a, b, gap).tolist()
+    stacked = np.stack([getattr(b, f) for f in Bodies.__dataclass_fields__], axis=1)
+    rows_b = [row(r) for r in stacked.tolist()]
+    mine_rows = np.stack([getattr(a, f) for f in Bodies.__dataclass_fields__], axis=1).tolist()
+    assert [clear_of_each(row(r), rows_b, gap) for r in mine_rows] == vectorised
+
+
+def test_the_scalar_clearance_measures_what_shapely_measures() -> None:
+    """Two big mugs, one moved along x past the other, handles crossing, touching and apart: clear exactly
+    where shapely's distance between the outlines is at least the clearance."""
+    from shapely.geometry import LineString, Point
+
+    o = MugOutline.of(mug_problem((300, 300), 10, [("big", 0.0, 400.0, None)]).mug_types["big"])
+
+    def parts(x: float, y: float, yaw: float) -> tuple[Point, LineString]:
+        c, s = np.cos(yaw), np.sin(yaw)
+        bar = LineString(
+            [(x + o.handle_from * c, y + o.handle_from * s), (x + o.handle_to * c, y + o.handle_to * s)]
+        )
+        return Point(x, y), bar
+
+    fixed = (100.0, 100.0, 0.0)
+    p2, b2 = parts(*fixed)
+    one = row(
+        np.array(
+            [
+                getattr(Bodies.build(o, *(np.array([v]) for v in fixed)), f)[0]
+                for f in Bodies.__dataclass_fields__
+            ]
+        ).tolist()
+    )
+    for x in np.arange(100.0, 320.0, 1.5):
+        for y, yaw in (
+            (160.0, np.pi),
+            (100.0 + 2 * o.radius + 2 * o.half_thickness, np.pi / 2),
+            (140.0, 3.0),
+        ):
+            b = Bodies.build(o, np.array([x]), np.array([y]), np.array([yaw]))
+            mine = row(np.array([getattr(b, f)[0] for f in Bodies.__dataclass_fields__]).tolist())
+            p1, b1 = parts(x, y, yaw)
+            gap = min(
+                p1.distance(p2) - 2 * o.radius,
+                p1.distance(b2) - o.radius - o.half_thickness,
+                b1.distance(p2) - o.half_thickness - o.radius,
+                b1.distance(b2) - 2 * o.half_thickness,
+            )
+            if abs(gap - 10.0) > 1e-6:  # exactly at the clearance: either answer is within float rounding
+                assert clear_of_each(mine, [one], 10.0) == (gap >= 10.0), (x, y, yaw, gap)
+
+
+def test_handles_that_cross_far_from_their_ends_are_not_clear() -> None:
+    """Two long thin handles crossing at right angles, every end 49 mm or more from the other handle and
+    the brims far apart: they touch (shapely: distance 0), so neither test finds them clear."""
+    from shapely.geometry import LineString
+
+    o = MugOutline(radius=1.0, handle_from=1.0, handle_to=100.0, half_thickness=0.5)
+    a = Bodies.build(o, np.array([0.0]), np.array([0.0]), np.array([0.0]))
+    b = Bodies.build(o, np.array([50.0]), np.array([-50.0]), np.array([np.pi / 2]))
+    assert LineString([(1, 0), (100, 0)]).distance(LineString([(50, -49), (50, 50)])) == 0.0
+
+    def one(m: Bodies) -> list[float]:
+        return [float(getattr(m, f)[0]) for f in Bodies.__dataclass_fields__]
+
+    assert not clear_of_all(a, b, 10.0)[0]
+    assert not clear_of_each(row(one(a)), [row(one(b))], 10.0)
+    moved = Bodies.build(o, np.array([50.0]), np.array([-150.0]), np.array([np.pi / 2]))  # ends 49 mm short
+    assert clear_of_all(a, moved, 10.0)[0]
+    assert clear_of_each(row(one(a)), [row(one(moved))], 10.0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    limits=st.tuples(st.integers(-2, 60), st.integers(-2, 60)),
+    grid_mm=st.integers(1, 5),
+    offset=st.sampled_from([30.0, 42.0, 50.5]),
+    origin=st.tuples(st.floats(-200, 200), st.floats(-300, 300)),
+    base=st.sampled_from([(0.0, 0.0), (25.0, -30.0)]),
+)
+@example(limits=(40, 40), grid_mm=2, offset=30.0, origin=(-50.0, -50.0), base=(0.0, 0.0))  # ties
+def test_every_scan_order_is_its_lexicographic_definition(
+    limits: tuple[int, int],
+    grid_mm: int,
+    offset: float,
+    origin: tuple[float, float],
+    base: tuple[float, float],
+) -> None:
+    """``_scan_orders`` (stable sorts over shared secondary orders) gives exactly ``_order``'s lexsorts,
+    ties included: a grid of corners on both sides of the arm base, some on its axes."""
+    xs, ys = _axis(limits[0], grid_mm), _axis(limits[1], grid_mm)
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    cx, cy = np.meshgrid(xs + offset, ys + offset, indexing="ij")
+    wx, wy = cx + origin[0] - base[0], cy + origin[1] - base[1]
+    polar = (np.hypot(wx, wy), np.arctan2(wy, wx))
+    orders = _scan_orders.__wrapped__(limits[0], limits[1], grid_mm, offset, origin, base)
+    for scan in SCANS:
+        assert orders[scan].tolist() == _order(gx, gy, scan, polar).tolist(), scan
 
 
 def test_the_search_stops_once_every_counter_mug_is_placed() -> None:
