@@ -26,13 +26,15 @@ import numpy.typing as npt
 
 from planning.placement.problem import Problem
 from planning.placement.shapes import (
+    NEAR_SLACK_MM,
     Bodies,
     MugOutline,
     Row,
     clear_of_all,
-    clear_of_each,
     keeps_clear,
+    near_rows,
     row,
+    too_close,
 )
 
 GRID_MM = 2
@@ -60,8 +62,9 @@ SCANS: tuple[Scan, ...] = tuple(
 )
 BEARING_MM = 500.0
 # ``_first_clear`` tests this many free corners one at a time before it tests the rest in batches.
-SCALAR_TRIES = 16
-BATCH = 64
+SCALAR_TRIES = 512
+BATCH = 256
+CHUNK = 1024
 # (class, corner x, corner y) of a placed mug, tray coordinates
 Spot = tuple[int, int, int]
 
@@ -135,6 +138,8 @@ class MugPacker:
                 free &= keeps_clear(bodies.gap_to(fixed, k), self.clearance)
             stacked = np.stack([getattr(bodies, f) for f in Bodies.__dataclass_fields__])
             self.classes.append(MugClass(type_name, rel, xs, ys, bodies, stacked, free))
+        # each class's corners as ``shapes.Row``, made as packings test them (the same for every packing)
+        self._rows: list[list[Row | None]] = [[None] * c.free.size for c in self.classes]
         # Classes of one type share the grid and the brim discs: their masks are kept and updated together.
         by_type: dict[str, list[int]] = defaultdict(list)
         for k, c in enumerate(self.classes):
@@ -213,16 +218,20 @@ class MugPacker:
             group = self.groups[g]
             flat = free[g][member].reshape(-1)  # a view: what _first_clear rejects stays cleared
             candidates = group.flat_stacked[:, member]
+            cache = self._rows[k]
             cell, start[k] = _first_clear(
-                flat, group.order[scan], start[k], candidates, placed, self.clearance, rows
+                flat, group.order[scan], start[k], candidates, placed, self.clearance, rows, cache
             )
             if cell < 0:
                 continue
             i, j = divmod(cell, len(group.ys))
             spots.append((k, int(group.xs[i]), int(group.ys[j])))
             placed.append(candidates[:, cell])
-            rows.append(row(candidates[:, cell].tolist()))
-            self._block_discs(free, rows[-1])
+            mine = cache[cell]
+            if mine is None:
+                mine = cache[cell] = row(candidates[:, cell].tolist())
+            rows.append(mine)
+            self._block_discs(free, mine)
         return spots
 
     def _block_discs(self, free: list[BoolArray], placed: Row) -> None:
@@ -366,6 +375,7 @@ def _first_clear(
     placed: Sequence[npt.NDArray[np.float64]],
     clearance: float,
     rows: Sequence[Row],
+    cache: list[Row | None],
 ) -> tuple[int, int]:
     """The first corner in ``order`` (from position ``start``) free in ``free`` (flat) whose outline
     (``candidates``: the class's stacked body fields per flat corner) keeps ``clearance`` from every
@@ -373,21 +383,33 @@ def _first_clear(
     in ``free``. Returns the corner (-1: none) and its position in ``order`` (where the class's next search
     starts).
 
-    The first ``SCALAR_TRIES`` free corners are tested one at a time in plain floats (``clear_of_each``):
-    the first is usually clear, and for one corner numpy's per-call cost is most of the work. Past them the
-    corners go to ``clear_of_all`` in growing batches."""
+    The first ``SCALAR_TRIES`` free corners are tested one at a time in plain floats (``clear_of_each``,
+    against the placed mugs near them; ``cache``: the class's corners as ``Row``, filled as they are
+    tested): the first is usually clear, and for one corner numpy's per-call cost would be most of the
+    work. Past them the corners go to ``clear_of_all`` in growing batches."""
     if not placed:  # nothing to keep clear of: the first free corner
         rest = np.flatnonzero(free[order[start:]])
         return (int(order[start + rest[0]]), start + int(rest[0])) if rest.size else (-1, order.size)
-    chunk = 1024
+    chunk = CHUNK
     pos = start
     tries = SCALAR_TRIES
+    near: list[Row] = []
+    at_x = at_y = math.inf
     while tries and pos < order.size:
         idx = order[pos : pos + chunk]
-        for at in np.flatnonzero(free[idx]).tolist():
-            cell = int(idx[at])
-            if clear_of_each(row(candidates[:, cell].tolist()), rows, clearance):
+        found = np.flatnonzero(free[idx])
+        for at, cell in zip(found.tolist(), idx[found].tolist(), strict=True):
+            mine = cache[cell]
+            if mine is None:
+                mine = cache[cell] = row(candidates[:, cell].tolist())
+            if math.hypot(mine[0] - at_x, mine[1] - at_y) > NEAR_SLACK_MM:
+                at_x, at_y = mine[0], mine[1]
+                near = near_rows(at_x, at_y, mine[8] + clearance, rows)
+            k = too_close(mine, near, clearance)
+            if k < 0:
                 return cell, pos + at
+            if k:  # test the next corner against this mug first: it is usually too close to it too
+                near.insert(0, near.pop(k))
             free[cell] = False
             tries -= 1
             if not tries:

@@ -253,33 +253,75 @@ def clear_of_all(mine: Bodies, others: Bodies, clearance: float) -> npt.NDArray[
 
 
 # One mug for the scalar test (``clear_of_each``): the ``Bodies`` fields (cx, cy, r, ax, ay, bx, by, t,
-# extent), then the handle's direction (bx - ax, by - ay) and its squared length (at least 1e-12).
-Row = tuple[float, float, float, float, float, float, float, float, float, float, float, float]
+# extent), then the handle's direction (bx - ax, by - ay), its squared length (at least 1e-12), its middle
+# and half its length.
+Row = tuple[
+    float, float, float, float, float, float, float, float, float, float, float, float, float, float, float
+]
+# A part is tested exactly unless a bound (the triangle inequality through a handle's middle) shows it
+# keeps the clearance by this much more than float rounding could take away.
+_BOUND_MARGIN_MM = 1e-9
 
 
 def row(fields: Sequence[float]) -> Row:
     """A mug's ``Bodies`` fields (in their order) as a ``Row``."""
     cx, cy, r, ax, ay, bx, by, t, extent = fields
     dx, dy = bx - ax, by - ay
-    return (cx, cy, r, ax, ay, bx, by, t, extent, dx, dy, max(dx * dx + dy * dy, 1e-12))
+    return (
+        cx,
+        cy,
+        r,
+        ax,
+        ay,
+        bx,
+        by,
+        t,
+        extent,
+        dx,
+        dy,
+        max(dx * dx + dy * dy, 1e-12),
+        (ax + bx) / 2.0,
+        (ay + by) / 2.0,
+        math.hypot(dx, dy) / 2.0,
+    )
 
 
 def clear_of_each(mine: Row, others: Sequence[Row], clearance: float) -> bool:
     """Whether one mug's outline keeps ``clearance`` from every outline of ``others``: ``clear_of_all`` for
-    a single mug, in plain floats (the same distances in the same order of operations; a placer's first
-    candidate is usually clear, and for one mug numpy's per-call cost is most of the work)."""
-    cx, cy, r, ax, ay, bx, by, t, extent, dx, dy, l2 = mine
+    a single mug, in plain floats (a placer's first candidate is usually clear, and for one mug numpy's
+    per-call cost is most of the work)."""
+    return too_close(mine, others, clearance) < 0
+
+
+def too_close(mine: Row, others: Sequence[Row], clearance: float) -> int:
+    """The index of the first of ``others`` whose outline comes closer than ``clearance`` to ``mine``'s,
+    -1 if none does (``clear_of_each``). The same distances in the same order of operations as
+    ``clear_of_all``; a handle's distance is only skipped where its middle is so far that the handle keeps
+    the clearance anyway (by ``_BOUND_MARGIN_MM`` more)."""
+    cx, cy, r, ax, ay, bx, by, t, extent, dx, dy, l2, mx, my, half = mine
     limit = clearance - _EPS_MM
-    for ocx, ocy, orad, oax, oay, obx, oby, ot, oext, odx, ody, ol2 in others:
-        d = math.hypot(cx - ocx, cy - ocy)
+    safe = limit + _BOUND_MARGIN_MM
+    hypot = math.hypot
+    for k, (ocx, ocy, orad, oax, oay, obx, oby, ot, oext, odx, ody, ol2, omx, omy, ohalf) in enumerate(
+        others
+    ):
+        d = hypot(cx - ocx, cy - ocy)
         if d >= extent + oext + clearance:
             continue
         if d - r - orad < limit:
-            return False
-        if _ps(ocx, ocy, ax, ay, dx, dy, l2) - t - orad < limit:
-            return False
-        if _ps(cx, cy, oax, oay, odx, ody, ol2) - r - ot < limit:
-            return False
+            return k
+        if (
+            hypot(ocx - mx, ocy - my) - half - t - orad < safe
+            and _ps(ocx, ocy, ax, ay, dx, dy, l2) - t - orad < limit
+        ):
+            return k
+        if (
+            hypot(cx - omx, cy - omy) - ohalf - r - ot < safe
+            and _ps(cx, cy, oax, oay, odx, ody, ol2) - r - ot < limit
+        ):
+            return k
+        if hypot(mx - omx, my - omy) - half - ohalf - t - ot >= safe:
+            continue
         # the handles: 0 where they cross (each one's ends strictly on both sides of the other), else the
         # least distance of an end to the other handle
         d1 = odx * (ay - oay) - ody * (ax - oax)
@@ -296,8 +338,20 @@ def clear_of_each(mine: Row, others: Sequence[Row], clearance: float) -> bool:
                 _ps(obx, oby, ax, ay, dx, dy, l2),
             )
         if bars - t - ot < limit:
-            return False
-    return True
+            return k
+    return -1
+
+
+def near_rows(x: float, y: float, reach: float, rows: Sequence[Row]) -> list[Row]:
+    """The ``rows`` that could come within the clearance of a mug whose extent plus the clearance is
+    ``reach`` and whose axis is anywhere within ``NEAR_SLACK_MM`` of (x, y); ``clear_of_each`` skips
+    the others at once, so a placer may test such mugs against these alone."""
+    bound = reach + NEAR_SLACK_MM + _BOUND_MARGIN_MM
+    return [o for o in rows if math.hypot(o[0] - x, o[1] - y) < o[8] + bound]
+
+
+# How far a candidate may lie from the point ``near_rows`` was taken at.
+NEAR_SLACK_MM = 30.0
 
 
 def _ps(px: float, py: float, ax: float, ay: float, dx: float, dy: float, l2: float) -> float:

@@ -16,11 +16,14 @@ from planning.placement.mugpack import SCANS, MugPacker, Scan, Spot, _axis, _ord
 from planning.placement.mugshaped import PACKS_BASE, area_bound
 from planning.placement.problem import Problem
 from planning.placement.shapes import (
+    NEAR_SLACK_MM,
     Bodies,
     MugOutline,
+    Row,
     clear_of,
     clear_of_all,
     clear_of_each,
+    near_rows,
     row,
 )
 from tests.planning.placement.test_mug_footprint import counter_mugs, mug_problem
@@ -147,6 +150,47 @@ def test_the_scalar_clearance_agrees_with_the_vectorised_one(
     rows_b = [row(r) for r in stacked.tolist()]
     mine_rows = np.stack([getattr(a, f) for f in Bodies.__dataclass_fields__], axis=1).tolist()
     assert [clear_of_each(row(r), rows_b, gap) for r in mine_rows] == vectorised
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    mine=mug_rows,
+    others=mug_rows,
+    clearance=st.floats(0, 20),
+    at=st.tuples(st.floats(0, 300), st.floats(0, 300)),
+)
+def test_the_mugs_near_a_point_are_all_a_mug_near_it_can_touch(
+    mine: list[tuple[float, float, float, str, float]],
+    others: list[tuple[float, float, float, str, float]],
+    clearance: float,
+    at: tuple[float, float],
+) -> None:
+    """A mug whose axis lies within ``NEAR_SLACK_MM`` of a point is clear of every mug that ``near_rows``
+    leaves out there (the packer tests the corners of a scan against the first one's near mugs)."""
+    types = mug_problem((300, 300), 10, [("big", 0.0, 400.0, None)]).mug_types
+
+    def rows(items: list[tuple[float, float, float, str, float]]) -> list[Row]:
+        out = []
+        for x, y, yaw, kind, thicker in items:
+            o = MugOutline.of(types[kind])
+            o = replace(o, half_thickness=o.half_thickness + thicker * o.handle_to)
+            b = Bodies.build(o, np.array([x]), np.array([y]), np.array([yaw]))
+            out.append(row([float(getattr(b, f)[0]) for f in Bodies.__dataclass_fields__]))
+        return out
+
+    everyone = rows(others)
+    for m in rows(mine):
+        # moved to within the slack of the point, in the direction it lies
+        dx, dy = m[0] - at[0], m[1] - at[1]
+        scale = min(1.0, NEAR_SLACK_MM / max(float(np.hypot(dx, dy)), 1e-9))
+        x, y, yaw = at[0] + dx * scale, at[1] + dy * scale, float(np.arctan2(m[4] - m[1], m[3] - m[0]))
+        o = MugOutline(m[2], float(np.hypot(m[3] - m[0], m[4] - m[1])), 0.0, m[7])
+        o = replace(o, handle_to=o.handle_from + 2 * m[14])
+        b = Bodies.build(o, np.array([x]), np.array([y]), np.array([yaw]))
+        moved = row([float(getattr(b, f)[0]) for f in Bodies.__dataclass_fields__])
+        near = near_rows(at[0], at[1], moved[8] + clearance, everyone)
+        assert all(clear_of_each(moved, [o], clearance) for o in everyone if o not in near)
+        assert clear_of_each(moved, near, clearance) == clear_of_each(moved, everyone, clearance)
 
 
 def test_the_scalar_clearance_measures_what_shapely_measures() -> None:
