@@ -395,6 +395,7 @@ def _first_clear(
     tries = SCALAR_TRIES
     near: list[Row] = []
     at_x = at_y = math.inf
+    hypot = math.hypot
     while tries and pos < order.size:
         idx = order[pos : pos + chunk]
         found = np.flatnonzero(free[idx])
@@ -402,7 +403,7 @@ def _first_clear(
             mine = cache[cell]
             if mine is None:
                 mine = cache[cell] = row(candidates[:, cell].tolist())
-            if math.hypot(mine[0] - at_x, mine[1] - at_y) > NEAR_SLACK_MM:
+            if hypot(mine[0] - at_x, mine[1] - at_y) > NEAR_SLACK_MM:
                 at_x, at_y = mine[0], mine[1]
                 near = near_rows(at_x, at_y, mine[8] + clearance, rows)
             k = too_close(mine, near, clearance)
