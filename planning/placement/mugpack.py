@@ -140,6 +140,12 @@ class MugPacker:
             self.classes.append(MugClass(type_name, rel, xs, ys, bodies, stacked, free))
         # each class's corners as ``shapes.Row``, made as packings test them (the same for every packing)
         self._rows: list[list[Row | None]] = [[None] * c.free.size for c in self.classes]
+        # What the packings found: per spot (class, flat corner) a mug was placed on, the corners of each
+        # class found too close to it. A later packing that places a mug there clears them at once.
+        self._refuses: defaultdict[tuple[int, int], defaultdict[int, list[int]]] = defaultdict(
+            lambda: defaultdict(list)
+        )
+        self._spot_of: dict[int, tuple[int, int]] = {}  # id of a placed mug's (cached) Row -> its spot
         # Classes of one type share the grid and the brim discs: their masks are kept and updated together.
         by_type: dict[str, list[int]] = defaultdict(list)
         for k, c in enumerate(self.classes):
@@ -219,9 +225,20 @@ class MugPacker:
             flat = free[g][member].reshape(-1)  # a view: what _first_clear rejects stays cleared
             candidates = group.flat_stacked[:, member]
             cache = self._rows[k]
+            refused: list[tuple[Row, int]] = []
             cell, start[k] = _first_clear(
-                flat, group.order[scan], start[k], candidates, placed, self.clearance, rows, cache
+                flat,
+                group.order[scan],
+                start[k],
+                candidates,
+                placed,
+                self.clearance,
+                rows,
+                cache,
+                refused,
             )
+            for mug, corner in refused:
+                self._refuses[self._spot_of[id(mug)]][k].append(corner)
             if cell < 0:
                 continue
             i, j = divmod(cell, len(group.ys))
@@ -232,6 +249,11 @@ class MugPacker:
                 mine = cache[cell] = row(candidates[:, cell].tolist())
             rows.append(mine)
             self._block_discs(free, mine)
+            self._spot_of[id(mine)] = (k, cell)
+            for other, corners in self._refuses[(k, cell)].items():
+                if corners:  # what earlier packings found too close to a mug on this spot
+                    og, om = self.group_of[other]
+                    free[og][om].reshape(-1)[corners] = False
         return spots
 
     def _block_discs(self, free: list[BoolArray], placed: Row) -> None:
@@ -376,6 +398,7 @@ def _first_clear(
     clearance: float,
     rows: Sequence[Row],
     cache: list[Row | None],
+    refused: list[tuple[Row, int]],
 ) -> tuple[int, int]:
     """The first corner in ``order`` (from position ``start``) free in ``free`` (flat) whose outline
     (``candidates``: the class's stacked body fields per flat corner) keeps ``clearance`` from every
@@ -386,7 +409,8 @@ def _first_clear(
     The first ``SCALAR_TRIES`` free corners are tested one at a time in plain floats (``clear_of_each``,
     against the placed mugs near them; ``cache``: the class's corners as ``Row``, filled as they are
     tested): the first is usually clear, and for one corner numpy's per-call cost would be most of the
-    work. Past them the corners go to ``clear_of_all`` in growing batches."""
+    work; each corner found too close goes to ``refused`` with the placed mug it is too close to. Past them
+    the corners go to ``clear_of_all`` in growing batches."""
     if not placed:  # nothing to keep clear of: the first free corner
         rest = np.flatnonzero(free[order[start:]])
         return (int(order[start + rest[0]]), start + int(rest[0])) if rest.size else (-1, order.size)
@@ -399,20 +423,25 @@ def _first_clear(
     while tries and pos < order.size:
         idx = order[pos : pos + chunk]
         found = np.flatnonzero(free[idx])
-        for at, cell in zip(found.tolist(), idx[found].tolist(), strict=True):
-            mine = cache[cell]
-            if mine is None:
-                mine = cache[cell] = row(candidates[:, cell].tolist())
-            if hypot(mine[0] - at_x, mine[1] - at_y) > NEAR_SLACK_MM:
-                at_x, at_y = mine[0], mine[1]
-                near = near_rows(at_x, at_y, mine[8] + clearance, rows)
-            k = too_close(mine, near, clearance)
-            if k < 0:
-                return cell, pos + at
-            if k:  # test the next corner against this mug first: it is usually too close to it too
-                near.insert(0, near.pop(k))
-            free[cell] = False
-            tries -= 1
+        for part in range(0, found.size, 32):  # the first is usually clear: Python ints for a few at a time
+            some = found[part : part + 32]
+            for at, cell in zip(some.tolist(), idx[some].tolist(), strict=True):
+                mine = cache[cell]
+                if mine is None:
+                    mine = cache[cell] = row(candidates[:, cell].tolist())
+                if hypot(mine[0] - at_x, mine[1] - at_y) > NEAR_SLACK_MM:
+                    at_x, at_y = mine[0], mine[1]
+                    near = near_rows(at_x, at_y, mine[8] + clearance, rows)
+                k = too_close(mine, near, clearance)
+                if k < 0:
+                    return cell, pos + at
+                refused.append((near[k], cell))
+                if k:  # test the next corner against this mug first: it is usually too close to it too
+                    near.insert(0, near.pop(k))
+                free[cell] = False
+                tries -= 1
+                if not tries:
+                    break
             if not tries:
                 pos += at + 1
                 break

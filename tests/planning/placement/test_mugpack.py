@@ -82,6 +82,26 @@ def test_each_mug_goes_to_the_first_corner_of_its_scan_where_it_fits(
     assert packer.pack(sequence, scan) == eager_pack(packer, sequence, scan)
 
 
+@settings(max_examples=15, deadline=None)
+@given(
+    size=st.tuples(st.integers(180, 300), st.integers(180, 300)),
+    mugs=counter_mugs,
+    packings=st.lists(st.tuples(st.integers(0, 1000), st.sampled_from(SCANS)), min_size=2, max_size=6),
+)
+def test_what_one_packing_finds_too_close_leaves_the_next_ones_unchanged(
+    size: tuple[int, int],
+    mugs: list[tuple[str, float, float, float | None]],
+    packings: list[tuple[int, Scan]],
+) -> None:
+    """One packer packs several sequences under several scans (as the search does), each later packing
+    starting from what the earlier ones found too close to the spots they used: each is still the
+    reference's."""
+    packer = MugPacker(mug_problem(size, 10, mugs))
+    for seed, scan in packings + packings:  # and again: the same spots, every refusal known
+        sequence = sorted(packer.class_of, key=lambda k: (k * 7919 + seed) % 13)
+        assert packer.pack(sequence, scan) == eager_pack(packer, sequence, scan)
+
+
 @settings(max_examples=40, deadline=None)
 @given(
     mine=st.lists(st.tuples(st.floats(0, 300), st.floats(0, 300), st.floats(-4, 4)), min_size=1, max_size=20),
