@@ -330,9 +330,10 @@ def _scan_orders(
     check's rounds and later replans in the same process).
 
     Each order is ``_order``'s (a lexicographic sort: primary key, then secondary key, then index), built
-    with one stable sort of the primary key over the corners already in secondary-key order: the tray scans'
-    secondary orders are the grid's rows or columns, and the polar scans share three (bearing up, bearing
-    down, distance) between their slants. An unslanted tray scan needs no sort at all."""
+    with one stable sort of the primary key: the tray scans' over the corners already in secondary-key order
+    (the grid's rows or columns), the polar scans' in the grid's order, ties then put in the secondary order
+    (three, shared between the slants: bearing up, bearing down, distance). An unslanted tray scan needs no
+    sort at all."""
     xs, ys = _axis(x_limit, grid_mm), _axis(y_limit, grid_mm)
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
     cx, cy = np.meshgrid(xs + offset, ys + offset, indexing="ij")
@@ -342,8 +343,9 @@ def _scan_orders(
     flat = np.arange(nx * ny, dtype=np.int64).reshape(nx, ny)
     by_row = flat.ravel()  # x, then y (then index): corner order along each row of the grid
     by_column = flat.T.ravel()  # y, then x
-    by_distance = np.argsort(distance, kind="stable")
-    by_bearing = {d: np.argsort(d * bearing, kind="stable") for d in (1, -1)}
+    # each corner's place in the polar scans' secondary orders
+    place_by_distance = _places(np.argsort(distance, kind="stable"))
+    place_by_bearing = {d: _places(np.argsort(d * bearing, kind="stable")) for d in (1, -1)}
     orders: dict[Scan, npt.NDArray[np.int32]] = {}
     for scan in SCANS:
         axis, slant, direction = scan
@@ -355,9 +357,9 @@ def _scan_orders(
             assert direction == 1  # a slanted row scan takes its rows one way (``SCANS``)
             order = _stable_by((primary + slant * secondary).ravel(), by_column if axis == 0 else by_row)
         elif axis == 2:
-            order = _stable_by(distance + slant * BEARING_MM * bearing, by_bearing[direction])
+            order = _ties_by(distance + slant * BEARING_MM * bearing, place_by_bearing[direction])
         else:
-            order = _stable_by(direction * BEARING_MM * bearing + slant * distance, by_distance)
+            order = _ties_by(direction * BEARING_MM * bearing + slant * distance, place_by_distance)
         kept = order.astype(np.int32)
         kept.flags.writeable = False
         orders[scan] = kept
@@ -367,6 +369,31 @@ def _scan_orders(
 def _stable_by(key: npt.NDArray[np.float64], before: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
     """The indices sorted by ``key``, ties in the order of ``before`` (a permutation of them)."""
     return before[np.argsort(key[before], kind="stable")]
+
+
+def _places(permutation: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """Each index's place in ``permutation``."""
+    places = np.empty_like(permutation)
+    places[permutation] = np.arange(permutation.size)
+    return places
+
+
+def _ties_by(key: npt.NDArray[np.float64], place: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """The indices sorted by ``key``, ties by ``place``: ``_stable_by`` for the permutation whose places
+    ``place`` gives, sorting the keys in their own order (a polar key runs monotonically along much of each
+    grid column, which the stable sort's runs take whole) and then only the runs of equal keys by place."""
+    ranks = np.argsort(key, kind="stable")
+    ordered = key[ranks]
+    tie = ordered[1:] == ordered[:-1]
+    if tie.any():
+        run = np.concatenate(([0], np.cumsum(~tie)))  # which run of equal keys each sorted place is in
+        tied = np.zeros(ranks.size, dtype=bool)
+        tied[:-1] |= tie
+        tied[1:] |= tie
+        at = np.flatnonzero(tied)
+        some = ranks[at]
+        ranks[at] = some[np.lexsort((place[some], run[at]))]
+    return ranks
 
 
 def _order(
