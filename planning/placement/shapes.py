@@ -13,7 +13,9 @@ lands at slot bearing + pick bearing - counter yaw (bearings from the arm base),
 handle away from the arm (the simulated counters) lands with it along the slot's bearing.
 
 Distances are exact (disc to disc, disc to segment, segment to segment) and vectorised with numpy, so a
-placer can test thousands of candidate spots against a placed mug at once.
+placer can test thousands of candidate spots against a placed mug at once; ``too_close`` computes the same
+distances in plain floats for one mug at a time (a placer's search, where the first spot tried is usually
+clear).
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from planning.placement import PlanOptions, dataset_problem, plan
+from planning.placement import PlanOptions, dataset_problem, mugpack, plan
 from planning.placement.mugpack import SCANS, MugPacker, Scan, Spot, _axis, _order, _scan_orders
 from planning.placement.mugshaped import PACKS_BASE, area_bound
 from planning.placement.problem import Problem
@@ -80,6 +80,33 @@ def test_each_mug_goes_to_the_first_corner_of_its_scan_where_it_fits(
     packer = MugPacker(mug_problem(size, tolerance, mugs))
     sequence = sorted(packer.class_of, key=lambda k: (k * 7919 + sequence_seed) % 13)
     assert packer.pack(sequence, scan) == eager_pack(packer, sequence, scan)
+
+
+@settings(max_examples=20, deadline=None)
+@given(
+    size=st.tuples(st.integers(140, 300), st.integers(140, 300)),
+    mugs=counter_mugs,
+    sequence_seed=st.integers(0, 1000),
+    scan=st.sampled_from(SCANS),
+    tries=st.integers(1, 3),
+)
+def test_past_its_first_tries_the_search_tests_in_batches_with_the_same_result(
+    size: tuple[int, int],
+    mugs: list[tuple[str, float, float, float | None]],
+    sequence_seed: int,
+    scan: Scan,
+    tries: int,
+) -> None:
+    """With only ``tries`` corners tested one at a time, the rest go to the numpy batches (``clear_of_all``;
+    the datasets' searches never get that far): each mug still takes the reference's corner."""
+    packer = MugPacker(mug_problem(size, 10, mugs))
+    sequence = sorted(packer.class_of, key=lambda k: (k * 7919 + sequence_seed) % 13)
+    kept = mugpack.SCALAR_TRIES
+    mugpack.SCALAR_TRIES = tries
+    try:
+        assert packer.pack(sequence, scan) == eager_pack(packer, sequence, scan)
+    finally:
+        mugpack.SCALAR_TRIES = kept
 
 
 @settings(max_examples=15, deadline=None)
