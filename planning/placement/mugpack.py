@@ -224,7 +224,14 @@ class MugPacker:
         placed: list[npt.NDArray[np.float64]] = []
         rows: list[Row] = []
         spots: list[Spot] = []
-        for k in sequence:
+        # per step, the groups of the classes still to come: only their masks are searched again
+        to_come: list[frozenset[int]] = []
+        later: frozenset[int] = frozenset()
+        for k in reversed(sequence):
+            to_come.append(later)
+            later = later | {self.group_of[k][0]}
+        to_come.reverse()
+        for step, k in enumerate(sequence):
             g, member = self.group_of[k]
             group = self.groups[g]
             flat = free[g][member].reshape(-1)  # a view: what _first_clear rejects stays cleared
@@ -253,19 +260,22 @@ class MugPacker:
             if mine is None:
                 mine = cache[cell] = row(candidates[:, cell].tolist())
             rows.append(mine)
-            self._block_discs(free, mine)
             self._spot_of[id(mine)] = (k, cell)
+            if not to_come[step]:
+                continue
+            self._block_discs(free, mine, to_come[step])
             for other, corners in self._refuses[(k, cell)].items():
-                if corners:  # what earlier packings found too close to a mug on this spot
-                    og, om = self.group_of[other]
+                og, om = self.group_of[other]
+                if corners and og in to_come[step]:  # what earlier packings found too close to this spot
                     free[og][om].reshape(-1)[corners] = False
         return spots
 
-    def _block_discs(self, free: list[BoolArray], placed: Row) -> None:
-        """Clears, in every class's mask, the corners whose brim comes closer than both radii and the
-        clearance to the brim of the mug ``placed``."""
+    def _block_discs(self, free: list[BoolArray], placed: Row, groups: frozenset[int]) -> None:
+        """Clears, in the masks of the classes of ``groups``, the corners whose brim comes closer than both
+        radii and the clearance to the brim of the mug ``placed``."""
         px, py, radius = placed[0], placed[1], placed[2]
-        for g, group in enumerate(self.groups):
+        for g in groups:
+            group = self.groups[g]
             near = group.radius + radius + self.clearance
             xs, ys = group.corners
             i0 = bisect.bisect_left(xs, px - near - group.offset)
