@@ -32,6 +32,8 @@ _CHECK_STEP_M = 0.01
 _COUNTER = "the counter"
 # Bounding boxes are widened by this before the exact sphere checks, so rounding cannot drop a contact.
 _BOUND_SLACK_M = 1e-9
+# A sweep's boxes (``Sweep``) are widened by this: far more than rounding, far less than any gap that matters.
+_BOX_SLACK_M = 1e-6
 
 # A collision found at one pose of a motion: the pose's index, why, and the obstacle's name.
 _Finding = tuple[int, str, str]
@@ -155,14 +157,18 @@ def _gripper_spheres(gripper: GripperGeometry, aperture_m: float) -> tuple[Float
 @dataclass(frozen=True, slots=True)
 class Sweep:
     """The gripper along the sampled poses of a motion, which no obstacle changes: the grasp point's
-    positions (N, 3) and rotations (N, 3, 3), the joints' heights (N, n-1), the lowest point of its spheres
-    (N,), the bounding box of its spheres (``lo``, ``hi``, (N, 3)) and, when kept, the spheres' centres
-    (N, S, 3). Shared when remembered: never changed."""
+    positions (N, 3) and rotations (N, 3, 3), the joints' heights (N, n-1), a height at or below the lowest
+    point of its spheres (``low_bound``, (N,)), a box around its spheres (``lo``, ``hi``, (N, 3)) and, when
+    kept, the spheres' centres (N, S, 3). Shared when remembered: never changed.
+
+    The box is the world box of the spheres' box in the grasp frame (a few numbers per pose instead of a
+    min and max over every sphere): a little larger than the spheres' own, so it only decides which poses
+    are worth checking sphere by sphere, and the checks find the same first contact."""
 
     positions: FloatArray
     rotations: FloatArray
     joint_z: FloatArray
-    low: FloatArray
+    low_bound: FloatArray
     lo: FloatArray
     hi: FloatArray
     centres: FloatArray | None
@@ -237,12 +243,16 @@ class CollisionWorld:
             joint = self.arm.joint_names[j + 1]
             why = f"the {joint} joint would go below the counter (z={joint_z[i, j]:.3f} m)"
             findings.append((i, why, _COUNTER))
-        low = sweep.low
-        bad = np.flatnonzero(low < self.floor_z + _FLOOR_MARGIN_M)
-        if len(bad):
-            i = int(bad[0])
-            findings.append((i, f"the gripper would touch the counter (z={low[i]:.3f} m)", _COUNTER))
-        hit_pose, name = self._near_vs_obstacles(sweep.lo, sweep.hi, sweep.centres_at(spheres), radii, active)
+        centres_at = sweep.centres_at(spheres)
+        near_floor = np.flatnonzero(sweep.low_bound < self.floor_z + _FLOOR_MARGIN_M)
+        if len(near_floor):
+            low = np.min(centres_at(near_floor)[:, :, 2] - radii[None, :], axis=1)
+            bad = np.flatnonzero(low < self.floor_z + _FLOOR_MARGIN_M)
+            if len(bad):
+                i = int(near_floor[bad[0]])
+                why = f"the gripper would touch the counter (z={low[bad[0]]:.3f} m)"
+                findings.append((i, why, _COUNTER))
+        hit_pose, name = self._near_vs_obstacles(sweep.lo, sweep.hi, centres_at, radii, active)
         if name:
             findings.append((hit_pose, f"the gripper would hit {name}", name))
         if held is not None:
@@ -279,10 +289,12 @@ class CollisionWorld:
         """The gripper's spheres along ``samples`` (see ``Sweep``); their centres kept when ``keep_centres``
         (a sweep remembered keeps only the poses and bounds, its centres are worked out again as needed)."""
         positions, rotations, joint_z = self._poses(samples)
-        world = positions[:, None, :] + np.einsum("nij,sj->nsi", rotations, spheres)
-        low = np.min(world[:, :, 2] - radii[None, :], axis=1)
-        lo, hi = _bounds(world, radii)
-        return Sweep(positions, rotations, joint_z, low, lo, hi, world if keep_centres else None)
+        centre, half = _frame_box(spheres, radii)
+        middle = positions + rotations @ centre
+        extent = np.abs(rotations) @ half + _BOX_SLACK_M
+        world = positions[:, None, :] + np.einsum("nij,sj->nsi", rotations, spheres) if keep_centres else None
+        lo, hi = middle - extent, middle + extent
+        return Sweep(positions, rotations, joint_z, lo[:, 2], lo, hi, world)
 
     def _poses(self, q_samples: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Grasp-point positions (N, 3), rotations (N, 3, 3) and the heights of the joints after the shoulder
@@ -293,15 +305,16 @@ class CollisionWorld:
             gaps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
             steps = np.ceil(gaps / _CHECK_STEP_M).astype(np.int64)
             if np.any(steps > 1):
-                # Each sample, preceded by the poses between it and the previous one.
-                qs = [samples[:1]]
-                for k, n in enumerate(steps.tolist(), start=1):
-                    prev, q = samples[k - 1], samples[k]
-                    if n > 1:
-                        fractions = np.arange(1, n, dtype=np.float64) / n
-                        qs.append(prev + (q - prev) * fractions[:, None])
-                    qs.append(samples[k : k + 1])
-                positions, rotations, origins = self.arm.fk_many(np.concatenate(qs))
+                # Each sample, preceded by the poses between it and the previous one: sample k follows
+                # prev + (q - prev) * j / n for j = 1 .. n-1 (n = steps[k - 1]), all at once.
+                n = np.maximum(steps, 1)
+                k = np.repeat(np.arange(1, len(samples)), n)
+                n_row = np.repeat(n, n)
+                j = np.arange(1, len(k) + 1) - np.repeat(np.cumsum(n) - n, n)
+                prev, q = samples[k - 1], samples[k]
+                between = prev + (q - prev) * (j / n_row)[:, None]
+                rows = np.where((j < n_row)[:, None], between, q)
+                positions, rotations, origins = self.arm.fk_many(np.concatenate([samples[:1], rows]))
         return positions, rotations, origins[:, 1:, 2]
 
     def _spheres_vs_obstacles(
@@ -441,6 +454,13 @@ class CollisionWorld:
             & (z_hi[:, None] > lo[None, :, 2] - gap)
         )
         return cyl_hits, box_hits
+
+
+def _frame_box(spheres: FloatArray, radii: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Centre and half-size (3,) of the box around spheres (``spheres`` (S, 3) centres, ``radii`` (S,))."""
+    lo = np.min(spheres - radii[:, None], axis=0)
+    hi = np.max(spheres + radii[:, None], axis=0)
+    return (lo + hi) / 2, (hi - lo) / 2
 
 
 def _bounds(centres: FloatArray, radii: FloatArray) -> tuple[FloatArray, FloatArray]:
