@@ -66,6 +66,26 @@ class Trapezoid:
         return s, sd, sdd
 
 
+class _Straight:
+    """The PCHIP through two waypoints over s in [0, 1], a straight segment: the numbers scipy's
+    ``PchipInterpolator`` gives there (its cubic and quadratic coefficients are exactly zero, and it
+    evaluates the start plus the slope times s), without building one (a joint move's path is two
+    waypoints, and building the interpolator cost more than timing the whole move)."""
+
+    def __init__(self, start: FloatArray, end: FloatArray) -> None:
+        slope = end - start  # (end - start) / 1.0, the knots being 0 and 1
+        self._start = 0.0 + start
+        self._slope = 0.0 + slope
+
+    def __call__(self, s: FloatArray, nu: int = 0) -> FloatArray:
+        """Positions (nu = 0), first (1) or second (2) derivatives in s at ``s``, (len(s), n_joints)."""
+        if nu == 0:
+            return np.asarray(self._start[None, :] + self._slope[None, :] * s[:, None], dtype=np.float64)
+        if nu == 1:
+            return np.repeat(self._slope[None, :], len(s), axis=0)
+        return np.zeros((len(s), len(self._slope)))
+
+
 class JointPath:
     """A time-parameterised joint path that can be evaluated at any time (for sampling and checking)."""
 
@@ -83,14 +103,17 @@ class JointPath:
         self.max_acceleration = max_acceleration
         n = len(self.waypoints)
         if n == 1:
-            self._spline: PchipInterpolator | None = None
+            self._spline: PchipInterpolator | _Straight | None = None
             self.profile = Trapezoid(1.0, 1.0)
             self.duration = 0.0
             return
         steps = np.max(np.abs(np.diff(self.waypoints, axis=0)) / max_velocity, axis=1)
         knots = np.concatenate([[0.0], np.cumsum(steps)])
         knots /= knots[-1]
-        self._spline = PchipInterpolator(knots, self.waypoints, axis=0)
+        if n == 2:
+            self._spline = _Straight(self.waypoints[0], self.waypoints[1])
+        else:
+            self._spline = PchipInterpolator(knots, self.waypoints, axis=0)
         grid = np.union1d(np.linspace(0.0, 1.0, _GRID), knots)
         d1 = np.abs(self._spline(grid, 1))
         d2 = np.abs(self._spline(grid, 2))

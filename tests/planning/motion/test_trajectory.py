@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.interpolate import PchipInterpolator
 
 from planning.interfaces import MotionRefused
 from planning.motion import plan_path
-from planning.motion.trajectory import Trapezoid
+from planning.motion.trajectory import Trapezoid, _Straight
 
 NAMES = ("a", "b", "c")
 VMAX = np.array([1.0, 2.0, 0.5])
@@ -104,3 +105,21 @@ def test_any_path_respects_speed_and_acceleration_limits(points: list[tuple[floa
     assert np.allclose(q[-1], points[-1], atol=1e-9)
     if len(times) > 1:
         _check_limits(times, q)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    start=st.lists(st.floats(-3.0, 3.0), min_size=5, max_size=5),
+    step=st.lists(st.floats(-2.0, 2.0) | st.just(0.0), min_size=5, max_size=5),
+)
+def test_a_two_waypoint_path_is_the_pchip_scipy_builds_to_the_last_bit(
+    start: list[float], step: list[float]
+) -> None:
+    """A joint move's path (two waypoints) skips building scipy's interpolator: the same numbers."""
+    a = np.array(start)
+    b = a + np.array(step)
+    pchip = PchipInterpolator(np.array([0.0, 1.0]), np.array([a, b]), axis=0)
+    straight = _Straight(a, b)
+    s = np.concatenate([np.linspace(0.0, 1.0, 97), [1e-300, 0.5 + 1e-16]])
+    for nu in (0, 1, 2):
+        assert straight(s, nu).tobytes() == np.asarray(pchip(s, nu)).tobytes()
