@@ -353,7 +353,7 @@ class CollisionWorld:
             )
             pose, which = np.nonzero(near)
             if len(pose):
-                c = centres_at(pose)  # (P, S, 3) against cyl[which] (P, 5)
+                c = _centres_once(centres_at, pose)  # (P, S, 3) against cyl[which] (P, 5)
                 o = cyl[which][:, None, :]
                 rr = radii[None, :]
                 dxy = np.hypot(c[:, :, 0] - o[:, :, 0], c[:, :, 1] - o[:, :, 1])
@@ -372,7 +372,7 @@ class CollisionWorld:
             )
             pose, which = np.nonzero(near[:first])
             if len(pose):
-                c = centres_at(pose)
+                c = _centres_once(centres_at, pose)
                 nearest = np.clip(c, self._box_lo[which][:, None, :], self._box_hi[which][:, None, :])
                 dist = np.linalg.norm(c - nearest, axis=2)
                 hit = np.flatnonzero(np.any(dist < radii[None, :], axis=1))
@@ -454,6 +454,16 @@ class CollisionWorld:
             & (z_hi[:, None] > lo[None, :, 2] - gap)
         )
         return cyl_hits, box_hits
+
+
+def _centres_once(centres_at: Callable[[IntArray], FloatArray], poses: IntArray) -> FloatArray:
+    """``centres_at(poses)`` for ascending ``poses`` with repeats (a pose near a mug's body and its handle),
+    each pose's spheres worked out once."""
+    first = np.flatnonzero(np.diff(poses, prepend=-1))
+    if len(first) == len(poses):
+        return centres_at(poses)
+    once: FloatArray = centres_at(poses[first])
+    return np.asarray(once[np.cumsum(np.diff(poses, prepend=-1) != 0) - 1], dtype=np.float64)
 
 
 def _frame_box(spheres: FloatArray, radii: FloatArray) -> tuple[FloatArray, FloatArray]:
