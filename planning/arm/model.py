@@ -49,6 +49,11 @@ def _solve_linear(a: FloatArray, b: FloatArray) -> FloatArray:
     return np.asarray(_umath_linalg.solve1(a, b, signature="dd->d"), dtype=np.float64)
 
 
+def _norm(v: FloatArray) -> float:
+    """``np.linalg.norm`` of a vector, as it works it out (the square root of v . v), without its wrapper."""
+    return math.sqrt(float(v.dot(v)))
+
+
 @dataclass(frozen=True, slots=True)
 class _Seed:
     """A starting pose for the solver; closed-form seeds carry a label naming their branch."""
@@ -372,8 +377,8 @@ class ArmModel:
             else:
                 err[3:] = pin.log3(goal_r @ placement.rotation.T) * _ROTATION_WEIGHT_M
             e_p, e_r = err[:3], err[3:]
-            pos_err = math.sqrt(float(e_p.dot(e_p)))
-            rot_err = math.sqrt(float(e_r.dot(e_r))) / _ROTATION_WEIGHT_M
+            pos_err = _norm(e_p)
+            rot_err = _norm(e_r) / _ROTATION_WEIGHT_M
             if pos_err < _CONVERGED_M and rot_err < _CONVERGED_M / _ROTATION_WEIGHT_M:
                 return q, pos_err, rot_err, it
             J = pin.getFrameJacobian(model, data, tool_id, pin.LOCAL_WORLD_ALIGNED)
@@ -499,7 +504,7 @@ class ArmModel:
         reach = g.upper_m + g.fore_m
         shoulder = np.array([0.0, 0.0, g.shoulder_z_m])
         if target.kind is GraspKind.POSITION:
-            dist = float(np.linalg.norm(goal_p - shoulder))
+            dist = _norm(goal_p - shoulder)
             if dist > reach + g.tool_m + 1e-3:
                 return (
                     f"out of reach: {dist:.3f} m from the shoulder, the arm reaches {reach + g.tool_m:.3f} m"
@@ -508,7 +513,7 @@ class ArmModel:
         approach = target.approach()
         assert approach is not None
         wrist = goal_p - g.tool_m * approach
-        dist = float(np.linalg.norm(wrist - shoulder))
+        dist = _norm(wrist - shoulder)
         if dist > reach + 1e-3:
             return (
                 f"out of reach for a {target.kind} grasp: the wrist would be {dist:.3f} m from the shoulder, "
