@@ -11,14 +11,13 @@ fixed fan of seeds. An ``ArmModel`` owns one Pinocchio ``Data`` and is not threa
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 import structlog
-from numpy.linalg import _umath_linalg
 
 from description import thesis
 from description.arm import BUNDLED_URDF, GRASP_FRAME, GripperGeometry
@@ -43,10 +42,27 @@ _STALL_ITERS = 8
 _POSITION_PITCHES_DEG = (0, -15, -30, -45, -60, -75, -90, 15, 30, 45, 60, 75, 90)
 
 
+def _lapack_solve1() -> Callable[..., object] | None:
+    """numpy's private LAPACK gufunc behind ``np.linalg.solve`` for one right-hand side, or None where this
+    numpy has no such thing (it is not public API: a numpy that moves it must not break the planner)."""
+    try:
+        from numpy.linalg import _umath_linalg
+    except ImportError:
+        return None
+    solve1 = getattr(_umath_linalg, "solve1", None)
+    return solve1 if callable(solve1) else None
+
+
+_SOLVE1 = _lapack_solve1()
+
+
 def _solve_linear(a: FloatArray, b: FloatArray) -> FloatArray:
     """``np.linalg.solve(a, b)`` for a square ``a`` that is never singular (damped: positive definite), by
-    the LAPACK routine it calls, without its checks (a fifth of the time of a whole IK iteration)."""
-    return np.asarray(_umath_linalg.solve1(a, b, signature="dd->d"), dtype=np.float64)
+    the LAPACK routine it calls, without its checks (a fifth of the time of a whole IK iteration); by
+    ``np.linalg.solve`` itself where numpy does not offer that routine."""
+    if _SOLVE1 is None:
+        return np.asarray(np.linalg.solve(a, b), dtype=np.float64)
+    return np.asarray(_SOLVE1(a, b, signature="dd->d"), dtype=np.float64)
 
 
 def _norm(v: FloatArray) -> float:
