@@ -144,7 +144,8 @@ class _Servo:
 
 @dataclass(frozen=True, slots=True)
 class ContactSample:
-    """One monitor-tick contact between two interesting bodies (used by the collision accounting)."""
+    """One monitor-tick contact between two watched bodies (used by the collision accounting): two mugs, or a
+    mug and the gripper; its normal force is MuJoCo's (``mj_contactForce``)."""
 
     geom1: int
     geom2: int
@@ -156,7 +157,6 @@ class ContactSample:
 class _GripContacts:
     contacts: list[ContactSample] = field(default_factory=list)
     pad_force_n: float = 0.0  # on the FSR
-    finger_force_n: float = 0.0  # on the finger link and its pad
     support_force_n: float = 0.0  # on the held mug from anything but the gripper (a table, the tray, a mug)
     thumb_mugs: set[int] = field(default_factory=set)  # mugs touching the thumb side (the tool link)
     finger_mugs: set[int] = field(default_factory=set)
@@ -197,20 +197,29 @@ class SimWorld:
         self.lock = threading.RLock()
         self._servos = self._bind_servos()
         ordered = sorted(self._servos.values(), key=lambda sv: sv.index)
-        # Per-servo state as arrays, so driving the servos and publishing their state costs a few numpy
-        # operations per step rather than a Python loop (the bus simulator shares the GIL with this thread).
+        # Index arrays to read every servo's state with one numpy operation per batch of steps.
         self._actuators = np.array([sv.actuator for sv in ordered], dtype=np.int64)
         self._qpos_adr = np.array([sv.qpos_adr for sv in ordered], dtype=np.int64)
         self._dof_adr = np.array([sv.dof_adr for sv in ordered], dtype=np.int64)
-        self._stall = np.array([sv.stall_torque for sv in ordered])
-        self._goal = np.zeros(len(ordered))
-        self._speed = np.zeros(len(ordered))
-        self._setpoint = np.zeros(len(ordered))
+        self._stall = [sv.stall_torque for sv in ordered]
+        # The actuators' slice of ``data.ctrl`` when they are consecutive (they are in the cell's arm):
+        # writing a slice costs a third of a fancy-indexed write, once per step while a servo moves.
+        first = int(self._actuators[0])
+        consecutive = np.array_equal(self._actuators, np.arange(first, first + len(ordered)))
+        self._ctrl_index: slice | np.ndarray = (
+            slice(first, first + len(ordered)) if consecutive else self._actuators
+        )
+        # Goals, speeds and set-points as plain float lists: six servos walk faster in Python floats than
+        # in numpy's per-call overhead (the same IEEE operations, so the same set-points to the last bit).
+        self._goal = [0.0] * len(ordered)
+        self._speed = [0.0] * len(ordered)
+        self._setpoint = [0.0] * len(ordered)
         # Bumped by every new goal; the physics skips the set-point walk while it has reached the goals of the
         # latest bump (a generation rather than a flag: a goal written mid-step is never lost).
         self._goal_gen = 0
         self._settled_gen = -1
-        self._present = (np.zeros(len(ordered)), np.zeros(len(ordered)), np.zeros(len(ordered)))
+        # Each servo's (position, velocity, load) as of the last batch of steps, by index.
+        self._present: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),) * len(ordered)
         self._mug_body = {m: self._id(mujoco.mjtObj.mjOBJ_BODY, MUG_BODY_PREFIX + m) for m in self.mug_ids}
         self._weld = {m: self._id(mujoco.mjtObj.mjOBJ_EQUALITY, WELD_PREFIX + m) for m in self.mug_ids}
         self._fsr_pad = self._id(mujoco.mjtObj.mjOBJ_GEOM, FSR_PAD_GEOM)
@@ -220,6 +229,9 @@ class SimWorld:
         self._tcp_site = self._id(mujoco.mjtObj.mjOBJ_SITE, TCP_SITE)
         self.geom_mug = self._geom_mug_index()
         self.geom_gripper = self._geom_gripper_mask()
+        self._watched_pairs = self._watched_pair_table()
+        self._geom_mug_list: list[int] = self.geom_mug.tolist()
+        self._geom_body_list: list[int] = self.model.geom_bodyid.tolist()
         self._mug_index = {m: i for i, m in enumerate(self.mug_ids)}
         self._gripper_servo = next(s for s in self._servos.values() if s.joint == "gripper")
         self._held: str | None = None
@@ -320,6 +332,15 @@ class SimWorld:
         bodies = {int(self.model.geom_bodyid[self._fsr_pad]), int(self.model.geom_bodyid[self._finger_pad])}
         return np.isin(self.model.geom_bodyid, sorted(bodies))
 
+    def _watched_pair_table(self) -> np.ndarray:
+        """For every geom pair, whether a contact between them is watched: two different mugs, or a mug
+        and the gripper (symmetric, so a contact's geoms index it in either order)."""
+        m = self.geom_mug
+        mug = m >= 0
+        two_mugs = mug[:, None] & mug[None, :] & (m[:, None] != m[None, :])
+        mug_gripper = mug[:, None] & self.geom_gripper[None, :]
+        return np.asarray(two_mugs | mug_gripper | mug_gripper.T)
+
     def _settle_at_start(self, pose: Mapping[str, float]) -> None:
         """Put the arm in ``pose``, hold it there and let the mugs settle before anyone looks."""
         unknown = set(pose) - {s.joint for s in self._servos.values()}
@@ -328,8 +349,9 @@ class SimWorld:
         for s in self._servos.values():
             self.data.qpos[s.qpos_adr] = min(max(pose.get(s.joint, 0.0), s.lower), s.upper)
         mujoco.mj_forward(self.model, self.data)
-        self._setpoint[:] = self._goal[:] = self.data.qpos[self._qpos_adr]
-        self.data.ctrl[self._actuators] = self._setpoint
+        self._setpoint = self.data.qpos[self._qpos_adr].tolist()
+        self._goal = list(self._setpoint)
+        self.data.ctrl[self._ctrl_index] = self._setpoint
         self._advance(0.3)
         self._publish_present()
         self.data.time = 0.0
@@ -344,16 +366,14 @@ class SimWorld:
         Lock-free (two attribute writes the physics thread reads each step): the bus simulator must never
         wait for a batch of physics steps, or the driver sees a servo that does not answer."""
         s = self._servo(servo_id)
-        self._speed[s.index] = s.max_speed if speed_rad_s <= 0.0 else min(speed_rad_s, s.max_speed)
-        self._goal[s.index] = min(max(position_rad, s.lower), s.upper)
+        self._speed[s.index] = float(s.max_speed if speed_rad_s <= 0.0 else min(speed_rad_s, s.max_speed))
+        self._goal[s.index] = float(min(max(position_rad, s.lower), s.upper))
         self._goal_gen += 1
 
     def present(self, servo_id: int) -> tuple[float, float, float]:
         """Present position (rad), velocity (rad/s) and load (signed fraction of the stall torque), as of
         the last physics step. Lock-free, like ``set_goal``."""
-        k = self._servo(servo_id).index
-        position, velocity, load = self._present
-        return float(position[k]), float(velocity[k]), float(load[k])
+        return self._present[self._servo(servo_id).index]
 
     def set_torque(self, servo_id: int, on: bool) -> None:
         """Torque on holds the present position; torque off lets the joint hang on its gearbox friction."""
@@ -422,7 +442,8 @@ class SimWorld:
 
     def add_contact_listener(self, listener: ContactListener) -> None:
         """Call ``listener(world, t, contacts)`` on every monitor tick, from the physics thread, with the lock
-        held: mug-mug and gripper-mug contacts. It must be quick and must not block."""
+        held: mug-mug and gripper-mug contacts, except the gripper's on the mug it has held since the last
+        tick (the grasp itself, never a collision). It must be quick and must not block."""
         self._listeners.append(listener)
 
     # ------------------------------------------------------------------------------------ fault injection
@@ -466,7 +487,7 @@ class SimWorld:
             self.data.qpos[jaw.qpos_adr] = angle
             self.data.qvel[jaw.dof_adr] = 0.0
             self._setpoint[jaw.index] = self._goal[jaw.index] = angle
-            self.data.ctrl[self._actuators] = self._setpoint
+            self.data.ctrl[self._ctrl_index] = self._setpoint
             self._goal_gen += 1
             mujoco.mj_forward(self.model, self.data)
             self._force_n = held.force_n
@@ -606,37 +627,72 @@ class SimWorld:
         self._run_steps(max(1, round(seconds / self.physics.timestep_s)))
 
     def _run_steps(self, steps: int) -> None:
+        model, data = self.model, self.data
         dt = self.physics.timestep_s
-        for _ in range(steps):
-            self._drive_servos(dt)
-            mujoco.mj_step(self.model, self.data)
-            self._steps += 1
-            if self.data.time >= self._next_monitor:
-                self._next_monitor = self.data.time + self.physics.monitor_period_s
+        left = steps
+        while left > 0:
+            if self._settled_gen != self._goal_gen:
+                # A set-point is walking: one step at a time, each with its own control.
+                self._drive_servos(dt)
+                n = 1
+            else:
+                # The controls stay as they are: MuJoCo steps on its own until the monitor is due.
+                n = self._steps_until_monitor(left, dt)
+            mujoco.mj_step(model, data, n)
+            self._steps += n
+            left -= n
+            if data.time >= self._next_monitor:
+                self._next_monitor = data.time + self.physics.monitor_period_s
                 self._monitor()
         # Once per batch: stepped by a clock, nobody reads between the steps of a batch (they run on the
         # reader's thread); in the world's own thread a batch is at most ``max_batch_s`` of real time.
         self._publish_present()
-        if not np.all(np.isfinite(self.data.qpos)):
+        if not math.isfinite(data.qpos.sum()):  # a sum is NaN or infinite when any term is
             raise SimModelError(f"the simulation diverged at t={self.time():.3f} s (non-finite positions)")
+
+    def _steps_until_monitor(self, most: int, dt: float) -> int:
+        """How many steps (1 to ``most``) take the world's time to the next monitor tick. Worked out with
+        the addition MuJoCo makes each step (``time += timestep``), so the tick falls on the same step as
+        when the time is looked at after every step."""
+        t = float(self.data.time)
+        due = self._next_monitor
+        n = 1
+        t += dt
+        while n < most and t < due:
+            t += dt
+            n += 1
+        return n
 
     def _publish_present(self) -> None:
         """Swap in a fresh snapshot of every servo's state (one reference assignment: atomic for readers)."""
         d = self.data
-        load = np.clip(d.actuator_force[self._actuators] / self._stall, -1.0, 1.0)
-        self._present = (d.qpos[self._qpos_adr].copy(), d.qvel[self._dof_adr].copy(), load)
+        loads = [
+            min(max(force / stall, -1.0), 1.0)
+            for force, stall in zip(d.actuator_force[self._actuators].tolist(), self._stall, strict=True)
+        ]
+        self._present = tuple(
+            zip(d.qpos[self._qpos_adr].tolist(), d.qvel[self._dof_adr].tolist(), loads, strict=True)
+        )
 
     def _drive_servos(self, dt: float) -> None:
         """Walk each set-point towards its goal at the commanded speed, as the servo firmware does."""
         gen = self._goal_gen
         if self._settled_gen == gen:
             return  # every set-point is at its goal: the controls stay as they are
-        step = self._speed * dt
-        delta = self._goal - self._setpoint
-        np.minimum(np.maximum(delta, -step, out=delta), step, out=delta)
-        self._setpoint += delta
-        self.data.ctrl[self._actuators] = self._setpoint
-        if not delta.any():
+        setpoint, goal, speed = self._setpoint, self._goal, self._speed
+        moved = False
+        for i, s in enumerate(setpoint):
+            step = speed[i] * dt
+            delta = goal[i] - s
+            if delta > step:
+                delta = step
+            elif delta < -step:
+                delta = -step
+            if delta != 0.0:
+                setpoint[i] = s + delta
+                moved = True
+        self.data.ctrl[self._ctrl_index] = setpoint
+        if not moved:
             self._settled_gen = gen
 
     # ------------------------------------------------------------------------- grasp and contact monitor
@@ -650,7 +706,7 @@ class SimWorld:
         if self._held is not None and grip.support_force_n > self.physics.support_force_n:
             # Pressed onto something: from here friction alone decides, so the mug can slide in the grasp.
             self._release(reason="supported")
-            self._force_n = grip.pad_force_n
+            self._force_n = self._pad_force_n()
         elif self._held is None:
             between = grip.thumb_mugs & grip.finger_mugs
             if (
@@ -694,51 +750,104 @@ class SimWorld:
         return self._held_force_n * min(max(1.0 - opening, 0.0), 2.0)
 
     def _scan_contacts(self) -> _GripContacts:
-        """Mug-mug and gripper-mug contacts of this instant, and what they mean for the grasp."""
+        """Mug-mug and gripper-mug contacts of this instant, and what they mean for the grasp.
+
+        Vectorised over MuJoCo's contact arrays: the watched geom pairs are looked up in one table, and a
+        contact's normal force is read straight from the constraint forces (with the elliptic friction cone
+        the cell uses, ``mj_contactForce`` copies exactly these numbers). Python touches only the contacts
+        that may be collisions or grasps; while a mug is held, the gripper's own contacts on it (the grasp,
+        half of all monitor ticks in a job) are summed in numpy and never reach a listener (they are never
+        collisions); its pad force is then the squeeze model's, so the pads' sum is left out
+        (``_pad_force_n`` works it out when the grasp lets go)."""
         grip = _GripContacts()
-        ncon = int(self.data.ncon)
-        if ncon == 0:
+        data = self.data
+        if data.ncon == 0:
             return grip
-        g1 = self.data.contact.geom1[:ncon]
-        g2 = self.data.contact.geom2[:ncon]
-        m1, m2 = self.geom_mug[g1], self.geom_mug[g2]
-        interesting = (
-            ((m1 >= 0) & (m2 >= 0) & (m1 != m2))
-            | ((m1 >= 0) & self.geom_gripper[g2])
-            | ((m2 >= 0) & self.geom_gripper[g1])
-        )
-        wrench = np.zeros(6)
-        body = self.model.geom_bodyid
-        for i in np.flatnonzero(interesting):
-            mujoco.mj_contactForce(self.model, self.data, int(i), wrench)
-            force = float(wrench[0])
-            a, b = int(g1[i]), int(g2[i])
-            other, mug = (b, int(m1[i])) if m1[i] >= 0 and m2[i] < 0 else (a, int(m2[i]))
-            if other == self._fsr_pad:
-                grip.pad_force_n += force
-            if body[other] == self._tool_body and force > 0.0:
-                grip.thumb_mugs.add(mug)
-            elif body[other] == self._finger_body and force > 0.0:
-                grip.finger_mugs.add(mug)
-                grip.finger_force_n += force
-            pos = self.data.contact.pos[i]
-            grip.contacts.append(ContactSample(a, b, (float(pos[0]), float(pos[1]), float(pos[2])), force))
+        contact = data.contact
+        geom = contact.geom
+        g1, g2 = geom[:, 0], geom[:, 1]
+        watched = self._watched_pairs[g1, g2]
+        held = self._held
+        if held is None:
+            looked_at = np.flatnonzero(watched)
+            if looked_at.size == 0:
+                return grip
+        else:
+            m1, m2 = self.geom_mug[g1], self.geom_mug[g2]
+            h = self._mug_index[held]
+            held1, held2 = m1 == h, m2 == h
+            gripper1, gripper2 = self.geom_gripper[g1], self.geom_gripper[g2]
+            looked_at = np.flatnonzero(watched & ~(held1 & gripper2 | held2 & gripper1))
+        efc_address = contact.efc_address
+        efc_force = data.efc_force
+        if looked_at.size:
+            self._read_contacts(grip, g1, g2, looked_at, efc_address, efc_force, contact.pos)
         # What else pushes on the mug in the gripper (or about to be): the table, the tray, another mug.
         candidates = list(grip.thumb_mugs & grip.finger_mugs)
-        if self._held is not None:
-            candidates.append(self._mug_index[self._held])
-        if candidates:
-            # One or two mugs: comparisons beat np.isin, whose set machinery dominated this scan.
-            in1 = m1 == candidates[0]
-            in2 = m2 == candidates[0]
-            for c in candidates[1:]:
-                in1 |= m1 == c
-                in2 |= m2 == c
-            mine = in1 & ~self.geom_gripper[g2] | in2 & ~self.geom_gripper[g1]
-            for i in np.flatnonzero(mine):
-                mujoco.mj_contactForce(self.model, self.data, int(i), wrench)
-                grip.support_force_n += float(wrench[0])
+        if held is None and not candidates:
+            return grip
+        if held is None:
+            m1, m2 = self.geom_mug[g1], self.geom_mug[g2]
+            gripper1, gripper2 = self.geom_gripper[g1], self.geom_gripper[g2]
+            held1 = m1 == candidates[0]
+            held2 = m2 == candidates[0]
+            candidates = candidates[1:]
+        else:
+            held1, held2 = held1.copy(), held2.copy()
+        for c in candidates:
+            held1 |= m1 == c
+            held2 |= m2 == c
+        mine = held1 & ~gripper2 | held2 & ~gripper1
+        for address in efc_address[mine].tolist():
+            grip.support_force_n += float(efc_force[address]) if address >= 0 else 0.0
         return grip
+
+    def _read_contacts(
+        self,
+        grip: _GripContacts,
+        g1: np.ndarray,
+        g2: np.ndarray,
+        looked_at: np.ndarray,
+        efc_address: np.ndarray,
+        efc_force: np.ndarray,
+        pos: np.ndarray,
+    ) -> None:
+        """Add the contacts ``looked_at`` (indices into MuJoCo's contact arrays) to ``grip``: the pad force,
+        which mugs touch the thumb and the finger, and a sample of each for the listeners."""
+        geom_mug, body = self._geom_mug_list, self._geom_body_list
+        fsr_pad, tool_body, finger_body = self._fsr_pad, self._tool_body, self._finger_body
+        for a, b, address, p in zip(
+            g1[looked_at].tolist(),
+            g2[looked_at].tolist(),
+            efc_address[looked_at].tolist(),
+            pos[looked_at].tolist(),
+            strict=True,
+        ):
+            force = float(efc_force[address]) if address >= 0 else 0.0
+            m1, m2 = geom_mug[a], geom_mug[b]
+            other, mug = (b, m1) if m1 >= 0 and m2 < 0 else (a, m2)
+            if other == fsr_pad:
+                grip.pad_force_n += force
+            if body[other] == tool_body and force > 0.0:
+                grip.thumb_mugs.add(mug)
+            elif body[other] == finger_body and force > 0.0:
+                grip.finger_mugs.add(mug)
+            grip.contacts.append(ContactSample(a, b, (p[0], p[1], p[2]), force))
+
+    def _pad_force_n(self) -> float:
+        """The normal force of every mug on the FSR pad now, summed in MuJoCo's contact order."""
+        data = self.data
+        if data.ncon == 0:
+            return 0.0
+        contact = data.contact
+        geom = contact.geom
+        g1, g2 = geom[:, 0], geom[:, 1]
+        fsr = self._fsr_pad
+        on_pad = self._watched_pairs[g1, g2] & ((g1 == fsr) | (g2 == fsr))
+        force = 0.0
+        for address in contact.efc_address[on_pad].tolist():
+            force += float(data.efc_force[address]) if address >= 0 else 0.0
+        return force
 
     def _weld_mug(self, mug: str, aperture_m: float) -> None:
         eq = self._weld[mug]
