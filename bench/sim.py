@@ -9,8 +9,8 @@ the bench reads the outcome from the job's summary and the world's ground truth:
 placed (standing on the tray, upright or inverted as planned), tray collisions (the thesis's tolerance test
 asks for none, Table 5.19) and how many of them were the gripper touching a mug it was not handling,
 simulated time per placed mug (the thesis's Gazebo runs took about 55 s, Table 5.26), simulated and wall
-time and their ratio. The cell runs on a simulated clock at full speed, as
-``dishbot run --sim --once`` does.
+time and their ratio, the wall time spent stepping the physics and the process's CPU time. The cell runs on a
+simulated clock at full speed, as ``dishbot run --sim --once`` does.
 """
 
 from __future__ import annotations
@@ -61,6 +61,11 @@ class SimRun:
     # Of the tray collisions: the gripper touching a mug other than the one it handles (the rest are mugs
     # touching mugs).
     gripper_contacts: int = 0
+    # Wall seconds the world spent stepping physics (contact monitor included), and the CPU seconds of the
+    # bench's process over the job (planning's worker processes not included): on a shared machine the
+    # CPU time moves less with the load than the wall time.
+    stepping_s: float = float("nan")
+    cpu_s: float = float("nan")
 
     @property
     def sim_s_per_mug(self) -> float:
@@ -68,7 +73,7 @@ class SimRun:
 
     @property
     def real_time_ratio(self) -> float:
-        """Simulated seconds per wall second (the MuJoCo cell's target is at least 5)."""
+        """Simulated seconds per wall second (the MuJoCo cell's target is at least 15 on dataset 1)."""
         return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else float("nan")
 
 
@@ -80,7 +85,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
             "Run one loading job per dataset in the MuJoCo cell (real drivers on simulated devices, "
             "perception on rendered depth frames) and print mugs detected, planned and placed, tray "
             "collisions (target 0), simulated seconds per placed mug, simulated and wall time and their "
-            "ratio (target >= 5). The cell runs on simulated time, as fast as the machine allows."
+            "ratio (target >= 15 on dataset 1), the wall seconds spent stepping the physics and the CPU "
+            "seconds of the job. The cell runs on simulated time, as fast as the machine allows."
         ),
     )
     parser.add_argument(
@@ -183,6 +189,8 @@ def run(args: argparse.Namespace) -> int:
             round(r.sim_time_s, 1),
             round(r.wall_time_s, 1),
             round(r.real_time_ratio, 1),
+            round(r.stepping_s, 1),
+            round(r.cpu_s, 1),
         ]
         for r in runs
     ]
@@ -202,12 +210,14 @@ def run(args: argparse.Namespace) -> int:
         "sim_s",
         "wall_s",
         "x_real_time",
+        "stepping_s",
+        "cpu_s",
     ]
     extra = {
         "fsr debounce s": args.fsr_debounce,
         "target tray_collisions": 0,
         "target gripper_contacts": 0,
-        "target x_real_time": ">= 5",
+        "target x_real_time": ">= 15 (dataset 1; stretch 18)",
         "thesis (Gazebo, Table 5.26) s per mug": thesis.THESIS_GAZEBO_SECONDS_PER_MUG,
         "thesis best placed (ds1, ds2, ds3)": [thesis.DATASETS[n].thesis_best_placed for n in datasets],
     }
@@ -248,6 +258,7 @@ async def run_dataset(
     job = Job(backend, config, publish, associate, executor=executor)
     control = asyncio.create_task(job.run())
     started = time.monotonic()
+    cpu_started = time.process_time()
     try:
         sim_start = clock.monotonic()
         await job.command("start", StartRequest())
@@ -258,6 +269,7 @@ async def run_dataset(
             await job.command("stop")
         sim_time = clock.monotonic() - sim_start
         wall = time.monotonic() - started
+        cpu = time.process_time() - cpu_started
         summary = job.summary
         on_tray = _standing_on_tray(cell)
         return SimRun(
@@ -274,6 +286,8 @@ async def run_dataset(
             end_state=summary.end_state or "timeout",
             sim_time_s=sim_time,
             wall_time_s=wall,
+            stepping_s=cell.world.wall_stepping_s,
+            cpu_s=cpu,
         )
     finally:
         await job.shutdown()
