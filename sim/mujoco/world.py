@@ -202,8 +202,8 @@ class SimWorld:
         self._qpos_adr = np.array([sv.qpos_adr for sv in ordered], dtype=np.int64)
         self._dof_adr = np.array([sv.dof_adr for sv in ordered], dtype=np.int64)
         self._stall = [sv.stall_torque for sv in ordered]
-        # The actuators' slice of ``data.ctrl`` when they are consecutive (they are in the cell's arm):
-        # writing a slice costs a third of a fancy-indexed write, once per step while a servo moves.
+        # The actuators' slice of ``data.ctrl`` when they are consecutive (they are in the cell's arm): a
+        # slice is cheaper to write than a fancy index, and it is written every step while a servo moves.
         first = int(self._actuators[0])
         consecutive = np.array_equal(self._actuators, np.arange(first, first + len(ordered)))
         self._ctrl_index: slice | np.ndarray = (
@@ -755,9 +755,9 @@ class SimWorld:
         Vectorised over MuJoCo's contact arrays: the watched geom pairs are looked up in one table, and a
         contact's normal force is read straight from the constraint forces (with the elliptic friction cone
         the cell uses, ``mj_contactForce`` copies exactly these numbers). Python touches only the contacts
-        that may be collisions or grasps; while a mug is held, the gripper's own contacts on it (the grasp,
-        half of all monitor ticks in a job) are summed in numpy and never reach a listener (they are never
-        collisions); its pad force is then the squeeze model's, so the pads' sum is left out
+        that may be collisions or grasps; while a mug is held (half of all monitor ticks in a job), the
+        gripper's own contacts on it are masked out in numpy and never reach a listener (they are never
+        collisions), and the pad force is the squeeze model's, so the pads' sum is not taken
         (``_pad_force_n`` works it out when the grasp lets go)."""
         grip = _GripContacts()
         data = self.data
@@ -775,29 +775,27 @@ class SimWorld:
         else:
             m1, m2 = self.geom_mug[g1], self.geom_mug[g2]
             h = self._mug_index[held]
-            held1, held2 = m1 == h, m2 == h
+            in1, in2 = m1 == h, m2 == h  # the held mug's contacts, by the side it is on
             gripper1, gripper2 = self.geom_gripper[g1], self.geom_gripper[g2]
-            looked_at = np.flatnonzero(watched & ~(held1 & gripper2 | held2 & gripper1))
+            looked_at = np.flatnonzero(watched & ~(in1 & gripper2 | in2 & gripper1))
         efc_address = contact.efc_address
         efc_force = data.efc_force
         if looked_at.size:
             self._read_contacts(grip, g1, g2, looked_at, efc_address, efc_force, contact.pos)
         # What else pushes on the mug in the gripper (or about to be): the table, the tray, another mug.
         candidates = list(grip.thumb_mugs & grip.finger_mugs)
-        if held is None and not candidates:
-            return grip
         if held is None:
+            if not candidates:
+                return grip
             m1, m2 = self.geom_mug[g1], self.geom_mug[g2]
             gripper1, gripper2 = self.geom_gripper[g1], self.geom_gripper[g2]
-            held1 = m1 == candidates[0]
-            held2 = m2 == candidates[0]
+            in1, in2 = m1 == candidates[0], m2 == candidates[0]
             candidates = candidates[1:]
-        else:
-            held1, held2 = held1.copy(), held2.copy()
+        # One or two mugs: comparisons beat np.isin, whose set machinery dominated this scan.
         for c in candidates:
-            held1 |= m1 == c
-            held2 |= m2 == c
-        mine = held1 & ~gripper2 | held2 & ~gripper1
+            in1 |= m1 == c
+            in2 |= m2 == c
+        mine = in1 & ~gripper2 | in2 & ~gripper1
         for address in efc_address[mine].tolist():
             grip.support_force_n += float(efc_force[address]) if address >= 0 else 0.0
         return grip
