@@ -15,17 +15,12 @@ from pathlib import Path
 import pytest
 
 from recorder import HEADER_TOPIC, read_messages
+from tests.fakes.ports import free_port
 
 ROBOT = "svc"
 CHUNK_SIZE_BYTES = 4096  # small chunks: a kill can lose at most the one being written
 WATCHDOG_S = 1.0  # the watchdog test's WATCHDOG_USEC: a ping every 0.5 s
 PINGS = 9
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @pytest.fixture

@@ -17,7 +17,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import socket
 from collections.abc import AsyncIterator, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,18 +31,13 @@ from daemon.job import StartRequest
 from daemon.sdnotify import SdNotifier
 from daemon.zenoh_session import ZenohSession, session_config
 from perception import associate
+from tests.fakes.ports import free_port
 from tests.fakes.slow_guard import refuse_unless_slow
 
 Published = list[tuple[str, dict[str, Any]]]
 Tap = Callable[[str, Mapping[str, object]], None]
 
-
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that nothing listens on right now."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
+__all__ = ["free_port", "loopback", "running_daemon", "serve_daemon"]
 
 
 def loopback() -> str:
