@@ -8,4 +8,12 @@ export MUJOCO_GL="${MUJOCO_GL:-egl}"
 .venv/bin/ruff format --check .
 .venv/bin/mypy
 .venv/bin/lint-imports --no-cache
-.venv/bin/pytest --durations=15 "$@"
+# The suite on pytest-xdist workers: most of a serial run's wall time is waiting (daemons, subprocesses,
+# Zenoh links, systemd), which overlaps well; 3 workers suit two shared cores (README, "Tests").
+# DISHBOT_TEST_WORKERS=0 runs it serially in this process.
+workers="${DISHBOT_TEST_WORKERS:-3}"
+parallel=()
+if [ "$workers" != 0 ]; then
+    parallel=(-n "$workers" --dist loadgroup)
+fi
+.venv/bin/pytest "${parallel[@]}" --durations=15 "$@"
