@@ -1,11 +1,13 @@
 """``dishbot bench suite``: run the test suite as ``scripts/test.sh`` runs it and say where its time goes.
 
 The suite's pytest runs in a child process from the repository's root (its ``pyproject.toml`` options apply),
-with a small plugin (``bench.suite_times``) recording each test's outcome, time (setup, call and teardown)
-and ``slow`` marker. Reported: the wall and CPU time of the run, the counts by outcome, the time of the tests
-not marked slow (the inner loop, ``-m "not slow"``) beside that of the slow ones, the time by test directory
-and the slowest tests. On a shared machine the CPU time and the load average say how much of the wall time
-was other work. Issue 22's target: the whole suite in <= 5 min on two cores.
+on ``scripts/test.sh``'s pytest-xdist workers (``--workers``, 0 for a serial run), with a small plugin
+(``bench.suite_times``) recording each test's outcome, time (setup, call and teardown) and ``slow`` marker.
+Reported: the wall and CPU time of the run, the counts by outcome, the time of the tests not marked slow (the
+inner loop, ``-m "not slow"``) beside that of the slow ones, the time by test directory and the slowest
+tests. On a shared machine the CPU time and the load average say how much of the wall time was other work;
+the tests' summed time over the wall time says how many ran at once. Issue 22's target: the whole suite in
+<= 5 min on two cores.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from daemon.errors import UsageError
 
 ROOT = Path(__file__).resolve().parent.parent
 SLOWEST = 10
+WORKERS = 3  # scripts/test.sh's default (DISHBOT_TEST_WORKERS)
 TARGET_S = 300.0
 OUTCOMES = ("passed", "failed", "error", "skipped", "xfailed", "xpassed")
 
@@ -57,6 +60,7 @@ class SuiteRun:
     cpu_s: float
     load: tuple[float, float]  # one-minute load average when it started and when it ended
     tests: tuple[TimedTest, ...]
+    workers: int = 0  # pytest-xdist workers; 0: serial
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -82,26 +86,46 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="PATH",
         help="test files or folders under the repository (default: tests/)",
     )
+    parser.add_argument(
+        "-n",
+        "--workers",
+        type=_workers,
+        default=WORKERS,
+        metavar="N",
+        help=f"pytest-xdist workers, as scripts/test.sh runs them (default {WORKERS}; 0: serial)",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON document instead of the tables")
     parser.set_defaults(handler=run)
+
+
+def _workers(text: str) -> int:
+    if not text.isdigit() or not 0 <= int(text) <= 64:
+        raise argparse.ArgumentTypeError(f"{text!r}: choose 0 (serial) to 64 workers")
+    return int(text)
 
 
 def run(args: argparse.Namespace) -> int:
     if not (ROOT / "pyproject.toml").is_file() or not (ROOT / "tests").is_dir():
         raise UsageError(f"bench suite runs the tests of a source checkout; no tests/ beside {ROOT}")
-    suite = run_suite(ROOT, marker=args.marker, paths=args.paths)
+    suite = run_suite(ROOT, marker=args.marker, paths=args.paths, workers=args.workers)
     print(as_json(suite) if args.json else as_tables(suite))
     return 0 if suite.exit_status == 0 else 1
 
 
-def run_suite(root: Path, *, marker: str | None = None, paths: Sequence[str] = ()) -> SuiteRun:
-    """Run pytest on ``paths`` (default: the configured test paths) in ``root``; its output goes to stderr."""
+def run_suite(
+    root: Path, *, marker: str | None = None, paths: Sequence[str] = (), workers: int = WORKERS
+) -> SuiteRun:
+    """Run pytest on ``paths`` (default: the configured test paths) in ``root`` on ``workers`` pytest-xdist
+    workers (0: serially, in the child itself); its output goes to stderr."""
     for p in paths:
         if not (root / p).exists():
             raise UsageError(f"{p}: no such test file or folder under {root}")
+    if marker is not None:
+        _check_marker(marker)
     with tempfile.TemporaryDirectory(prefix="dishbot-suite-") as tmp:
         times_file = Path(tmp) / "times.json"
-        selection = [*(() if marker is None else ("-m", marker)), *paths]
+        parallel = ("-n", str(workers), "--dist", "loadgroup") if workers else ()
+        selection = [*parallel, *(() if marker is None else ("-m", marker)), *paths]
         command = [sys.executable, "-m", "pytest", "-p", "bench.suite_times", f"--suite-times={times_file}"]
         command += selection
         env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}  # as scripts/test.sh has it
@@ -120,7 +144,18 @@ def run_suite(root: Path, *, marker: str | None = None, paths: Sequence[str] = (
         TimedTest(t["nodeid"], t["outcome"], float(t["time_s"]), bool(t["slow"])) for t in doc["tests"]
     )
     load = (load_before, os.getloadavg()[0])
-    return SuiteRun(("pytest", *selection), proc.returncode, wall, cpu, load, tests)
+    return SuiteRun(("pytest", *selection), proc.returncode, wall, cpu, load, tests, workers)
+
+
+def _check_marker(marker: str) -> None:
+    """A ``-m`` expression pytest would refuse, refused here in one line (pytest-xdist's workers would each
+    fail on it with a traceback)."""
+    from _pytest.mark.expression import Expression  # pytest's own parser (the dev extra)
+
+    try:
+        Expression.compile(marker)
+    except Exception as e:  # SyntaxError in pytest >= 8.4, its own ParseError before
+        raise UsageError(f"-m {marker!r} is not a marker expression: {e}") from None
 
 
 def _children_cpu_s() -> float:
@@ -172,10 +207,12 @@ def summary(suite: SuiteRun) -> dict[str, Any]:
         "cpu_s": round(suite.cpu_s, 1),
         "load_start": round(suite.load[0], 2),
         "load_end": round(suite.load[1], 2),
+        "workers": suite.workers,
         "tests": len(tests),
         **counts(tests),
         "tests_time_s": round(sum(t.time_s for t in tests), 1),
         "outside_tests_s": round(suite.wall_s - sum(t.time_s for t in tests), 1),
+        "tests_at_once": round(sum(t.time_s for t in tests) / suite.wall_s, 2) if suite.wall_s > 0 else 0.0,
         "not_slow_tests": len(fast),
         "not_slow_time_s": round(sum(t.time_s for t in fast), 1),
         "slow_tests": len(slow),
@@ -203,9 +240,11 @@ _LABELS = {
     "cpu_s": "CPU time (user + system, every process), s",
     "load_start": "load average (1 min) at the start",
     "load_end": "load average (1 min) at the end",
+    "workers": "pytest-xdist workers (0: serial)",
     "tests": "tests run",
     "tests_time_s": "sum of the tests' times, s",
-    "outside_tests_s": "start-up and collection (wall minus the tests' times), s",
+    "outside_tests_s": "wall minus the tests' times, s (serial: start-up and collection; < 0 with workers)",
+    "tests_at_once": "tests' time / wall time (tests running at once, on average)",
     "not_slow_tests": 'tests not marked slow (-m "not slow")',
     "not_slow_time_s": "their time, s",
     "slow_tests": "tests marked slow",

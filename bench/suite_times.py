@@ -3,7 +3,9 @@ JSON document to ``--suite-times FILE`` when the session ends.
 
 ``bench suite`` loads it into the pytest it runs (``-p bench.suite_times``); it imports nothing but pytest, so
 it changes neither what the suite imports nor how long it takes. A test's time is the sum of its setup, call
-and teardown (its fixtures included), as ``--durations`` counts them.
+and teardown (its fixtures included), as ``--durations`` counts them. Under pytest-xdist (``-n N``) the
+controller records what its workers report (a worker writes nothing), and a test's id loses the ``@group``
+suffix ``--dist loadgroup`` gives it, so the records name the tests as a serial run does.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 
 def pytest_configure(config: pytest.Config) -> None:
     path = config.getoption("--suite-times")
-    if path is not None:
+    if path is not None and not hasattr(config, "workerinput"):  # an xdist worker reports to its controller
         config.pluginmanager.register(_Recorder(Path(path)), "bench-suite-times")
 
 
@@ -37,9 +39,10 @@ class _Recorder:
         self.tests: dict[str, dict[str, Any]] = {}
 
     def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
+        nodeid = _ungrouped(report)
         entry = self.tests.setdefault(
-            report.nodeid,
-            {"nodeid": report.nodeid, "outcome": "passed", "time_s": 0.0, "slow": "slow" in report.keywords},
+            nodeid,
+            {"nodeid": nodeid, "outcome": "passed", "time_s": 0.0, "slow": "slow" in report.keywords},
         )
         entry["time_s"] += report.duration
         entry["outcome"] = _outcome(report, entry["outcome"])
@@ -47,6 +50,14 @@ class _Recorder:
     def pytest_sessionfinish(self, exitstatus: int) -> None:
         doc = {"exit_status": int(exitstatus), "tests": list(self.tests.values())}
         self.path.write_text(json.dumps(doc), encoding="utf-8")
+
+
+def _ungrouped(report: pytest.TestReport) -> str:
+    """The test's id without the ``@group`` that pytest-xdist's ``--dist loadgroup`` appends to the id of a
+    test marked ``xdist_group`` (group names hold no ``@``)."""
+    if "xdist_group" in report.keywords and "@" in report.nodeid:
+        return report.nodeid.rpartition("@")[0]
+    return report.nodeid
 
 
 def _outcome(report: pytest.TestReport, so_far: str) -> str:

@@ -9,7 +9,17 @@ from pathlib import Path
 
 import pytest
 
-from bench.suite import SuiteRun, TimedTest, as_json, as_tables, by_directory, counts, run_suite, slowest
+from bench.suite import (
+    WORKERS,
+    SuiteRun,
+    TimedTest,
+    as_json,
+    as_tables,
+    by_directory,
+    counts,
+    run_suite,
+    slowest,
+)
 from cli.main import main
 from daemon.errors import UsageError
 
@@ -180,16 +190,42 @@ def test_a_path_that_is_not_there_is_refused_before_anything_runs(capsys: pytest
     assert err.startswith("dishbot bench: error: tests/no_such_folder: no such test file or folder under ")
 
 
+def test_the_bench_runs_as_many_workers_as_scripts_test_sh() -> None:
+    script = (Path(__file__).parents[2] / "scripts" / "test.sh").read_text(encoding="utf-8")
+    assert f'workers="${{DISHBOT_TEST_WORKERS:-{WORKERS}}}"' in script
+
+
+@pytest.mark.parametrize("workers", ["x", "-1", "65"])
+def test_a_worker_count_out_of_range_is_a_usage_error(
+    workers: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["bench", "suite", "--workers", workers])
+    assert exit_info.value.code == 2
+    assert f"argument -n/--workers: {workers!r}: choose 0 (serial) to 64 workers" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_bench_suite_runs_the_suite_in_a_child_pytest_and_reports_it(
     tmp_path: Path, capfd: pytest.CaptureFixture[str]
 ) -> None:
     write_suite(tmp_path)
-    run = run_suite(tmp_path, marker="not slow")
+    # A group of two under --dist loadgroup: the records name its tests without xdist's "@group" suffix.
+    (tmp_path / "tests" / "test_grouped.py").write_text(
+        "import pytest\n\n@pytest.mark.xdist_group('pair')\ndef test_g1():\n    pass\n\n"
+        "@pytest.mark.xdist_group('pair')\ndef test_g2():\n    pass\n",
+        encoding="utf-8",
+    )
+    run = run_suite(tmp_path, marker="not slow", workers=2)
     assert run.exit_status == 1  # one failure, one error
-    assert run.command == ("pytest", "-m", "not slow")
+    assert run.command == ("pytest", "-n", "2", "--dist", "loadgroup", "-m", "not slow")
+    assert (run.workers, json.loads(as_json(run))["workers"]) == (2, 2)
+    assert sorted(t.nodeid for t in run.tests if "grouped" in t.nodeid) == [
+        "tests/test_grouped.py::test_g1",
+        "tests/test_grouped.py::test_g2",
+    ]
     assert counts(run.tests) == {
-        "passed": 4,
+        "passed": 6,
         "failed": 1,
         "error": 1,
         "skipped": 1,
@@ -200,21 +236,33 @@ def test_bench_suite_runs_the_suite_in_a_child_pytest_and_reports_it(
     assert [r["directory"] for r in sorted(by_directory(run.tests), key=lambda r: r["directory"])] == [
         "tests/alpha",
         "tests/beta",
+        "tests/test_grouped.py",
         "tests/test_top.py",
     ]
-    assert run.wall_s >= sum(t.time_s for t in run.tests)
+    assert run.cpu_s > 0  # the workers are children of the child: their CPU time counts
     out, err = capfd.readouterr()
     assert out == ""  # pytest's own output goes to stderr: stdout is the report's
     assert "1 failed" in err
 
 
+def test_a_marker_expression_pytest_refuses_is_a_usage_error(tmp_path: Path) -> None:
+    write_suite(tmp_path)
+    with pytest.raises(UsageError) as info:
+        run_suite(tmp_path, marker="not (slow")
+    assert str(info.value).startswith("-m 'not (slow' is not a marker expression: ")
+    assert "right parenthesis" in str(info.value)
+
+
 @pytest.mark.slow
-def test_a_marker_expression_pytest_refuses_is_a_usage_error(
+def test_a_suite_pytest_cannot_start_is_a_usage_error(
     tmp_path: Path, capfd: pytest.CaptureFixture[str]
 ) -> None:
     write_suite(tmp_path)
+    (tmp_path / "tests" / "conftest.py").write_text(
+        "raise RuntimeError('broken conftest')\n", encoding="utf-8"
+    )
     with pytest.raises(
         UsageError, match=r"^pytest could not run the suite \(exit 4\): its message is above$"
     ):
-        run_suite(tmp_path, marker="not (slow")
-    assert "Wrong expression passed to '-m'" in capfd.readouterr().err
+        run_suite(tmp_path, workers=0)
+    assert "broken conftest" in capfd.readouterr().err
