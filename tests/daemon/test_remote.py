@@ -35,6 +35,7 @@ pytestmark = pytest.mark.slow
 DIRECT = f"tls/{ROBOT_ADDRESS}:{PORT}"
 VIA_ROUTER = f"tls/{OPERATOR_ADDRESS}:{PORT}"
 CUT_S = 10.0
+WAIT_S = 180.0  # for a process in a namespace to say something: generous, a loaded machine is slow
 
 
 @dataclass
@@ -183,9 +184,12 @@ def test_a_10_s_link_cut_the_job_goes_on_the_operator_reconnects_and_the_recordi
     monitor = site.pair.dishbot(
         "operator", "monitor", "monitor", "--profile", site.profile("mon"), "--connect", DIRECT
     )
+    # The monitor prints the first state it hears: it watches before the job starts (a Python start and a
+    # TLS session take their time on a loaded machine), so it sees the job's first state too.
+    watching = monitor.wait_for("state ", timeout_s=WAIT_S)
     code, out, _ = site.agent.cli("start", "--profile", site.profile("op"), "--connect", DIRECT)
     assert (code, out.splitlines()[1]) == (0, "state: detect")
-    monitor.wait_for("state detect")
+    monitor.wait_for("state detect", after=watching, timeout_s=WAIT_S)
     # The daemon's clock (a paced simulated clock, which falls behind the wall clock on a loaded machine)
     # just before the cut and once the operator is answered again: the cut lies between, as the recording
     # has it.
@@ -197,7 +201,7 @@ def test_a_10_s_link_cut_the_job_goes_on_the_operator_reconnects_and_the_recordi
     back = site.agent.call("until_answered", profile=site.profile("op"), connect=DIRECT)
     assert back["reply"]["state"] != "fault"
     after = back["reply"]["t"]
-    monitor.wait_for("state ", after=mark)  # the monitor follows the job again
+    monitor.wait_for("state ", after=mark, timeout_s=WAIT_S)  # the monitor follows the job again
     code, _, _ = site.agent.cli("stop", "--profile", site.profile("op"), "--connect", DIRECT)
     assert code == 0
     assert site.daemon.stop() == 0
