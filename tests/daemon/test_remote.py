@@ -210,10 +210,14 @@ def test_a_10_s_link_cut_the_job_goes_on_the_operator_reconnects_and_the_recordi
     recording = read_messages(path)
     assert not recording.truncated
     during = [m for m in recording if before * 1e9 < m.log_time_ns < after * 1e9]
-    # The job went on through the cut: its state, published at its own rate, stayed a working state (not
-    # paused, stopped or faulted by the lost link).
-    states = [m.payload.get("state") for m in during if m.topic == "dishbot/r1/state"]
-    assert states, "nothing was published while the link was down"
+    # The job went on through the cut: its state stayed a working state (not paused, stopped or faulted by
+    # the lost link). The state in force through the cut is the last published before it and any published
+    # during it: the daemon publishes it on each change and at daemon.state_rate_hz of its paced clock, and
+    # on a loaded machine that clock may advance less through the cut than one period (none published then).
+    state_messages = [m for m in recording if m.topic == "dishbot/r1/state"]
+    in_force = [m for m in state_messages if m.log_time_ns <= before * 1e9][-1:]
+    states = [m.payload.get("state") for m in in_force + [m for m in during if m.topic == "dishbot/r1/state"]]
+    assert states, "no state was published before the cut"
     assert not {"idle", "paused", "fault", "done"} & set(states), states
     assert not [m for m in recording if m.topic == "dishbot/r1/state" and m.payload.get("state") == "fault"]
     joints = [m.log_time_ns for m in recording if m.topic == "dishbot/r1/joints"]
