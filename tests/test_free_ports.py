@@ -1,4 +1,4 @@
-"""tests/fakes/ports.py: each xdist worker its own block of ports below the ephemeral range, no port twice."""
+"""tests/fakes/ports.py: a block of ports below the ephemeral range per xdist worker, none reused soon."""
 
 from __future__ import annotations
 
@@ -31,3 +31,12 @@ def test_a_port_something_listens_on_is_not_free() -> None:
         s.listen()
         assert not is_free(port)
     assert is_free(port)
+
+
+def test_a_process_may_ask_for_more_ports_than_its_block_holds() -> None:
+    """A serial run (one process, one block) starts more daemons than a block has ports: a port comes back
+    only after half a block of others."""
+    ports = [free_port() for _ in range(BLOCK + 200)]
+    assert len(ports) == BLOCK + 200
+    window = BLOCK // 2
+    assert all(len(set(ports[i : i + window])) == window for i in range(0, len(ports) - window, 97))

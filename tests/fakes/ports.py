@@ -5,12 +5,14 @@ Asking the kernel for port 0 and closing the socket again gives a port from the 
 outgoing connection on the machine may take before the daemon binds it, and which another worker may be
 given too. Here each process takes its ports from a block of its own below the ephemeral range (xdist worker
 ``gwN`` block N, a run without xdist the last block), in turn from a random start, each one checked free
-(bound on every address and released) and never handed out twice by the process. Two suites of different
+(bound on every address and released) and not handed out again by the process until half a block of
+others has been. Two suites of different
 checkouts on one machine start at different random points of a block and skip each other's bound ports.
 """
 
 from __future__ import annotations
 
+import collections
 import itertools
 import os
 import random
@@ -39,7 +41,9 @@ def _candidates(ports: range) -> Iterator[int]:
 
 
 _lock = threading.Lock()
-_given: set[int] = set()
+# The ports handed out lately: none of them again until half a block of others has been (a port given long
+# ago is released by then, and a bound one fails ``is_free`` anyway), so a process can ask without end.
+_given: collections.deque[int] = collections.deque(maxlen=BLOCK // 2)
 _mine = block(os.environ.get("PYTEST_XDIST_WORKER"))
 _ours = _candidates(_mine)
 
@@ -60,6 +64,6 @@ def free_port() -> int:
         for _ in range(BLOCK):
             port = next(_ours)
             if port not in _given and is_free(port):
-                _given.add(port)
+                _given.append(port)
                 return port
     raise RuntimeError(f"no free port left in this process's block {_mine}")
