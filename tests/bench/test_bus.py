@@ -10,6 +10,7 @@ from cli.main import main
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("realtime-pty")  # its pseudo-terminal bus answers in real time: one at a time
 def test_bench_bus_reports_every_metric_as_json(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "bus", "--seconds", "0.3", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)

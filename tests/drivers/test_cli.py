@@ -22,6 +22,7 @@ def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, 
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("realtime-pty")  # its pseudo-terminal bus answers in real time: one at a time
 def test_sim_bus_prints_its_device_path_on_the_first_line_and_serves_the_thesis_chain(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
