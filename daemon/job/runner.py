@@ -298,9 +298,21 @@ class Job:
         self._generation += 1
         work, self._work = self._work, None
         if work is not None and not work.done():
-            work.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await work
+            await cancel_and_wait(work)
+
+
+async def cancel_and_wait(task: asyncio.Task[object] | asyncio.Task[None]) -> None:
+    """Cancel ``task`` and wait until it has ended. Its cancellation is not an error here; the caller's own
+    is, and goes on: a caller cancelled while it waits (the daemon stopping the control task as the control
+    task stops a unit) must end too, not take its next item and wait for ever, the daemon's shutdown with
+    it (``suppress(CancelledError)`` around the wait swallowed both)."""
+    task.cancel()
+    try:
+        await task
+    except asyncio.CancelledError:
+        current = asyncio.current_task()
+        if current is not None and current.cancelling():
+            raise
 
 
 def _say(method: Callable[..., object], event: str, **fields: object) -> None:

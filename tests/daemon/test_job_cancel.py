@@ -1,0 +1,76 @@
+"""Stopping the job's unit of work never swallows the stop of the task that stops it: a control task the
+daemon cancels while it waits for a unit to end must end too (it used to take its next item and wait for
+ever, and the daemon's shutdown with it, deaf to SIGTERM)."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+
+from daemon.clock import SimulatedClock
+from daemon.config import load_config
+from daemon.job import Job
+from daemon.job.runner import cancel_and_wait
+from perception import associate
+from tests.fakes.job import make_backend, make_world
+
+
+async def _slow_to_stop(stopping: asyncio.Event, release: asyncio.Event) -> None:
+    """A unit that, cancelled, takes a while to leave the arm still (as manipulation units do)."""
+    try:
+        await asyncio.Event().wait()
+    except asyncio.CancelledError:
+        stopping.set()
+        await release.wait()
+        raise
+
+
+def test_a_caller_cancelled_while_it_waits_for_a_cancelled_task_ends_cancelled() -> None:
+    async def go() -> None:
+        stopping, release = asyncio.Event(), asyncio.Event()
+        unit = asyncio.create_task(_slow_to_stop(stopping, release))
+        await asyncio.sleep(0)
+        caller = asyncio.create_task(cancel_and_wait(unit))
+        await stopping.wait()
+        caller.cancel()  # the daemon stops the control task while it waits for the unit
+        release.set()
+        with pytest.raises(asyncio.CancelledError):
+            await caller
+        assert unit.cancelled()
+
+    asyncio.run(go())
+
+
+def test_a_caller_not_cancelled_returns_once_the_task_has_ended() -> None:
+    async def go() -> None:
+        stopping, release = asyncio.Event(), asyncio.Event()
+        unit = asyncio.create_task(_slow_to_stop(stopping, release))
+        await asyncio.sleep(0)
+        caller = asyncio.create_task(cancel_and_wait(unit))
+        await stopping.wait()
+        assert not caller.done()  # it waits for the unit to be still
+        release.set()
+        await caller  # no error: the unit's cancellation is what was asked
+        assert unit.cancelled()
+
+    asyncio.run(go())
+
+
+def test_the_jobs_control_task_cancelled_while_it_stops_a_unit_ends() -> None:
+    config = load_config(overrides={"planner": {"method": "bh", "time_limit_s": 0.2}})
+    backend = make_backend(make_world(2), clock=SimulatedClock())
+    job = Job(backend, config, lambda _topic, _payload: None, associate)
+
+    async def go() -> None:
+        stopping, release = asyncio.Event(), asyncio.Event()
+        job._work = asyncio.create_task(_slow_to_stop(stopping, release))
+        await asyncio.sleep(0)
+        stopper = asyncio.create_task(job._cancel_work())  # as the control task does, leaving a state
+        await stopping.wait()
+        stopper.cancel()
+        release.set()
+        with pytest.raises(asyncio.CancelledError):
+            await stopper
+
+    backend.clock.run(go())
