@@ -121,7 +121,7 @@ class SimServo:
         except KeyError:
             self.spec.reg(name)
             raise
-        self.table[address : address + size] = (value & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
+        self.table[address : address + size] = _le(value, size)
         if self.packets:
             self.packets.clear()
         if name in _CONDITION_REGISTERS:
@@ -694,7 +694,7 @@ class ServoChainSimulator(SimulatedDevice):
         registers are not rewritten (a servo at rest, or read twice at one simulated instant)."""
         spec = servo.spec
         table = servo.table
-        position, velocity, load = self.plant.present(table[servo.layout["id"][0]])
+        position, velocity, load = self.plant.present(servo.servo_id)
         state = (position, velocity, load, servo.hardware_error)
         if servo.synced == state:
             return
@@ -715,7 +715,7 @@ class ServoChainSimulator(SimulatedDevice):
 
 
 def _le(value: int, size: int) -> bytes:
-    """``value`` as a register of ``size`` bytes holds it (as ``SimServo.set`` writes it)."""
+    """``value`` as a register of ``size`` bytes holds it (two's complement for a negative one)."""
     return (value & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
 
 
