@@ -459,11 +459,11 @@ class CollisionWorld:
 def _centres_once(centres_at: Callable[[IntArray], FloatArray], poses: IntArray) -> FloatArray:
     """``centres_at(poses)`` for ascending ``poses`` with repeats (a pose near a mug's body and its handle),
     each pose's spheres worked out once."""
-    first = np.flatnonzero(np.diff(poses, prepend=-1))
-    if len(first) == len(poses):
+    new = np.diff(poses, prepend=-1) != 0  # the first of each run of one pose
+    if new.all():
         return centres_at(poses)
-    once: FloatArray = centres_at(poses[first])
-    return np.asarray(once[np.cumsum(np.diff(poses, prepend=-1) != 0) - 1], dtype=np.float64)
+    once: FloatArray = centres_at(poses[new])
+    return np.asarray(once[np.cumsum(new) - 1], dtype=np.float64)
 
 
 def _frame_box(spheres: FloatArray, radii: FloatArray) -> tuple[FloatArray, FloatArray]:
