@@ -344,11 +344,11 @@ def _scan_orders(
     for every class of a type and every problem on the tray, so kept for the packings to come (the plan
     check's rounds and later replans in the same process).
 
-    Each order is ``_order``'s (a lexicographic sort: primary key, then secondary key, then index), built
-    with one stable sort of the primary key: the tray scans' over the corners already in secondary-key order
-    (the grid's rows or columns), the polar scans' in the grid's order, ties then put in the secondary order
-    (three, shared between the slants: bearing up, bearing down, distance). An unslanted tray scan needs no
-    sort at all."""
+    Each order is a lexicographic sort (primary key, then secondary key, then index: the definition, kept
+    and compared in the tests), built with one stable sort of the primary key: the tray scans' over the
+    corners already in secondary-key order (the grid's rows or columns), the polar scans' in the grid's
+    order, ties then put in the secondary order (three, shared between the slants: bearing up, bearing down,
+    distance). An unslanted tray scan needs no sort at all."""
     xs, ys = _axis(x_limit, grid_mm), _axis(y_limit, grid_mm)
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
     cx, cy = np.meshgrid(xs + offset, ys + offset, indexing="ij")
@@ -409,26 +409,6 @@ def _ties_by(key: npt.NDArray[np.float64], place: npt.NDArray[np.int64]) -> npt.
         some = ranks[at]
         ranks[at] = some[np.lexsort((place[some], run[at]))]
     return ranks
-
-
-def _order(
-    gx: npt.NDArray[np.int64],
-    gy: npt.NDArray[np.int64],
-    scan: Scan,
-    polar: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]],
-) -> npt.NDArray[np.int64]:
-    """The flat corner indices in ``scan``'s order; ``polar``: the brim centre's distance (mm) and bearing
-    (rad) from the arm base at each corner. The definition ``_scan_orders`` computes faster."""
-    axis, slant, direction = scan
-    if axis in (0, 1):
-        primary, secondary = (gx, gy) if axis == 0 else (gy, gx)
-        return np.lexsort(((direction * secondary).ravel(), (primary + slant * secondary).ravel()))
-    distance, bearing = polar
-    if axis == 2:
-        keys = (direction * bearing, distance + slant * BEARING_MM * bearing)
-    else:
-        keys = (distance, direction * BEARING_MM * bearing + slant * distance)
-    return np.lexsort((keys[0].ravel(), keys[1].ravel()))
 
 
 def _first_clear(
