@@ -5,6 +5,9 @@ ever, and the daemon's shutdown with it, deaf to SIGTERM)."""
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable, Coroutine
+from dataclasses import dataclass
+from typing import Any
 
 import pytest
 
@@ -26,33 +29,43 @@ async def _slow_to_stop(stopping: asyncio.Event, release: asyncio.Event) -> None
         raise
 
 
+@dataclass(frozen=True)
+class _Stopping:
+    """A unit slow to stop, a task stopping it (the unit has begun to stop) and what lets the unit end."""
+
+    unit: asyncio.Task[None]
+    stopper: asyncio.Task[None]
+    release: asyncio.Event
+
+
+async def _stopping(stop: Callable[[asyncio.Task[None]], Coroutine[Any, Any, None]]) -> _Stopping:
+    stopping, release = asyncio.Event(), asyncio.Event()
+    unit = asyncio.create_task(_slow_to_stop(stopping, release))
+    await asyncio.sleep(0)
+    stopper = asyncio.create_task(stop(unit))
+    await stopping.wait()
+    return _Stopping(unit, stopper, release)
+
+
 def test_a_caller_cancelled_while_it_waits_for_a_cancelled_task_ends_cancelled() -> None:
     async def go() -> None:
-        stopping, release = asyncio.Event(), asyncio.Event()
-        unit = asyncio.create_task(_slow_to_stop(stopping, release))
-        await asyncio.sleep(0)
-        caller = asyncio.create_task(cancel_and_wait(unit))
-        await stopping.wait()
-        caller.cancel()  # the daemon stops the control task while it waits for the unit
-        release.set()
+        s = await _stopping(cancel_and_wait)
+        s.stopper.cancel()  # the daemon stops the control task while it waits for the unit
+        s.release.set()
         with pytest.raises(asyncio.CancelledError):
-            await caller
-        assert unit.cancelled()
+            await s.stopper
+        assert s.unit.cancelled()
 
     asyncio.run(go())
 
 
 def test_a_caller_not_cancelled_returns_once_the_task_has_ended() -> None:
     async def go() -> None:
-        stopping, release = asyncio.Event(), asyncio.Event()
-        unit = asyncio.create_task(_slow_to_stop(stopping, release))
-        await asyncio.sleep(0)
-        caller = asyncio.create_task(cancel_and_wait(unit))
-        await stopping.wait()
-        assert not caller.done()  # it waits for the unit to be still
-        release.set()
-        await caller  # no error: the unit's cancellation is what was asked
-        assert unit.cancelled()
+        s = await _stopping(cancel_and_wait)
+        assert not s.stopper.done()  # it waits for the unit to be still
+        s.release.set()
+        await s.stopper  # no error: the unit's cancellation is what was asked
+        assert s.unit.cancelled()
 
     asyncio.run(go())
 
@@ -62,15 +75,15 @@ def test_the_jobs_control_task_cancelled_while_it_stops_a_unit_ends() -> None:
     backend = make_backend(make_world(2), clock=SimulatedClock())
     job = Job(backend, config, lambda _topic, _payload: None, associate)
 
+    def leave_the_state(unit: asyncio.Task[None]) -> Coroutine[Any, Any, None]:
+        job._work = unit
+        return job._cancel_work()  # as the control task does, leaving a state
+
     async def go() -> None:
-        stopping, release = asyncio.Event(), asyncio.Event()
-        job._work = asyncio.create_task(_slow_to_stop(stopping, release))
-        await asyncio.sleep(0)
-        stopper = asyncio.create_task(job._cancel_work())  # as the control task does, leaving a state
-        await stopping.wait()
-        stopper.cancel()
-        release.set()
+        s = await _stopping(leave_the_state)
+        s.stopper.cancel()
+        s.release.set()
         with pytest.raises(asyncio.CancelledError):
-            await stopper
+            await s.stopper
 
     backend.clock.run(go())

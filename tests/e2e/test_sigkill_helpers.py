@@ -50,6 +50,38 @@ def _alive(sid: int) -> list[_Proc]:
     return [p for p in _in_session(sid) if p.state != "Z"]
 
 
+def _helpers(pid: int, forkservers: int, within_s: float) -> list[_Proc]:
+    """The live descendants of the process ``pid`` (a session leader) once at least ``forkservers`` of them
+    run a forkserver (the server and the workers it forked), or as they are after ``within_s``."""
+    deadline = time.monotonic() + within_s
+    helpers: list[_Proc] = []
+    while time.monotonic() < deadline:
+        helpers = [p for p in _alive(pid) if p.pid != pid]
+        if sum("forkserver" in p.cmdline for p in helpers) >= forkservers:
+            break
+        time.sleep(0.1)
+    return helpers
+
+
+def _kill_and_wait(proc: subprocess.Popen[str] | subprocess.Popen[bytes]) -> float:
+    """SIGKILL ``proc`` and give its descendants 10 s to end; the seconds they took (10 when some did not)."""
+    os.kill(proc.pid, signal.SIGKILL)
+    killed = time.monotonic()
+    proc.wait(timeout=10)
+    while _alive(proc.pid) and time.monotonic() - killed < 10.0:
+        time.sleep(0.05)
+    return time.monotonic() - killed
+
+
+def _reap(proc: subprocess.Popen[str] | subprocess.Popen[bytes]) -> None:
+    """Whatever the test's outcome, leave neither ``proc`` nor its descendants behind on the machine."""
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait(timeout=10)
+    for p in _alive(proc.pid):
+        os.kill(p.pid, signal.SIGKILL)
+
+
 @pytest.mark.slow
 def test_sigkill_mid_job_leaves_no_helper_process_alive(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -69,28 +101,13 @@ def test_sigkill_mid_job_leaves_no_helper_process_alive(tmp_path: Path) -> None:
         reply = request(endpoint, "dishbot", "start", {}, timeout_s=5.0)
         assert reply is not None
         assert reply["ok"], reply
-        deadline = time.monotonic() + 30.0
-        helpers: list[_Proc] = []
-        while time.monotonic() < deadline:
-            helpers = [p for p in _alive(daemon.pid) if p.pid != daemon.pid]
-            if sum("forkserver" in p.cmdline for p in helpers) >= 2:  # the forkserver and its worker
-                break
-            time.sleep(0.1)
+        helpers = _helpers(daemon.pid, 2, within_s=30.0)  # the forkserver and its worker
         assert sum("forkserver import main" in p.cmdline for p in helpers) == 2, helpers
         assert sum("resource_tracker" in p.cmdline for p in helpers) == 1, helpers
-        os.kill(daemon.pid, signal.SIGKILL)
-        killed = time.monotonic()
-        daemon.wait(timeout=10)
-        while _alive(daemon.pid) and time.monotonic() - killed < 10.0:
-            time.sleep(0.05)
-        print(f"helpers gone {time.monotonic() - killed:.3f} s after the kill")
+        print(f"helpers gone {_kill_and_wait(daemon):.3f} s after the kill")
         assert _alive(daemon.pid) == []
     finally:
-        if daemon.poll() is None:
-            daemon.kill()
-            daemon.wait(timeout=10)
-        for p in _alive(daemon.pid):  # without the fix: do not leave them behind on the machine
-            os.kill(p.pid, signal.SIGKILL)
+        _reap(daemon)  # without the fix: do not leave them behind on the machine
 
 
 @pytest.mark.slow
@@ -105,24 +122,10 @@ def test_sigkill_of_a_bench_with_worker_processes_leaves_none_of_them_alive() ->
         start_new_session=True,
     )
     try:
-        deadline = time.monotonic() + 60.0
-        helpers: list[_Proc] = []
-        while time.monotonic() < deadline:
-            helpers = [p for p in _alive(proc.pid) if p.pid != proc.pid]
-            if sum("forkserver" in p.cmdline for p in helpers) >= 3:  # the forkserver and two workers
-                break
-            time.sleep(0.1)
+        helpers = _helpers(proc.pid, 3, within_s=60.0)  # the forkserver and two workers
         assert proc.poll() is None, "the bench ended before its workers were seen"
         assert sum("forkserver" in p.cmdline for p in helpers) >= 3, helpers
-        os.kill(proc.pid, signal.SIGKILL)
-        killed = time.monotonic()
-        proc.wait(timeout=10)
-        while _alive(proc.pid) and time.monotonic() - killed < 10.0:
-            time.sleep(0.05)
+        _kill_and_wait(proc)
         assert _alive(proc.pid) == []
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=10)
-        for p in _alive(proc.pid):  # without the fix: do not leave them behind on the machine
-            os.kill(p.pid, signal.SIGKILL)
+        _reap(proc)  # without the fix: do not leave them behind on the machine
