@@ -100,6 +100,7 @@ class _Live:
     baseline_jitter_ms: list[float]
     states_seen: int
     job_kb_per_min: float
+    job_foxglove_channels: int  # distinct channels with a Foxglove schema in the job files
     live_messages: int  # what the Foxglove client received while the loop was probed
 
 
@@ -159,6 +160,7 @@ def _bench(args: argparse.Namespace) -> int:
             "recording_messages_per_s_with_foxglove": round(with_foxglove[0]),
             "recording_mb_per_s_with_foxglove": round(with_foxglove[1], 2),
             "job_file_kb_per_min": {name: round(run.job_kb_per_min, 1) for name, run in runs.items()},
+            "job_file_foxglove_channels": {name: run.job_foxglove_channels for name, run in runs.items()},
             "live_client_messages_per_s": round(live.live_messages / args.seconds, 1),
             "state_changes_seen": main.states_seen,
             "load_average_1m": round(os.getloadavg()[0], 2),
@@ -224,6 +226,7 @@ async def _live(tmp: Path, variant: _Variant, commands: int, seconds: float, log
             stop.set()
             outcome = await daemon
     round_trip, state, joints, states_seen = result
+    job_files = [p for p in outcome.files if is_job_file(p)]
     return _Live(
         round_trip,
         state,
@@ -231,7 +234,8 @@ async def _live(tmp: Path, variant: _Variant, commands: int, seconds: float, log
         probe_errors,
         baseline_errors,
         states_seen,
-        _kb_per_minute([p for p in outcome.files if is_job_file(p)]),
+        _kb_per_minute(job_files),
+        _foxglove_channels(job_files),
         int(sum(live_messages)),
     )
 
@@ -244,6 +248,20 @@ def _kb_per_minute(files: list[Path]) -> float:
     spans = [read_messages(p, keep=lambda topic: False) for p in files]
     minutes = sum(((r.end_ns or 0) - (r.start_ns or 0)) / 60e9 for r in spans)
     return size / 1000.0 / minutes if minutes > 0 else float("nan")
+
+
+def _foxglove_channels(files: list[Path]) -> int:
+    """How many distinct channels with a Foxglove schema (``foxglove.FrameTransforms``...) the files hold."""
+    from recorder import read_messages
+
+    return len(
+        {
+            topic
+            for p in files
+            for topic, schema in read_messages(p, keep=lambda topic: False).schema_names.items()
+            if schema.startswith("foxglove.")
+        }
+    )
 
 
 def _start_viewer(address: tuple[str, int], seconds: float) -> _BareProbe:

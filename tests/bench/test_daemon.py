@@ -31,7 +31,14 @@ def test_bench_daemon_reports_every_measure_as_json(capsys: pytest.CaptureFixtur
     assert doc["recording_messages_per_s_with_foxglove"] > 0
     sizes = doc["job_file_kb_per_min"]
     assert list(sizes) == ["JSON channels only", "+ Foxglove channels", "+ live server, 1 client"]
-    assert sizes["+ Foxglove channels"] > sizes["JSON channels only"] > 0  # the Foxglove channels are there
+    assert all(size > 0 for size in sizes.values())  # per minute: how big depends on the machine's load
+    # The Foxglove channels are recorded where they are asked for, and only there (what, not how much:
+    # the sizes per minute move with the machine's load).
+    foxglove = doc["job_file_foxglove_channels"]
+    assert list(foxglove) == list(sizes)
+    assert foxglove["JSON channels only"] == 0
+    assert foxglove["+ Foxglove channels"] > 0
+    assert foxglove["+ live server, 1 client"] > 0
     assert doc["live_client_messages_per_s"] > 0  # the client received the served channels
 
 
