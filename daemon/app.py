@@ -47,6 +47,7 @@ from daemon.clock import SessionClock, every_wall_period, wall_seconds
 from daemon.config import Config
 from daemon.errors import ConfigError, UsageError
 from daemon.job import Job, JobSummary, StartRequest
+from daemon.job.runner import wait_cancelled
 from daemon.log_relay import LogRelay, LostLines, RecordQueue, output_guarded, plain_record
 from daemon.messages import gripper_message, joints_message
 from daemon.recorded import TELEMETRY_READER, JobPosition, joint_reader, recorded
@@ -448,8 +449,7 @@ async def _run(
             for task in tasks:
                 task.cancel()
             for task in tasks:
-                with contextlib.suppress(asyncio.CancelledError):
-                    await task
+                await wait_cancelled(task)  # not suppress(): that would swallow this task's own cancel too
 
         def remove_signal_handlers() -> None:
             for sig in (signal.SIGTERM, signal.SIGINT):

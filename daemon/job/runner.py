@@ -307,6 +307,12 @@ async def cancel_and_wait(task: asyncio.Task[object] | asyncio.Task[None]) -> No
     task stops a unit) must end too, not take its next item and wait for ever, the daemon's shutdown with
     it (``suppress(CancelledError)`` around the wait swallowed both)."""
     task.cancel()
+    await wait_cancelled(task)
+
+
+async def wait_cancelled(task: asyncio.Task[object] | asyncio.Task[None]) -> None:
+    """Wait until ``task``, already cancelled, has ended: its cancellation is swallowed, the caller's own
+    goes on (``cancel_and_wait``)."""
     try:
         await task
     except asyncio.CancelledError:

@@ -14,7 +14,7 @@ import pytest
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import Job
-from daemon.job.runner import cancel_and_wait
+from daemon.job.runner import cancel_and_wait, wait_cancelled
 from perception import associate
 from tests.fakes.job import make_backend, make_world
 
@@ -47,9 +47,21 @@ async def _stopping(stop: Callable[[asyncio.Task[None]], Coroutine[Any, Any, Non
     return _Stopping(unit, stopper, release)
 
 
-def test_a_caller_cancelled_while_it_waits_for_a_cancelled_task_ends_cancelled() -> None:
+async def _cancel_all_then_wait(task: asyncio.Task[None]) -> None:
+    """The daemon's shutdown (``serve``'s ``stop_tasks``): every task cancelled, then each waited for."""
+    task.cancel()
+    await wait_cancelled(task)
+
+
+STOPS = pytest.mark.parametrize("stop", [cancel_and_wait, _cancel_all_then_wait], ids=["job", "daemon"])
+
+
+@STOPS
+def test_a_caller_cancelled_while_it_waits_for_a_cancelled_task_ends_cancelled(
+    stop: Callable[[asyncio.Task[None]], Coroutine[Any, Any, None]],
+) -> None:
     async def go() -> None:
-        s = await _stopping(cancel_and_wait)
+        s = await _stopping(stop)
         s.stopper.cancel()  # the daemon stops the control task while it waits for the unit
         s.release.set()
         with pytest.raises(asyncio.CancelledError):
@@ -59,9 +71,12 @@ def test_a_caller_cancelled_while_it_waits_for_a_cancelled_task_ends_cancelled()
     asyncio.run(go())
 
 
-def test_a_caller_not_cancelled_returns_once_the_task_has_ended() -> None:
+@STOPS
+def test_a_caller_not_cancelled_returns_once_the_task_has_ended(
+    stop: Callable[[asyncio.Task[None]], Coroutine[Any, Any, None]],
+) -> None:
     async def go() -> None:
-        s = await _stopping(cancel_and_wait)
+        s = await _stopping(stop)
         assert not s.stopper.done()  # it waits for the unit to be still
         s.release.set()
         await s.stopper  # no error: the unit's cancellation is what was asked
