@@ -76,11 +76,18 @@ def rig(**overrides: Any) -> Any:
                 "fsr": {"port": fsr.device_path},
             },
         }
-        for key, value in overrides.items():
-            base[key] = {**base.get(key, {}), **value} if isinstance(value, dict) else value
-        config = load_config(overrides=base)
+        config = load_config(overrides=_merged(base, overrides))
         holder.append(Rig(servos, fsr, plant, config))
         yield holder[0]
+
+
+def _merged(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``update`` laid over it, table by table (``hardware={"fsr": {...}}`` keeps the port)."""
+    out = dict(base)
+    for key, value in update.items():
+        old = out.get(key)
+        out[key] = _merged(old, value) if isinstance(value, dict) and isinstance(old, dict) else value
+    return out
 
 
 class CounterStandIn:
