@@ -189,7 +189,10 @@ def test_a_10_s_link_cut_the_job_goes_on_the_operator_reconnects_and_the_recordi
     watching = monitor.wait_for("state ", timeout_s=WAIT_S)
     code, out, _ = site.agent.cli("start", "--profile", site.profile("op"), "--connect", DIRECT)
     assert (code, out.splitlines()[1]) == (0, "state: detect")
-    monitor.wait_for("state detect", after=watching, timeout_s=WAIT_S)
+    detecting = monitor.wait_for("state detect", after=watching, timeout_s=WAIT_S)
+    # The cut falls once the arm moves: the daemon's simulated clock waits for the plan (its check can take
+    # longer than the cut on a loaded machine), and the clock must be free to move through the cut.
+    monitor.wait_for("state side_grasp", after=detecting, timeout_s=WAIT_S)
     # The daemon's clock (a paced simulated clock, which falls behind the wall clock on a loaded machine)
     # just before the cut and once the operator is answered again: the cut lies between, as the recording
     # has it.
