@@ -1,5 +1,5 @@
 """What one planning run shares, for every method: the options, the context (problem, packers, fitness,
-RNG, time budget) and what a method returns (``Candidate``). The methods import this module; the planner
+RNG, start time) and what a method returns (``Candidate``). The methods import this module; the planner
 (``planner.py``) imports the methods, so nothing imports back."""
 
 from __future__ import annotations
@@ -76,11 +76,6 @@ class Context:
         self.started = time.perf_counter()
         self._packers: dict[Heuristic, Packer] = {}
         self.evaluations = 0
-        # When set (by ``auto``), iterative optimisers stop at this ``time.perf_counter()`` instant.
-        self.deadline: float | None = None
-
-    def out_of_time(self) -> bool:
-        return self.deadline is not None and time.perf_counter() > self.deadline
 
     def packer(self, heuristic: Heuristic | None = None) -> Packer:
         h = heuristic or self.heuristic

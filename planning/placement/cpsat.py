@@ -129,12 +129,14 @@ def _canonical(terms: Iterable[tuple[int, Var]]) -> list[tuple[int, Var]]:
 @dataclass(frozen=True)
 class Solution:
     """What a solve returned: ``status`` (``OPTIMAL``, ``FEASIBLE``, ...), the objective's value and its best
-    proven bound, the solver's wall time (s) and every variable's value (when a solution was found)."""
+    proven bound, the solver's wall time (s), the deterministic time it spent (CP-SAT's unit of work, about
+    a second of a typical machine's solving) and every variable's value (when a solution was found)."""
 
     status: str
     objective: float
     bound: float
     wall_time_s: float
+    deterministic_time: float
     values: tuple[int, ...]
 
     @property
@@ -145,14 +147,27 @@ class Solution:
         return self.values[var]
 
 
-def solve(model: Model, *, time_limit_s: float, seed: int, workers: int = 1) -> Solution:
-    """Solves ``model`` on ``workers`` threads, seeded, stopping after ``time_limit_s`` (0.01 s at least)."""
-    parameters = cmh.SatParameters()
-    parameters.num_workers = workers
-    parameters.random_seed = seed
-    parameters.max_time_in_seconds = max(time_limit_s, 0.01)
+# The least deterministic time a solve is given.
+MIN_DETERMINISTIC_LIMIT = 0.01
+
+
+def parameters(*, deterministic_limit: float, seed: int, workers: int = 1) -> cmh.SatParameters:
+    """The solver's parameters: ``workers`` threads, seeded, stopping after ``deterministic_limit`` of
+    deterministic time (``MIN_DETERMINISTIC_LIMIT`` at least) and never on the wall clock, so a solve cut
+    short by its limit is cut at the same point of the same search however busy the machine is. (One
+    worker: several would share their findings as they come, which depends on the threads' timing.)"""
+    p = cmh.SatParameters()
+    p.num_workers = workers
+    p.random_seed = seed
+    p.max_deterministic_time = max(deterministic_limit, MIN_DETERMINISTIC_LIMIT)
+    return p
+
+
+def solve(model: Model, *, deterministic_limit: float, seed: int, workers: int = 1) -> Solution:
+    """Solves ``model`` with ``parameters(...)``: the result is the same on a busy machine as on an idle
+    one."""
     wrapper = cmh.SolveWrapper()
-    wrapper.set_parameters(parameters)
+    wrapper.set_parameters(parameters(deterministic_limit=deterministic_limit, seed=seed, workers=workers))
     response: cmh.CpSolverResponse = wrapper.solve(model.proto)  # type: ignore[no-untyped-call]
     status = str(response.status.name)
     return Solution(
@@ -160,5 +175,6 @@ def solve(model: Model, *, time_limit_s: float, seed: int, workers: int = 1) -> 
         float(response.objective_value),
         float(response.best_objective_bound),
         float(response.wall_time),
+        float(response.deterministic_time),
         tuple(int(v) for v in response.solution) if status in ("OPTIMAL", "FEASIBLE") else (),
     )

@@ -12,7 +12,8 @@ area (the ranking fitness's next criterion). Which counter mug takes which chose
 problem per mug type, solved exactly for the move energy (then time), for the layout and its mirror images
 (which keep count and area). The energy is thus not minimised over every layout of that count and area: a
 CP-SAT model of that found nothing better than this within a second. Every solve is single-threaded and
-seeded, so a run is deterministic for a seed when the solver finishes within its time limit.
+seeded and stops on a deterministic-time limit (CP-SAT's measure of work done, never the wall clock), so a
+run repeats for a seed whatever else the machine is doing, even when a limit cuts a solve short.
 """
 
 from __future__ import annotations
@@ -54,9 +55,7 @@ class ExactOutcome:
 
 
 def run(ctx: Context) -> Candidate:
-    outcome = solve(
-        ctx.problem, time_limit_s=max(ctx.options.time_limit_s - ctx.elapsed(), 0.05), seed=ctx.options.seed
-    )
+    outcome = solve(ctx.problem, deterministic_limit=ctx.options.time_limit_s, seed=ctx.options.seed)
     return Candidate(
         assign(ctx, outcome.spots),
         optimal=outcome.optimal,
@@ -80,8 +79,10 @@ def normal_patterns(edges: Iterable[int], extents: Iterable[int], limit: int) ->
     return [v for v in range(limit + 1) if reach[v]]
 
 
-def solve(problem: Problem, *, time_limit_s: float, seed: int = 0) -> ExactOutcome:
-    """Place as many counter mugs as possible around the mugs already on the tray; see the module doc."""
+def solve(problem: Problem, *, deterministic_limit: float, seed: int = 0) -> ExactOutcome:
+    """Place as many counter mugs as possible around the mugs already on the tray; see the module doc.
+    ``deterministic_limit``: CP-SAT's deterministic time for both phases together (about seconds of solving
+    on a typical machine; the same work, so the same result, on a slow or busy one)."""
     tx, ty = problem.tray_size_mm
     counts: dict[str, int] = defaultdict(int)
     for m in problem.mugs:
@@ -100,8 +101,8 @@ def solve(problem: Problem, *, time_limit_s: float, seed: int = 0) -> ExactOutco
     ys = normal_patterns([0, *(y + fy for _, y, _, fy in fixed)], [s.fy for s in shapes], ty)
 
     if _point_model_size(shapes, xs, ys, tx, ty) <= _MAX_POINT_MODEL_SIZE:
-        return _solve_points(problem, shapes, counts, fixed, xs, ys, time_limit_s=time_limit_s, seed=seed)
-    return _solve_boxes(problem, shapes, counts, fixed, xs, ys, time_limit_s=time_limit_s, seed=seed)
+        return _solve_points(problem, shapes, counts, fixed, xs, ys, limit=deterministic_limit, seed=seed)
+    return _solve_boxes(problem, shapes, counts, fixed, xs, ys, limit=deterministic_limit, seed=seed)
 
 
 def _point_model_size(shapes: list[_Shape], xs: list[int], ys: list[int], tx: int, ty: int) -> int:
@@ -124,7 +125,7 @@ def _solve_points(
     xs: list[int],
     ys: list[int],
     *,
-    time_limit_s: float,
+    limit: float,
     seed: int,
 ) -> ExactOutcome:
     """The set-packing model over normal-pattern corners (see the module doc)."""
@@ -158,7 +159,7 @@ def _solve_points(
     every = [(1, v) for *_, v in choices]
     model.maximize(every)
 
-    solution = solve_model(model, time_limit_s=time_limit_s, seed=seed)
+    solution = solve_model(model, deterministic_limit=limit, seed=seed)
     if not solution.found:
         return ExactOutcome((), False, _area_bound(problem, counts), "unknown")
     n_best = round(solution.objective)
@@ -167,13 +168,13 @@ def _solve_points(
     chosen = [(s, x, y) for s, x, y, v in choices if solution.value(v)]
 
     # Phase 2: the same number of mugs, as much covered area as possible (bigger mugs first).
-    remaining = time_limit_s - solution.wall_time_s
+    remaining = limit - solution.deterministic_time
     if proven and remaining > 0.01:
         model.equal(every, n_best)
         model.maximize([(s.fx * s.fy, v) for s, _, _, v in choices])
         for s, x, y, v in choices:
             model.hint(v, (s, x, y) in chosen)
-        second = solve_model(model, time_limit_s=remaining, seed=seed)
+        second = solve_model(model, deterministic_limit=remaining, seed=seed)
         if second.found:
             chosen = [(s, x, y) for s, x, y, v in choices if second.value(v)]
     spots = tuple((s.type, x, y, s.rotated) for s, x, y in chosen)
@@ -188,7 +189,7 @@ def _solve_boxes(
     xs: list[int],
     ys: list[int],
     *,
-    time_limit_s: float,
+    limit: float,
     seed: int,
 ) -> ExactOutcome:
     """For instances whose point model is too big (rotation multiplies the normal patterns): one optional box
@@ -221,7 +222,7 @@ def _solve_boxes(
             placed_terms.append((1, present))
     model.no_overlap_2d(x_boxes, y_boxes)
     model.maximize(placed_terms)
-    solution = solve_model(model, time_limit_s=time_limit_s, seed=seed)
+    solution = solve_model(model, deterministic_limit=limit, seed=seed)
     area_bound = _area_bound(problem, counts)
     if not solution.found:
         return ExactOutcome((), False, area_bound, "unknown")

@@ -39,7 +39,7 @@ def run(ctx: Context) -> Candidate:
             current, m_current = new, m_new
         if m_new.n > m_most.n or (m_new.n == m_most.n and fitness.better(m_new, m_most)):
             most, m_most = new, m_new
-        if m_current.n == n_total or ctx.out_of_time():
+        if m_current.n == n_total:
             break
         temperature *= params.cooling_rate
     return Candidate.of(most if m_best.n < m_most.n else best)

@@ -85,16 +85,15 @@ def test_both_builders_write_the_same_model_and_find_the_same_optimum(
         seen.append(str(model.proto))
         return solve(model, **kw)
 
-    # The point model proves its optimum in well under a second (then the spots are the solver's
-    # deterministic answer: a generous limit keeps a loaded machine from cutting either solve short); the
-    # box model of the rotated 30-mug datasets runs to its limit.
+    # The point model proves its optimum in well under a second; the box model of the rotated 30-mug
+    # datasets runs to its limit (deterministic time: the same point of the same search in both runs).
     limit = 2.0 if rotation else 30.0
     monkeypatch.setattr(exact, "solve_model", recording)
-    ours = exact.solve(problem, time_limit_s=limit, seed=0)
+    ours = exact.solve(problem, deterministic_limit=limit, seed=0)
     ours_models = list(seen)
     seen.clear()
     monkeypatch.setattr(exact, "Model", CpModelBuilder)
-    theirs = exact.solve(problem, time_limit_s=limit, seed=0)
+    theirs = exact.solve(problem, deterministic_limit=limit, seed=0)
     assert ours_models == seen
     assert ours_models  # a model was solved
     assert (len(ours.spots), ours.optimal, ours.upper_bound) == (
@@ -115,7 +114,7 @@ def test_a_solution_reads_its_values_and_an_integer_domain_is_its_values() -> No
     m.at_most_one([a, b])
     m.implication(a, b)
     m.maximize([(1, a), (2, b), (1, x)])
-    s = cpsat.solve(m, time_limit_s=1.0, seed=0)
+    s = cpsat.solve(m, deterministic_limit=1.0, seed=0)
     assert (s.status, s.objective, s.bound) == ("OPTIMAL", 11.0, 11.0)
     assert (s.value(a), s.value(b), s.value(x)) == (0, 1, 9)
     with pytest.raises(ValueError, match="x: an integer variable needs at least one value"):
