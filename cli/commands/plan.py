@@ -155,6 +155,8 @@ def run(args: argparse.Namespace) -> int:
         if path is not None and not path.parent.resolve().is_dir():
             raise UsageError(f"{flag}: directory {str(path.parent)!r} does not exist")
     problem = load_problem(args)
+    from planning.placement.cache import default_dir
+
     options = PlanOptions(
         method=args.method,
         heuristic=args.heuristic,
@@ -165,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
         time_limit_s=time_limit,
         weights=_weights(args.weights),
         ranking=None if args.ranking is None else tuple(p.strip() for p in args.ranking.split(",")),
+        cache_dir=default_dir(),  # proven rectangle optima kept between runs (the same plan, sooner)
     )
     try:
         result = plan(problem, options)

@@ -44,7 +44,12 @@ def run(ctx: Context) -> Candidate:
     bound: int | None = None
     optimal: bool | None = None
     if budget > 0:
-        outcome = exact.solve(ctx.problem, deterministic_limit=budget * _EXACT_SHARE, seed=ctx.options.seed)
+        outcome = exact.solve(
+            ctx.problem,
+            deterministic_limit=budget * _EXACT_SHARE,
+            seed=ctx.options.seed,
+            cache_dir=ctx.options.cache_dir,
+        )
         bound = outcome.upper_bound
         if outcome.spots:
             offer(Candidate(exact.assign(ctx, outcome.spots)))

@@ -9,6 +9,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
+from pathlib import Path
 from typing import TypeVar
 
 from planning.placement.cost import CostFunction, Evaluator, Fitness, FitnessMethod, Metrics, MoveCost
@@ -34,6 +35,9 @@ class PlanOptions:
     weights: Mapping[str, float] | None = None
     ranking: tuple[str, ...] | None = None
     move_cost: MoveCost | None = field(default=None, compare=False)
+    # Where the planner keeps work between runs (``cache``: proven rectangle optima, scan orders; ``dishbot
+    # plan`` gives its cache folder). None: do it every time. The same plan either way.
+    cache_dir: Path | None = field(default=None, compare=False)
 
 
 # (mug index, x, y, rotated) in the order the method packed them

@@ -22,15 +22,19 @@ import math
 from collections import defaultdict
 from collections.abc import Iterable
 from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from planning.placement import cache
 from planning.placement.assignment import least_cost_assignment
 from planning.placement.context import Candidate, Context, Layout
-from planning.placement.cpsat import Model, Var
-from planning.placement.cpsat import solve as solve_model
 from planning.placement.order import execution_order
 from planning.placement.problem import Problem
+
+if TYPE_CHECKING:
+    from planning.placement.cpsat import Var
 
 # Beyond this many (choice, covered point) pairs the set-packing model takes longer to build than to solve.
 _MAX_POINT_MODEL_SIZE = 100_000
@@ -55,7 +59,12 @@ class ExactOutcome:
 
 
 def run(ctx: Context) -> Candidate:
-    outcome = solve(ctx.problem, deterministic_limit=ctx.options.time_limit_s, seed=ctx.options.seed)
+    outcome = solve(
+        ctx.problem,
+        deterministic_limit=ctx.options.time_limit_s,
+        seed=ctx.options.seed,
+        cache_dir=ctx.options.cache_dir,
+    )
     return Candidate(
         assign(ctx, outcome.spots),
         optimal=outcome.optimal,
@@ -79,10 +88,14 @@ def normal_patterns(edges: Iterable[int], extents: Iterable[int], limit: int) ->
     return [v for v in range(limit + 1) if reach[v]]
 
 
-def solve(problem: Problem, *, deterministic_limit: float, seed: int = 0) -> ExactOutcome:
+def solve(
+    problem: Problem, *, deterministic_limit: float, seed: int = 0, cache_dir: Path | None = None
+) -> ExactOutcome:
     """Place as many counter mugs as possible around the mugs already on the tray; see the module doc.
     ``deterministic_limit``: CP-SAT's deterministic time for both phases together (about seconds of solving
-    on a typical machine; the same work, so the same result, on a slow or busy one)."""
+    on a typical machine; the same work, so the same result, on a slow or busy one). ``cache_dir``: where
+    proven outcomes are kept between runs (``cache``; None: solve every time). OR-Tools is imported only
+    when the model is solved."""
     tx, ty = problem.tray_size_mm
     counts: dict[str, int] = defaultdict(int)
     for m in problem.mugs:
@@ -97,12 +110,65 @@ def solve(problem: Problem, *, deterministic_limit: float, seed: int = 0) -> Exa
     if not shapes:
         return ExactOutcome((), True, 0, "optimal")
     fixed = problem.obstacle_rects()
+    # everything the outcome depends on: the key of a kept outcome
+    question = {
+        "tray": [tx, ty],
+        "counts": sorted(counts.items()),
+        "footprints": [[t, r, *problem.footprint(t, r)] for t in sorted(counts) for r in (False, True)],
+        "rotation": problem.allow_rotation,
+        "fixed": [list(f) for f in fixed],
+        "placed": [[q.type, q.rotated] for q in problem.placed],
+        "limit": deterministic_limit,
+        "seed": seed,
+    }
+    digest = None
+    if cache_dir is not None:
+        build = cache.ortools_build()
+        digest = None if build is None else cache.key(question, ("exact.py", "cpsat.py"), build)
+    if cache_dir is not None and digest is not None:
+        kept = _kept_outcome(cache.load_json(cache_dir, digest))
+        if kept is not None:
+            return kept
     xs = normal_patterns([0, *(x + fx for x, _, fx, _ in fixed)], [s.fx for s in shapes], tx)
     ys = normal_patterns([0, *(y + fy for _, y, _, fy in fixed)], [s.fy for s in shapes], ty)
 
     if _point_model_size(shapes, xs, ys, tx, ty) <= _MAX_POINT_MODEL_SIZE:
-        return _solve_points(problem, shapes, counts, fixed, xs, ys, limit=deterministic_limit, seed=seed)
-    return _solve_boxes(problem, shapes, counts, fixed, xs, ys, limit=deterministic_limit, seed=seed)
+        outcome = _solve_points(problem, shapes, counts, fixed, xs, ys, limit=deterministic_limit, seed=seed)
+    else:
+        outcome = _solve_boxes(problem, shapes, counts, fixed, xs, ys, limit=deterministic_limit, seed=seed)
+    if cache_dir is not None and digest is not None and outcome.optimal:
+        answer: dict[str, object] = {
+            "spots": [list(s) for s in outcome.spots],
+            "optimal": outcome.optimal,
+            "upper_bound": outcome.upper_bound,
+            "status": outcome.status,
+        }
+        cache.store_json(cache_dir, digest, answer)
+    return outcome
+
+
+def _kept_outcome(doc: dict[str, object] | None) -> ExactOutcome | None:
+    """The outcome ``cache.store_json`` kept, if it has the shape it was written with."""
+    if doc is None:
+        return None
+    spots, bound, status = doc.get("spots"), doc.get("upper_bound"), doc.get("status")
+    if not (isinstance(spots, list) and type(bound) is int and status == "optimal"):
+        return None
+    if doc.get("optimal") is not True:
+        return None
+    out: list[tuple[str, int, int, bool]] = []
+    for s in spots:
+        if not (
+            isinstance(s, list)
+            and len(s) == 4
+            and isinstance(s[0], str)
+            and type(s[1]) is int
+            and type(s[2]) is int
+            and type(s[3]) is bool
+        ):
+            return None
+        out.append((s[0], s[1], s[2], s[3]))
+    return ExactOutcome(tuple(out), True, bound, "optimal")
 
 
 def _point_model_size(shapes: list[_Shape], xs: list[int], ys: list[int], tx: int, ty: int) -> int:
@@ -129,8 +195,10 @@ def _solve_points(
     seed: int,
 ) -> ExactOutcome:
     """The set-packing model over normal-pattern corners (see the module doc)."""
+    from planning.placement import cpsat  # OR-Tools: only when a model is solved
+
     tx, ty = problem.tray_size_mm
-    model = Model()
+    model = cpsat.Model()
     choices: list[tuple[_Shape, int, int, Var]] = []
     for s in shapes:
         for x in xs:
@@ -159,7 +227,7 @@ def _solve_points(
     every = [(1, v) for *_, v in choices]
     model.maximize(every)
 
-    solution = solve_model(model, deterministic_limit=limit, seed=seed)
+    solution = cpsat.solve(model, deterministic_limit=limit, seed=seed)
     if not solution.found:
         return ExactOutcome((), False, _area_bound(problem, counts), "unknown")
     n_best = round(solution.objective)
@@ -174,7 +242,7 @@ def _solve_points(
         model.maximize([(s.fx * s.fy, v) for s, _, _, v in choices])
         for s, x, y, v in choices:
             model.hint(v, (s, x, y) in chosen)
-        second = solve_model(model, deterministic_limit=remaining, seed=seed)
+        second = cpsat.solve(model, deterministic_limit=remaining, seed=seed)
         if second.found:
             chosen = [(s, x, y) for s, x, y, v in choices if second.value(v)]
     spots = tuple((s.type, x, y, s.rotated) for s, x, y in chosen)
@@ -194,8 +262,10 @@ def _solve_boxes(
 ) -> ExactOutcome:
     """For instances whose point model is too big (rotation multiplies the normal patterns): one optional box
     per counter mug and orientation under CP-SAT's 2D no-overlap, corners restricted to normal patterns."""
+    from planning.placement import cpsat  # OR-Tools: only when a model is solved
+
     tx, ty = problem.tray_size_mm
-    model = Model()
+    model = cpsat.Model()
     x_boxes, y_boxes = [], []
     for x, y, fx, fy in fixed:
         x_boxes.append(model.fixed_interval(x, fx, "fixed_x"))
@@ -222,7 +292,7 @@ def _solve_boxes(
             placed_terms.append((1, present))
     model.no_overlap_2d(x_boxes, y_boxes)
     model.maximize(placed_terms)
-    solution = solve_model(model, deterministic_limit=limit, seed=seed)
+    solution = cpsat.solve(model, deterministic_limit=limit, seed=seed)
     area_bound = _area_bound(problem, counts)
     if not solution.found:
         return ExactOutcome((), False, area_bound, "unknown")
@@ -295,7 +365,7 @@ def _least_energy_assignment(
     ev = ctx.evaluator
     for t, places in sorted(by_type.items()):
         mugs = [i for i, m in enumerate(ctx.problem.mugs) if m.type == t]
-        cost = [[ev.move(i, *pl)[1] + 1e-6 * ev.move(i, *pl)[0] for pl in places] for i in mugs]
+        cost = [[e + 1e-6 * t for t, e in (ev.move(i, *pl) for pl in places)] for i in mugs]
         pairs = least_cost_assignment(cost)
         total += sum(cost[r][c] for r, c in pairs)
         layout += [(mugs[r], *places[c]) for r, c in pairs]

@@ -23,10 +23,12 @@ import math
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
+from planning.placement import cache
 from planning.placement.problem import Problem
 from planning.placement.shapes import (
     NEAR_SLACK_MM,
@@ -66,10 +68,12 @@ SCANS: tuple[Scan, ...] = tuple(
 BEARING_MM = 500.0
 # ``_first_clear`` tests this many free corners one at a time (plain floats) before it tests the rest in
 # numpy batches of ``BATCH`` (a bound on a long search; the packings of datasets 1-6 never reach it); it
-# looks for free corners ``CHUNK`` scan positions at a time.
+# looks for free corners ``CHUNK`` scan positions at a time, twice as many after each stretch with none
+# free (up to ``MAX_CHUNK``: on a filling tray two thirds of the stretches are empty).
 SCALAR_TRIES = 512
 BATCH = 256
 CHUNK = 1024
+MAX_CHUNK = 16384
 # (class, corner x, corner y) of a placed mug, tray coordinates
 Spot = tuple[int, int, int]
 
@@ -113,7 +117,8 @@ class _Group:
 class MugPacker:
     """Packs sequences of mug classes with a scan; see the module doc."""
 
-    def __init__(self, problem: Problem, *, grid_mm: int = GRID_MM) -> None:
+    def __init__(self, problem: Problem, *, grid_mm: int = GRID_MM, cache_dir: Path | None = None) -> None:
+        """``cache_dir``: where the scan orders are kept between runs (``cache``; None: made here)."""
         self.problem = problem
         self.clearance = float(problem.tolerance_mm)
         half = self.clearance / 2.0
@@ -177,13 +182,14 @@ class MugPacker:
                     np.stack([self.classes[k].free for k in members]).reshape(
                         len(members), len(first.xs), len(first.ys)
                     ),
-                    _scan_orders(
+                    _kept_scan_orders(
                         tx - t.diameter_mm - problem.tolerance_mm,
                         ty - t.diameter_mm - problem.tolerance_mm,
                         grid_mm,
                         offset,
                         problem.tray_origin_mm,
                         problem.arm_base_mm,
+                        cache_dir,
                     ),
                     (first.xs.tolist(), first.ys.tolist()),
                 )
@@ -331,6 +337,39 @@ def _axis(limit: int, step: int) -> npt.NDArray[np.int64]:
 
 
 @functools.lru_cache(maxsize=4)  # two types on one tray: 3-8 MB each (48 scans of 16,000-43,000 corners)
+def _kept_scan_orders(
+    x_limit: int,
+    y_limit: int,
+    grid_mm: int,
+    offset: float,
+    origin: tuple[float, float],
+    base: tuple[float, float],
+    cache_dir: Path | None,
+) -> dict[Scan, npt.NDArray[np.int32]]:
+    """``_scan_orders``, read from ``cache_dir`` when an earlier run kept them there (``cache``), else made
+    and kept there. The orders are the same either way (a test compares them)."""
+    if cache_dir is None:
+        return _scan_orders(x_limit, y_limit, grid_mm, offset, origin, base)
+    question = [x_limit, y_limit, grid_mm, offset, [*origin], [*base], [[*s] for s in SCANS], BEARING_MM]
+    digest = cache.key(question, ("mugpack.py",), np.__version__)
+    if digest is None:
+        return _scan_orders(x_limit, y_limit, grid_mm, offset, origin, base)
+    path = cache.orders_path(cache_dir, digest)
+    size = len(_axis(x_limit, grid_mm)) * len(_axis(y_limit, grid_mm))
+    try:
+        kept = np.load(path, allow_pickle=False)
+    except (OSError, ValueError):
+        kept = None
+    if kept is not None and kept.shape == (len(SCANS), size) and kept.dtype == np.int32:
+        kept.flags.writeable = False
+        return {scan: kept[i] for i, scan in enumerate(SCANS)}
+    orders = _scan_orders(x_limit, y_limit, grid_mm, offset, origin, base)
+    stacked = np.stack([orders[scan] for scan in SCANS])
+    cache.store_file(cache_dir, path.name, lambda p: np.save(p, stacked, allow_pickle=False))
+    return orders
+
+
+@functools.lru_cache(maxsize=4)  # two types on one tray: 3-8 MB each (48 scans of 16,000-43,000 corners)
 def _scan_orders(
     x_limit: int,
     y_limit: int,
@@ -359,7 +398,10 @@ def _scan_orders(
     by_row = flat.ravel()  # x, then y (then index): corner order along each row of the grid
     by_column = flat.T.ravel()  # y, then x
     # each corner's place in the polar scans' secondary orders
-    place_by_distance = _places(np.argsort(distance, kind="stable"))
+    by_distance = np.argsort(distance, kind="stable")
+    place_by_distance = _places(by_distance)
+    # an arc scan's key is the same in both directions (only its ties differ): sorted once per slant
+    arc_ranks: dict[float, npt.NDArray[np.int64]] = {0.0: by_distance}
     place_by_bearing = {d: _places(np.argsort(d * bearing, kind="stable")) for d in (1, -1)}
     orders: dict[Scan, npt.NDArray[np.int32]] = {}
     for scan in SCANS:
@@ -372,7 +414,10 @@ def _scan_orders(
             assert direction == 1  # a slanted row scan takes its rows one way (``SCANS``)
             order = _stable_by((primary + slant * secondary).ravel(), by_column if axis == 0 else by_row)
         elif axis == 2:
-            order = _ties_by(distance + slant * BEARING_MM * bearing, place_by_bearing[direction])
+            key = distance + slant * BEARING_MM * bearing
+            if slant not in arc_ranks:
+                arc_ranks[slant] = np.argsort(key, kind="stable")
+            order = _ties_by(key, place_by_bearing[direction], arc_ranks[slant].copy())
         else:
             order = _ties_by(direction * BEARING_MM * bearing + slant * distance, place_by_distance)
         kept = order.astype(np.int32)
@@ -393,11 +438,17 @@ def _places(permutation: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
     return places
 
 
-def _ties_by(key: npt.NDArray[np.float64], place: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+def _ties_by(
+    key: npt.NDArray[np.float64],
+    place: npt.NDArray[np.int64],
+    ranks: npt.NDArray[np.int64] | None = None,
+) -> npt.NDArray[np.int64]:
     """The indices sorted by ``key``, ties by ``place``: ``_stable_by`` for the permutation whose places
     ``place`` gives, sorting the keys in their own order (a polar key runs monotonically along much of each
-    grid column, which the stable sort's runs take whole) and then only the runs of equal keys by place."""
-    ranks = np.argsort(key, kind="stable")
+    grid column, which the stable sort's runs take whole) and then only the runs of equal keys by place.
+    ``ranks``: ``key``'s stable argsort when the caller has it (a scratch copy: it is reordered here)."""
+    if ranks is None:
+        ranks = np.argsort(key, kind="stable")
     ordered = key[ranks]
     tie = ordered[1:] == ordered[:-1]
     if tie.any():
@@ -469,7 +520,10 @@ def _first_clear(
                 break
         else:
             pos += idx.size
+            if not found.size:
+                chunk = min(chunk * 2, MAX_CHUNK)
     others = Bodies(*np.array(placed).T)
+    chunk = CHUNK
     batch = BATCH
     while pos < order.size:
         idx = order[pos : pos + chunk]

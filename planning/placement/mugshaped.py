@@ -64,7 +64,7 @@ def run(ctx: Context, rect_method: Callable[[Context], Candidate]) -> Candidate:
     offer(start)
     rect_n = len(start)
     bound = area_bound(problem)
-    packer = MugPacker(problem)
+    packer = MugPacker(problem, cache_dir=ctx.options.cache_dir)
     now = time.thread_time  # CPU time of this thread: other jobs on the machine do not change the result
     deadline = now() + SAFETY_FACTOR * ctx.options.time_limit_s
     budget = PACKS_BASE + PACKS_PER_MUG * len(problem.mugs)
@@ -192,8 +192,6 @@ def _assigned(ctx: Context, packer: MugPacker, spots: Sequence[Spot]) -> Layout:
     ev = ctx.evaluator
     for k, places in sorted(by_class.items()):
         mugs = [i for i, c in enumerate(packer.class_of) if c == k]
-        cost = [
-            [ev.move(i, x, y, False)[1] + 1e-6 * ev.move(i, x, y, False)[0] for x, y in places] for i in mugs
-        ]
+        cost = [[e + 1e-6 * t for t, e in (ev.move(i, x, y, False) for x, y in places)] for i in mugs]
         layout += [(mugs[r], *places[c], False) for r, c in least_cost_assignment(cost)]
     return tuple(layout)

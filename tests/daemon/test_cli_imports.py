@@ -134,13 +134,21 @@ def test_a_verb_said_not_to_log_imports_no_structlog(tmp_path: Path, argv: tuple
 
 
 @pytest.mark.slow
-def test_a_plan_without_pictures_loads_no_picture_recorder_nor_zenoh_library(tmp_path: Path) -> None:
+def test_a_plan_without_pictures_loads_no_picture_recorder_nor_zenoh_library(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """``plan --dataset 1`` (the default method, auto) loads what it plans with: numpy and OR-Tools' CP-SAT
     helper (not ``cp_model``, which imports pandas at its top), not OpenCV, MCAP, Zenoh, structlog or the
-    motion planner's libraries; a picture brings OpenCV, and of libraries only that."""
+    motion planner's libraries; a picture brings OpenCV, and of libraries only that. Once the rectangle
+    optimum is kept (``planning.placement.cache``), the next plan does not load OR-Tools at all."""
+    monkeypatch.setenv("DISHBOT_CACHE_DIR", str(tmp_path / "cache"))
     [result] = run_cli(tmp_path, ("plan", "--dataset", "1", "--json"))
     assert result["code"] == 0
     assert {"numpy", "ortools"} <= set(result["new"])
+    [again] = run_cli(tmp_path, ("plan", "--dataset", "1", "--json"))
+    assert again["code"] == 0
+    assert "numpy" in again["new"]
+    assert "ortools" not in again["new"]
     unused = {
         "cv2",
         "matplotlib",

@@ -88,11 +88,11 @@ def test_both_builders_write_the_same_model_and_find_the_same_optimum(
     # The point model proves its optimum in well under a second; the box model of the rotated 30-mug
     # datasets runs to its limit (deterministic time: the same point of the same search in both runs).
     limit = 2.0 if rotation else 30.0
-    monkeypatch.setattr(exact, "solve_model", recording)
+    monkeypatch.setattr(cpsat, "solve", recording)
     ours = exact.solve(problem, deterministic_limit=limit, seed=0)
     ours_models = list(seen)
     seen.clear()
-    monkeypatch.setattr(exact, "Model", CpModelBuilder)
+    monkeypatch.setattr(cpsat, "Model", CpModelBuilder)
     theirs = exact.solve(problem, deterministic_limit=limit, seed=0)
     assert ours_models == seen
     assert ours_models  # a model was solved
