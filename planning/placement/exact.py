@@ -365,7 +365,7 @@ def _least_energy_assignment(
     ev = ctx.evaluator
     for t, places in sorted(by_type.items()):
         mugs = [i for i, m in enumerate(ctx.problem.mugs) if m.type == t]
-        cost = [[e + 1e-6 * t for t, e in (ev.move(i, *pl) for pl in places)] for i in mugs]
+        cost = [[j + 1e-6 * s for s, j in (ev.move(i, *pl) for pl in places)] for i in mugs]
         pairs = least_cost_assignment(cost)
         total += sum(cost[r][c] for r, c in pairs)
         layout += [(mugs[r], *places[c]) for r, c in pairs]

@@ -192,6 +192,6 @@ def _assigned(ctx: Context, packer: MugPacker, spots: Sequence[Spot]) -> Layout:
     ev = ctx.evaluator
     for k, places in sorted(by_class.items()):
         mugs = [i for i, c in enumerate(packer.class_of) if c == k]
-        cost = [[e + 1e-6 * t for t, e in (ev.move(i, x, y, False) for x, y in places)] for i in mugs]
+        cost = [[j + 1e-6 * s for s, j in (ev.move(i, x, y, False) for x, y in places)] for i in mugs]
         layout += [(mugs[r], *places[c], False) for r, c in least_cost_assignment(cost)]
     return tuple(layout)
