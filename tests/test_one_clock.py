@@ -94,10 +94,9 @@ ALLOWED: Final[dict[tuple[str, str], str]] = {
         "measures how long detection took (the observation's detect_ms), nothing else"
     ),
     ("planning/placement/context.py", "Context.__init__"): (
-        "a compute budget: how long an optimiser may think on this machine"
+        "measures how long a plan took (its wall_time_s and t), nothing else: budgets are deterministic time"
     ),
-    ("planning/placement/context.py", "Context.out_of_time"): "the same compute budget",
-    ("planning/placement/context.py", "Context.elapsed"): "the same compute budget",
+    ("planning/placement/context.py", "Context.elapsed"): "the same measurement",
     ("planning/placement/checked.py", "plan_checked"): (
         "measures how long packing and the arm's check took together (the plan's elapsed_s), nothing else"
     ),
