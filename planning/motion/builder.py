@@ -64,6 +64,7 @@ class _Checks:
     ignore: Ignore = ""
     fine: bool = False
     length: float = 0.0
+    speed: float | None = None  # the tool's top speed along a line (None: fine speed)
 
 
 class Builder:
@@ -108,9 +109,16 @@ class Builder:
         self._add(phase, np.array([self.q, q_goal]), _Checks(world, **carrying))
 
     def line(
-        self, phase: str, goal: GraspTarget, world: CollisionWorld, **carrying: Unpack[Carrying]
+        self,
+        phase: str,
+        goal: GraspTarget,
+        world: CollisionWorld,
+        *,
+        speed_m_s: float | None = None,
+        **carrying: Unpack[Carrying],
     ) -> None:
-        """A straight Cartesian move of the grasp point at fine speed, orientation per ``goal.kind``."""
+        """A straight Cartesian move of the grasp point at fine speed (or ``speed_m_s``), orientation per
+        ``goal.kind``."""
         start_p, _ = self.scene.arm.fk(self.q)
         end_p = np.asarray(goal.position_m)
         length = float(np.linalg.norm(end_p - start_p))
@@ -118,7 +126,7 @@ class Builder:
         targets = [
             GraspTarget(point(start_p + (end_p - start_p) * f), goal.kind) for f in np.linspace(0, 1, n)[1:]
         ]
-        self._follow(phase, targets, _Checks(world, **carrying, fine=True, length=length))
+        self._follow(phase, targets, _Checks(world, **carrying, fine=True, length=length, speed=speed_m_s))
 
     def arc(self, phase: str, goal: GraspTarget, world: CollisionWorld, **carrying: Unpack[Carrying]) -> None:
         """Carry along the arc between the bearings, radius and height blended. The arc turns the way the
@@ -218,7 +226,9 @@ class Builder:
         """The move through ``waypoints``, timed and checked for collisions, appended (nothing when it
         would take no time)."""
         c = checks
-        trajectory, path = self.scene.path(waypoints, phase, tool_length_m=c.length, fine=c.fine)
+        trajectory, path = self.scene.path(
+            waypoints, phase, tool_length_m=c.length, fine=c.fine, tool_speed_m_s=c.speed
+        )
         if path.duration == 0.0:
             return
         ids = {c.ignore} if isinstance(c.ignore, str) else c.ignore

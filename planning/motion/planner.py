@@ -68,6 +68,8 @@ class CyclePlanner:
         release_gap_m: float = 0.008,
         release_openings_m: Sequence[float] = (0.012, 0.006),
         fine_speed_m_s: float = 0.08,
+        set_down_slow_m: float = 0.03,
+        set_down_speed_m_s: float = 0.01,
         gripper_close_s: float = 1.0,
         gripper_open_s: float = 0.6,
         energy_model: DynamicsEnergyModel | None = None,
@@ -77,6 +79,13 @@ class CyclePlanner:
             raise ValueError(f"control_rate_hz must be > 0, got {control_rate_hz}")
         if not catalogue:
             raise ValueError("catalogue must hold at least one mug type")
+        # The last ``set_down_slow_m`` of every set-down (flip and place) runs at ``set_down_speed_m_s``:
+        # the held mug then hangs straight when it is let go (``stages.base.lower_onto``).
+        if not (set_down_slow_m >= 0 and set_down_speed_m_s > 0):
+            raise ValueError(
+                f"set_down_slow_m must be >= 0 and set_down_speed_m_s > 0, got {set_down_slow_m}, "
+                f"{set_down_speed_m_s}"
+            )
         settings = Settings(
             control_rate_hz=control_rate_hz,
             back_off_m=tuple(back_off_m),
@@ -84,6 +93,8 @@ class CyclePlanner:
             release_gap_m=release_gap_m,
             release_openings_m=tuple(release_openings_m),
             fine_speed_m_s=fine_speed_m_s,
+            set_down_slow_m=set_down_slow_m,
+            set_down_speed_m_s=set_down_speed_m_s,
             correction=correction,
         )
         self.scene = Scene(arm, cell, catalogue, settings)

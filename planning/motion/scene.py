@@ -47,6 +47,8 @@ class Settings:
     release_gap_m: float = 0.008
     release_openings_m: tuple[float, ...] = (0.012, 0.006)
     fine_speed_m_s: float = 0.08
+    set_down_slow_m: float = 0.03
+    set_down_speed_m_s: float = 0.01
     correction: PositionCorrection | None = None
 
 
@@ -56,7 +58,7 @@ _IK_REMEMBERED = 8192
 _PATHS_REMEMBERED = 2048
 _SWEEPS_REMEMBERED = 1024
 _IkKey = tuple[bytes, GraspKind, bytes]
-_PathKey = tuple[bytes, tuple[int, ...], str, str, bool]
+_PathKey = tuple[bytes, tuple[int, ...], str, str, str]
 
 
 class Scene:
@@ -103,12 +105,21 @@ class Scene:
             ) from e
 
     def path(
-        self, waypoints: FloatArray, label: str, *, tool_length_m: float = 0.0, fine: bool = False
+        self,
+        waypoints: FloatArray,
+        label: str,
+        *,
+        tool_length_m: float = 0.0,
+        fine: bool = False,
+        tool_speed_m_s: float | None = None,
     ) -> tuple[JointTrajectory, JointPath]:
-        """The timed path through ``waypoints`` within the servo limits, at fine speed when ``fine``
-        (remembered by its exact arguments: the trajectory and path returned are shared, never changed)."""
+        """The timed path through ``waypoints`` within the servo limits, at fine speed when ``fine``, the
+        tool no faster than ``tool_speed_m_s`` when given (remembered by its exact arguments: the trajectory
+        and path returned are shared, never changed)."""
         arr = np.ascontiguousarray(waypoints, dtype=np.float64)
-        key = (arr.tobytes(), arr.shape, label, float(tool_length_m).hex(), fine)
+        if tool_speed_m_s is None:
+            tool_speed_m_s = self.settings.fine_speed_m_s if fine else math.inf
+        key = (arr.tobytes(), arr.shape, label, float(tool_length_m).hex(), float(tool_speed_m_s).hex())
         return self._paths.get(
             key,
             lambda: plan_path(
@@ -119,7 +130,7 @@ class Scene:
                 rate_hz=self.settings.control_rate_hz,
                 label=label,
                 tool_path_length_m=tool_length_m,
-                max_tool_speed_m_s=self.settings.fine_speed_m_s if fine else math.inf,
+                max_tool_speed_m_s=tool_speed_m_s,
             ),
         )
 

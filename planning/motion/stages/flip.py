@@ -9,7 +9,7 @@ from description import thesis
 from planning.arm.targets import GraspKind, GraspTarget
 from planning.interfaces import StepKind
 from planning.motion.builder import Builder, xy_at
-from planning.motion.stages.base import CycleContext
+from planning.motion.stages.base import CycleContext, lower_onto
 
 
 @dataclass(frozen=True, slots=True)
@@ -31,6 +31,6 @@ class Flip:
         b.arc("flip.transit", above, c.lift_world, aperture=c.holding, held=held, mass=c.mass)
         turned = GraspTarget(above.position_m, GraspKind.SIDE_UPSIDE_DOWN)
         b.joint_move("flip.turn", turned, c.lift_world, aperture=c.holding, held=held, mass=c.mass)
-        b.line("flip.set_down", set_down, c.lift_world, aperture=c.holding, held=held, mass=c.mass)
+        lower_onto(b, c, "flip.set_down", set_down, held)
         b.gripper("flip.release", StepKind.OPEN)
         c.set_down = set_down

@@ -9,7 +9,7 @@ from description import thesis
 from planning.arm.targets import GraspKind
 from planning.interfaces import MotionRefused, MugPose, StepKind
 from planning.motion.builder import Builder, at_z
-from planning.motion.stages.base import CycleContext
+from planning.motion.stages.base import CycleContext, lower_onto
 
 
 @dataclass(frozen=True, slots=True)
@@ -30,7 +30,7 @@ class Place:
         held = c.held(self.kind)
         carry = scene.carry_z_m
         b.arc("place.transit", at_z(place, carry), c.lift_world, aperture=c.holding, held=held, mass=c.mass)
-        b.line("place.descend", place, c.lift_world, aperture=c.holding, held=held, mass=c.mass)
+        lower_onto(b, c, "place.descend", place, held)
         placed_now = MugPose(c.mug.mug_id, c.mug.type, c.slot.x_m, c.slot.y_m, upside_down=True)
         done_world = scene.world(
             c.others, c.placed, target=placed_now, target_spec=c.spec, target_floor=tray_z

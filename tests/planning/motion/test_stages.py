@@ -111,7 +111,13 @@ def test_flip_sets_the_mug_down_upside_down_and_lets_go(planner: CyclePlanner) -
     picked = len(b.motions)
     assert c.set_down is None
     Flip().plan(b, c)
-    assert _phases(b, picked) == ["flip.transit", "flip.turn", "flip.set_down", "flip.release"]
+    assert _phases(b, picked) == [
+        "flip.transit",
+        "flip.turn",
+        "flip.set_down",
+        "flip.set_down",
+        "flip.release",
+    ]
     assert b.motions[-1].step.kind is StepKind.OPEN
     assert c.set_down is not None
     assert c.set_down.kind is GraspKind.SIDE_UPSIDE_DOWN
@@ -157,6 +163,42 @@ def test_place_puts_a_mug_held_upside_down_in_its_slot_and_backs_off_to_carry_he
     assert release.aperture_m > MUG_TYPES["big"].diameter_mm / 1000.0
     assert (b.motions[-1].step.phase, b.motions[-1].step.kind) == ("place.retreat", StepKind.OPEN)
     assert _height(planner, b) == pytest.approx(planner.carry_z_m, abs=1e-3)
+
+
+def _tool_speeds(planner: CyclePlanner, b: Builder, phase: str) -> list[tuple[float, float]]:
+    """(height of the grasp point, its speed) along every sample of ``phase``'s moves."""
+    out = []
+    for m in b.motions:
+        traj = m.step.trajectory
+        if m.step.phase != phase or traj is None:
+            continue
+        points = np.array([planner.arm.fk(q)[0] for q in traj.positions])
+        speeds = np.linalg.norm(np.diff(points, axis=0), axis=1) / np.diff(traj.times)
+        out += [(float(z), float(v)) for z, v in zip(points[1:, 2], speeds, strict=True)]
+    return out
+
+
+@pytest.mark.parametrize("phase", ["flip.set_down", "place.descend"])
+def test_the_held_mug_goes_down_its_last_3_cm_slowly_so_it_hangs_straight_when_let_go(
+    planner: CyclePlanner, phase: str
+) -> None:
+    b = _start(planner)
+    c = _context(planner)
+    Pick().plan(b, c)
+    Flip().plan(b, c)
+    Regrasp(GraspKind.SIDE_UPSIDE_DOWN).plan(b, c)
+    Place(GraspKind.SIDE_UPSIDE_DOWN).plan(b, c)
+    settings = planner.scene.settings
+    samples = _tool_speeds(planner, b, phase)
+    bottom = min(z for z, _ in samples)
+    last = [v for z, v in samples if z < bottom + settings.set_down_slow_m - 1e-3]
+    higher = [v for z, v in samples if z > bottom + settings.set_down_slow_m + 1e-3]
+    assert (
+        len(last) * (1 / planner.control_rate_hz)
+        >= 0.9 * settings.set_down_slow_m / settings.set_down_speed_m_s
+    )
+    assert max(last) <= settings.set_down_speed_m_s * 1.1  # the cap is kept along the path to a few %
+    assert max(higher) > 2 * settings.set_down_speed_m_s  # the rest at fine speed
 
 
 def test_a_stage_that_refuses_leaves_a_trial_builder_and_says_where(planner: CyclePlanner) -> None:
