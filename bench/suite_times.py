@@ -8,15 +8,17 @@ controller records what its workers report (a worker writes nothing), and a test
 suffix ``--dist loadgroup`` gives it, so the records name the tests as a serial run does.
 
 A test's CPU time is measured in the process that runs it (a worker, or pytest itself when serial): the user
-and system time of that process (all its threads) plus that of the child processes it waited for (a daemon
-or a ``dishbot`` verb the test started and reaped), over its setup, call and teardown. It travels to the
-controller in the report's ``user_properties``. On a shared machine it says what a test costs where its wall
-time says how long it waited.
+and system time of that process (all its threads), of the child processes it waited for (a daemon or a
+``dishbot`` verb the test started and reaped) and of its live descendants (on Linux, from ``/proc``: the
+planning workers a forkserver started, which the forkserver reaps, not the test), over its setup, call and
+teardown. It travels to the controller in the report's ``user_properties``. On a shared machine it says what
+a test costs where its wall time says how long it waited.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import resource
 from collections.abc import Generator, Iterator
 from pathlib import Path
@@ -46,10 +48,46 @@ CPU_KEY = "bench_suite_cpu_s"
 
 
 def _cpu_s() -> float:
-    """This process's CPU time and that of the children it has waited for."""
+    """This process's CPU time, that of the children it has waited for and that of its live descendants."""
     own = resource.getrusage(resource.RUSAGE_SELF)
     children = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime + _descendants_cpu_s()
+
+
+def _descendants_cpu_s() -> float:
+    """The CPU time of this process's live descendants and of the children they waited for (``/proc``; 0
+    where there is none). A descendant this process reaps moves into ``RUSAGE_CHILDREN`` with its time."""
+    try:
+        tick = os.sysconf("SC_CLK_TCK")
+        ticks = 0
+        for pid in _descendants(os.getpid()):
+            try:
+                stat = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
+            except OSError:  # it ended meanwhile
+                continue
+            ticks += sum(int(v) for v in stat[11:15])  # utime, stime, cutime, cstime
+        return ticks / tick
+    except (OSError, ValueError):
+        return 0.0
+
+
+def _descendants(root: int) -> list[int]:
+    found: list[int] = []
+    todo = [root]
+    while todo:
+        pid = todo.pop()
+        try:
+            tasks = os.listdir(f"/proc/{pid}/task")
+        except OSError:
+            continue
+        for tid in tasks:
+            try:
+                kids = [int(k) for k in Path(f"/proc/{pid}/task/{tid}/children").read_text().split()]
+            except OSError:
+                continue
+            found += kids
+            todo += kids
+    return found
 
 
 class _CpuMeter:

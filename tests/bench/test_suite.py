@@ -3,7 +3,10 @@ runs a suite in a child pytest and reports its counts, folders, slowest and cost
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import signal
 import textwrap
 from pathlib import Path
 
@@ -105,6 +108,41 @@ def test_the_plugin_records_each_tests_outcome_time_and_slow_marker(pytester: py
     assert tests["test_slow_passes"]["cpu_s"] >= 0.1
     assert 0 <= tests["test_passes"]["cpu_s"] < tests["test_slow_passes"]["cpu_s"]
     assert tests["test_passes"]["nodeid"] == "tests/alpha/test_outcomes.py::test_passes"
+
+
+BUSY_CHILD = """
+import subprocess, sys
+from pathlib import Path
+
+BURN = (
+    "import time\\nt = time.process_time()\\nwhile time.process_time() - t < 0.2: pass\\n"
+    "print('burnt', flush=True)\\ntime.sleep(60)"
+)
+
+def test_leaves_a_busy_child():
+    child = subprocess.Popen([sys.executable, "-c", BURN], stdout=subprocess.PIPE, text=True)
+    assert child.stdout.readline() == "burnt\\n"
+    Path("child.pid").write_text(str(child.pid))
+"""
+
+
+def test_a_tests_cpu_time_counts_the_processes_it_left_running(pytester: pytest.Pytester) -> None:
+    """A child the test did not wait for (as a forkserver's planning worker, reaped by the forkserver) still
+    counts: its 0.2 s of CPU time are in the test's."""
+    pytester.makepyfile(test_child=BUSY_CHILD)
+    out = pytester.path / "times.json"
+    try:
+        result = pytester.runpytest_inprocess("-p", "bench.suite_times", f"--suite-times={out}")
+    finally:
+        pid_file = pytester.path / "child.pid"
+        if pid_file.is_file():
+            pid = int(pid_file.read_text())
+            os.kill(pid, signal.SIGKILL)
+            with contextlib.suppress(ChildProcessError):
+                os.waitpid(pid, 0)
+    result.assert_outcomes(passed=1)
+    (test,) = json.loads(out.read_text(encoding="utf-8"))["tests"]
+    assert test["cpu_s"] >= 0.2
 
 
 def test_without_the_option_the_plugin_writes_nothing(pytester: pytest.Pytester) -> None:
