@@ -6,6 +6,7 @@ import os
 from collections import defaultdict
 from collections.abc import Iterator
 from importlib.metadata import entry_points
+from typing import Any
 
 import pytest
 import structlog
@@ -31,23 +32,31 @@ UNKNOWN_FAST_S = 0.1
 
 def pytest_configure(config: pytest.Config) -> None:
     """pytest-xdist's controller hands the work out in the order the workers collected it (not sorted by the
-    size of the groups, its default): the order pytest_collection_modifyitems gives. Every run but a
-    worker's notes the tests' times in the cache for the next run to order by."""
+    size of the groups, its default): the order pytest_collection_modifyitems gives, from the times the
+    controller read from the cache and sent to every worker (so they agree even if another run writes the
+    cache meanwhile). Every run but a worker's notes the tests' times in the cache for the next run."""
     if hasattr(config, "workerinput"):
         return
     if getattr(config.option, "dist", "no") == "loadgroup":
         config.option.loadscopereorder = False
-    if getattr(config, "cache", None) is not None:
-        config.pluginmanager.register(_Durations(config.cache), "dishbot-durations")
+    cache = getattr(config, "cache", None)
+    if cache is not None:
+        config.pluginmanager.register(_Durations(cache), "dishbot-durations")
 
 
 class _Durations:
-    """Collects each test's time from its reports (a worker's come to the controller) and merges them into
-    the cache when the session ends: tests that did not run keep their time."""
+    """Sends the times the cache holds to each pytest-xdist worker; collects each test's time from its
+    reports (a worker's come to the controller) and merges them into the cache when the session ends: tests
+    that did not run keep their time."""
 
     def __init__(self, cache: pytest.Cache) -> None:
         self.cache = cache
+        self.known = _known_durations(cache)
         self.times: dict[str, float] = defaultdict(float)
+
+    @pytest.hookimpl(optionalhook=True)  # pytest-xdist's hook: absent under -p no:xdist
+    def pytest_configure_node(self, node: Any) -> None:
+        node.workerinput[DURATIONS_KEY] = self.known
 
     def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
         self.times[_ungrouped(report.nodeid)] += report.duration
@@ -80,10 +89,11 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     the other tests spread over the workers one by one.
 
     Then the work goes out the costliest first (a group as one piece, its tests in file order): by the times
-    of the runs before (pytest's cache), else a slow test as 10 s and another as 0.1 s. The long tests start
+    of the runs before (pytest's cache, as the controller sent them), else a slow test as 10 s and another
+    as 0.1 s. The long tests start
     at once on the free workers and the short ones fill in at the end, so the workers finish together
-    rather than one running a 100 s test alone after the others are done. Every worker collects the same
-    cache, so they agree on the order (pytest-xdist checks that they do)."""
+    rather than one running a 100 s test alone after the others are done. Every worker has the same times,
+    so they agree on the order (pytest-xdist checks that they do)."""
     if not hasattr(config, "workerinput"):
         return
     for item in items:
@@ -92,7 +102,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         scopes = {d.scope for defs in item._fixtureinfo.name2fixturedefs.values() for d in defs}
         if scopes & {"module", "class", "package"}:
             item.add_marker(pytest.mark.xdist_group(item.nodeid.partition("::")[0]))
-    known = _known_durations(getattr(config, "cache", None))
+    known: dict[str, float] = config.workerinput.get(DURATIONS_KEY, {})
     units: dict[str, list[pytest.Item]] = {}
     for item in items:  # the work units pytest-xdist's loadgroup makes (its group names, joined as it does)
         groups = sorted(
