@@ -2,12 +2,12 @@
 
 The suite's pytest runs in a child process from the repository's root (its ``pyproject.toml`` options apply),
 on ``scripts/test.sh``'s pytest-xdist workers (``--workers``, 0 for a serial run), with a small plugin
-(``bench.suite_times``) recording each test's outcome, time (setup, call and teardown) and ``slow`` marker.
-Reported: the wall and CPU time of the run, the counts by outcome, the time of the tests not marked slow (the
-inner loop, ``-m "not slow"``) beside that of the slow ones, the time by test directory and the slowest
-tests. On a shared machine the CPU time and the load average say how much of the wall time was other work;
-the tests' summed time over the wall time says how many ran at once. Issue 22's target: the whole suite in
-<= 5 min on two cores.
+(``bench.suite_times``) recording each test's outcome, time (setup, call and teardown), CPU time and ``slow``
+marker. Reported: the wall and CPU time of the run, the counts by outcome, the time of the tests not marked
+slow (the inner loop, ``-m "not slow"``) beside that of the slow ones, the time by test directory, the slowest
+tests and the tests that used the most CPU time. On a shared machine the CPU time and the load average say
+how much of the wall time was other work; the tests' summed time over the wall time says how many ran at
+once. Issue 22's target: the whole suite in <= 5 min on two cores.
 """
 
 from __future__ import annotations
