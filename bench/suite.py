@@ -2,12 +2,12 @@
 
 The suite's pytest runs in a child process from the repository's root (its ``pyproject.toml`` options apply),
 on ``scripts/test.sh``'s pytest-xdist workers (``--workers``, 0 for a serial run), with a small plugin
-(``bench.suite_times``) recording each test's outcome, time (setup, call and teardown) and ``slow`` marker.
-Reported: the wall and CPU time of the run, the counts by outcome, the time of the tests not marked slow (the
-inner loop, ``-m "not slow"``) beside that of the slow ones, the time by test directory and the slowest
-tests. On a shared machine the CPU time and the load average say how much of the wall time was other work;
-the tests' summed time over the wall time says how many ran at once. Issue 22's target: the whole suite in
-<= 5 min on two cores.
+(``bench.suite_times``) recording each test's outcome, time (setup, call and teardown), CPU time and ``slow``
+marker. Reported: the wall and CPU time of the run, the counts by outcome, the time of the tests not marked
+slow (the inner loop, ``-m "not slow"``) beside that of the slow ones, the time by test directory, the slowest
+tests and the tests that used the most CPU time. On a shared machine the CPU time and the load average say
+how much of the wall time was other work; the tests' summed time over the wall time says how many ran at
+once. Issue 22's target: the whole suite in <= 5 min on two cores.
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ class TimedTest:
     outcome: str
     time_s: float
     slow: bool
+    cpu_s: float = 0.0  # the CPU time of the process that ran it and of the children it reaped
 
     @property
     def directory(self) -> str:
@@ -141,7 +142,8 @@ def run_suite(
             raise UsageError(f"pytest could not run the suite (exit {proc.returncode}): its message is above")
         doc: dict[str, Any] = json.loads(times_file.read_text(encoding="utf-8"))
     tests = tuple(
-        TimedTest(t["nodeid"], t["outcome"], float(t["time_s"]), bool(t["slow"])) for t in doc["tests"]
+        TimedTest(t["nodeid"], t["outcome"], float(t["time_s"]), bool(t["slow"]), float(t.get("cpu_s", 0.0)))
+        for t in doc["tests"]
     )
     load = (load_before, os.getloadavg()[0])
     return SuiteRun(("pytest", *selection), proc.returncode, wall, cpu, load, tests, workers)
@@ -195,6 +197,12 @@ def slowest(tests: Sequence[TimedTest], n: int = SLOWEST) -> list[TimedTest]:
     return sorted(tests, key=lambda t: (-t.time_s, t.nodeid))[:n]
 
 
+def costliest(tests: Sequence[TimedTest], n: int = SLOWEST) -> list[TimedTest]:
+    """The tests that used the most CPU time: on a shared machine, what a test costs rather than how long it
+    waited."""
+    return sorted(tests, key=lambda t: (-t.cpu_s, t.nodeid))[:n]
+
+
 def summary(suite: SuiteRun) -> dict[str, Any]:
     """The run's figures, as the JSON document and the first table carry them."""
     tests = suite.tests
@@ -211,6 +219,7 @@ def summary(suite: SuiteRun) -> dict[str, Any]:
         "tests": len(tests),
         **counts(tests),
         "tests_time_s": round(sum(t.time_s for t in tests), 1),
+        "tests_cpu_s": round(sum(t.cpu_s for t in tests), 1),
         "outside_tests_s": round(suite.wall_s - sum(t.time_s for t in tests), 1),
         "tests_at_once": round(sum(t.time_s for t in tests) / suite.wall_s, 2) if suite.wall_s > 0 else 0.0,
         "not_slow_tests": len(fast),
@@ -227,8 +236,18 @@ def as_json(suite: SuiteRun) -> str:
         **summary(suite),
         "by_directory": by_directory(suite.tests),
         "slowest": [
-            {"test": t.nodeid, "outcome": t.outcome, "time_s": round(t.time_s, 2), "slow": t.slow}
+            {
+                "test": t.nodeid,
+                "outcome": t.outcome,
+                "time_s": round(t.time_s, 2),
+                "cpu_s": round(t.cpu_s, 2),
+                "slow": t.slow,
+            }
             for t in slowest(suite.tests)
+        ],
+        "costliest": [
+            {"test": t.nodeid, "cpu_s": round(t.cpu_s, 2), "time_s": round(t.time_s, 2), "slow": t.slow}
+            for t in costliest(suite.tests)
         ],
     }
     return json.dumps(doc, indent=2)
@@ -243,6 +262,7 @@ _LABELS = {
     "workers": "pytest-xdist workers (0: serial)",
     "tests": "tests run",
     "tests_time_s": "sum of the tests' times, s",
+    "tests_cpu_s": "sum of the tests' CPU times (their processes and reaped children), s",
     "outside_tests_s": "wall minus the tests' times, s (serial: start-up and collection; < 0 with workers)",
     "tests_at_once": "tests' time / wall time (tests running at once, on average)",
     "not_slow_tests": 'tests not marked slow (-m "not slow")',
@@ -271,10 +291,18 @@ def as_tables(suite: SuiteRun) -> str:
             ),
             f"the {SLOWEST} slowest tests\n"
             + format_table(
-                ["test", "outcome", "slow", "time_s"],
+                ["test", "outcome", "slow", "time_s", "cpu_s"],
                 [
-                    [t.nodeid, t.outcome, "yes" if t.slow else "", round(t.time_s, 2)]
+                    [t.nodeid, t.outcome, "yes" if t.slow else "", round(t.time_s, 2), round(t.cpu_s, 2)]
                     for t in slowest(suite.tests)
+                ],
+            ),
+            f"the {SLOWEST} tests that used the most CPU time\n"
+            + format_table(
+                ["test", "outcome", "slow", "cpu_s", "time_s"],
+                [
+                    [t.nodeid, t.outcome, "yes" if t.slow else "", round(t.cpu_s, 2), round(t.time_s, 2)]
+                    for t in costliest(suite.tests)
                 ],
             ),
         ]

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+from collections import defaultdict
 from collections.abc import Iterator
 from importlib.metadata import entry_points
+from typing import Any
 
 import pytest
 import structlog
@@ -20,13 +22,78 @@ if not any(e.name == "dishbot" for e in entry_points(group="pytest11")):
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 
+# Each test's last time (setup, call and teardown, in seconds), kept in pytest's cache (.pytest_cache) by the
+# runs before: under pytest-xdist the costliest work goes out first (see pytest_collection_modifyitems).
+DURATIONS_KEY = "dishbot/durations"
+# A test the cache does not know yet (a fresh clone): a slow one counts as this many seconds, another as 0.1.
+UNKNOWN_SLOW_S = 10.0
+UNKNOWN_FAST_S = 0.1
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """pytest-xdist's controller hands the work out in the order the workers collected it (not sorted by the
+    size of the groups, its default): the order pytest_collection_modifyitems gives, from the times the
+    controller read from the cache and sent to every worker (so they agree even if another run writes the
+    cache meanwhile). Every run but a worker's notes the tests' times in the cache for the next run."""
+    if hasattr(config, "workerinput"):
+        return
+    if getattr(config.option, "dist", "no") == "loadgroup":
+        config.option.loadscopereorder = False
+    cache = getattr(config, "cache", None)
+    if cache is not None:
+        config.pluginmanager.register(_Durations(cache), "dishbot-durations")
+
+
+class _Durations:
+    """Sends the times the cache holds to each pytest-xdist worker; collects each test's time from its
+    reports (a worker's come to the controller) and merges them into the cache when the session ends: tests
+    that did not run keep their time."""
+
+    def __init__(self, cache: pytest.Cache) -> None:
+        self.cache = cache
+        self.known = _known_durations(cache)
+        self.times: dict[str, float] = defaultdict(float)
+
+    @pytest.hookimpl(optionalhook=True)  # pytest-xdist's hook: absent under -p no:xdist
+    def pytest_configure_node(self, node: Any) -> None:
+        node.workerinput[DURATIONS_KEY] = self.known
+
+    def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
+        self.times[_ungrouped(report.nodeid)] += report.duration
+
+    def pytest_sessionfinish(self) -> None:
+        if self.times:
+            known = _known_durations(self.cache)
+            known.update({k: round(v, 3) for k, v in self.times.items()})
+            self.cache.set(DURATIONS_KEY, known)
+
+
+def _ungrouped(nodeid: str) -> str:
+    """A test's id without the ``@group`` pytest-xdist appends under ``--dist loadgroup``."""
+    return nodeid.rpartition("@")[0] if nodeid.rfind("@") > nodeid.rfind("]") else nodeid
+
+
+def _known_durations(cache: pytest.Cache | None) -> dict[str, float]:
+    found = cache.get(DURATIONS_KEY, {}) if cache is not None else {}
+    if not isinstance(found, dict):
+        return {}
+    return {str(k): float(v) for k, v in found.items() if isinstance(v, (int, float))}
+
+
 @pytest.hookimpl(tryfirst=True)  # before pytest-xdist's worker reads the groups
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """In a pytest-xdist worker (``scripts/test.sh``: ``-n N --dist loadgroup``), the tests of a module that
     share a module- or class-scoped fixture (a recorded session, a booted systemd container, a pair of
     network namespaces) go into one group named after the module: they run on one worker, in file order,
     and the fixture is built once rather than once per worker. A test with its own ``xdist_group`` keeps it;
-    the other tests spread over the workers one by one."""
+    the other tests spread over the workers one by one.
+
+    Then the work goes out the costliest first (a group as one piece, its tests in file order): by the times
+    of the runs before (pytest's cache, as the controller sent them), else a slow test as 10 s and another
+    as 0.1 s. The long tests start
+    at once on the free workers and the short ones fill in at the end, so the workers finish together
+    rather than one running a 100 s test alone after the others are done. Every worker has the same times,
+    so they agree on the order (pytest-xdist checks that they do)."""
     if not hasattr(config, "workerinput"):
         return
     for item in items:
@@ -35,6 +102,23 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         scopes = {d.scope for defs in item._fixtureinfo.name2fixturedefs.values() for d in defs}
         if scopes & {"module", "class", "package"}:
             item.add_marker(pytest.mark.xdist_group(item.nodeid.partition("::")[0]))
+    known: dict[str, float] = config.workerinput.get(DURATIONS_KEY, {})
+    units: dict[str, list[pytest.Item]] = {}
+    for item in items:  # the work units pytest-xdist's loadgroup makes (its group names, joined as it does)
+        groups = sorted(
+            {
+                str(m.args[0] if m.args else m.kwargs.get("name", "default"))
+                for m in item.iter_markers("xdist_group")
+            }
+        )
+        units.setdefault("@" + "_".join(groups) if groups else item.nodeid, []).append(item)
+
+    def cost(item: pytest.Item) -> float:
+        default = UNKNOWN_SLOW_S if item.get_closest_marker("slow") is not None else UNKNOWN_FAST_S
+        return known.get(item.nodeid, default)
+
+    ordered = sorted(units.values(), key=lambda unit: -sum(cost(i) for i in unit))
+    items[:] = [item for unit in ordered for item in unit]
 
 
 @pytest.fixture(autouse=True)

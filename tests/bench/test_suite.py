@@ -1,9 +1,12 @@
-"""`dishbot bench suite`: the plugin records every test's outcome, time and slow marker; the bench runs a
-suite in a child pytest and reports its counts, folders and slowest tests."""
+"""`dishbot bench suite`: the plugin records every test's outcome, time, CPU time and slow marker; the bench
+runs a suite in a child pytest and reports its counts, folders, slowest and costliest tests."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import signal
 import textwrap
 from pathlib import Path
 
@@ -16,6 +19,7 @@ from bench.suite import (
     as_json,
     as_tables,
     by_directory,
+    costliest,
     counts,
     run_suite,
     slowest,
@@ -51,7 +55,9 @@ SUITE = {
 
         @pytest.mark.slow
         def test_slow_passes():
-            pass
+            start = time.process_time()  # 0.1 s of CPU time, however loaded the machine
+            while time.process_time() - start < 0.1:
+                pass
     """,
     "tests/beta/deeper/test_more.py": """
         def test_one():
@@ -98,7 +104,45 @@ def test_the_plugin_records_each_tests_outcome_time_and_slow_marker(pytester: py
     }
     assert [name for name, t in tests.items() if t["slow"]] == ["test_slow_passes"]
     assert tests["test_passes"]["time_s"] >= 0.05  # its call slept that long
+    # CPU time: the busy test's 0.1 s counts, a sleep hardly (the process's CPU time over its phases).
+    assert tests["test_slow_passes"]["cpu_s"] >= 0.1
+    assert 0 <= tests["test_passes"]["cpu_s"] < tests["test_slow_passes"]["cpu_s"]
     assert tests["test_passes"]["nodeid"] == "tests/alpha/test_outcomes.py::test_passes"
+
+
+BUSY_CHILD = """
+import subprocess, sys
+from pathlib import Path
+
+BURN = (
+    "import time\\nt = time.process_time()\\nwhile time.process_time() - t < 0.2: pass\\n"
+    "print('burnt', flush=True)\\ntime.sleep(60)"
+)
+
+def test_leaves_a_busy_child():
+    child = subprocess.Popen([sys.executable, "-c", BURN], stdout=subprocess.PIPE, text=True)
+    assert child.stdout.readline() == "burnt\\n"
+    Path("child.pid").write_text(str(child.pid))
+"""
+
+
+def test_a_tests_cpu_time_counts_the_processes_it_left_running(pytester: pytest.Pytester) -> None:
+    """A child the test did not wait for (as a forkserver's planning worker, reaped by the forkserver) still
+    counts: its 0.2 s of CPU time are in the test's."""
+    pytester.makepyfile(test_child=BUSY_CHILD)
+    out = pytester.path / "times.json"
+    try:
+        result = pytester.runpytest_inprocess("-p", "bench.suite_times", f"--suite-times={out}")
+    finally:
+        pid_file = pytester.path / "child.pid"
+        if pid_file.is_file():
+            pid = int(pid_file.read_text())
+            os.kill(pid, signal.SIGKILL)
+            with contextlib.suppress(ChildProcessError):
+                os.waitpid(pid, 0)
+    result.assert_outcomes(passed=1)
+    (test,) = json.loads(out.read_text(encoding="utf-8"))["tests"]
+    assert test["cpu_s"] >= 0.2
 
 
 def test_without_the_option_the_plugin_writes_nothing(pytester: pytest.Pytester) -> None:
@@ -110,8 +154,10 @@ def test_without_the_option_the_plugin_writes_nothing(pytester: pytest.Pytester)
     ]
 
 
-def _t(nodeid: str, time_s: float, outcome: str = "passed", *, slow: bool = False) -> TimedTest:
-    return TimedTest(nodeid, outcome, time_s, slow)
+def _t(
+    nodeid: str, time_s: float, outcome: str = "passed", *, slow: bool = False, cpu_s: float = 0.0
+) -> TimedTest:
+    return TimedTest(nodeid, outcome, time_s, slow, cpu_s)
 
 
 RUN = SuiteRun(
@@ -121,8 +167,8 @@ RUN = SuiteRun(
     4.0,
     (1.5, 2.5),
     (
-        _t("tests/replay/test_a.py::test_1", 3.0, slow=True),
-        _t("tests/replay/test_a.py::test_2", 1.0, "failed"),
+        _t("tests/replay/test_a.py::test_1", 3.0, slow=True, cpu_s=0.5),  # waits, mostly
+        _t("tests/replay/test_a.py::test_2", 1.0, "failed", cpu_s=0.9),
         _t("tests/planning/placement/test_b.py::test_3", 2.0),
         _t("tests/planning/test_c.py::test_4[x-y]", 0.5, "error"),
         _t("tests/test_readme.py::test_5", 1.5, "skipped"),
@@ -178,10 +224,17 @@ def test_the_report_gives_the_not_slow_time_beside_the_slow_and_what_lies_outsid
     assert (doc["tests_time_s"], doc["outside_tests_s"]) == (8.0, 2.0)
     assert (doc["wall_s"], doc["cpu_s"], doc["load_start"], doc["load_end"]) == (10.0, 4.0, 1.5, 2.5)
     assert [s["test"] for s in doc["slowest"]][:1] == ["tests/replay/test_a.py::test_1"]
+    assert doc["tests_cpu_s"] == 1.4
+    assert [(s["test"], s["cpu_s"]) for s in doc["costliest"]][:2] == [
+        ("tests/replay/test_a.py::test_2", 0.9),
+        ("tests/replay/test_a.py::test_1", 0.5),
+    ]
+    assert [t.nodeid for t in costliest(RUN.tests, 1)] == ["tests/replay/test_a.py::test_2"]
     text = as_tables(RUN)
     assert text.startswith("bench suite: pytest -m 'not slow' (from the repository root)\n")
     assert "time by folder" in text
     assert "the 10 slowest tests" in text
+    assert "the 10 tests that used the most CPU time" in text
 
 
 def test_a_path_that_is_not_there_is_refused_before_anything_runs(capsys: pytest.CaptureFixture[str]) -> None:
@@ -212,7 +265,8 @@ def test_bench_suite_runs_the_suite_in_a_child_pytest_and_reports_it(
     write_suite(tmp_path)
     # A group of two under --dist loadgroup: the records name its tests without xdist's "@group" suffix.
     (tmp_path / "tests" / "test_grouped.py").write_text(
-        "import pytest\n\n@pytest.mark.xdist_group('pair')\ndef test_g1():\n    pass\n\n"
+        "import time\nimport pytest\n\n@pytest.mark.xdist_group('pair')\ndef test_g1():\n"
+        "    start = time.process_time()\n    while time.process_time() - start < 0.1:\n        pass\n\n"
         "@pytest.mark.xdist_group('pair')\ndef test_g2():\n    pass\n",
         encoding="utf-8",
     )
@@ -240,6 +294,9 @@ def test_bench_suite_runs_the_suite_in_a_child_pytest_and_reports_it(
         "tests/test_top.py",
     ]
     assert run.cpu_s > 0  # the workers are children of the child: their CPU time counts
+    # Each test's CPU time comes from the worker that ran it (test_g1 keeps its worker busy for 0.1 s).
+    assert [t.cpu_s >= 0.1 for t in run.tests if t.nodeid.endswith("::test_g1")] == [True]
+    assert all(t.cpu_s >= 0 for t in run.tests)
     out, err = capfd.readouterr()
     assert out == ""  # pytest's own output goes to stderr: stdout is the report's
     assert "1 failed" in err

@@ -38,7 +38,7 @@ def test_a_crashed_unit_logs_its_exception_text_and_worker_records_carry_t(tmp_p
     async def scenario() -> tuple[Path, ...]:
         async with running_daemon(config, backend, tmp_path, worker_logs=worker_logs) as d:
             endpoint = d.endpoint
-            reply = await asyncio.to_thread(request, endpoint, ROBOT, "start", {}, timeout_s=5.0)
+            reply = await asyncio.to_thread(request, endpoint, ROBOT, "start", {}, timeout_s=20.0)
             assert reply is not None
             assert reply["ok"], reply
             # A record as the planning worker's relay puts it: the worker's clock is not the daemon's.

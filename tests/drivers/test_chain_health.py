@@ -11,11 +11,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from daemon.clock import SimulatedClock, wall_seconds
+from daemon.clock import SimulatedClock
 from drivers.dynamixel import BusConfig, BusCorrupt, BusTimeout, DeviceEvent, ServoChain
-from drivers.dynamixel.bus import DynamixelBus
+from drivers.dynamixel.bus import DeviceWaits, DynamixelBus
 from drivers.dynamixel.health import ChainHealth, HealthLimits, ServoHealthFault
 from drivers.errors import BusLost
+from drivers.serial_port import SerialPort
 from drivers.sim.plant import FirstOrderPlant
 from drivers.sim.servo_chain import ServoChainSimulator, default_chain
 
@@ -364,18 +365,39 @@ def test_a_corruption_rate_over_the_threshold_faults_with_bus_corrupt(every: int
     run(body, corrupt_rate_max=0.2, corrupt_window=50)
 
 
+class _CountedWaits:
+    """The bus's waits (``DeviceWaits``), each wait on the device noted in ``made``."""
+
+    def __init__(self, inner: DeviceWaits) -> None:
+        self.inner = inner
+        self.made: list[tuple[str, float]] = []
+
+    def now(self) -> float:
+        return self.inner.now()
+
+    def readable(self, port: SerialPort, timeout_s: float) -> bool:
+        self.made.append(("readable", timeout_s))
+        return self.inner.readable(port, timeout_s)
+
+    def sleep(self, seconds: float) -> None:
+        self.made.append(("sleep", seconds))
+        self.inner.sleep(seconds)
+
+
 def test_a_lost_bus_is_reported_once_and_every_access_fails_at_once_until_replugged() -> None:
     async def body(
         sim: ServoChainSimulator, chain: ServoChain, health: ChainHealth, ev: list[DeviceEvent]
     ) -> None:
         sim.unplug()
-        started = wall_seconds()
+        waits = _CountedWaits(chain.bus.waits)
+        chain.bus.waits = waits
         for _ in range(5):
             with pytest.raises(BusLost):
                 await chain.call(lambda bus: bus.read_states(IDS))
-        # No waits for a re-enumerating adapter: a 50 ms retry pause per access would take 0.25 s. The bound
-        # leaves the rest to a loaded machine, which stalls a thread for tens of milliseconds at times.
-        assert wall_seconds() - started < 0.2
+        # No waits for a re-enumerating adapter (a 50 ms retry pause per access) nor for an answer: counted
+        # on the bus's waits, not timed on the wall clock (a loaded machine stalls a thread for longer).
+        assert waits.made == []
+        chain.bus.waits = waits.inner
         assert chain.bus.lost
         assert [e.kind for e in ev] == ["bus_lost"]
         sim.replug()

@@ -46,7 +46,9 @@ def _four_mugs() -> list[dict[str, object]]:
 
 def _query(session: zenoh.Session, verb: str, body: dict[str, Any] | None = None) -> dict[str, Any] | None:
     payload = json.dumps(body).encode() if body else b""
-    for reply in session.get(f"dishbot/{ROBOT}/cmd/{verb}", payload=payload, timeout=2.0):
+    # A reply ends the query at once; the timeout only bounds a daemon that does not answer (generous: a
+    # loaded machine's daemon answered a start after more than 2 s).
+    for reply in session.get(f"dishbot/{ROBOT}/cmd/{verb}", payload=payload, timeout=10.0):
         if reply.ok is not None:
             result: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
             return result

