@@ -98,15 +98,9 @@ def test_both_builders_write_the_same_model_and_find_the_same_optimum(
     assert ours_models  # a model was solved
     if not rotation:
         assert (ours.optimal, theirs.optimal) == (True, True)
-        assert ours.spots == theirs.spots
-    if ours.optimal and theirs.optimal:
-        assert (len(ours.spots), ours.upper_bound) == (len(theirs.spots), theirs.upper_bound)
-    else:
-        # A solve that runs to its wall-clock limit finds, and bounds, what the machine's load let it in that
-        # time (at load 20-30: 9 spots where the other solve found 10): the same model is what says the
-        # builders agree; each answer stays within its own proven bound.
-        assert len(ours.spots) <= ours.upper_bound
-        assert len(theirs.spots) <= theirs.upper_bound
+    # The same model, seed and deterministic limit: the same search, cut at the same point however busy the
+    # machine is, so the same spots and bound even where the limit cuts it short (the rotated 30-mug cases).
+    assert (ours.spots, ours.upper_bound, ours.optimal) == (theirs.spots, theirs.upper_bound, theirs.optimal)
 
 
 def test_a_solution_reads_its_values_and_an_integer_domain_is_its_values() -> None:
