@@ -22,6 +22,13 @@ if not any(e.name == "dishbot" for e in entry_points(group="pytest11")):
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 
+@pytest.fixture(autouse=True)
+def _own_plan_cache(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """What ``dishbot plan`` keeps between runs (``planning.placement.cache``) goes to a folder of the test's
+    own (its subprocesses inherit it): no test reads what another run kept, none writes to the user's."""
+    monkeypatch.setenv("DISHBOT_CACHE_DIR", str(tmp_path_factory.mktemp("plan-cache")))
+
+
 # Each test's last time (setup, call and teardown, in seconds), kept in pytest's cache (.pytest_cache) by the
 # runs before: under pytest-xdist the costliest work goes out first (see pytest_collection_modifyitems).
 DURATIONS_KEY = "dishbot/durations"
