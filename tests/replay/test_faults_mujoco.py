@@ -36,7 +36,7 @@ def test_an_overheated_elbow_in_the_turn_is_the_drivers_servo_fault(tmp_path: Pa
     assert run.states[-2:] == ["flip.turn", "fault"]
     assert (run.event("servo_fault")["servo_id"], run.event("servo_fault")["faults"]) == (
         3,
-        ["overheating"],
+        "['overheating']",
     )
     assert run.event("fault")["reason"] == (
         "ServoFault: servo 3 on inprocess:ttyDXL reports overheating; its torque is off until the fault is "
