@@ -159,9 +159,13 @@ class SimConfig:
 
 @dataclass(frozen=True, slots=True)
 class ArmConfig:
-    """The arm's position correction (``dishbot calibrate``), applied by the cycle planner."""
+    """The arm's position correction (``dishbot calibrate``), applied by the cycle planner, and how it sets
+    a held mug down: the last ``set_down_slow_m`` of every set-down (flip and place) at
+    ``set_down_speed_m_s``, so that the mug hangs straight when it is let go (0: all at fine speed)."""
 
     calibration_file: Path | None
+    set_down_slow_m: float = 0.03
+    set_down_speed_m_s: float = 0.01
 
 
 @dataclass(frozen=True, slots=True)
@@ -355,6 +359,8 @@ class _MugTable:
 @dataclass(frozen=True, slots=True)
 class _ArmTable:
     calibration_file: str
+    set_down_slow_m: Annotated[float, within(0.0, 0.1)]
+    set_down_speed_m_s: Annotated[float, within(0.002, 0.08)]
 
 
 @dataclass(frozen=True, slots=True)
@@ -436,8 +442,16 @@ def parse_config(data: Mapping[str, Any]) -> Config:
         daemon=_daemon(root.daemon),
         grasp=_table(root.grasp, GraspConfig, "grasp"),
         sim=_sim(root.sim),
-        arm=ArmConfig(_path_or_none(_table(root.arm, _ArmTable, "arm").calibration_file)),
+        arm=_arm(_table(root.arm, _ArmTable, "arm")),
         hardware=_hardware(root.hardware),
+    )
+
+
+def _arm(table: _ArmTable) -> ArmConfig:
+    return ArmConfig(
+        _path_or_none(table.calibration_file),
+        set_down_slow_m=table.set_down_slow_m,
+        set_down_speed_m_s=table.set_down_speed_m_s,
     )
 
 

@@ -105,6 +105,7 @@ class CyclePlannerSpec:
     tray: Tray
     mug_types: tuple[MugSpec, ...]
     correction: PositionCorrection | None = None
+    set_down: tuple[float, float] = (0.03, 0.01)  # ``arm.set_down_slow_m``, ``arm.set_down_speed_m_s``
 
     def layout(self) -> CellLayout:
         return self.cell.with_tray(self.tray)
@@ -113,13 +114,19 @@ class CyclePlannerSpec:
         return mug_catalogue(self.mug_types)
 
     def build(self, arm: ArmModel | None = None) -> CyclePlanner:
+        slow_m, speed_m_s = self.set_down
         return CyclePlanner(
-            arm or ArmModel.load(), self.layout(), self.catalogue(), correction=self.correction
+            arm or ArmModel.load(),
+            self.layout(),
+            self.catalogue(),
+            correction=self.correction,
+            set_down_slow_m=slow_m,
+            set_down_speed_m_s=speed_m_s,
         )
 
     def move_cost(self) -> DynamicsMoveCost:
         """The placement move cost from the arm's dynamics (``planner.energy_model = "dynamics"``)."""
-        return DynamicsMoveCost(ArmModel.load(), self.layout(), self.catalogue())
+        return DynamicsMoveCost(ArmModel.load(), self.layout(), self.catalogue(), set_down=self.set_down)
 
 
 @functools.lru_cache(maxsize=4)
@@ -216,10 +223,15 @@ class ProcessMotionPlanner:
         return self._executor.submit(_plan_move, self._spec, tuple(start_q), tuple(goal_q), label).result()
 
 
+def set_down(config: Config) -> tuple[float, float]:
+    """How the cycle planner sets a held mug down (``arm.set_down_slow_m``, ``arm.set_down_speed_m_s``)."""
+    return (config.arm.set_down_slow_m, config.arm.set_down_speed_m_s)
+
+
 def cycle_planner(
     config: Config, tray: Tray, *, arm: ArmModel, executor: concurrent.futures.Executor | None
 ) -> MotionPlanner:
     """The cycle planner every backend runs on: the configured cell with ``tray``, the configured catalogue
     and the arm's position correction; in ``executor`` (a process pool) when one is given."""
-    spec = CyclePlannerSpec(config.cell, tray, config.mug_types, load_correction(config))
+    spec = CyclePlannerSpec(config.cell, tray, config.mug_types, load_correction(config), set_down(config))
     return spec.build(arm) if executor is None else ProcessMotionPlanner(spec, executor)

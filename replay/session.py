@@ -632,6 +632,10 @@ class RecordedSession:
             planner = config_doc.get("planner")
             if isinstance(planner, Mapping) and "footprint" not in planner:
                 config_doc = {**config_doc, "planner": {**planner, "footprint": "rect"}}
+            # ... and one from before ``[arm] set_down_slow_m`` set its mugs down at fine speed all the way.
+            arm = config_doc.get("arm")
+            if isinstance(arm, Mapping) and "set_down_slow_m" not in arm:
+                config_doc = {**config_doc, "arm": {**arm, "set_down_slow_m": 0.0}}
             config = load_config(overrides={**config_doc, "zenoh": {}})
         except ConfigError as e:
             raise ReplayError(f"{path}: the recorded config does not load: {e}") from e

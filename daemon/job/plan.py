@@ -16,7 +16,7 @@ from daemon.job.cycles import NEXT_CYCLE_READS, NEXT_CYCLE_WRITES, take_next_cyc
 from daemon.job.services import Services
 from daemon.job.unit import Unit
 from daemon.messages import plan_message
-from daemon.planners import CyclePlannerSpec, plan_placement
+from daemon.planners import CyclePlannerSpec, plan_placement, set_down
 from description.cell import Tray
 from planning.interfaces import TraySlot
 from planning.placement import (
@@ -99,7 +99,10 @@ def placement_planner(config: Config, tray: Tray) -> PlacementPlanner:
     dynamics in this cell (built once per planning process)."""
     if config.planner.energy_model != "dynamics":
         return plan
-    return functools.partial(plan_placement, dynamics=CyclePlannerSpec(config.cell, tray, config.mug_types))
+    return functools.partial(
+        plan_placement,
+        dynamics=CyclePlannerSpec(config.cell, tray, config.mug_types, set_down=set_down(config)),
+    )
 
 
 def problem_of(services: Services, ctx: JobContext) -> Problem:

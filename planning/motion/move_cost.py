@@ -53,6 +53,7 @@ class DynamicsMoveCost:
         catalogue: Mapping[str, MugSpec] | None = None,
         *,
         rate_hz: float = 25.0,
+        set_down: tuple[float, float] = (0.03, 0.01),
     ) -> None:
         # Its own copy of the model: the placement planner may run beside the cycle planner.
         arm = arm.copy()
@@ -60,7 +61,10 @@ class DynamicsMoveCost:
         self.cell = cell
         self.catalogue = dict(catalogue or thesis.MUG_TYPES)
         self.rate_hz = rate_hz
-        self._planner = CyclePlanner(arm, cell, self.catalogue)
+        slow_m, speed_m_s = set_down  # the cycle planner's set_down_slow_m and set_down_speed_m_s
+        self._planner = CyclePlanner(
+            arm, cell, self.catalogue, set_down_slow_m=slow_m, set_down_speed_m_s=speed_m_s
+        )
         self._energy: DynamicsEnergyModel = self._planner.energy_model
         self._poses: dict[tuple[int, int, str, str], FloatArray | None] = {}
         self._overhead = {name: self._reference(spec) for name, spec in self.catalogue.items()}

@@ -78,6 +78,9 @@ def lower_onto(b: Builder, c: CycleContext, phase: str, target: GraspTarget, hel
     (5 mm for a small mug at 3.5 degrees, measured in the MuJoCo cell), which uses up the clearance the
     placement plan keeps. The slow last stretch gives it the time to hang straight."""
     settings = b.scene.settings
+    if settings.set_down_slow_m == 0.0:  # all at fine speed (as recordings made before the setting planned)
+        b.line(phase, target, c.lift_world, aperture=c.holding, held=held, mass=c.mass)
+        return
     above = at_z(target, target.position_m[2] + settings.set_down_slow_m)
     b.line(phase, above, c.lift_world, aperture=c.holding, held=held, mass=c.mass)
     slow = settings.set_down_speed_m_s
