@@ -232,6 +232,11 @@ class SimWorld:
         self.geom_mug = self._geom_mug_index()
         self.geom_gripper = self._geom_gripper_mask()
         self._watched_pairs = self._watched_pair_table()
+        # The same table flat, indexed by ``geom1 * ngeom + geom2`` (one lookup instead of a 2-D fancy
+        # index), and for each mug held the table without the gripper's pairs with that mug (by mug index).
+        self._ngeom = int(self.model.ngeom)
+        self._watched_flat = self._watched_pairs.ravel()
+        self._watched_holding: dict[int, np.ndarray] = {}
         self._geom_mug_list: list[int] = self.geom_mug.tolist()
         self._geom_body_list: list[int] = self.model.geom_bodyid.tolist()
         self._mug_index = {m: i for i, m in enumerate(self.mug_ids)}
@@ -767,18 +772,18 @@ class SimWorld:
         contact = data.contact
         geom = contact.geom
         g1, g2 = geom[:, 0], geom[:, 1]
-        watched = self._watched_pairs[g1, g2]
+        pairs = g1 * self._ngeom + g2
         held = self._held
         if held is None:
-            looked_at = np.flatnonzero(watched)
+            looked_at = np.flatnonzero(self._watched_flat[pairs])
             if looked_at.size == 0:
                 return _NO_CONTACTS
         else:
-            m1, m2 = self.geom_mug[g1], self.geom_mug[g2]
             h = self._mug_index[held]
+            looked_at = np.flatnonzero(self._watched_while_holding(h)[pairs])
+            m1, m2 = self.geom_mug[g1], self.geom_mug[g2]
             in1, in2 = m1 == h, m2 == h  # the held mug's contacts, by the side it is on
             gripper1, gripper2 = self.geom_gripper[g1], self.geom_gripper[g2]
-            looked_at = np.flatnonzero(watched & ~(in1 & gripper2 | in2 & gripper1))
         grip = _GripContacts()
         efc_address = contact.efc_address
         efc_force = data.efc_force
@@ -801,6 +806,16 @@ class SimWorld:
         for address in efc_address[mine].tolist():
             grip.support_force_n += float(efc_force[address]) if address >= 0 else 0.0
         return grip
+
+    def _watched_while_holding(self, mug: int) -> np.ndarray:
+        """The flat watched-pair table while mug number ``mug`` is held: without the gripper's pairs with it
+        (the grasp itself), worked out the first time that mug is held."""
+        table = self._watched_holding.get(mug)
+        if table is None:
+            held = self.geom_mug == mug
+            grasp = held[:, None] & self.geom_gripper[None, :]
+            table = self._watched_holding[mug] = (self._watched_pairs & ~(grasp | grasp.T)).ravel()
+        return table
 
     def _read_contacts(
         self,
