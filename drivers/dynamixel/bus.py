@@ -194,6 +194,13 @@ class DynamixelBus:
         self._packets: Any = PacketHandler(float(config.protocol))
         self.models: dict[int, ModelSpec] = {}
         self.counters: dict[int, ServoCounters] = {}
+        # The state read of a list of servos, by that list: its instruction packet and the answers' data
+        # lengths (the control loop reads the same few lists tens of thousands of times a job); forgotten
+        # whenever a model is registered or moves to another id.
+        self._blocks: dict[tuple[int, ...], tuple[bytes, dict[int, int]]] = {}
+        # Each servo's last fault-free state block and the reading made of it: a servo at rest answers the
+        # same bytes again (forgotten with the blocks, when a model changes).
+        self._readings: dict[int, tuple[bytes, ServoReading]] = {}
         self._faulted: dict[int, tuple[str, ...]] = {}
         self._lost = False
         self._log = log.bind(port=config.port)
@@ -249,6 +256,8 @@ class DynamixelBus:
         """Tell the bus which model sits at an id (``verify`` does this after checking)."""
         self.models[servo_id] = model(model_name)
         self.counters.setdefault(servo_id, ServoCounters())
+        self._blocks.clear()
+        self._readings.clear()
 
     def ping(self, servo_id: int, *, attempts: int = 1) -> int | None:
         """The model number of the servo at ``servo_id``, or None when nothing answers.
@@ -331,6 +340,8 @@ class DynamixelBus:
                 servo_id=servo_id,
             )
         self.models[new_id] = self.models.pop(servo_id)
+        self._blocks.clear()
+        self._readings.clear()
 
     def set_baud(self, servo_id: int, code: int, baudrate: int) -> None:
         """Switch a servo's baud rate register to ``code``, follow it with the port, check it answers."""
@@ -393,12 +404,13 @@ class DynamixelBus:
         Missing or corrupt answers are retried ``retries`` times; a shutdown fault raises ServoFault (with
         ``check=False`` it is only reported and its name left in the reading's ``errors``).
         """
-        statuses: dict[int, p.Status] = {}
-        corrupt_before = {i: self._counters(i).corrupt for i in servo_ids}
+        counters = self.counters
+        corrupt_before = [counters[i].corrupt if i in counters else 0 for i in servo_ids]
+        statuses = self._read_block(servo_ids)
         for attempt in range(1 + self.retries):
-            missing = [i for i in servo_ids if i not in statuses]
-            statuses.update(self._read_block(missing))
-            still = [i for i in servo_ids if i not in statuses]
+            if attempt:
+                statuses.update(self._read_block([i for i in servo_ids if i not in statuses]))
+            still = [i for i in servo_ids if i not in statuses] if len(statuses) < len(servo_ids) else ()
             if not still:
                 break
             for servo_id in still:
@@ -406,7 +418,8 @@ class DynamixelBus:
             self._log.debug("read_retry", attempt=attempt + 1, missing=still)
         else:
             missing = [i for i in servo_ids if i not in statuses]
-            garbled = [i for i in missing if self._counters(i).corrupt > corrupt_before[i]]
+            before = dict(zip(servo_ids, corrupt_before, strict=True))
+            garbled = [i for i in missing if self._counters(i).corrupt > before[i]]
             if garbled:
                 self._raise_corrupt(garbled)
             # A daisy chain stalls behind a silent servo: blame those that miss a ping too, else the first
@@ -449,6 +462,15 @@ class DynamixelBus:
     def _read_block(self, servo_ids: Sequence[int]) -> dict[int, p.Status]:
         if not servo_ids:
             return {}
+        key = tuple(servo_ids)
+        block = self._blocks.get(key)
+        if block is None:
+            block = self._blocks[key] = self._state_read(key)
+        packet, expected = block
+        return self._exchange(packet, expected)
+
+    def _state_read(self, servo_ids: tuple[int, ...]) -> tuple[bytes, dict[int, int]]:
+        """The instruction reading the state block of ``servo_ids`` and each answer's data length."""
         specs = [self._model(i) for i in servo_ids]
         address, length = specs[0].state_block
         if self.config.protocol == 1:
@@ -457,8 +479,7 @@ class DynamixelBus:
             )
         else:
             packet = p.sync_read_2(address, length, servo_ids)
-        expected = {i: s.state_block[1] for i, s in zip(servo_ids, specs, strict=True)}
-        return self._exchange(packet, expected)
+        return packet, {i: s.state_block[1] for i, s in zip(servo_ids, specs, strict=True)}
 
     def _exchange(self, packet: bytes, expected: Mapping[int, int]) -> dict[int, p.Status]:
         """Send one instruction and collect the statuses of ``expected`` (id -> data length) until timeout."""
@@ -584,8 +605,13 @@ class DynamixelBus:
 
     def _reading(self, status: p.Status, *, check: bool = True) -> ServoReading:
         servo_id = status.servo_id
-        spec = self._model(servo_id)
         data = status.data
+        clean = not status.error and servo_id not in self._faulted
+        if clean:
+            last = self._readings.get(servo_id)
+            if last is not None and last[0] == data:
+                return last[1]  # the same bytes as last time, nothing to report: the same reading
+        spec = self._model(servo_id)
         if self.config.protocol == 1:  # 36: position, 38: speed, 40: load, 42: voltage, 43: temperature
             position, speed, load, volts, temp = _STATE_1.unpack_from(data)
         else:  # 126: load/current, 128: velocity, 132: position, 144: voltage, 146: temperature
@@ -597,7 +623,7 @@ class DynamixelBus:
         if status.error or servo_id in self._faulted:
             values = {"overheating": float(temp), "input_voltage": volts_from_ticks(volts)}
             errors = self._check_error(servo_id, status.error, raise_shutdown=check, values=values)
-        return ServoReading(
+        reading = ServoReading(
             servo_id=servo_id,
             position_rad=spec.rad_from_ticks(position),
             velocity_rad_s=spec.velocity_from_ticks(speed),
@@ -606,6 +632,9 @@ class DynamixelBus:
             temperature_c=temp,
             errors=errors,
         )
+        if clean:
+            self._readings[servo_id] = (data, reading)
+        return reading
 
     def _check_error(
         self,

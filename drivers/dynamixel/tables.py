@@ -7,7 +7,7 @@ named here once; the bus and the simulator look them up by name, so adding a mod
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Final
 
 from drivers.dynamixel.protocol import Protocol
@@ -41,6 +41,11 @@ class ModelSpec:
     state_block: tuple[int, int]
     goal_block: tuple[int, int]
     control_table_size: int
+    # ``rad_per_tick``, worked out once: every position a bus or its simulator converts divides by it.
+    _rad_per_tick: float = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_rad_per_tick", 2 * math.pi / self.ticks_per_rev)
 
     def reg(self, name: str) -> Register:
         try:
@@ -50,15 +55,15 @@ class ModelSpec:
 
     @property
     def rad_per_tick(self) -> float:
-        return 2 * math.pi / self.ticks_per_rev
+        return self._rad_per_tick
 
     def ticks_from_rad(self, rad: float) -> int:
         """The goal position tick for a joint angle, clamped to the servo's range."""
-        tick = round(self.center_tick + rad / self.rad_per_tick)
-        return min(max(tick, 0), self.max_tick)
+        tick: int = round(self.center_tick + rad / self._rad_per_tick)
+        return 0 if tick < 0 else self.max_tick if tick > self.max_tick else tick
 
     def rad_from_ticks(self, tick: int) -> float:
-        return (tick - self.center_tick) * self.rad_per_tick
+        return (tick - self.center_tick) * self._rad_per_tick
 
     def speed_ticks_from_rad_s(self, rad_s: float) -> int:
         """Goal speed (1.0) / profile velocity (2.0) ticks; never 0, which both protocols read as no limit."""

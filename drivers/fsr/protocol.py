@@ -17,6 +17,7 @@ SKETCH_NAME: Final = "dishbot_fsr"
 ADC_MAX: Final = 1023
 SEQ_MODULO: Final = 65536
 MAX_LINE: Final = 64  # longer runs without a newline are noise
+_HEX_DIGITS: Final = frozenset("0123456789ABCDEF")
 
 # Interlink FSR 400-series force/conductance curve (datasheet, typical): about 80 µS per newton up to 1 mS,
 # then about 30 µS per newton. Per-pad differences are absorbed by the calibrated gain.
@@ -65,12 +66,15 @@ def parse_line(line: bytes) -> Sample | Version | None:
         return None
     if len(text) < 4 or text[0] != "$" or text[-3] != "*":
         return None
-    body, digits = text[1:-3], text[-2:]
-    if not all(c in "0123456789ABCDEF" for c in digits) or int(digits, 16) != checksum(body):
+    body, digits = text[1:-3], text[-2:]  # two characters: text[-3] is the star
+    if digits[0] not in _HEX_DIGITS or digits[1] not in _HEX_DIGITS or int(digits, 16) != checksum(body):
         return None
     fields = body.split(",")
-    if fields[0] == "FSR" and len(fields) == 3 and all(f.isdigit() and len(f) <= 5 for f in fields[1:]):
-        seq, raw = int(fields[1]), int(fields[2])
+    if fields[0] == "FSR" and len(fields) == 3:
+        seq_text, raw_text = fields[1], fields[2]
+        if not (seq_text.isdigit() and len(seq_text) <= 5 and raw_text.isdigit() and len(raw_text) <= 5):
+            return None
+        seq, raw = int(seq_text), int(raw_text)
         if seq < SEQ_MODULO and raw <= ADC_MAX:
             return Sample(seq, raw)
         return None

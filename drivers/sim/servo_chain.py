@@ -411,7 +411,7 @@ class ServoChainSimulator(SimulatedDevice):
                 continue
             servo.answers += 1
             every = servo.corrupt_every and servo.answers % servo.corrupt_every == 0
-            if servo.corrupt_next or every or self._corrupts(servo):
+            if servo.corrupt_next or every or (self._corrupt_rate > 0.0 and self._corrupts(servo)):
                 if servo.corrupt_next and not every:
                     servo.corrupt_next -= 1
                 self.packets_corrupted += 1
@@ -508,7 +508,8 @@ class ServoChainSimulator(SimulatedDevice):
 
     def _error_byte(self, servo: SimServo) -> int:
         if self.protocol == 1:
-            return servo.hardware_error | self._live_conditions(servo)
+            live = servo.live
+            return servo.hardware_error | (self._live_conditions(servo) if live is None else live)
         return faults.ALERT_2 if servo.hardware_error else 0
 
     def _status(self, servo: SimServo, error: int, data: bytes = b"") -> bytes:
@@ -518,11 +519,12 @@ class ServoChainSimulator(SimulatedDevice):
         if length == 0 or address + length > len(servo.table):
             return self._status(servo, self._range_error())
         self._sync_from_plant(servo)
-        key = (address, length, self._error_byte(servo))
+        error = self._error_byte(servo)
+        key = (address, length, error)
         packet = servo.packets.get(key)
         if packet is None:
             data = bytes(servo.table[address : address + length])
-            packet = servo.packets[key] = self._status(servo, 0, data)
+            packet = servo.packets[key] = p.encode_status(self.protocol, servo.servo_id, error, data)
         return packet
 
     def _sync_write(self, params: bytes, by_id: dict[int, SimServo]) -> None:
@@ -692,20 +694,21 @@ class ServoChainSimulator(SimulatedDevice):
         """Bring the present registers up to the plant's state. A servo whose plant state (and error bits)
         are what the table was last synced from, with nothing written since, already reads right: the
         registers are not rewritten (a servo at rest, or read twice at one simulated instant)."""
-        spec = servo.spec
-        table = servo.table
         position, velocity, load = self.plant.present(servo.servo_id)
         state = (position, velocity, load, servo.hardware_error)
         if servo.synced == state:
             return
         servo.synced = state
+        spec = servo.spec
+        table = servo.table
         # The registers written in place (what ``SimServo.set`` would write, without its per-name lookups):
-        # none of them is one the live conditions are read from.
-        (pa, ps, psigned), (sa, ss, _), (la, ls, _), (ga, gs, gsigned) = servo.present
-        table[pa : pa + ps] = _le(spec.ticks_from_rad(position), ps)
+        # none of them is one the live conditions are read from. The position tick is clamped to the
+        # servo's range, so it is its own register value and reads back as itself.
+        (pa, ps, _), (sa, ss, _), (la, ls, _), (ga, gs, gsigned) = servo.present
+        present = spec.ticks_from_rad(position)
+        table[pa : pa + ps] = present.to_bytes(ps, "little")
         table[sa : sa + ss] = _le(spec.velocity_to_ticks(velocity), ss)
         table[la : la + ls] = _le(spec.load_to_ticks(load), ls)
-        present = int.from_bytes(table[pa : pa + ps], "little", signed=psigned)
         goal = int.from_bytes(table[ga : ga + gs], "little", signed=gsigned)
         table[servo.moving_at] = int(abs(goal - present) > 2)
         if servo.hardware_error_at >= 0:

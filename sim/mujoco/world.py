@@ -162,6 +162,9 @@ class _GripContacts:
     finger_mugs: set[int] = field(default_factory=set)
 
 
+# What a monitor tick without a watched contact sees (most ticks): read, never changed.
+_NO_CONTACTS: Final = _GripContacts()
+
 ContactListener = Callable[["SimWorld", float, Sequence[ContactSample]], None]
 
 
@@ -202,13 +205,12 @@ class SimWorld:
         self._qpos_adr = np.array([sv.qpos_adr for sv in ordered], dtype=np.int64)
         self._dof_adr = np.array([sv.dof_adr for sv in ordered], dtype=np.int64)
         self._stall = [sv.stall_torque for sv in ordered]
-        # The actuators' slice of ``data.ctrl`` when they are consecutive (they are in the cell's arm): a
-        # slice is cheaper to write than a fancy index, and it is written every step while a servo moves.
-        first = int(self._actuators[0])
-        consecutive = np.array_equal(self._actuators, np.arange(first, first + len(ordered)))
-        self._ctrl_index: slice | np.ndarray = (
-            slice(first, first + len(ordered)) if consecutive else self._actuators
-        )
+        # The servos' slices of ``data.ctrl`` (written every step while a servo moves) and of the positions,
+        # velocities and actuator forces (read after every batch) when they are consecutive, as they are in
+        # the cell's arm: a slice is cheaper than a fancy index, and selects the same numbers.
+        self._ctrl_index = _as_slice(self._actuators)
+        self._qpos_index = _as_slice(self._qpos_adr)
+        self._qvel_index = _as_slice(self._dof_adr)
         # Goals, speeds and set-points as plain float lists: six servos walk faster in Python floats than
         # in numpy's per-call overhead (the same IEEE operations, so the same set-points to the last bit).
         self._goal = [0.0] * len(ordered)
@@ -230,6 +232,11 @@ class SimWorld:
         self.geom_mug = self._geom_mug_index()
         self.geom_gripper = self._geom_gripper_mask()
         self._watched_pairs = self._watched_pair_table()
+        # The same table flat, indexed by ``geom1 * ngeom + geom2`` (one lookup instead of a 2-D fancy
+        # index), and for each mug held the table without the gripper's pairs with that mug (by mug index).
+        self._ngeom = int(self.model.ngeom)
+        self._watched_flat = self._watched_pairs.ravel()
+        self._watched_holding: dict[int, np.ndarray] = {}
         self._geom_mug_list: list[int] = self.geom_mug.tolist()
         self._geom_body_list: list[int] = self.model.geom_bodyid.tolist()
         self._mug_index = {m: i for i, m in enumerate(self.mug_ids)}
@@ -647,7 +654,7 @@ class SimWorld:
         # Once per batch: stepped by a clock, nobody reads between the steps of a batch (they run on the
         # reader's thread); in the world's own thread a batch is at most ``max_batch_s`` of real time.
         self._publish_present()
-        if not math.isfinite(data.qpos.sum()):  # a sum is NaN or infinite when any term is
+        if not math.isfinite(_sum(data.qpos)):  # a sum is NaN or infinite when any term is
             raise SimModelError(f"the simulation diverged at t={self.time():.3f} s (non-finite positions)")
 
     def _steps_until_monitor(self, most: int, dt: float) -> int:
@@ -668,10 +675,10 @@ class SimWorld:
         d = self.data
         loads = [
             min(max(force / stall, -1.0), 1.0)
-            for force, stall in zip(d.actuator_force[self._actuators].tolist(), self._stall, strict=True)
+            for force, stall in zip(d.actuator_force[self._ctrl_index].tolist(), self._stall, strict=True)
         ]
         self._present = tuple(
-            zip(d.qpos[self._qpos_adr].tolist(), d.qvel[self._dof_adr].tolist(), loads, strict=True)
+            zip(d.qpos[self._qpos_index].tolist(), d.qvel[self._qvel_index].tolist(), loads, strict=True)
         )
 
     def _drive_servos(self, dt: float) -> None:
@@ -759,25 +766,25 @@ class SimWorld:
         gripper's own contacts on it are masked out in numpy and never reach a listener (they are never
         collisions), and the pad force is the squeeze model's, so the pads' sum is not taken
         (``_pad_force_n`` works it out when the grasp lets go)."""
-        grip = _GripContacts()
         data = self.data
         if data.ncon == 0:
-            return grip
+            return _NO_CONTACTS
         contact = data.contact
         geom = contact.geom
         g1, g2 = geom[:, 0], geom[:, 1]
-        watched = self._watched_pairs[g1, g2]
+        pairs = g1 * self._ngeom + g2
         held = self._held
         if held is None:
-            looked_at = np.flatnonzero(watched)
+            looked_at = np.flatnonzero(self._watched_flat[pairs])
             if looked_at.size == 0:
-                return grip
+                return _NO_CONTACTS
         else:
-            m1, m2 = self.geom_mug[g1], self.geom_mug[g2]
             h = self._mug_index[held]
+            looked_at = np.flatnonzero(self._watched_while_holding(h)[pairs])
+            m1, m2 = self.geom_mug[g1], self.geom_mug[g2]
             in1, in2 = m1 == h, m2 == h  # the held mug's contacts, by the side it is on
             gripper1, gripper2 = self.geom_gripper[g1], self.geom_gripper[g2]
-            looked_at = np.flatnonzero(watched & ~(in1 & gripper2 | in2 & gripper1))
+        grip = _GripContacts()
         efc_address = contact.efc_address
         efc_force = data.efc_force
         if looked_at.size:
@@ -799,6 +806,16 @@ class SimWorld:
         for address in efc_address[mine].tolist():
             grip.support_force_n += float(efc_force[address]) if address >= 0 else 0.0
         return grip
+
+    def _watched_while_holding(self, mug: int) -> np.ndarray:
+        """The flat watched-pair table while mug number ``mug`` is held: without the gripper's pairs with it
+        (the grasp itself), worked out the first time that mug is held."""
+        table = self._watched_holding.get(mug)
+        if table is None:
+            held = self.geom_mug == mug
+            grasp = held[:, None] & self.geom_gripper[None, :]
+            table = self._watched_holding[mug] = (self._watched_pairs & ~(grasp | grasp.T)).ravel()
+        return table
 
     def _read_contacts(
         self,
@@ -878,6 +895,18 @@ class SimWorld:
         self._held = None
         self._low_force_since = None
         log.debug("simworld_grasp_released", mug_id=mug, reason=reason, t=round(self.time(), 3))
+
+
+# ``ndarray.sum`` without its Python wrapper (the divergence check runs after every batch of steps).
+_sum = np.add.reduce
+
+
+def _as_slice(index: np.ndarray) -> slice | np.ndarray:
+    """``index`` as the slice it spans when its entries are consecutive and increasing, else itself."""
+    first = int(index[0])
+    if np.array_equal(index, np.arange(first, first + len(index))):
+        return slice(first, first + len(index))
+    return index
 
 
 def _axis_quat(axis: Sequence[float], yaw_rad: float) -> np.ndarray:
