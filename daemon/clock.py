@@ -360,11 +360,15 @@ class SimulatedClock:
 
     def _first_wake(self) -> float | None:
         """The earliest simulated time a thread waits for (``sleep_off_loop``); None when none waits."""
+        if not self._parked:  # the common case, asked at every step of time: no lock (see ``_select``)
+            return None
         with self._work_changed:
             return min((p.until for p in self._parked), default=None)
 
     def _wake_parked(self, t: float) -> bool:
         """Let the threads waiting for simulated time ``t`` (or earlier) go on; whether any did."""
+        if not self._parked:
+            return False
         with self._work_changed:
             woken = [p for p in self._parked if p.until <= t]
             self._parked = [p for p in self._parked if p.until > t]
@@ -388,7 +392,9 @@ class SimulatedClock:
 
         I/O that is ready is handled first, at the current time (the in-process devices write from this
         thread, so what they sent is always there by the next look). Then executor work in flight is waited
-        for and handed back; only when there is neither does time move on."""
+        for and handed back; only when there is neither does time move on. From then on no thread can
+        start waiting on the clock (only executor work in flight does, and all of it has finished or is
+        waiting already), so ``_parked`` may be looked at without the lock."""
         ready = select(0)
         if ready or timeout == 0:
             return ready

@@ -33,6 +33,7 @@ import contextlib
 import errno
 import fcntl
 import functools
+import io
 import json
 import os
 import threading
@@ -41,7 +42,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Final, Protocol
+from typing import IO, TYPE_CHECKING, Final, Protocol
 
 import structlog
 from mcap.writer import CompressionType, Writer
@@ -49,6 +50,9 @@ from mcap.writer import CompressionType, Writer
 from recorder.errors import RecordingError
 from wire.messages import Message, Payload, decode, encode, message_type, topic_suffix
 from wire.schemas import HEADER_TOPIC, is_telemetry, schema_bytes, schema_name
+
+if TYPE_CHECKING:
+    from _typeshed import ReadableBuffer
 
 log = structlog.get_logger(__name__)
 
@@ -162,9 +166,10 @@ class DiskSpace:
                 self._full[-1] = (self._full[-1][0], log_time_ns)
 
     def filling(self) -> bool:
-        """Whether the disk has been filled and not freed yet."""
-        with self._lock:
-            return bool(self._full) and self._full[-1][1] is None
+        """Whether the disk has been filled and not freed yet. Read without the lock (the recorder asks
+        before every step of simulated time): the list only grows, and its last entry is replaced whole."""
+        full = self._full
+        return bool(full) and full[-1][1] is None
 
     def full_at(self, log_time_ns: int) -> bool:
         with self._lock:
@@ -178,6 +183,24 @@ class DiskSpace:
 
 class _Refused(OSError):
     """The disk refused a message before any byte of it reached the file: the file can be continued."""
+
+
+class _Counted(io.BufferedWriter):
+    """A new file written from its start, which counts the bytes written instead of asking the OS where it
+    is: ``tell`` is asked twice per message (whether the message finished a chunk) and by the MCAP writer
+    per chunk, and the OS's answer is a system call that also hands the GIL to the daemon's loop and back."""
+
+    def __init__(self, raw: io.RawIOBase) -> None:
+        super().__init__(raw)
+        self._position = 0
+
+    def write(self, buffer: ReadableBuffer, /) -> int:
+        written = super().write(buffer)
+        self._position += written
+        return written
+
+    def tell(self) -> int:
+        return self._position
 
 
 class _File:
@@ -199,7 +222,7 @@ class _File:
         if log_time_ns is not None and self.disk.full_at(log_time_ns):
             raise RecordingError(f"cannot create recording {path}: {os.strerror(errno.ENOSPC)}")
         try:
-            self.file: IO[bytes] = open(path, "xb")  # noqa: SIM115 — owned until close()
+            self.file: IO[bytes] = _Counted(open(path, "xb").detach())  # noqa: SIM115 — owned until close()
         except FileExistsError as e:
             raise RecordingError(f"recording {path} already exists; choose a new file name") from e
         except OSError as e:
@@ -423,7 +446,10 @@ class Recorder:
         """Whether the writer has caught up (its queue at or below a quarter of ``queue_size``; empty while
         the disk is full or has failed, so that the failure and the recovery are seen, and published, at the
         clock's time of the message they happened at), waiting up to ``wait_s`` seconds for it; a closed
-        recorder has. For a clock holding time back (``lossless``)."""
+        recorder has. For a clock holding time back (``lossless``): it asks before every step of time, so
+        the common answer (not behind) takes no lock."""
+        if not self._behind():
+            return True
         with self._drained:
             if self._behind():
                 self._wake.set()  # no nap between batches while someone waits
@@ -431,11 +457,13 @@ class Recorder:
             return not self._behind()
 
     def _behind(self) -> bool:
-        if not self._thread.is_alive():
-            return False
+        """Lock-free reads (the queue's length, the failure, the disk's state); whether the writer thread
+        still runs, which takes a lock, is asked last and only of a queue that is behind."""
         if self.failure is not None or self.disk.filling():
-            return bool(self._pending) or self._busy
-        return len(self._pending) > self._caught_up_at
+            behind = bool(self._pending) or self._busy
+        else:
+            behind = len(self._pending) > self._caught_up_at
+        return behind and self._thread.is_alive()
 
     @property
     def dropped(self) -> int:

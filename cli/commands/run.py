@@ -165,7 +165,8 @@ def _run_guarded(args: argparse.Namespace) -> int:
     if args.once:  # one finite job: say which mug it is at, on stderr
         hooks = _with_progress(hooks, MugProgress(Progress("dishbot run", 0, unit="mug"), clock.simulated))
     try:
-        with planning_pool(args.log_level, worker_logs) as pool, SdNotifier.from_env() as notifier:
+        pool = planning_pool(args.log_level, worker_logs, background=not clock.simulated)
+        with pool, SdNotifier.from_env() as notifier:
             result = clock.run(_serve(args, config, clock, options, associate, pool, notifier, hooks))
     finally:
         if injector is not None:
@@ -231,12 +232,14 @@ def fault_injector(args: argparse.Namespace, config: Config) -> FaultInjector | 
 
 
 def planning_pool(
-    log_level: str = "info", log_records: RecordQueue | None = None
+    log_level: str = "info", log_records: RecordQueue | None = None, *, background: bool = True
 ) -> concurrent.futures.ProcessPoolExecutor:
     """One worker process for placement and motion planning (forkserver: never fork Zenoh's threads),
     logging to stderr at the command line's ``--log-level`` and, when given, to ``log_records`` (a
     forkserver queue) for the daemon's ``log`` topic. The worker and the forkserver die with this process,
-    even by SIGKILL (``daemon.lifeline``)."""
+    even by SIGKILL (``daemon.lifeline``). ``background``: the worker runs below the daemon's priority
+    (on the wall clock; on a simulated clock the loop waits for every plan, so the planner is the job's
+    critical path and runs at the daemon's own priority)."""
     context = multiprocessing.get_context("forkserver")
     if threading.current_thread() is threading.main_thread():
         # Started now, from the thread that lives as long as the process: the forkserver's death signal
@@ -247,19 +250,24 @@ def planning_pool(
         max_workers=1,
         mp_context=context,
         initializer=_planning_worker,
-        initargs=(log_level, log_records, os.getpid()),
+        initargs=(log_level, log_records, os.getpid(), background),
     )
 
 
-def _planning_worker(log_level: str, log_records: RecordQueue | None, daemon_pid: int) -> None:
-    """Planning is background work: below the daemon's priority, so a busy planner cannot delay the loop
-    that publishes telemetry and answers commands when the CPUs are short. It ends with the forkserver it
-    was forked from and with the daemon it works for."""
+def _planning_worker(
+    log_level: str, log_records: RecordQueue | None, daemon_pid: int, background: bool = True
+) -> None:
+    """Planning on the wall clock is background work: below the daemon's priority, so a busy planner
+    cannot delay the loop that publishes telemetry and answers commands when the CPUs are short. On a
+    simulated clock time stands still while a plan is computed (the loop waits for it), so a lower
+    priority would only make the job wait longer on a busy machine. It ends with the forkserver it was
+    forked from and with the daemon it works for."""
     from daemon.lifeline import die_with_parent, exit_with
 
     die_with_parent()
     exit_with(daemon_pid)
-    os.nice(_PLANNING_NICENESS)
+    if background:
+        os.nice(_PLANNING_NICENESS)
     configure_cli_logging(log_level)
     if log_records is not None:
         from daemon.log_relay import forward_to

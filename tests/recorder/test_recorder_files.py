@@ -78,6 +78,25 @@ def test_finished_file_opens_with_the_standard_mcap_reader(make_recording: Recor
         assert summary.statistics.message_count == 1 + 50 + 50 + 2
 
 
+def test_the_summary_points_at_every_chunk_where_it_lies_in_the_file(tmp_path: Path) -> None:
+    # The file counts the bytes it wrote rather than asking the OS where it is: the offsets it gives the
+    # MCAP writer (chunk starts, message indexes, the summary) must be those of the file on disk.
+    path = tmp_path / "chunks.mcap"
+    with Recorder(path, chunk_size=1024, flush_interval_s=0.1, drain_interval_s=0.01) as rec:
+        for i in range(3000):
+            rec.write("dishbot/r1/joints", {"i": i, "pad": "x" * (i % 97)}, log_time_ns=1_000 + i)
+    data = path.read_bytes()
+    with path.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        assert len(summary.chunk_indexes) > 50
+        for chunk in summary.chunk_indexes:
+            assert data[chunk.chunk_start_offset] == 0x06  # a Chunk record's opcode
+        got = [json.loads(m.data)["i"] for _, _, m in reader.iter_messages(log_time_order=True)]
+    assert got == list(range(3000))
+
+
 @pytest.mark.parametrize("compression", ["zstd", "lz4"])
 def test_compressed_recording_round_trips(make_recording: RecordingFactory, compression: str) -> None:
     path = make_recording(seconds=1.0, compression=compression)
