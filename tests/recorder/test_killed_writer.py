@@ -90,8 +90,10 @@ def test_sigkilled_writer_keeps_the_foxglove_channels_to_the_same_bound(tmp_path
     joints = [m.payload["t"] for m in rec if m.topic == "dishbot/r1/joints"]
     assert joints == list(range(len(joints)))
     assert len(joints) >= on_disk > 0
-    # Every recovered sample's transforms are in the file too (one /tf per sample, plus the opening one).
-    assert len(joints) <= rec.topic_counts["/tf"] - 1 <= len(joints) + 1
+    # Every recovered sample's transforms are in the file too (one /tf per sample, plus the opening one),
+    # but for the last one: a chunk can end on a sample, and its transforms, written next, open the chunk
+    # a kill right then loses (CI saw 71 samples and 70 transforms once in many runs).
+    assert len(joints) - 1 <= rec.topic_counts["/tf"] - 1 <= len(joints) + 1
     assert rec.topic_counts["/scene/arm"] == 1
 
 
