@@ -226,7 +226,7 @@ async def _live(tmp: Path, variant: _Variant, commands: int, seconds: float, log
             stop.set()
             outcome = await daemon
     round_trip, state, joints, states_seen = result
-    job_files = [p for p in outcome.files if is_job_file(p)]
+    kb_per_min, foxglove_channels = _job_files([p for p in outcome.files if is_job_file(p)])
     return _Live(
         round_trip,
         state,
@@ -234,34 +234,22 @@ async def _live(tmp: Path, variant: _Variant, commands: int, seconds: float, log
         probe_errors,
         baseline_errors,
         states_seen,
-        _kb_per_minute(job_files),
-        _foxglove_channels(job_files),
+        kb_per_min,
+        foxglove_channels,
         int(sum(live_messages)),
     )
 
 
-def _kb_per_minute(files: list[Path]) -> float:
-    """The size of job files per minute of the time they cover."""
+def _job_files(files: list[Path]) -> tuple[float, int]:
+    """The job files' size per minute of the time they cover, and how many distinct channels with a
+    Foxglove schema (``foxglove.FrameTransforms``...) they hold; each file read once."""
     from recorder import read_messages
 
     size = sum(p.stat().st_size for p in files)
-    spans = [read_messages(p, keep=lambda topic: False) for p in files]
-    minutes = sum(((r.end_ns or 0) - (r.start_ns or 0)) / 60e9 for r in spans)
-    return size / 1000.0 / minutes if minutes > 0 else float("nan")
-
-
-def _foxglove_channels(files: list[Path]) -> int:
-    """How many distinct channels with a Foxglove schema (``foxglove.FrameTransforms``...) the files hold."""
-    from recorder import read_messages
-
-    return len(
-        {
-            topic
-            for p in files
-            for topic, schema in read_messages(p, keep=lambda topic: False).schema_names.items()
-            if schema.startswith("foxglove.")
-        }
-    )
+    reads = [read_messages(p, keep=lambda topic: False) for p in files]
+    minutes = sum(((r.end_ns or 0) - (r.start_ns or 0)) / 60e9 for r in reads)
+    foxglove = {t for r in reads for t, schema in r.schema_names.items() if schema.startswith("foxglove.")}
+    return (size / 1000.0 / minutes if minutes > 0 else float("nan")), len(foxglove)
 
 
 def _start_viewer(address: tuple[str, int], seconds: float) -> _BareProbe:
