@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import concurrent.futures
-import contextlib
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -243,6 +242,7 @@ async def run_dataset(
     from daemon.backend import SimOptions
     from daemon.cell import open_backend
     from daemon.job import Job, StartRequest
+    from daemon.job.runner import cancel_and_wait
     from daemon.sim_backend import mujoco_cell
 
     options = SimOptions(world="mujoco", dataset=dataset, seed=seed, fsr_debounce_s=fsr_debounce_s)
@@ -291,9 +291,7 @@ async def run_dataset(
         )
     finally:
         await job.shutdown()
-        control.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await control
+        await cancel_and_wait(control)
         await backend.close()
 
 

@@ -8,7 +8,6 @@ neighbour, whose plan kept 10 mm). The slow last stretch of the set-downs lets i
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import math
 
 import pytest
@@ -18,6 +17,7 @@ from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import Job, StartRequest
+from daemon.job.runner import cancel_and_wait
 from daemon.sim_backend import mujoco_cell
 from perception import associate
 from wire.messages import MugPlacedEvent, Payload
@@ -56,9 +56,7 @@ async def _job(mugs: tuple[SetupMug, ...], clock: SimulatedClock) -> tuple[dict[
         return errors, collisions
     finally:
         await job.shutdown()
-        control.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await control
+        await cancel_and_wait(control)
         await backend.close()
 
 
