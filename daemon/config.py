@@ -405,9 +405,9 @@ def load_config(path: Path | None = None, *, overrides: Mapping[str, Any] | None
             user = tomllib.loads(text)
         except tomllib.TOMLDecodeError as e:
             raise ConfigError(f"config file {path} is not valid TOML: {e}") from e
-        data = _merge(data, user)
+        data = merge_tables(data, user)
     if overrides:
-        data = _merge(data, overrides)
+        data = merge_tables(data, overrides)
     config = parse_config(data)
     if path is not None:
         config = replace(config, zenoh=config.zenoh.resolved(path.parent))
@@ -659,11 +659,13 @@ def check_foxglove_listen(value: object, name: str, *, insecure: bool) -> tuple[
     return host, port
 
 
-def _merge(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
+def merge_tables(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` with ``update`` laid over it table by table (a nested table keeps the keys ``update`` does
+    not name), as a config file and overrides are laid over the defaults."""
     out = dict(base)
     for key, value in update.items():
         if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            out[key] = _merge(out[key], value)
+            out[key] = merge_tables(out[key], value)
         else:
             out[key] = value
     return out

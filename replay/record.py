@@ -16,7 +16,7 @@ from daemon.app import RunOptions, RunResult, ServeHooks, serve
 from daemon.backend import SetupMug, SimOptions
 from daemon.cell import open_backend
 from daemon.clock import RealClock, SessionClock, SimulatedClock
-from daemon.config import Config, load_config
+from daemon.config import Config, load_config, merge_tables
 from daemon.errors import UsageError
 from daemon.job import StartRequest
 from daemon.sdnotify import SdNotifier
@@ -47,7 +47,7 @@ def record_job(
     noise seed ``seed`` and record it in ``record_dir``; blocking. ``overrides`` are config tables merged
     over the defaults (``load_config``)."""
     base: dict[str, Any] = {"backend": "sim", "sim": {"world": world, "seed": seed, "transport": transport}}
-    config = load_config(overrides=_merge(base, dict(overrides or {})))
+    config = load_config(overrides=merge_tables(base, overrides or {}))
     if clock is None:
         clock = RealClock() if transport == "pty" else SimulatedClock()
     request = StartRequest(mugs=tuple(SetupMug(*m) for m in mugs) if mugs is not None else None)
@@ -71,10 +71,3 @@ async def _run(
 
     options = RunOptions(listen=(), connect=(), record_dir=record_dir, once=request)
     return await serve(config, backend, associate, options, notifier=SdNotifier(None), hooks=hooks)
-
-
-def _merge(a: dict[str, Any], b: Mapping[str, Any]) -> dict[str, Any]:
-    out = dict(a)
-    for k, v in b.items():
-        out[k] = _merge(out[k], v) if isinstance(v, Mapping) and isinstance(out.get(k), dict) else v
-    return out

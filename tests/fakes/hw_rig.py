@@ -20,7 +20,7 @@ import zenoh
 
 from daemon.backend import Backend
 from daemon.clock import RealClock
-from daemon.config import Config, load_config
+from daemon.config import Config, load_config, merge_tables
 from daemon.hardware import open_hardware_backend
 from daemon.zenoh_session import session_config
 from drivers.interfaces import JointTrajectory
@@ -76,18 +76,9 @@ def rig(**overrides: Any) -> Any:
                 "fsr": {"port": fsr.device_path},
             },
         }
-        config = load_config(overrides=_merged(base, overrides))
+        config = load_config(overrides=merge_tables(base, overrides))
         holder.append(Rig(servos, fsr, plant, config))
         yield holder[0]
-
-
-def _merged(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
-    """``base`` with ``update`` laid over it, table by table (``hardware={"fsr": {...}}`` keeps the port)."""
-    out = dict(base)
-    for key, value in update.items():
-        old = out.get(key)
-        out[key] = _merged(old, value) if isinstance(value, dict) and isinstance(old, dict) else value
-    return out
 
 
 class CounterStandIn:
