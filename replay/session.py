@@ -477,6 +477,13 @@ _DEVICE_COMMAND_TOPICS: Final = (
 # by ``PlanResult.from_json``.
 _UNTYPED: Final = frozenset({"input/device_event", "plan"})
 # What a device event's recorded payload carries about its recording rather than about the event.
+# What a recording made before a setting existed did, for the settings whose default is not that: before
+# ``[planner] footprint`` (or while ``rect`` was its default) the placement planned with rectangles; before
+# ``[arm] set_down_slow_m`` the arm set its mugs down at fine speed all the way.
+_BEFORE_SETTING: Final[Mapping[tuple[str, str], object]] = {
+    ("planner", "footprint"): "rect",
+    ("arm", "set_down_slow_m"): 0.0,
+}
 _EVENT_RECORD_KEYS: Final = frozenset({"at_state", "at_transitions", "at_device_commands", "t_read", "state"})
 
 
@@ -627,15 +634,11 @@ class RecordedSession:
         try:
             # Over today's defaults, so that a recording made before a setting existed still loads; the
             # robot's own Zenoh settings (endpoints, credentials on its disk) are the replay's business.
-            # A default that changed is the one the recording was made with: a recording from before
-            # ``[planner] footprint`` existed (or while ``rect`` was its default) planned with rectangles.
-            planner = config_doc.get("planner")
-            if isinstance(planner, Mapping) and "footprint" not in planner:
-                config_doc = {**config_doc, "planner": {**planner, "footprint": "rect"}}
-            # ... and one from before ``[arm] set_down_slow_m`` set its mugs down at fine speed all the way.
-            arm = config_doc.get("arm")
-            if isinstance(arm, Mapping) and "set_down_slow_m" not in arm:
-                config_doc = {**config_doc, "arm": {**arm, "set_down_slow_m": 0.0}}
+            # A default that changed is the one the recording was made with (``_BEFORE_SETTING``).
+            for (table, key), then in _BEFORE_SETTING.items():
+                recorded = config_doc.get(table)
+                if isinstance(recorded, Mapping) and key not in recorded:
+                    config_doc = {**config_doc, table: {**recorded, key: then}}
             config = load_config(overrides={**config_doc, "zenoh": {}})
         except ConfigError as e:
             raise ReplayError(f"{path}: the recorded config does not load: {e}") from e
