@@ -476,7 +476,6 @@ _DEVICE_COMMAND_TOPICS: Final = (
 # Recorded inputs kept as their payloads only: device events are open (a driver's own keys), a plan is read
 # by ``PlanResult.from_json``.
 _UNTYPED: Final = frozenset({"input/device_event", "plan"})
-# What a device event's recorded payload carries about its recording rather than about the event.
 # What a recording made before a setting existed did, for the settings whose default is not that: before
 # ``[planner] footprint`` (or while ``rect`` was its default) the placement planned with rectangles; before
 # ``[arm] set_down_slow_m`` the arm set its mugs down at fine speed all the way.
@@ -484,6 +483,7 @@ _BEFORE_SETTING: Final[Mapping[tuple[str, str], object]] = {
     ("planner", "footprint"): "rect",
     ("arm", "set_down_slow_m"): 0.0,
 }
+# What a device event's recorded payload carries about its recording rather than about the event.
 _EVENT_RECORD_KEYS: Final = frozenset({"at_state", "at_transitions", "at_device_commands", "t_read", "state"})
 
 
