@@ -164,8 +164,8 @@ class ArmConfig:
     ``set_down_speed_m_s``, so that the mug hangs straight when it is let go (0: all at fine speed)."""
 
     calibration_file: Path | None
-    set_down_slow_m: float = 0.03
-    set_down_speed_m_s: float = 0.01
+    set_down_slow_m: float
+    set_down_speed_m_s: float
 
 
 @dataclass(frozen=True, slots=True)

@@ -24,6 +24,7 @@ from planning.arm.calibration import PositionCorrection
 from planning.interfaces import CyclePlan, MotionPlanner, MugPose, TraySlot
 from planning.motion import DynamicsMoveCost, check_reachable
 from planning.motion.planner import CyclePlanner
+from planning.motion.scene import SET_DOWN_SLOW_M, SET_DOWN_SPEED_M_S
 from planning.placement import PlanOptions, PlanResult, Problem, plan
 from wire.messages import MotionCall
 
@@ -105,7 +106,7 @@ class CyclePlannerSpec:
     tray: Tray
     mug_types: tuple[MugSpec, ...]
     correction: PositionCorrection | None = None
-    set_down: tuple[float, float] = (0.03, 0.01)  # ``arm.set_down_slow_m``, ``arm.set_down_speed_m_s``
+    set_down: tuple[float, float] = (SET_DOWN_SLOW_M, SET_DOWN_SPEED_M_S)  # ``arm.set_down_*``
 
     def layout(self) -> CellLayout:
         return self.cell.with_tray(self.tray)

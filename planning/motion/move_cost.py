@@ -28,6 +28,7 @@ from planning.arm.targets import GraspKind, GraspTarget
 from planning.interfaces import MotionRefused, MugPose, TraySlot
 from planning.motion.energy import DynamicsEnergyModel
 from planning.motion.planner import CyclePlanner
+from planning.motion.scene import SET_DOWN_SLOW_M, SET_DOWN_SPEED_M_S
 from planning.motion.trajectory import JointPath
 
 log = structlog.get_logger(__name__)
@@ -53,7 +54,7 @@ class DynamicsMoveCost:
         catalogue: Mapping[str, MugSpec] | None = None,
         *,
         rate_hz: float = 25.0,
-        set_down: tuple[float, float] = (0.03, 0.01),
+        set_down: tuple[float, float] = (SET_DOWN_SLOW_M, SET_DOWN_SPEED_M_S),
     ) -> None:
         # Its own copy of the model: the placement planner may run beside the cycle planner.
         arm = arm.copy()

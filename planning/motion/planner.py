@@ -34,7 +34,7 @@ from planning.motion.builder import Builder, Motion, at_z
 from planning.motion.energy import DynamicsEnergyModel
 from planning.motion.handle import check_handle, handle_yaw_on_tray
 from planning.motion.remembered import RememberedCycles
-from planning.motion.scene import Scene, Settings
+from planning.motion.scene import SET_DOWN_SLOW_M, SET_DOWN_SPEED_M_S, Scene, Settings
 from planning.motion.stages import (
     ROLLS,
     CycleContext,
@@ -68,8 +68,8 @@ class CyclePlanner:
         release_gap_m: float = 0.008,
         release_openings_m: Sequence[float] = (0.012, 0.006),
         fine_speed_m_s: float = 0.08,
-        set_down_slow_m: float = 0.03,
-        set_down_speed_m_s: float = 0.01,
+        set_down_slow_m: float = SET_DOWN_SLOW_M,
+        set_down_speed_m_s: float = SET_DOWN_SPEED_M_S,
         gripper_close_s: float = 1.0,
         gripper_open_s: float = 0.6,
         energy_model: DynamicsEnergyModel | None = None,

@@ -36,6 +36,11 @@ from planning.motion.collision import (
 from planning.motion.remembered import Lru
 from planning.motion.trajectory import JointPath, plan_path
 
+# The last stretch of every set-down and its speed (``CyclePlanner``'s ``set_down_slow_m`` and
+# ``set_down_speed_m_s``): the defaults of every planner built without the daemon's ``[arm]`` settings.
+SET_DOWN_SLOW_M = 0.03
+SET_DOWN_SPEED_M_S = 0.01
+
 
 @dataclass(frozen=True, slots=True)
 class Settings:
@@ -47,8 +52,8 @@ class Settings:
     release_gap_m: float = 0.008
     release_openings_m: tuple[float, ...] = (0.012, 0.006)
     fine_speed_m_s: float = 0.08
-    set_down_slow_m: float = 0.03
-    set_down_speed_m_s: float = 0.01
+    set_down_slow_m: float = SET_DOWN_SLOW_M
+    set_down_speed_m_s: float = SET_DOWN_SPEED_M_S
     correction: PositionCorrection | None = None
 
 

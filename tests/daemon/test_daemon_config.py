@@ -250,3 +250,10 @@ def test_settings_built_in_code_keep_the_config_files_rules() -> None:
         FsrSettings("/dev/x", threshold_n=1.0, release_n=2.0)
     with pytest.raises(Invalid, match=r"^temperature_warn_c: 80 must be below temperature_limit_c 70$"):
         HealthLimits(temperature_warn_c=80.0)
+
+
+def test_the_default_set_down_is_the_cycle_planners() -> None:
+    from planning.motion.scene import SET_DOWN_SLOW_M, SET_DOWN_SPEED_M_S
+
+    arm = load_config().arm
+    assert (arm.set_down_slow_m, arm.set_down_speed_m_s) == (SET_DOWN_SLOW_M, SET_DOWN_SPEED_M_S)
