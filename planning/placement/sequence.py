@@ -18,8 +18,9 @@ loads the arm):
    counter, stands on the tray with the handle where the cycle leaves it, and the arm starts the next
    cycle where this one ended. A slot refused by mugs still on the counter is tried again once one of them
    has moved; one refused by nothing movable (out of reach, the tray's walls, mugs on the tray, mugs that
-   stay on the counter) is dropped for good. What is left when no slot plans is dropped: the plan promises
-   only the cycles it checked.
+   stay on the counter) is dropped for good. What is left when no slot plans is dropped, each with the mugs
+   that blocked it: mugs the plan leaves on the counter, or mugs whose own slots are blocked in turn (no
+   order frees them). The plan promises only the cycles it checked.
 """
 
 from __future__ import annotations
@@ -144,13 +145,28 @@ def sequence(
             progress = True
             break
         if not progress:
+            pending = {slot.mug_id for slot, _ in remaining}
             for slot, planned_for in remaining:
-                stuck = ", ".join(sorted(waiting.get(planned_for, frozenset())))
                 dropped.append(
-                    (slot.mug_id, f"slot for {slot.mug_id}: blocked by {stuck}, which stay on the counter")
+                    (slot.mug_id, _stuck(slot.mug_id, waiting.get(planned_for, frozenset()), pending))
                 )
             break
     return Sequenced(tuple(cycles), tuple(dropped), checks[0])
+
+
+def _stuck(mug_id: str, blockers: frozenset[str], pending: set[str]) -> str:
+    """Why a slot left when no slot plans is dropped: each counter mug that blocked its last try either has no
+    slot in the plan (it stays on the counter) or waits for its own slot, blocked in turn (no order frees
+    them: e.g. two mugs too close for the fingers to reach either). The slot's own mug is not named: it blocks
+    only the other mugs of its type tried for the slot."""
+    stay = sorted(blockers - pending)
+    waits = sorted(blockers & pending - {mug_id})
+    parts = []
+    if stay:
+        parts.append(f"{', '.join(stay)}, which the plan leaves on the counter")
+    if waits:
+        parts.append(f"{', '.join(waits)}, whose own slots are blocked in turn")
+    return f"slot for {mug_id}: blocked by {' and by '.join(parts) or 'mugs that stay on the counter'}"
 
 
 def fill_slot(

@@ -15,7 +15,7 @@ from daemon.config import load_config
 from description.thesis import MUG_TYPES
 from planning.arm import ArmModel
 from planning.arm.grasp import handle_facing_away_rad
-from planning.interfaces import MugPose, TraySlot
+from planning.interfaces import MotionRefused, MugPose, TraySlot
 from planning.motion import CyclePlanner
 from planning.placement import PlanOptions, PlanResult, Problem, cell_dataset_problem, plan
 from planning.placement.checked import plan_with_arm
@@ -118,3 +118,47 @@ def test_a_mug_shaped_round_that_drops_a_slot_is_packed_again_with_rectangles(pl
     ids = tuple(m.id for m in problem.mugs)
     assert asked[:2] == [("mug", ids), ("rect", ids)]
     assert checked.rounds >= 2
+
+
+class _Refusing:
+    """A motion planner that plans no cycle: a mug in ``blocked_by`` is refused for the counter mugs in its
+    way (mug id -> their ids), any other as out of reach: enough for the slots ``sequence`` drops."""
+
+    def __init__(self, blocked_by: dict[str, set[str]]) -> None:
+        self.blocked_by = blocked_by
+
+    def plan_cycle(
+        self,
+        start_q: object,
+        mug: MugPose,
+        slot: TraySlot,
+        on_tray: object,
+        *,
+        counter: tuple[MugPose, ...] = (),
+    ) -> object:
+        there = {m.mug_id for m in counter} & self.blocked_by.get(mug.mug_id, set())
+        if not there:
+            raise MotionRefused("side_grasp.approach: out of reach")
+        raise MotionRefused(f"side_grasp.approach: the gripper would hit mug {min(there)}", blockers=there)
+
+
+def test_a_slot_blocked_by_a_mug_the_plan_leaves_says_so() -> None:
+    motion = _Refusing({"m7": {"m1"}})
+    done = sequence(motion, START_Q, [SLOT_7], [FRONT, BEHIND])  # type: ignore[arg-type]
+    assert done.dropped == (("m7", "slot for m7: blocked by m1, which the plan leaves on the counter"),)
+
+
+def test_mugs_that_block_each_other_are_dropped_as_blocked_in_turn_and_not_as_staying() -> None:
+    # m1 and m7 are in each other's way. For m7's slot the other big mugs are tried too: m2, blocked by m7
+    # and by m9, which has no slot, and m9 itself, out of reach. The slot's own mug is not named among its
+    # blockers.
+    other = _mug("m2", "big", 0.30, 0.52)
+    stays = _mug("m9", "big", 0.25, 0.50)
+    motion = _Refusing({"m1": {"m7"}, "m7": {"m1"}, "m2": {"m7", "m9"}})
+    done = sequence(motion, START_Q, [SLOT_7, SLOT_1], [FRONT, BEHIND, other, stays])  # type: ignore[arg-type]
+    assert done.cycles == ()
+    assert dict(done.dropped) == {
+        "m7": "slot for m7: blocked by m9, which the plan leaves on the counter"
+        " and by m1, whose own slots are blocked in turn",
+        "m1": "slot for m1: blocked by m7, whose own slots are blocked in turn",
+    }
