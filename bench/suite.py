@@ -249,6 +249,17 @@ def as_json(suite: SuiteRun) -> str:
             {"test": t.nodeid, "cpu_s": round(t.cpu_s, 2), "time_s": round(t.time_s, 2), "slow": t.slow}
             for t in costliest(suite.tests)
         ],
+        # Every test, the costliest first: what a run's top 10 leaves out (a suite's top 30, a before/after).
+        "by_test": [
+            {
+                "test": t.nodeid,
+                "outcome": t.outcome,
+                "cpu_s": round(t.cpu_s, 2),
+                "time_s": round(t.time_s, 2),
+                "slow": t.slow,
+            }
+            for t in costliest(suite.tests, len(suite.tests))
+        ],
     }
     return json.dumps(doc, indent=2)
 

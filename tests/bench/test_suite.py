@@ -230,6 +230,12 @@ def test_the_report_gives_the_not_slow_time_beside_the_slow_and_what_lies_outsid
         ("tests/replay/test_a.py::test_1", 0.5),
     ]
     assert [t.nodeid for t in costliest(RUN.tests, 1)] == ["tests/replay/test_a.py::test_2"]
+    # Every test, the costliest first, with its outcome.
+    assert [(s["test"], s["cpu_s"]) for s in doc["by_test"]] == [
+        (t.nodeid, round(t.cpu_s, 2)) for t in costliest(RUN.tests, len(RUN.tests))
+    ]
+    assert {s["outcome"] for s in doc["by_test"]} == {t.outcome for t in RUN.tests}
+    assert len(doc["by_test"]) == doc["tests"] == 5
     text = as_tables(RUN)
     assert text.startswith("bench suite: pytest -m 'not slow' (from the repository root)\n")
     assert "time by folder" in text

@@ -27,11 +27,12 @@ from tests.daemon.conftest import free_port
 from tests.recorder.foxglove_client import FoxgloveClient
 
 ROBOT = "live"
-# Three new clients, one after another: the first joins before the job's channels exist (the defects this
+# Two new clients, one after another: the first joins before the job's channels exist (the defects this
 # guards showed there: the first message of each channel made during the job lost, a subscription refused
-# with "Unknown channel ID"), the next two after earlier jobs made them, and every one must get the file's
-# header (every trial lost it before). Ten trials (docs/recording.md's measurement) show nothing three do not.
-TRIALS = 3
+# with "Unknown channel ID"), the second after an earlier job made them, and each must get the file's
+# header (every trial lost it before). Those are the two cases: a third client (the suite ran three, and ten
+# for docs/recording.md's measurement) joins as the second did and shows nothing the second does not.
+TRIALS = 2
 # Simulated time at 5x: about 1 500 messages a second, which a Python client on a busy machine reads with a
 # wide margin (the server keeps up to 65 536 per client). At ``--speed max`` the simulator writes tens of
 # thousands a second, more than any client reads: the SDK then drops the oldest for the client behind
@@ -86,7 +87,7 @@ async def _trial(url: str, topics: set[str], mugs: list[dict[str, object]]) -> F
 
 @pytest.mark.slow
 @pytest.mark.timeout(900)
-def test_three_live_clients_in_turn_receive_every_message_their_job_recorded(tmp_path: Path) -> None:
+def test_two_live_clients_in_turn_receive_every_message_their_job_recorded(tmp_path: Path) -> None:
     port = free_port()
     config = tmp_path / "robot.toml"
     config.write_text(f'robot_id = "{ROBOT}"\n[planner]\nmethod = "bh"\n[recording]\njob_tail_s = 0.5\n')

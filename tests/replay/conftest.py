@@ -23,6 +23,14 @@ def kinematic_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return record_job(tmp_path_factory.mktemp("kinematic"), world="kinematic", mugs=THREE_MUGS).path
 
 
+@pytest.fixture(scope="session")
+def one_mug_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A finished job on the kinematic cell: the first of the three mugs, seed 0 (read only: a test that
+    changes it writes a copy, ``copy_recording``)."""
+    directory = tmp_path_factory.mktemp("kinematic-one-mug")
+    return record_job(directory, world="kinematic", mugs=THREE_MUGS[:1]).path
+
+
 def copy_recording(
     source: Path, target: Path, change: Change, *, clock: Mapping[str, object] | None = None
 ) -> Path:

@@ -30,7 +30,7 @@ from replay.engine import ReplayReport, replay
 from replay.record import record_job
 from replay.session import RecordedSession
 from tests.fakes.daemon import loopback, serve_daemon
-from tests.replay.conftest import THREE_MUGS, copy_recording
+from tests.replay.conftest import copy_recording
 from tests.replay.faulty import counter_mugs, robot_config, run_with_faults
 from wire.messages import Failure, convert
 
@@ -258,8 +258,10 @@ def test_a_replay_that_runs_past_its_limit_says_so(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_motion_plans_are_served_from_the_recording_while_the_job_asks_the_same(tmp_path: Path) -> None:
-    job = record_job(tmp_path, world="kinematic", mugs=THREE_MUGS[:1]).path
+def test_motion_plans_are_served_from_the_recording_while_the_job_asks_the_same(
+    one_mug_job: Path, tmp_path: Path
+) -> None:
+    job = one_mug_job
     motions = [m.payload for m in read_messages(job) if m.topic.endswith("/input/motion")]
     assert motions
     assert all("result" in p for p in motions)
@@ -294,8 +296,8 @@ def test_a_kinematic_job_on_the_full_size_tray_replays_to_a_match(tmp_path: Path
 
 
 @pytest.mark.slow
-def test_twenty_replays_of_one_recording_give_identical_traces(tmp_path: Path) -> None:
-    session = RecordedSession.load(record_job(tmp_path, world="kinematic", mugs=THREE_MUGS[:1]).path)
+def test_twenty_replays_of_one_recording_give_identical_traces(one_mug_job: Path) -> None:
+    session = RecordedSession.load(one_mug_job)
 
     def trace(report: ReplayReport) -> object:
         t = report.replayed
