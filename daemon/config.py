@@ -417,6 +417,21 @@ def load_config(path: Path | None = None, *, overrides: Mapping[str, Any] | None
     return config
 
 
+def load_cell_and_planner(path: Path | None = None) -> tuple[CellLayout, PlannerConfig]:
+    """``load_config(path)``'s cell and planner settings, for a caller that needs no more (``dishbot
+    plan``). A file is loaded whole, and so checked whole, by ``load_config``; the embedded defaults alone
+    are the same on every run and checked by the tests, so of them only the ``[cell]``, ``[camera]`` and
+    ``[planner]`` tables are read, with the same checks: the other sections' checks were two thirds of
+    the load's CPU time."""
+    if path is not None:
+        config = load_config(path)
+        return config.cell, config.planner
+    root: _Root = _table(tomllib.loads(default_text()), _Root, "")
+    planner: PlannerConfig = _table(root.planner, PlannerConfig, "planner")
+    camera_spec, _ = _camera(root.camera)
+    return _cell(root.cell, camera_spec, tolerance_mm=planner.tolerance_mm), planner
+
+
 def _table(data: object, kind: type[Any], name: str) -> Any:
     return convert(data, kind, name=name, error=ConfigError, missing=_MISSING)
 

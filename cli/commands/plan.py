@@ -100,7 +100,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 def load_problem(args: argparse.Namespace) -> Problem:
     """The problem to plan, with the footprint ``--footprint``, the file or the config asks for."""
-    from daemon.config import load_config  # only when a dataset or the config's footprint is needed
+    from daemon.config import load_cell_and_planner  # only for a dataset or the config's footprint
 
     if args.footprint is not None and args.footprint not in FOOTPRINTS:
         raise UsageError(
@@ -114,9 +114,9 @@ def load_problem(args: argparse.Namespace) -> Problem:
             raise UsageError(f"--dataset: unknown dataset {args.dataset!r} (known: 1-{len(thesis.DATASETS)})")
         from planning.placement.datasets import cell_dataset_problem
 
-        config = load_config(args.config)
-        problem = cell_dataset_problem(config.cell, known[args.dataset])
-        return _with_footprint(problem, args.footprint or config.planner.footprint)
+        cell, planner = load_cell_and_planner(args.config)
+        problem = cell_dataset_problem(cell, known[args.dataset])
+        return _with_footprint(problem, args.footprint or planner.footprint)
     if args.problem is None:
         raise UsageError("give a PROBLEM.json (or - for stdin) or --dataset N")
     name = args.problem
@@ -138,7 +138,7 @@ def load_problem(args: argparse.Namespace) -> Problem:
         return _with_footprint(problem, args.footprint, name)
     if isinstance(doc, dict) and "footprint" in doc:
         return problem
-    return _with_footprint(problem, load_config(args.config).planner.footprint, name)
+    return _with_footprint(problem, load_cell_and_planner(args.config)[1].footprint, name)
 
 
 def _with_footprint(problem: Problem, footprint: str, where: str = "--footprint") -> Problem:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -256,3 +257,24 @@ def test_the_plan_verb_imports_only_what_its_path_uses(tmp_path: Path) -> None:
     script = script.replace("'--json'", f"'--json', '--png', {str(png)!r}")
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
     assert done.stdout.splitlines()[-1] == "0 ['cv2']"
+
+
+@pytest.mark.slow
+def test_numpy_loads_with_openblas_on_one_thread_and_the_environment_as_it_was() -> None:
+    """OpenBLAS starts a thread per core as numpy loads (they spin, about 25 ms of CPU) unless told
+    otherwise; the plan verb tells it, and puts the variable back. (On a one-core machine OpenBLAS starts
+    no thread either way.)"""
+    script = (
+        "import os, sys\nfrom cli.main import main\n"
+        "code = main(['plan', '--dataset', '1', '--footprint', 'rect', '--json'])\n"
+        "print(code, len(os.listdir('/proc/self/task')), os.environ.get('OPENBLAS_NUM_THREADS'))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    done = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        check=True,
+        env={**env, "DISHBOT_CACHE_DIR": ""},
+    )
+    assert done.stdout.splitlines()[-1] == "0 1 None"
