@@ -149,7 +149,6 @@ def _with_footprint(problem: Problem, footprint: str, where: str = "--footprint"
 
 
 def run(args: argparse.Namespace) -> int:
-    _load_numpy_single_threaded()
     # One short run that leaves next to no garbage in cycles (the plan's objects are freed by their reference
     # counts; its peak memory is the same either way): the cyclic collector's passes over the modules it
     # imports and the packer's many small tuples cost about 5 % of a plan's CPU, so it waits until the end.
@@ -191,6 +190,7 @@ def _run(args: argparse.Namespace) -> int:
     for flag, path in (("--svg", args.svg), ("--png", args.png)):
         if path is not None and not path.parent.resolve().is_dir():
             raise UsageError(f"{flag}: directory {str(path.parent)!r} does not exist")
+    _load_numpy_single_threaded()
     problem = load_problem(args)
     from planning.placement.cache import default_dir
 
