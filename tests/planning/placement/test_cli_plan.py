@@ -261,7 +261,7 @@ def test_the_plan_verb_imports_only_what_its_path_uses(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_numpy_loads_with_openblas_on_one_thread_and_the_environment_as_it_was() -> None:
-    """OpenBLAS starts a thread per core as numpy loads (they spin, about 25 ms of CPU) unless told
+    """OpenBLAS starts a thread per core as numpy loads (they spin, about 30 ms of CPU) unless told
     otherwise; the plan verb tells it, and puts the variable back. (On a one-core machine OpenBLAS starts
     no thread either way.)"""
     script = (
@@ -300,5 +300,5 @@ def test_the_plan_command_ends_without_the_interpreters_teardown_its_output_whol
     bad = command("plan", "--dataset", "9")
     assert bad.returncode == 2
     assert bad.stderr == "dishbot plan: error: --dataset: unknown dataset '9' (known: 1-6)\n"
-    # a verb without quick_exit, and main called with its argv, tear down as before
+    # a verb without quick_exit tears down as before (main(argv) returns: the test above)
     assert "teardown" in command("statechart").stderr
