@@ -9,11 +9,12 @@ plain install (no ``sim`` extra) can run them (tests/daemon/test_cli_imports.py 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import sys
 from collections.abc import Callable, Collection, Sequence
-from typing import Final, NamedTuple
+from typing import Final, NamedTuple, NoReturn
 
 from cli.extras import missing_extra
 from cli.logs import LEVELS, configure_cli_logging
@@ -23,11 +24,18 @@ class Verb(NamedTuple):
     """A top-level verb: the module whose ``register(subparsers)`` adds it, its line in ``--help``, and
     whether it can log. A verb that cannot (``logs=False``) never imports structlog, so the command line
     leaves it unconfigured and the verb starts without it (tests/daemon/test_cli_imports.py checks that
-    such a verb imports no structlog: nothing it runs could log to stdout unconfigured)."""
+    such a verb imports no structlog: nothing it runs could log to stdout unconfigured).
+
+    ``quick_exit``: when the verb runs as the process's command (``main()`` without ``argv``), the process
+    ends as soon as it returns and its output is flushed, without the interpreter's teardown (collecting
+    and freeing every object of the libraries it loaded, their C++ destructors): about a tenth of a
+    ``dishbot plan`` (45 ms of CPU). Only for a verb that leaves nothing to finish: no threads, no log
+    handlers, its files written whole before it returns."""
 
     module: str
     help: str
     logs: bool = True
+    quick_exit: bool = False
 
 
 # Every verb in the order ``dishbot --help`` lists them, as its module registers them (the listing is
@@ -45,7 +53,9 @@ VERBS: Final[dict[str, Verb]] = {
     "record": Verb(
         "cli.commands.record", "inspect session recordings (MCAP): summary and outcome, or a picture"
     ),
-    "plan": Verb("cli.commands.plan", "plan the mugs' tray positions and placing order", logs=False),
+    "plan": Verb(
+        "cli.commands.plan", "plan the mugs' tray positions and placing order", logs=False, quick_exit=True
+    ),
     "run": Verb(
         "cli.commands.run",
         "run the daemon (simulated cell with --sim); --once runs one loading job and exits",
@@ -159,7 +169,30 @@ def parse(argv: Sequence[str] | None = None) -> argparse.Namespace:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Runs the verb of ``argv`` (None: the process's own command line) and returns its exit code; with
+    ``argv`` None a ``quick_exit`` verb ends the process instead (``Verb``)."""
     args = parse(argv)
+    code = _run(args)
+    if argv is None and VERBS[args.command].quick_exit:
+        _exit_now(code)
+    return code
+
+
+def _exit_now(code: int) -> NoReturn:
+    """Ends the process with ``code`` once stdout and stderr are flushed (a reader gone from stdout: 141, as
+    ``main`` says it)."""
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        code = 141
+    except (OSError, ValueError):
+        pass
+    with contextlib.suppress(OSError, ValueError):
+        sys.stderr.flush()
+    os._exit(code)
+
+
+def _run(args: argparse.Namespace) -> int:
     # Here, not at the top: ``--help`` exits in ``parse`` without the validator these errors build on.
     from daemon.errors import ConfigError, UsageError
 

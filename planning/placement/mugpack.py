@@ -156,6 +156,11 @@ class MugPacker:
             lambda: defaultdict(list)
         )
         self._spot_of: dict[int, tuple[int, int]] = {}  # id of a placed mug's (cached) Row -> its spot
+        # per placed spot (class, flat corner) and group: the window of the group's grid its brim reaches
+        # and which corners there stay free (``_block_discs``; most placements are on spots placed before),
+        # the windows' masks shared between spots whose brims sit alike on the grid
+        self._discs: dict[tuple[int, int, int], tuple[int, int, int, int, BoolArray] | None] = {}
+        self._disc_masks: dict[tuple[float, bytes, bytes], BoolArray] = {}
         # Classes of one type share the grid and the brim discs: their masks are kept and updated together.
         by_type: dict[str, list[int]] = defaultdict(list)
         for k, c in enumerate(self.classes):
@@ -269,29 +274,47 @@ class MugPacker:
             self._spot_of[id(mine)] = (k, cell)
             if not to_come[step]:
                 continue
-            self._block_discs(free, mine, to_come[step])
+            self._block_discs(free, mine, (k, cell), to_come[step])
             for other, corners in self._refuses[(k, cell)].items():
                 og, om = self.group_of[other]
                 if corners and og in to_come[step]:  # what earlier packings found too close to this spot
                     free[og][om].reshape(-1)[corners] = False
         return spots
 
-    def _block_discs(self, free: list[BoolArray], placed: Row, groups: frozenset[int]) -> None:
+    def _block_discs(
+        self, free: list[BoolArray], placed: Row, spot: tuple[int, int], groups: frozenset[int]
+    ) -> None:
         """Clears, in the masks of the classes of ``groups``, the corners whose brim comes closer than both
-        radii and the clearance to the brim of the mug ``placed``."""
-        px, py, radius = placed[0], placed[1], placed[2]
+        radii and the clearance to the brim of the mug ``placed`` (on ``spot``: the window is worked out
+        once per spot and group, and kept)."""
         for g in groups:
-            group = self.groups[g]
-            near = group.radius + radius + self.clearance
-            xs, ys = group.corners
-            i0 = bisect.bisect_left(xs, px - near - group.offset)
-            i1 = bisect.bisect_right(xs, px + near - group.offset)
-            j0 = bisect.bisect_left(ys, py - near - group.offset)
-            j1 = bisect.bisect_right(ys, py + near - group.offset)
-            if i0 >= i1 or j0 >= j1:
-                continue
-            dx, dy = group.bx[i0:i1] - px, group.by[j0:j1] - py
-            free[g][:, i0:i1, j0:j1] &= (dx * dx)[:, None] + (dy * dy)[None, :] >= (near - 1e-6) ** 2
+            key = (*spot, g)
+            if key not in self._discs:
+                self._discs[key] = self._disc(placed, g)
+            disc = self._discs[key]
+            if disc is not None:
+                i0, i1, j0, j1, keep = disc
+                free[g][:, i0:i1, j0:j1] &= keep
+
+    def _disc(self, placed: Row, g: int) -> tuple[int, int, int, int, BoolArray] | None:
+        """The window of group ``g``'s grid (rows i0:i1, columns j0:j1) within reach of the brim of the mug
+        ``placed``, and its corners whose brims keep clear of it; None when the window is empty."""
+        px, py, radius = placed[0], placed[1], placed[2]
+        group = self.groups[g]
+        near = group.radius + radius + self.clearance
+        xs, ys = group.corners
+        i0 = bisect.bisect_left(xs, px - near - group.offset)
+        i1 = bisect.bisect_right(xs, px + near - group.offset)
+        j0 = bisect.bisect_left(ys, py - near - group.offset)
+        j1 = bisect.bisect_right(ys, py + near - group.offset)
+        if i0 >= i1 or j0 >= j1:
+            return None
+        dx, dy = group.bx[i0:i1] - px, group.by[j0:j1] - py
+        shape = (near, dx.tobytes(), dy.tobytes())
+        keep = self._disc_masks.get(shape)
+        if keep is None:
+            keep = self._disc_masks[shape] = (dx * dx)[:, None] + (dy * dy)[None, :] >= (near - 1e-6) ** 2
+        return i0, i1, j0, j1, keep
 
     def yaw_at(self, k: int, x: int, y: int) -> float:
         c = self.classes[k]
@@ -403,6 +426,9 @@ def _scan_orders(
     # an arc scan's key is the same in both directions (only its ties differ): sorted once per slant
     arc_ranks: dict[float, npt.NDArray[np.int64]] = {0.0: by_distance}
     place_by_bearing = {d: _places(np.argsort(d * bearing, kind="stable")) for d in (1, -1)}
+    # a radial column scan's key is the negation of the one of the other direction and the opposite slant
+    # (float negation is exact): sorted once per pair, the other one's keys in the reverse order
+    column_ranks: dict[tuple[int, float], npt.NDArray[np.int64]] = {}
     orders: dict[Scan, npt.NDArray[np.int32]] = {}
     for scan in SCANS:
         axis, slant, direction = scan
@@ -419,7 +445,14 @@ def _scan_orders(
                 arc_ranks[slant] = np.argsort(key, kind="stable")
             order = _ties_by(key, place_by_bearing[direction], arc_ranks[slant].copy())
         else:
-            order = _ties_by(direction * BEARING_MM * bearing + slant * distance, place_by_distance)
+            key = direction * BEARING_MM * bearing + slant * distance
+            paired = column_ranks.pop((-direction, -slant), None)
+            if paired is None:
+                ranks = np.argsort(key, kind="stable")
+                column_ranks[(direction, slant)] = ranks.copy()
+            else:
+                ranks = paired[::-1].copy()
+            order = _ties_by(key, place_by_distance, ranks)
         kept = order.astype(np.int32)
         kept.flags.writeable = False
         orders[scan] = kept
@@ -446,7 +479,8 @@ def _ties_by(
     """The indices sorted by ``key``, ties by ``place``: ``_stable_by`` for the permutation whose places
     ``place`` gives, sorting the keys in their own order (a polar key runs monotonically along much of each
     grid column, which the stable sort's runs take whole) and then only the runs of equal keys by place.
-    ``ranks``: ``key``'s stable argsort when the caller has it (a scratch copy: it is reordered here)."""
+    ``ranks``: indices that sort ``key`` when the caller has them, in any order among equal keys (a
+    scratch copy: it is reordered here)."""
     if ranks is None:
         ranks = np.argsort(key, kind="stable")
     ordered = key[ranks]
@@ -485,7 +519,7 @@ def _first_clear(
     work; each corner found too close goes to ``refused`` with the placed mug it is too close to. Past them
     the corners go to ``clear_of_all`` in growing batches."""
     if not placed:  # nothing to keep clear of: the first free corner
-        rest = np.flatnonzero(free[order[start:]])
+        rest = free[order[start:]].nonzero()[0]
         return (int(order[start + rest[0]]), start + int(rest[0])) if rest.size else (-1, order.size)
     chunk = CHUNK
     pos = start
@@ -495,7 +529,7 @@ def _first_clear(
     hypot = math.hypot
     while tries and pos < order.size:
         idx = order[pos : pos + chunk]
-        found = np.flatnonzero(free[idx])
+        found = free[idx].nonzero()[0]  # (a 1-D array: flatnonzero without its wrappers)
         for part in range(0, found.size, 32):  # the first is usually clear: Python ints for a few at a time
             some = found[part : part + 32]
             for at, cell in zip(some.tolist(), idx[some].tolist(), strict=True):
@@ -527,7 +561,7 @@ def _first_clear(
     batch = BATCH
     while pos < order.size:
         idx = order[pos : pos + chunk]
-        found = np.flatnonzero(free[idx])
+        found = free[idx].nonzero()[0]
         done = 0
         while done < found.size:
             take = found[done : done + batch]

@@ -8,15 +8,17 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
-from planning.interfaces import TraySlot
 from planning.placement.context import Candidate, Context, PlanOptions
 from planning.placement.errors import InvalidProblem
 from planning.placement.order import execution_order
 from planning.placement.problem import Problem
 from planning.placement.sorts import Sort, sorted_order
 from validation import UNKNOWN_KEYS_IGNORED, Invalid, convert
+
+if TYPE_CHECKING:
+    from planning.interfaces import TraySlot
 
 METHODS = ("auto", "exact", "bh", "sa", "ga", "psop-n", "psop-i", "psok-n", "psok-i")
 
@@ -69,6 +71,8 @@ class PlanResult:
     def slots(self, problem: Problem) -> tuple[TraySlot, ...]:
         """The planned spots as the motion planner takes them (brim centre in the world frame, metres), in
         placing order."""
+        from planning.interfaces import TraySlot  # only the motion planner's callers need it
+
         out = []
         for p in self.placed:
             x, y = problem.to_world_mm(*problem.brim_centre_on_tray(p.type, p.x_mm, p.y_mm))

@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 
 from cli.main import main
-from daemon.config import load_config, parse_config, to_toml
+from daemon.config import load_cell_and_planner, load_config, parse_config, to_toml
 from daemon.errors import ConfigError
 from description import thesis
 from description.camera import CameraSpec
@@ -27,6 +27,21 @@ def test_the_embedded_defaults_load() -> None:
     assert config.zenoh.listen == ("tcp/127.0.0.1:3474",)
     assert [m.name for m in config.mug_types] == ["big", "small"]
     assert config.mug_type("big").diameter_mm == 91
+
+
+def test_the_cell_and_planner_alone_are_those_of_the_whole_config(tmp_path: Path) -> None:
+    """``dishbot plan`` reads only the embedded defaults' cell and planner tables; a file is still loaded and
+    checked whole, so a bad value anywhere in it fails as ``load_config`` fails."""
+    config = load_config()
+    assert load_cell_and_planner() == (config.cell, config.planner)
+    path = tmp_path / "robot.toml"
+    path.write_text('[planner]\nfootprint = "rect"\n[cell]\ntray_size_mm = [300, 350]\n')
+    config = load_config(path)
+    assert load_cell_and_planner(path) == (config.cell, config.planner)
+    assert (config.planner.footprint, config.cell.tray.size_mm) == ("rect", (300, 350))
+    path.write_text("[hardware]\nbaudrate = 12\n")
+    with pytest.raises(ConfigError, match=r"^hardware\.baudrate: "):
+        load_cell_and_planner(path)
 
 
 def test_a_file_overrides_only_the_keys_it_names(tmp_path: Path) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -256,3 +257,48 @@ def test_the_plan_verb_imports_only_what_its_path_uses(tmp_path: Path) -> None:
     script = script.replace("'--json'", f"'--json', '--png', {str(png)!r}")
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
     assert done.stdout.splitlines()[-1] == "0 ['cv2']"
+
+
+@pytest.mark.slow
+def test_numpy_loads_with_openblas_on_one_thread_and_the_environment_as_it_was() -> None:
+    """OpenBLAS starts a thread per core as numpy loads (they spin, about 30 ms of CPU) unless told
+    otherwise; the plan verb tells it, and puts the variable back. (On a one-core machine OpenBLAS starts
+    no thread either way.)"""
+    script = (
+        "import os, sys\nfrom cli.main import main\n"
+        "code = main(['plan', '--dataset', '1', '--footprint', 'rect', '--json'])\n"
+        "print(code, len(os.listdir('/proc/self/task')), os.environ.get('OPENBLAS_NUM_THREADS'))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    done = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        check=True,
+        env={**env, "DISHBOT_CACHE_DIR": ""},
+    )
+    assert done.stdout.splitlines()[-1] == "0 1 None"
+
+
+@pytest.mark.slow
+def test_the_plan_command_ends_without_the_interpreters_teardown_its_output_whole(tmp_path: Path) -> None:
+    """Run as the process's command, ``dishbot plan`` ends once its output is flushed: no teardown (an
+    exit handler never runs), the same JSON and exit codes as when ``main`` returns."""
+
+    def command(*argv: str) -> subprocess.CompletedProcess[str]:
+        script = (
+            "import atexit, sys\nfrom cli.main import main\n"
+            "atexit.register(lambda: print('teardown', file=sys.stderr))\n"
+            f"sys.argv = ['dishbot', *{list(argv)!r}]\nsys.exit(main())\n"
+        )
+        env = {**os.environ, "DISHBOT_CACHE_DIR": ""}
+        return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env)
+
+    done = command("plan", "--dataset", "1", "--footprint", "rect", "--json")
+    assert (done.returncode, done.stderr) == (0, "")
+    assert json.loads(done.stdout)["n"] == 10
+    bad = command("plan", "--dataset", "9")
+    assert bad.returncode == 2
+    assert bad.stderr == "dishbot plan: error: --dataset: unknown dataset '9' (known: 1-6)\n"
+    # a verb without quick_exit tears down as before (main(argv) returns: the test above)
+    assert "teardown" in command("statechart").stderr
