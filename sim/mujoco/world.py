@@ -240,8 +240,9 @@ class SimWorld:
         self._watched_flat = self._watched_pairs.ravel()
         self._watched_holding: dict[int, np.ndarray] = {}
         self._support_tables: dict[int, np.ndarray] = {}
-        # A contact's geom pair (a row of ``data.contact.geom``) times this is its key in the flat tables.
-        self._pair_key = np.array([self._ngeom, 1], dtype=np.int64)
+        # A contact's geom pair (a row of ``data.contact.geom``, int32 as MuJoCo keeps ids) times this is
+        # its key in the flat tables; the same integer type on both sides keeps the product one C loop.
+        self._pair_key = np.array([self._ngeom, 1], dtype=np.int32)
         self._geom_mug_list: list[int] = self.geom_mug.tolist()
         self._geom_body_list: list[int] = self.model.geom_bodyid.tolist()
         self._mug_index = {m: i for i, m in enumerate(self.mug_ids)}
@@ -376,10 +377,17 @@ class SimWorld:
         """A new goal position and moving speed for one servo (``speed_rad_s`` <= 0: as fast as it can).
 
         Lock-free (two attribute writes the physics thread reads each step): the bus simulator must never
-        wait for a batch of physics steps, or the driver sees a servo that does not answer."""
+        wait for a batch of physics steps, or the driver sees a servo that does not answer. The goal and
+        speed a servo already has (half the goals a job streams) change nothing: a set-point at its goal
+        stays settled, and MuJoCo goes on stepping in runs."""
         s = self._servo(servo_id)
-        self._speed[s.index] = float(s.max_speed if speed_rad_s <= 0.0 else min(speed_rad_s, s.max_speed))
-        self._goal[s.index] = float(min(max(position_rad, s.lower), s.upper))
+        speed = float(s.max_speed if speed_rad_s <= 0.0 else min(speed_rad_s, s.max_speed))
+        goal = float(min(max(position_rad, s.lower), s.upper))
+        i = s.index
+        if goal == self._goal[i] and speed == self._speed[i]:
+            return
+        self._speed[i] = speed
+        self._goal[i] = goal
         self._goal_gen += 1
 
     def present(self, servo_id: int) -> tuple[float, float, float]:
