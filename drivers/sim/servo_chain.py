@@ -63,6 +63,10 @@ class SimServo:
     # What the present registers were last synced from: the plant's (position, velocity, load) and the
     # error bits; None after anything else wrote the table (see ``ServoChainSimulator._sync_from_plant``).
     synced: tuple[float, float, float, int] | None = None
+    # What the synced registers hold: the present position, speed and load ticks and the error bits (a new
+    # plant state that rounds to the same ticks leaves the table, and the status packets answered from it,
+    # as they are); None after anything else wrote the table.
+    registers: tuple[int, int, int, int] | None = None
     live: int | None = None  # the error bits of the present conditions; None: to be worked out again
     # Status packets answered since the table last changed, by (address, length, error bits): an idle
     # servo's answer is the same bytes again.
@@ -122,6 +126,7 @@ class SimServo:
             self.spec.reg(name)
             raise
         self.table[address : address + size] = _le(value, size)
+        self.registers = None
         if self.packets:
             self.packets.clear()
         if name in _CONDITION_REGISTERS:
@@ -589,7 +594,7 @@ class ServoChainSimulator(SimulatedDevice):
         checked = span.goal or span.id
         saved = bytes(servo.table[address:end]) if checked else b""  # all the write changes
         servo.table[address:end] = data
-        servo.synced = None  # the host may have written over the present registers too
+        servo.synced = servo.registers = None  # the host may have written over the present registers too
         if servo.packets:
             servo.packets.clear()
         if span.conditions:
@@ -692,23 +697,28 @@ class ServoChainSimulator(SimulatedDevice):
 
     def _sync_from_plant(self, servo: SimServo) -> None:
         """Bring the present registers up to the plant's state. A servo whose plant state (and error bits)
-        are what the table was last synced from, with nothing written since, already reads right: the
-        registers are not rewritten (a servo at rest, or read twice at one simulated instant)."""
+        are what the table was last synced from, or round to the ticks it holds, with nothing written since,
+        already reads right: the registers are not rewritten (a servo at rest, or read twice at one
+        simulated instant), and the status packets answered from them stay cached."""
         position, velocity, load = self.plant.present(servo.servo_id)
         state = (position, velocity, load, servo.hardware_error)
         if servo.synced == state:
             return
         servo.synced = state
         spec = servo.spec
+        present = spec.ticks_from_rad(position)
+        registers = (present, spec.velocity_to_ticks(velocity), spec.load_to_ticks(load), state[3])
+        if servo.registers == registers:
+            return  # a servo at rest: the plant's state moved by less than a tick
+        servo.registers = registers
         table = servo.table
         # The registers written in place (what ``SimServo.set`` would write, without its per-name lookups):
         # none of them is one the live conditions are read from. The position tick is clamped to the
         # servo's range, so it is its own register value and reads back as itself.
         (pa, ps, _), (sa, ss, _), (la, ls, _), (ga, gs, gsigned) = servo.present
-        present = spec.ticks_from_rad(position)
         table[pa : pa + ps] = present.to_bytes(ps, "little")
-        table[sa : sa + ss] = _le(spec.velocity_to_ticks(velocity), ss)
-        table[la : la + ls] = _le(spec.load_to_ticks(load), ls)
+        table[sa : sa + ss] = _le(registers[1], ss)
+        table[la : la + ls] = _le(registers[2], ls)
         goal = int.from_bytes(table[ga : ga + gs], "little", signed=gsigned)
         table[servo.moving_at] = int(abs(goal - present) > 2)
         if servo.hardware_error_at >= 0:

@@ -222,6 +222,8 @@ class SimWorld:
         self._settled_gen = -1
         # Each servo's (position, velocity, load) as of the last batch of steps, by index.
         self._present: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),) * len(ordered)
+        # The physics moved since ``_present`` was taken (never set in the world's own thread).
+        self._present_due = False
         self._mug_body = {m: self._id(mujoco.mjtObj.mjOBJ_BODY, MUG_BODY_PREFIX + m) for m in self.mug_ids}
         self._weld = {m: self._id(mujoco.mjtObj.mjOBJ_EQUALITY, WELD_PREFIX + m) for m in self.mug_ids}
         self._fsr_pad = self._id(mujoco.mjtObj.mjOBJ_GEOM, FSR_PAD_GEOM)
@@ -237,6 +239,10 @@ class SimWorld:
         self._ngeom = int(self.model.ngeom)
         self._watched_flat = self._watched_pairs.ravel()
         self._watched_holding: dict[int, np.ndarray] = {}
+        self._support_tables: dict[int, np.ndarray] = {}
+        # A contact's geom pair (a row of ``data.contact.geom``, int32 as MuJoCo keeps ids) times this is
+        # its key in the flat tables; the same integer type on both sides keeps the product one C loop.
+        self._pair_key = np.array([self._ngeom, 1], dtype=np.int32)
         self._geom_mug_list: list[int] = self.geom_mug.tolist()
         self._geom_body_list: list[int] = self.model.geom_bodyid.tolist()
         self._mug_index = {m: i for i, m in enumerate(self.mug_ids)}
@@ -371,15 +377,28 @@ class SimWorld:
         """A new goal position and moving speed for one servo (``speed_rad_s`` <= 0: as fast as it can).
 
         Lock-free (two attribute writes the physics thread reads each step): the bus simulator must never
-        wait for a batch of physics steps, or the driver sees a servo that does not answer."""
+        wait for a batch of physics steps, or the driver sees a servo that does not answer. The goal and
+        speed a servo already has (half the goals a job streams) change nothing: a set-point at its goal
+        stays settled, and MuJoCo goes on stepping in runs."""
         s = self._servo(servo_id)
-        self._speed[s.index] = float(s.max_speed if speed_rad_s <= 0.0 else min(speed_rad_s, s.max_speed))
-        self._goal[s.index] = float(min(max(position_rad, s.lower), s.upper))
+        speed = float(s.max_speed if speed_rad_s <= 0.0 else min(speed_rad_s, s.max_speed))
+        goal = float(min(max(position_rad, s.lower), s.upper))
+        i = s.index
+        if goal == self._goal[i] and speed == self._speed[i]:
+            return
+        self._speed[i] = speed
+        self._goal[i] = goal
         self._goal_gen += 1
 
     def present(self, servo_id: int) -> tuple[float, float, float]:
         """Present position (rad), velocity (rad/s) and load (signed fraction of the stall torque), as of
-        the last physics step. Lock-free, like ``set_goal``."""
+        the last physics step. Lock-free, like ``set_goal``, while the world steps in its own thread; stepped
+        by a clock or ``step_for``, the first read after a batch of steps takes the snapshot (under the lock,
+        which nobody else holds then)."""
+        if self._present_due:
+            with self.lock:
+                if self._present_due:
+                    self._publish_present()
         return self._present[self._servo(servo_id).index]
 
     def set_torque(self, servo_id: int, on: bool) -> None:
@@ -652,8 +671,13 @@ class SimWorld:
                 self._next_monitor = data.time + self.physics.monitor_period_s
                 self._monitor()
         # Once per batch: stepped by a clock, nobody reads between the steps of a batch (they run on the
-        # reader's thread); in the world's own thread a batch is at most ``max_batch_s`` of real time.
-        self._publish_present()
+        # reader's thread), so the snapshot is taken when it is first read (most batches end at an FSR
+        # sample, with no servo read before the next one); in the world's own thread a batch is at most
+        # ``max_batch_s`` of real time and the snapshot is taken at once, so a reader never waits for a batch.
+        if self._thread is None:
+            self._present_due = True
+        else:
+            self._publish_present()
         if not math.isfinite(_sum(data.qpos)):  # a sum is NaN or infinite when any term is
             raise SimModelError(f"the simulation diverged at t={self.time():.3f} s (non-finite positions)")
 
@@ -672,6 +696,7 @@ class SimWorld:
 
     def _publish_present(self) -> None:
         """Swap in a fresh snapshot of every servo's state (one reference assignment: atomic for readers)."""
+        self._present_due = False
         d = self.data
         loads = [
             min(max(force / stall, -1.0), 1.0)
@@ -707,44 +732,59 @@ class SimWorld:
     def _monitor(self) -> None:
         grip = self._scan_contacts()
         now = self.time()
-        jaw = self._gripper_servo
-        aperture = self.arm.gripper.aperture_m(float(self.data.qpos[jaw.qpos_adr]))
-        self._force_n = self._squeeze_n(aperture) if self._held is not None else grip.pad_force_n
-        if self._held is not None and grip.support_force_n > self.physics.support_force_n:
+        if self._held is None:
+            self._force_n = grip.pad_force_n
+            if grip is not _NO_CONTACTS:  # without a contact on the pads nothing can be welded
+                self._weld_if_grasped(grip)
+        else:
+            self._watch_grasp(grip, now)
+        if self._slipping:
+            self._end_slip_when_opened()
+        for listener in self._listeners:
+            listener(self, now, grip.contacts)
+
+    def _jaw_aperture_m(self) -> float:
+        return self.arm.gripper.aperture_m(float(self.data.qpos[self._gripper_servo.qpos_adr]))
+
+    def _weld_if_grasped(self, grip: _GripContacts) -> None:
+        """Weld the mug squeezed between both pads hard enough, resting on nothing else (nothing held)."""
+        between = grip.thumb_mugs & grip.finger_mugs
+        if (
+            grip.pad_force_n >= self.physics.weld_force_n
+            and len(between) == 1
+            and grip.support_force_n <= 0.1 * self.physics.support_force_n
+        ):
+            mug = self.mug_ids[next(iter(between))]
+            if mug not in self._slipping:
+                self._weld_mug(mug, self._jaw_aperture_m())
+
+    def _watch_grasp(self, grip: _GripContacts, now: float) -> None:
+        """The held mug's force reading, and the weld let go when it is supported, the jaw opens or the
+        force stays low."""
+        aperture = self._jaw_aperture_m()
+        self._force_n = self._squeeze_n(aperture)
+        if grip.support_force_n > self.physics.support_force_n:
             # Pressed onto something: from here friction alone decides, so the mug can slide in the grasp.
             self._release(reason="supported")
             self._force_n = self._pad_force_n()
-        elif self._held is None:
-            between = grip.thumb_mugs & grip.finger_mugs
-            if (
-                grip.pad_force_n >= self.physics.weld_force_n
-                and len(between) == 1
-                and grip.support_force_n <= 0.1 * self.physics.support_force_n
-            ):
-                mug = self.mug_ids[next(iter(between))]
-                if mug not in self._slipping:
-                    self._weld_mug(mug, aperture)
+            return
+        opened = aperture >= self._held_aperture_m + self.physics.release_opening_m
+        if self._force_n < self.physics.release_force_n:
+            self._low_force_since = self._low_force_since if self._low_force_since is not None else now
         else:
-            opened = aperture >= self._held_aperture_m + self.physics.release_opening_m
-            if self._force_n < self.physics.release_force_n:
-                self._low_force_since = self._low_force_since if self._low_force_since is not None else now
-            else:
-                self._low_force_since = None
-            weak = (
-                self._low_force_since is not None
-                and now - self._low_force_since >= self.physics.release_after_s
-            )
-            if opened or weak:
-                self._release(reason="opened" if opened else "force_lost")
-        if (
-            self._slipping
-            and self.arm.gripper.aperture_m(float(self._goal[jaw.index])) > self._held_aperture_m + 0.005
-        ):
+            self._low_force_since = None
+        since = self._low_force_since
+        weak = since is not None and now - since >= self.physics.release_after_s
+        if opened or weak:
+            self._release(reason="opened" if opened else "force_lost")
+
+    def _end_slip_when_opened(self) -> None:
+        """Give the pads their grip back once the jaw is commanded open past the slipped grasp."""
+        jaw = self._gripper_servo
+        if self.arm.gripper.aperture_m(float(self._goal[jaw.index])) > self._held_aperture_m + 0.005:
             self._slipping.clear()
             self.model.geom_friction[self._gripper_geoms] = self._gripper_friction
             self.model.geom_priority[self._gripper_geoms] = 0
-        for listener in self._listeners:
-            listener(self, now, grip.contacts)
 
     def _squeeze_n(self, aperture_m: float) -> float:
         """What the FSR reads while the weld carries the mug.
@@ -759,50 +799,46 @@ class SimWorld:
     def _scan_contacts(self) -> _GripContacts:
         """Mug-mug and gripper-mug contacts of this instant, and what they mean for the grasp.
 
-        Vectorised over MuJoCo's contact arrays: the watched geom pairs are looked up in one table, and a
-        contact's normal force is read straight from the constraint forces (with the elliptic friction cone
-        the cell uses, ``mj_contactForce`` copies exactly these numbers). Python touches only the contacts
-        that may be collisions or grasps; while a mug is held (half of all monitor ticks in a job), the
-        gripper's own contacts on it are masked out in numpy and never reach a listener (they are never
-        collisions), and the pad force is the squeeze model's, so the pads' sum is not taken
-        (``_pad_force_n`` works it out when the grasp lets go)."""
+        Vectorised over MuJoCo's contact arrays: each contact's geom pair becomes one key (``geom1 * ngeom +
+        geom2``, a single matrix product), and every question asked of the contacts is one lookup of the
+        keys in a precomputed flat pair table: whether the pair is watched, and whether it pushes on a given
+        mug from anything but the gripper (the support force). A contact's normal force is read straight
+        from the constraint forces (with the elliptic friction cone the cell uses, ``mj_contactForce``
+        copies exactly these numbers). Python touches only the contacts that may be collisions or grasps;
+        while a mug is held (half of all monitor ticks in a job), the gripper's own contacts on it are
+        masked out by the table and never reach a listener (they are never collisions), and the pad force
+        is the squeeze model's, so the pads' sum is not taken (``_pad_force_n`` works it out when the grasp
+        lets go)."""
         data = self.data
         if data.ncon == 0:
             return _NO_CONTACTS
         contact = data.contact
         geom = contact.geom
-        g1, g2 = geom[:, 0], geom[:, 1]
-        pairs = g1 * self._ngeom + g2
+        pairs = geom @ self._pair_key
         held = self._held
         if held is None:
-            looked_at = np.flatnonzero(self._watched_flat[pairs])
+            looked_at = self._watched_flat[pairs].nonzero()[0]
             if looked_at.size == 0:
                 return _NO_CONTACTS
         else:
             h = self._mug_index[held]
-            looked_at = np.flatnonzero(self._watched_while_holding(h)[pairs])
-            m1, m2 = self.geom_mug[g1], self.geom_mug[g2]
-            in1, in2 = m1 == h, m2 == h  # the held mug's contacts, by the side it is on
-            gripper1, gripper2 = self.geom_gripper[g1], self.geom_gripper[g2]
+            looked_at = self._watched_while_holding(h)[pairs].nonzero()[0]
         grip = _GripContacts()
         efc_address = contact.efc_address
         efc_force = data.efc_force
         if looked_at.size:
-            self._read_contacts(grip, g1, g2, looked_at, efc_address, efc_force, contact.pos)
+            self._read_contacts(grip, geom, looked_at, efc_address, efc_force, contact.pos)
         # What else pushes on the mug in the gripper (or about to be): the table, the tray, another mug.
-        candidates = list(grip.thumb_mugs & grip.finger_mugs)
         if held is None:
+            candidates = grip.thumb_mugs & grip.finger_mugs
             if not candidates:
                 return grip
-            m1, m2 = self.geom_mug[g1], self.geom_mug[g2]
-            gripper1, gripper2 = self.geom_gripper[g1], self.geom_gripper[g2]
-            in1, in2 = m1 == candidates[0], m2 == candidates[0]
-            candidates = candidates[1:]
-        # One or two mugs: comparisons beat np.isin, whose set machinery dominated this scan.
-        for c in candidates:
-            in1 |= m1 == c
-            in2 |= m2 == c
-        mine = in1 & ~gripper2 | in2 & ~gripper1
+            first, *rest = candidates
+            mine = self._supporting(first)[pairs]
+            for c in rest:
+                mine |= self._supporting(c)[pairs]
+        else:
+            mine = self._supporting(h)[pairs]
         for address in efc_address[mine].tolist():
             grip.support_force_n += float(efc_force[address]) if address >= 0 else 0.0
         return grip
@@ -817,11 +853,22 @@ class SimWorld:
             table = self._watched_holding[mug] = (self._watched_pairs & ~(grasp | grasp.T)).ravel()
         return table
 
+    def _supporting(self, mug: int) -> np.ndarray:
+        """The flat pair table of the contacts that push on mug number ``mug`` from anything but the
+        gripper (one geom the mug's, the other not the gripper's, in either order), worked out the first
+        time it is asked for."""
+        table = self._support_tables.get(mug)
+        if table is None:
+            own = self.geom_mug == mug
+            not_gripper = ~self.geom_gripper
+            one_way = own[:, None] & not_gripper[None, :]
+            table = self._support_tables[mug] = (one_way | one_way.T).ravel()
+        return table
+
     def _read_contacts(
         self,
         grip: _GripContacts,
-        g1: np.ndarray,
-        g2: np.ndarray,
+        geom: np.ndarray,
         looked_at: np.ndarray,
         efc_address: np.ndarray,
         efc_force: np.ndarray,
@@ -831,9 +878,8 @@ class SimWorld:
         which mugs touch the thumb and the finger, and a sample of each for the listeners."""
         geom_mug, body = self._geom_mug_list, self._geom_body_list
         fsr_pad, tool_body, finger_body = self._fsr_pad, self._tool_body, self._finger_body
-        for a, b, address, p in zip(
-            g1[looked_at].tolist(),
-            g2[looked_at].tolist(),
+        for (a, b), address, p in zip(
+            geom[looked_at].tolist(),
             efc_address[looked_at].tolist(),
             pos[looked_at].tolist(),
             strict=True,

@@ -97,3 +97,52 @@ def test_a_servo_moved_to_another_id_is_read_there() -> None:
         assert after[9].servo_id == 9
 
     run(body)
+
+
+class _HeldPlant:
+    """A plant whose servos are where the test says (a fake of the physical world)."""
+
+    def __init__(self) -> None:
+        self.state: dict[int, tuple[float, float, float]] = {}
+
+    def set_goal(self, servo_id: int, position_rad: float, speed_rad_s: float) -> None:
+        pass
+
+    def present(self, servo_id: int) -> tuple[float, float, float]:
+        return self.state.get(servo_id, (0.0, 0.0, 0.0))
+
+    def set_torque(self, servo_id: int, on: bool) -> None:
+        pass
+
+
+def test_a_servo_moved_by_less_than_a_tick_reads_alike_and_registers_written_over_read_the_plant_again() -> (
+    None
+):
+    clock = SimulatedClock()
+    plant = _HeldPlant()
+    plant.state[1] = (0.3, 0.2, 0.1)
+
+    async def main() -> None:
+        sim = ServoChainSimulator(default_chain(), plant=plant)
+        sim.start_in_process(clock)
+        try:
+            config = BusConfig(sim.device_path, protocol=1)
+            async with ServoChain(
+                config, default_chain(), clock=clock, read_timeout_s=0.005, open_serial=sim.open_serial
+            ) as chain:
+                first = (await chain.call(lambda bus: bus.read_states([1])))[1]
+                plant.state[1] = (0.3 + 1e-7, 0.2 + 1e-7, 0.1 + 1e-7)  # well under a tick of each
+                assert (await chain.call(lambda bus: bus.read_states([1])))[1] == first
+                # Something else writes over the present registers: the next read is the plant's again,
+                # though the plant moved by less than a tick since the registers were last synced.
+                sim.servo(1).set("present_position", 7)
+                sim.servo(1).set("present_speed", 9)
+                plant.state[1] = (0.3, 0.2, 0.1)
+                assert (await chain.call(lambda bus: bus.read_states([1])))[1] == first
+                plant.state[1] = (0.5, 0.2, 0.1)
+                moved = (await chain.call(lambda bus: bus.read_states([1])))[1]
+                assert math.isclose(moved.position_rad, 0.5, abs_tol=0.01)
+        finally:
+            sim.stop()
+
+    clock.run(main())
