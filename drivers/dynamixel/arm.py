@@ -187,32 +187,52 @@ class DynamixelArm:
                     f"limits [{joint.min_rad:.4f}, {joint.max_rad:.4f}] rad; nothing was sent"
                 )
 
-    def _goals(self, q: np.ndarray, speed: np.ndarray) -> dict[int, tuple[float, float]]:
-        self.check_limits(q)
-        return {
-            j.servo_id: (min(max(float(q[k]), j.min_rad), j.max_rad), float(speed[k]))
-            for k, j in enumerate(self.joints)
-        }
-
     async def _stream(self, times: np.ndarray, positions: np.ndarray) -> None:
         t0 = self._clock.monotonic()
+        ticks = self._ticks(times, positions)
+        last = len(ticks) - 1
+        for tick, goals in enumerate(ticks):
+            self._state(await self._chain.call(functools.partial(_write_then_read, goals=goals)))
+            if tick == last:
+                return
+            await self._clock.sleep_until(t0 + (tick + 1) * self.period_s)
+
+    def _ticks(self, times: np.ndarray, positions: np.ndarray) -> list[dict[int, tuple[float, float]]]:
+        """The goals of every control tick of a trajectory, computed at once before the first goes out.
+
+        Tick ``k`` aims at the trajectory at ``t = min((k + 1) * period, duration)`` at the speed that covers
+        the way from where the trajectory was a period earlier (20 % more, within [0.05, max] rad/s), each
+        goal clamped to its joint's limits; the stream ends with the tick that reaches the duration. The
+        numbers are those of one interpolation per tick (``np.interp`` gives each query point the same value
+        whatever points it is asked with); only the per-tick work of computing them goes."""
+        period = self.period_s
         duration = float(times[-1])
-        columns = [np.ascontiguousarray(positions[:, k]) for k in range(positions.shape[1])]
+        stamps = []
         tick = 0
         while True:
-            t = min((tick + 1) * self.period_s, duration)
-            # Each joint at the tick before and at this one, in one interpolation per joint (each value is
-            # interpolated on its own: the same numbers as one call per value).
-            at = np.array([t - self.period_s, t])
-            both = np.array([np.interp(at, times, column) for column in columns])
-            here, target = both[:, 0], both[:, 1]
-            speed = np.clip(np.abs(target - here) / self.period_s * 1.2, 0.05, self.max_speed_rad_s)
-            goals = self._goals(target, speed)
-            self._state(await self._chain.call(functools.partial(_write_then_read, goals=goals)))
+            t = min((tick + 1) * period, duration)
+            stamps.append(t)
             if t >= duration:
-                return
+                break
             tick += 1
-            await self._clock.sleep_until(t0 + tick * self.period_s)
+        at = np.asarray(stamps, dtype=np.float64)
+        before = at - period
+        columns = [np.ascontiguousarray(positions[:, k]) for k in range(positions.shape[1])]
+        target = np.column_stack([np.interp(at, times, column) for column in columns])
+        here = np.column_stack([np.interp(before, times, column) for column in columns])
+        speed = np.clip(np.abs(target - here) / period * 1.2, 0.05, self.max_speed_rad_s)
+        low = np.array([j.min_rad for j in self.joints])
+        high = np.array([j.max_rad for j in self.joints])
+        slack = LIMIT_SLACK_RAD
+        outside = ~((target >= low - slack) & (target <= high + slack) & np.isfinite(target))
+        if outside.any():
+            self.check_limits(target[int(np.argmax(outside.any(axis=1)))])  # names the first one
+        goal = np.minimum(np.maximum(target, low), high)
+        ids = self._ids
+        return [
+            dict(zip(ids, zip(q, s, strict=True), strict=True))
+            for q, s in zip(goal.tolist(), speed.tolist(), strict=True)
+        ]
 
     async def _settle(self, final: np.ndarray) -> None:
         deadline = self._clock.monotonic() + self.settle_timeout_s

@@ -204,6 +204,9 @@ class DynamixelBus:
         self._faulted: dict[int, tuple[str, ...]] = {}
         self._lost = False
         self._log = log.bind(port=config.port)
+        # The open port's ``answers_at_once`` (None: it has none) and the port it was looked up on.
+        self._probed: object = None
+        self._probe: Callable[[], bool] | None = None
         # How waits on the device pass; the owner of the bus may swap it between transactions.
         self.waits: DeviceWaits = WallWaits()
 
@@ -368,8 +371,12 @@ class DynamixelBus:
         """Whether the open port's device answers everything written to it before the write returns, and
         withholds nothing now (an in-process simulator with no silent, dropping or garbling servo and its
         cable plugged in): then a transaction never waits on the device. False on a real port."""
-        probe = getattr(getattr(self._port, "ser", None), "answers_at_once", None)
-        return bool(probe()) if callable(probe) else False
+        ser = getattr(self._port, "ser", None)
+        if ser is not self._probed:  # asked of every transaction: the probe is looked up once per port
+            self._probed = ser
+            probe = getattr(ser, "answers_at_once", None)
+            self._probe = probe if callable(probe) else None
+        return self._probe is not None and bool(self._probe())
 
     # ------------------------------------------------------------------------------------------ hot path
 

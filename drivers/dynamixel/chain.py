@@ -67,6 +67,24 @@ class _Events:
                 self._listener(event)
 
 
+class _Kept:
+    """The events of a transaction run at once on the loop's thread, handed over when it returns."""
+
+    __slots__ = ("events",)
+
+    def __init__(self) -> None:
+        self.events: list[DeviceEvent] = []
+
+    def add(self, event: DeviceEvent) -> None:
+        self.events.append(event)
+
+    def deliver(self, listener: EventListener | None) -> None:
+        events, self.events = self.events, []
+        if listener is not None:
+            for event in events:
+                listener(event)
+
+
 def _readable_now(port: SerialPort) -> bool:
     """Whether ``port`` has bytes to read (or reads end-of-file) now: an in-process port says so itself
     (``InProcessPort.pending``, no system call), any other is asked with ``select``."""
@@ -190,7 +208,9 @@ class ServoChain:
         self.clock = clock
         self._on_event = on_event
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._events: _Events | None = None  # the running transaction's (only the bus thread sets it)
+        # The running transaction's events (only the thread running it sets this).
+        self._events: _Events | _Kept | None = None
+        self._kept = _Kept()  # those of a transaction run at once on the loop's thread
         self.bus = DynamixelBus(
             config,
             clock=clock,
@@ -215,19 +235,13 @@ class ServoChain:
         raised reach the listener first."""
         if not self._open or self._loop is None:
             raise RuntimeError("the servo chain is not open; use `async with ServoChain(...)`")
-        events = _Events(self._loop, self._on_event)
         if self.inline:
             assert self._turn is not None
             async with self._turn:
                 if self.bus.answers_at_once():  # on the loop's thread, taking no time
-                    self._events = events
-                    self.bus.waits = self._instant
-                    try:
-                        return fn(self.bus)
-                    finally:
-                        self._events = None
-                        events.deliver()
-                return await self._taking_turns(fn, events)
+                    return self._at_once(fn)
+                return await self._taking_turns(fn, _Events(self._loop, self._on_event))
+        events = _Events(self._loop, self._on_event)
 
         def transaction(bus: DynamixelBus) -> T:
             self._events = events
@@ -240,6 +254,19 @@ class ServoChain:
             return await self._loop.run_in_executor(self._executor, transaction, self.bus)
         finally:
             events.deliver()
+
+    def _at_once(self, fn: Callable[[DynamixelBus], T]) -> T:
+        """Run ``fn(bus)`` here, on the loop's thread, while the device answers at once; the events it
+        raised reach the listener when it returns (nothing can come between: it runs to the end)."""
+        kept = self._kept
+        self._events = kept
+        self.bus.waits = self._instant
+        try:
+            return fn(self.bus)
+        finally:
+            self._events = None
+            if kept.events:
+                kept.deliver(self._on_event)
 
     async def _taking_turns(self, fn: Callable[[DynamixelBus], T], events: _Events) -> T:
         """Run ``fn(bus)`` on the bus thread taking turns with the loop: the loop is held while it runs, and

@@ -10,7 +10,10 @@ from collections.abc import AsyncIterator
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from daemon.clock import SimulatedClock
 from description.thesis import JOINT_SERVOS
 from drivers.dynamixel import (
     BusConfig,
@@ -340,3 +343,56 @@ def test_a_goal_a_rounding_error_past_a_limit_is_sent_at_the_limit() -> None:
                     )
 
     run_on("inprocess", body)
+
+
+def _ticks_one_at_a_time(
+    arm: DynamixelArm, times: np.ndarray, positions: np.ndarray
+) -> list[dict[int, tuple[float, float]]]:
+    """The control loop's goals as it computed them before they were computed at once: one interpolation
+    per tick, the goals limit-checked and clamped one tick at a time."""
+    duration = float(times[-1])
+    columns = [np.ascontiguousarray(positions[:, k]) for k in range(positions.shape[1])]
+    out = []
+    tick = 0
+    while True:
+        t = min((tick + 1) * arm.period_s, duration)
+        at = np.array([t - arm.period_s, t])
+        both = np.array([np.interp(at, times, column) for column in columns])
+        here, target = both[:, 0], both[:, 1]
+        speed = np.clip(np.abs(target - here) / arm.period_s * 1.2, 0.05, arm.max_speed_rad_s)
+        arm.check_limits(target)
+        out.append(
+            {
+                j.servo_id: (min(max(float(target[k]), j.min_rad), j.max_rad), float(speed[k]))
+                for k, j in enumerate(arm.joints)
+            }
+        )
+        if t >= duration:
+            return out
+        tick += 1
+
+
+@settings(max_examples=150, deadline=None, derandomize=True)
+@given(
+    steps=st.lists(st.floats(0.0, 1.3), min_size=1, max_size=6),
+    fractions=st.lists(st.floats(0.0, 1.0), min_size=7 * 5, max_size=7 * 5),
+    rate_hz=st.sampled_from([50.0, 30.0, 100.0]),
+)
+def test_the_goals_computed_at_once_are_those_of_one_tick_at_a_time(
+    steps: list[float], fractions: list[float], rate_hz: float
+) -> None:
+    """``DynamixelArm`` computes a trajectory's control ticks before the first goes out: the same goals and
+    speeds, bit for bit, as computing each tick when it comes (the numbers the bus sends and the
+    recordings hold), up to the joints' limits (a plan ending a rounding error past one is sent at it)."""
+    joints = thesis_joints()
+    clock = SimulatedClock()
+    arm = DynamixelArm(ServoChain(BusConfig("inprocess:none"), [], clock=clock), joints, rate_hz=rate_hz)
+    times = np.concatenate([[0.0], np.cumsum(steps)])
+    n = len(times)
+    low = np.array([j.min_rad for j in joints])
+    high = np.array([j.max_rad for j in joints])
+    positions = low + np.array(fractions[: n * len(joints)]).reshape(n, len(joints)) * (high - low)
+    positions[-1, 0] = joints[0].max_rad + 1e-12  # a rounding error past a limit, sent at it
+    if times[-1] > 0.0 and not np.all(np.diff(times) > 0.0):
+        times = np.arange(n, dtype=np.float64) * 0.37  # interp wants increasing times
+    assert arm._ticks(times, positions) == _ticks_one_at_a_time(arm, times, positions)
