@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import bisect
 import dataclasses
+import functools
 import json
 import math
 import statistics
@@ -57,7 +58,11 @@ from wire.messages import (
     reply_of,
     view,
 )
-from wire.schemas import topic_suffix
+from wire.schemas import topic_suffix as _topic_suffix
+
+# What follows ``dishbot/<robot_id>/`` in a topic, worked out once per topic (a recording has a few dozen,
+# and each of its messages is looked at by topic).
+topic_suffix: Final = functools.lru_cache(maxsize=4096)(_topic_suffix)
 
 # The backends a replay can rebuild, by the name the session header's scene gives.
 SIM_BACKENDS: Final = {"sim-kinematic": "kinematic", "sim-mujoco": "mujoco"}
@@ -212,6 +217,7 @@ _COMMAND_SUFFIXES: Final = frozenset({"output/follow", "output/gripper", "input/
 _REPLAYED_SUFFIXES: Final = frozenset({"events", "state", "plan", "gripper", "detections"})
 
 
+@functools.lru_cache(maxsize=4096)
 def replayed_topic(topic: str) -> bool:
     """Whether a replay reads ``topic`` of a recording (``RecordedSession.load`` decodes no other: not the
     telemetry, the log, nor Foxglove's views such as ``/tf``)."""
@@ -221,6 +227,7 @@ def replayed_topic(topic: str) -> bool:
     return suffix in _REPLAYED_SUFFIXES or suffix.startswith(("input/", "output/"))
 
 
+@functools.lru_cache(maxsize=4096)
 def traced_topic(topic: str) -> bool:
     """Whether ``trace_of_messages`` reads ``topic`` (a replay's tee keeps no other)."""
     suffix = topic_suffix(topic)
