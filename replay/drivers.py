@@ -1182,13 +1182,6 @@ def _raise_recorded(rec: Recorded | Message | None) -> None:
         raise recorded_failure(failure.error, failure)
 
 
-def _reader(m: Message | None) -> str | None:
-    """Who took a recorded joint sample (``daemon.recorded.joint_reader``); None when the recording does
-    not say (an older one), or for another input."""
-    reader = m.reader if isinstance(m, InputJoints | ReadFailed) else UNSET
-    return None if isinstance(reader, UnsetType) else reader
-
-
 def _floats(values: list[int | float] | UnsetType) -> tuple[float, ...]:
     return () if isinstance(values, UnsetType) else tuple(float(v) for v in values)
 
