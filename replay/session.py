@@ -17,8 +17,10 @@ from __future__ import annotations
 import bisect
 import dataclasses
 import functools
+import itertools
 import json
 import math
+import operator
 import statistics
 import sys
 from collections.abc import Mapping, Sequence
@@ -534,14 +536,16 @@ def _timed_inputs(facts: Sequence[_TimedFacts], mono_offset_s: float) -> TimedIn
     ok = [k for f in facts for k in f.ok]
     readers = [reader for f in facts for reader in f.readers]
     holding = [h for f in facts for h in f.holding]
-    order = sorted(range(len(records)), key=times.__getitem__)  # stable: the order consumed
-    return TimedInputs(
-        records=tuple(records[i] for i in order),
-        read_times=tuple(times[i] for i in order),
-        ok=tuple(ok[i] for i in order),
-        readers=tuple(readers[i] for i in order),
-        holding=tuple(holding[i] for i in order) if len(holding) == len(records) else (),
-    )
+    if len(holding) != len(records):
+        holding = []
+    if not all(map(operator.le, times, itertools.islice(times, 1, None))):
+        # (Out of order: sorted, stably, the order consumed. A simulated session's reads mostly come in
+        # order already, and a long session's index is not built twice.)
+        order = sorted(range(len(records)), key=times.__getitem__)
+        records, times = [records[i] for i in order], [times[i] for i in order]
+        ok, readers = [ok[i] for i in order], [readers[i] for i in order]
+        holding = [holding[i] for i in order] if holding else []
+    return TimedInputs(tuple(records), tuple(times), tuple(ok), tuple(readers), tuple(holding))
 
 
 # The topics of the device commands a job gives (those ``daemon.backend.JobPosition`` counts), by their
