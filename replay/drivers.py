@@ -34,7 +34,7 @@ import contextlib
 import importlib
 import math
 import threading
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import Final, TypeVar, cast
 
@@ -59,7 +59,16 @@ from perception.interfaces import Detection, MugObserver, Observation
 from planning.interfaces import MotionPlanner, MotionRefused
 from planning.placement import PlacementPlanner, PlanOptions, PlanResult, Problem
 from replay.errors import ReplayError
-from replay.session import Anchor, DeviceCommand, Divergence, Recorded, RecordedSession, device_command
+from replay.session import (
+    TIMED_INPUTS,
+    Anchor,
+    DeviceCommand,
+    Divergence,
+    Recorded,
+    RecordedSession,
+    TimedInputs,
+    device_command,
+)
 from wire.messages import (
     UNSET,
     CallFailed,
@@ -90,11 +99,7 @@ _SAME_S = 1e-7
 _WALL_READ_S = 0.1
 # Streams served by time (a read that failed then fails now), and those served by order (several
 # recorded topics make one stream).
-_TIMED: Mapping[str, tuple[str, ...]] = {
-    "input/joints": ("input/joints", "input/joints_failed"),
-    "input/force": ("input/force",),
-    "input/holding": ("input/holding",),
-}
+_TIMED: Mapping[str, tuple[str, ...]] = TIMED_INPUTS
 # Reads of which only the failures are recorded: each served once, at the first read at or after it.
 _FAILURES: Final = ("input/health_failed", "input/gripper_failed")
 _ORDERED: Mapping[str, tuple[str, ...]] = {
@@ -143,29 +148,21 @@ class Replayer:
         self._on_diverge = on_diverge
         self._start_now: float | None = None  # the replay's now() at its job's start transition
         self._start_mono = 0.0  # and its monotonic time then
-        # Timed inputs by the recorded monotonic time of their read (older recordings: their log time).
-        # Each read time is taken once: a loaded record decodes its JSON at every look.
-        self._timed: dict[str, list[Recorded]] = {}
-        self._timed_t: dict[str, list[float]] = {}
+        # Timed inputs by the recorded monotonic time of their read (older recordings: their log time), as
+        # ``RecordedSession.load`` took them from the messages it decoded (``TimedInputs``).
+        self._timed: dict[str, Sequence[Recorded]] = {}
+        self._timed_t: dict[str, Sequence[float]] = {}
         # Per timed stream, whether each record is a read that worked (``_wall_joint_read`` looks ahead at
         # it for every joint read).
-        self._timed_ok: dict[str, list[bool]] = {}
-        joint_readers: list[str | None] = []  # who took each joint sample, in the order sorted below
-        for name, topics in _TIMED.items():
-            timed = []
-            for topic in topics:
-                for r in session.streams.get(topic, ()):
-                    m = r.message  # (decoded once here)
-                    ok = not isinstance(m, ReadFailed) and not _failed_message(m)
-                    timed.append((self._read_time(r, m), _reader(m), ok, r))
-            timed.sort(key=lambda item: item[0])  # stable: the order consumed
-            self._timed[name] = [r for _, _, _, r in timed]
-            self._timed_t[name] = [t for t, _, _, _ in timed]
-            self._timed_ok[name] = [ok for _, _, ok, _ in timed]
-            if name == "input/joints":
-                joint_readers = [reader for _, reader, _, _ in timed]
-        # The holding flags, as read at load (the daemon reads one at every force poll).
-        self._holding = [_as(r, Holding).holding for r in self._timed["input/holding"]]
+        self._timed_ok: dict[str, Sequence[bool]] = {}
+        for name in _TIMED:
+            timed = session.timed.get(name, TimedInputs())
+            self._timed[name] = timed.records
+            self._timed_t[name] = timed.read_times
+            self._timed_ok[name] = timed.ok
+        joint_readers = session.timed.get("input/joints", TimedInputs()).readers  # who took each sample
+        # The holding flags (the daemon reads one at every force poll).
+        self._holding = session.timed.get("input/holding", TimedInputs()).holding
         # Joint samples by reader (the job, the telemetry: ``daemon.recorded.joint_reader``), each reader's
         # a timed stream of its own; None for a recording that does not say (an older one): every reader
         # then gets the sample its read time matches among them all.
@@ -409,8 +406,9 @@ class Replayer:
         """The replay's monotonic time for a recorded one (a device time or the end of a call)."""
         return recorded_monotonic - self.session.start_monotonic + self._start_mono
 
-    async def until_recorded(self, recorded: Recorded) -> None:
-        """Wait until the moment a recorded call ended, as the replay's clock lays it."""
+    async def until_recorded(self, recorded: Recorded | Message | None) -> None:
+        """Wait until the moment a recorded call ended, as the replay's clock lays it (``recorded``: its
+        record, or the message decoded from it)."""
         end = _t_end(recorded)
         if end is not None and math.isfinite(end):
             await self.clock.sleep_until(self.replay_monotonic(end))
@@ -755,9 +753,10 @@ def recorded_failure(text: str, failure: Failure | None = None) -> BaseException
     return stand_in(message)
 
 
-async def _bounded(call: Awaitable[T], replayer: Replayer, rec: Recorded) -> T | None:
+async def _bounded(call: Awaitable[T], replayer: Replayer, rec: Recorded | Message | None) -> T | None:
     """Run the cell's side of a served call only until the recorded call ended (then it is cancelled: the
-    robot stopped there, or had done); its result when it ended first."""
+    robot stopped there, or had done); its result when it ended first. ``rec``: the recorded call (its
+    record, or the message decoded from it)."""
     task = asyncio.ensure_future(call)
     end = _t_end(rec)
     if end is None or not math.isfinite(end):
@@ -778,7 +777,7 @@ async def _bounded(call: Awaitable[T], replayer: Replayer, rec: Recorded) -> T |
     return None
 
 
-async def _cell_side(call: Awaitable[T], replayer: Replayer, rec: Recorded) -> T | None:
+async def _cell_side(call: Awaitable[T], replayer: Replayer, rec: Message | None) -> T | None:
     """The cell's side of a served move, opening or close: as the robot did, as far as it went (``_bounded``
     when the recorded call failed); in a stand-in for another cell only until the recorded call ended, as a
     cell slower than the robot (MuJoCo's arm for a kinematic or a robot's recording) must not make the job
@@ -788,14 +787,14 @@ async def _cell_side(call: Awaitable[T], replayer: Replayer, rec: Recorded) -> T
     return await call
 
 
-async def _ended_as_recorded(replayer: Replayer, rec: Recorded) -> None:
-    """After a served call: at its recorded end, fail as it failed; a call recorded as cancelled waits for
-    the replay's job to cancel it too (divergence when it does not)."""
-    await replayer.until_recorded(rec)
-    if _failed(rec):  # what the drivers reported as the call failed comes before the job's reaction to it
+async def _ended_as_recorded(replayer: Replayer, rec: Recorded, m: Message | None) -> None:
+    """After a served call (``rec``, decoded ``m``): at its recorded end, fail as it failed; a call
+    recorded as cancelled waits for the replay's job to cancel it too (divergence when it does not)."""
+    await replayer.until_recorded(m)
+    if _failed(m):  # what the drivers reported as the call failed comes before the job's reaction to it
         replayer.deliver_before_next_command()
-    _raise_recorded(rec)
-    if _failure(rec).cancelled is True:
+    _raise_recorded(m)
+    if _failure(m).cancelled is True:
         await replayer.clock.sleep(_CANCEL_WAIT_S)
         replayer.diverge("device", f"{rec.kind} cancelled", f"{rec.kind} not cancelled")
 
@@ -838,8 +837,9 @@ class ReplayArm:
         if rec is None or not self._r.check(rec, asked):
             await self._inner.follow(trajectory)
             return
-        await _cell_side(self._inner.follow(trajectory), self._r, rec)
-        await _ended_as_recorded(self._r, rec)
+        m = rec.message  # (decoded once for the call)
+        await _cell_side(self._inner.follow(trajectory), self._r, m)
+        await _ended_as_recorded(self._r, rec, m)
 
     async def stop(self) -> None:
         m = self._r.device_command()
@@ -871,8 +871,9 @@ class ReplayGripper:
         if rec is None or not self._r.check(rec, asked):
             await self._inner.open(aperture_m)
             return
-        await _cell_side(self._inner.open(aperture_m), self._r, rec)
-        await _ended_as_recorded(self._r, rec)
+        m = rec.message  # (decoded once for the call)
+        await _cell_side(self._inner.open(aperture_m), self._r, m)
+        await _ended_as_recorded(self._r, rec, m)
 
     async def close_on_mug(self, *, force_threshold_n: float, min_aperture_m: float) -> GraspResult:
         self._r.device_command()
@@ -881,7 +882,8 @@ class ReplayGripper:
         closing = self._inner.close_on_mug(force_threshold_n=force_threshold_n, min_aperture_m=min_aperture_m)
         if rec is None:
             return await closing
-        live = await _cell_side(closing, self._r, rec)
+        p = rec.message  # (decoded once for the call)
+        live = await _cell_side(closing, self._r, p)
         if not self._r.check(rec, asked):
             return (
                 live
@@ -890,8 +892,7 @@ class ReplayGripper:
                     force_threshold_n=force_threshold_n, min_aperture_m=min_aperture_m
                 )
             )
-        await _ended_as_recorded(self._r, rec)
-        p = rec.message
+        await _ended_as_recorded(self._r, rec, p)
         if not isinstance(p, Grasp):  # recorded as cancelled, and the replay's job was not: nothing held
             return GraspResult(held=False, force_n=0.0, aperture_m=0.0, reason="")
         return GraspResult(
@@ -942,13 +943,13 @@ class ReplayObserver:
         looking = self._inner.observe()  # the cell's camera and detector run as they did
         if rec is None:
             return await looking
-        live = await _bounded(looking, self._r, rec) if _failed(rec) else await looking
+        p = rec.message  # (decoded once for the call)
+        live = await _bounded(looking, self._r, p) if _failed(p) else await looking
         if not self._r.replaying:
             return live if live is not None else await self._inner.observe()
-        await _ended_as_recorded(self._r, rec)
+        await _ended_as_recorded(self._r, rec, p)
         if live is None:
             live = Observation(t=self._r.clock.monotonic(), detections=())
-        p = rec.message
         if not isinstance(p, RecordedObservation):  # recorded as cancelled, and the replay's job was not
             return Observation(t=live.t, detections=(), depth_preview=live.depth_preview, meta={})
         device_t, meta = p.t_device, p.meta
@@ -1116,16 +1117,22 @@ _CALLS = (Follow, GripperCommand, Grasp, CallFailed, RecordedObservation, ReadFa
 
 
 def _as(rec: Recorded, kind: type[M]) -> M:
-    """A recorded input as its declared message (``RecordedSession.load`` decoded it)."""
-    if not isinstance(rec.message, kind):
-        raise ReplayError(f"{rec.kind}: recorded as {type(rec.message).__name__}, not {kind.__name__}")
-    return rec.message
+    """A recorded input as its declared message (``RecordedSession.load`` checked it is one)."""
+    m = rec.message
+    if not isinstance(m, kind):
+        raise ReplayError(f"{rec.kind}: recorded as {type(m).__name__}, not {kind.__name__}")
+    return m
 
 
-def _failure(rec: Recorded) -> Failure:
+def _message(rec: Recorded | Message | None) -> Message | None:
+    """A recorded call's message: decoded from its record, or as the caller decoded it already."""
+    return rec.message if isinstance(rec, Recorded) else rec
+
+
+def _failure(rec: Recorded | Message | None) -> Failure:
     """How a recorded call failed: its error fields and whether it was cancelled (none for a call that
     did not fail)."""
-    return _failure_of(rec.message)
+    return _failure_of(_message(rec))
 
 
 def _failure_of(m: Message | None) -> Failure:
@@ -1150,8 +1157,8 @@ def _failure_of(m: Message | None) -> Failure:
     return Failure()
 
 
-def _t_end(rec: Recorded) -> float | None:
-    m = rec.message
+def _t_end(rec: Recorded | Message | None) -> float | None:
+    m = _message(rec)
     end = (
         m.t_end
         if isinstance(m, Follow | GripperCommand | Grasp | CallFailed | RecordedObservation)
@@ -1160,8 +1167,8 @@ def _t_end(rec: Recorded) -> float | None:
     return None if isinstance(end, UnsetType) else float(end)
 
 
-def _failed(rec: Recorded) -> bool:
-    return _failed_message(rec.message)
+def _failed(rec: Recorded | Message | None) -> bool:
+    return _failed_message(_message(rec))
 
 
 def _failed_message(m: Message | None) -> bool:
@@ -1170,16 +1177,9 @@ def _failed_message(m: Message | None) -> bool:
 
 
 def _raise_recorded(rec: Recorded | Message | None) -> None:
-    failure = _failure_of(rec.message if isinstance(rec, Recorded) else rec)
+    failure = _failure_of(_message(rec))
     if isinstance(failure.error, str):
         raise recorded_failure(failure.error, failure)
-
-
-def _reader(m: Message | None) -> str | None:
-    """Who took a recorded joint sample (``daemon.recorded.joint_reader``); None when the recording does
-    not say (an older one), or for another input."""
-    reader = m.reader if isinstance(m, InputJoints | ReadFailed) else UNSET
-    return None if isinstance(reader, UnsetType) else reader
 
 
 def _floats(values: list[int | float] | UnsetType) -> tuple[float, ...]:

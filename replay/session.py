@@ -16,9 +16,13 @@ from __future__ import annotations
 
 import bisect
 import dataclasses
+import functools
+import itertools
 import json
 import math
+import operator
 import statistics
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +32,7 @@ from daemon.config import Config, load_config
 from daemon.errors import ConfigError
 from recorder import HEADER_TOPIC, read_messages
 from recorder.errors import RecordingError
-from recorder.reader import RecordedMessage, RecordingRead
+from recorder.reader import RecordedMessage, RecordingRead, decoded_as, json_object
 from replay.errors import ReplayError
 from wire.messages import (
     TOPICS,
@@ -39,12 +43,15 @@ from wire.messages import (
     Event,
     EventKind,
     FollowAsked,
+    Force,
     HeaderClock,
     HeaderJob,
+    Holding,
     InputJoints,
     InputPosition,
     Message,
     OpenAsked,
+    ReadFailed,
     Started,
     State,
     UnsetType,
@@ -53,7 +60,11 @@ from wire.messages import (
     reply_of,
     view,
 )
-from wire.schemas import topic_suffix
+from wire.schemas import topic_suffix as _topic_suffix
+
+# What follows ``dishbot/<robot_id>/`` in a topic, worked out once per topic (a recording has a few dozen,
+# and each of its messages is looked at by topic).
+topic_suffix: Final = functools.lru_cache(maxsize=4096)(_topic_suffix)
 
 # The backends a replay can rebuild, by the name the session header's scene gives.
 SIM_BACKENDS: Final = {"sim-kinematic": "kinematic", "sim-mujoco": "mujoco"}
@@ -208,6 +219,7 @@ _COMMAND_SUFFIXES: Final = frozenset({"output/follow", "output/gripper", "input/
 _REPLAYED_SUFFIXES: Final = frozenset({"events", "state", "plan", "gripper", "detections"})
 
 
+@functools.lru_cache(maxsize=4096)
 def replayed_topic(topic: str) -> bool:
     """Whether a replay reads ``topic`` of a recording (``RecordedSession.load`` decodes no other: not the
     telemetry, the log, nor Foxglove's views such as ``/tf``)."""
@@ -217,6 +229,7 @@ def replayed_topic(topic: str) -> bool:
     return suffix in _REPLAYED_SUFFIXES or suffix.startswith(("input/", "output/"))
 
 
+@functools.lru_cache(maxsize=4096)
 def traced_topic(topic: str) -> bool:
     """Whether ``trace_of_messages`` reads ``topic`` (a replay's tee keeps no other)."""
     suffix = topic_suffix(topic)
@@ -431,17 +444,21 @@ class Recorded:
     def payload(self) -> Mapping[str, object]:
         data = self._data
         if isinstance(data, bytes):
-            payload: dict[str, object] = json.loads(data)
-            return payload
+            return json_object(data)
         return data
 
     @property
     def message(self) -> Message | None:
         """The payload as its declared message (``wire.messages``), for the driver-boundary topics a replay
-        serves; None for the open ones (device events) and the plan (``PlanResult.from_json`` reads it)."""
+        serves; None for the open ones (device events) and the plan (``PlanResult.from_json`` reads it).
+        Held as bytes, decoded straight into it (no dict between) at each call: a caller that reads it
+        more than once keeps what it got."""
         typed = self._typed
         if isinstance(typed, type):
-            return convert(self.payload, typed, name=self.kind)
+            data = self._data
+            if isinstance(data, bytes):
+                return decoded_as(data, typed, name=self.kind)
+            return convert(data, typed, name=self.kind)
         return typed
 
 
@@ -460,6 +477,75 @@ class Anchor:
             f"{self.after_s:.3f} s after transition {self.transitions} and device command "
             f"{self.device_commands}"
         )
+
+
+# Inputs served by the time of their read (a read that failed then fails now), by stream: the recorded
+# topics that make each.
+TIMED_INPUTS: Final[Mapping[str, tuple[str, ...]]] = {
+    "input/joints": ("input/joints", "input/joints_failed"),
+    "input/force": ("input/force",),
+    "input/holding": ("input/holding",),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class TimedInputs:
+    """One stream of ``TIMED_INPUTS`` as a replay serves it, taken from the messages as ``load`` decoded
+    them (once): the records in the order of their reads (the recorded monotonic time of each, an older
+    recording's log time), whether each read worked, who read each joint sample (``daemon.recorded.
+    joint_reader``; None when the recording does not say) and each holding flag."""
+
+    records: tuple[Recorded, ...] = ()
+    read_times: tuple[float, ...] = ()
+    ok: tuple[bool, ...] = ()
+    readers: tuple[str | None, ...] = ()
+    holding: tuple[bool, ...] = ()  # (input/holding only)
+
+
+class _TimedFacts:
+    """What ``TimedInputs`` takes of each timed input, as ``load`` decodes it (the message is not kept: a
+    long session's inputs are held as their bytes)."""
+
+    def __init__(self) -> None:
+        self.records: list[Recorded] = []
+        self.t_read: list[float | None] = []  # None: not recorded (an older recording)
+        self.ok: list[bool] = []
+        self.readers: list[str | None] = []
+        self.holding: list[bool] = []
+
+    def add(self, r: Recorded, m: Message) -> None:
+        t = m.t_read if isinstance(m, InputJoints | Force | Holding | ReadFailed) else UNSET
+        reader = m.reader if isinstance(m, InputJoints | ReadFailed) else UNSET
+        self.records.append(r)
+        self.t_read.append(None if isinstance(t, UnsetType) else float(t))
+        self.ok.append(not isinstance(m, ReadFailed))
+        self.readers.append(None if isinstance(reader, UnsetType) else sys.intern(reader))
+        if isinstance(m, Holding):
+            self.holding.append(m.holding)
+
+
+def _timed_inputs(facts: Sequence[_TimedFacts], mono_offset_s: float) -> TimedInputs:
+    """One stream's ``TimedInputs`` from its topics' facts (in the order of ``TIMED_INPUTS``: a stable
+    sort keeps the order the replay consumed them in)."""
+    records = [r for f in facts for r in f.records]
+    times = [
+        r.t_ns / 1e9 - mono_offset_s if t is None else t
+        for f in facts
+        for r, t in zip(f.records, f.t_read, strict=True)
+    ]
+    ok = [k for f in facts for k in f.ok]
+    readers = [reader for f in facts for reader in f.readers]
+    holding = [h for f in facts for h in f.holding]
+    if len(holding) != len(records):
+        holding = []
+    if not all(map(operator.le, times, itertools.islice(times, 1, None))):
+        # (Out of order: sorted, stably, the order consumed. A simulated session's reads mostly come in
+        # order already, and a long session's index is not built twice.)
+        order = sorted(range(len(records)), key=times.__getitem__)
+        records, times = [records[i] for i in order], [times[i] for i in order]
+        ok, readers = [ok[i] for i in order], [readers[i] for i in order]
+        holding = [holding[i] for i in order] if holding else []
+    return TimedInputs(tuple(records), tuple(times), tuple(ok), tuple(readers), tuple(holding))
 
 
 # The topics of the device commands a job gives (those ``daemon.backend.JobPosition`` counts), by their
@@ -511,10 +597,28 @@ class RecordedSession:
     # The device events (``Backend.on_event``) as the job heard them, in order: recorded as such
     # (``input/device_event``), or for an older recording taken from its ``events``.
     device_events: tuple[Recorded, ...] = ()
+    # The inputs served by the time of their read, by stream (``TIMED_INPUTS``).
+    timed: Mapping[str, TimedInputs] = field(default_factory=dict)
 
     @property
     def simulated(self) -> bool:
         return header_part(self.clock, HeaderClock).source == "simulated"
+
+    def with_streams(self, streams: Mapping[str, tuple[Recorded, ...]]) -> RecordedSession:
+        """This session with ``streams`` in place of its own (the others kept), its ``timed`` inputs taken
+        from them anew (each of their records decoded)."""
+        merged = {**self.streams, **streams}
+        facts = {topic: _TimedFacts() for topics in TIMED_INPUTS.values() for topic in topics}
+        for topic, f in facts.items():
+            for r in merged.get(topic, ()):
+                m = r.message
+                if m is not None:
+                    f.add(r, m)
+        timed = {
+            name: _timed_inputs([facts[t] for t in topics], self.mono_offset_s)
+            for name, topics in TIMED_INPUTS.items()
+        }
+        return dataclasses.replace(self, streams=merged, timed=timed)
 
     @property
     def world(self) -> str:
@@ -647,24 +751,28 @@ class RecordedSession:
             raise ReplayError(f"{path}: the job never started (no start transition recorded)")
         start_ns = start.log_time_ns
         streams: dict[str, list[Recorded]] = {}
+        # The timed inputs as decoded here (once: the check, and what they are served by).
+        timed_facts = {topic: _TimedFacts() for topics in TIMED_INPUTS.values() for topic in topics}
         suffixes: dict[str, str] = {}  # one string per topic, not one per record
         for m in messages[1:]:
             suffix = suffixes.get(m.topic) or suffixes.setdefault(m.topic, topic_suffix(m.topic))
             if suffix.startswith(("input/", "output/")) or suffix == "plan":
                 declared = None if suffix in _UNTYPED else TOPICS.get(suffix)
-                payload = m.payload
-                try:
-                    if declared is not None:  # checked here, decoded again when served
-                        convert(payload, declared, name=suffix)
-                except BadMessage as e:
-                    raise ReplayError(f"{path}: {e}") from None
                 raw = m.raw
                 record = (
                     Recorded(suffix, m.log_time_ns, raw=raw, declared=declared)
                     if raw is not None
-                    else Recorded(suffix, m.log_time_ns, payload, declared=declared)
+                    else Recorded(suffix, m.log_time_ns, m.payload, declared=declared)
                 )
+                try:
+                    # Checked here (decoded straight from the bytes), decoded again when served.
+                    message = record.message if declared is not None else None
+                except BadMessage as e:
+                    raise ReplayError(f"{path}: {e}") from None
                 streams.setdefault(suffix, []).append(record)
+                facts = timed_facts.get(suffix)
+                if facts is not None and message is not None:
+                    facts.add(record, message)
         # (A job that ended before its first move has no follow, but its other device commands.)
         if "input/joints" in streams and not any(k.startswith("output/") for k in streams):
             raise ReplayError(
@@ -749,6 +857,11 @@ class RecordedSession:
             transition_monos=tuple(transitions),
             device_command_monos=tuple(commands),
             device_events=tuple(r for r in (recorded_events or derived_events) if r.t_ns >= start_ns),
+            timed={
+                # (a stream's topics one after the other, as the replay consumed them: a stable sort)
+                name: _timed_inputs([timed_facts[t] for t in topics], mono_offset)
+                for name, topics in TIMED_INPUTS.items()
+            },
         )
 
 

@@ -120,7 +120,7 @@ def test_the_carried_slots_and_an_older_scenes_tray_mugs_are_read_through_their_
 def _with_start(rig: RecordedSession, body: str, *, after_ns: int = -1) -> RecordedSession:
     command = Command(t=1.0, verb="start", payload=body, reply={"ok": True})
     record = Recorded("input/command", rig.start_ns + after_ns, plain(command), message=command)
-    return dataclasses.replace(rig, streams={**rig.streams, "input/command": (record,)})
+    return rig.with_streams({"input/command": (record,)})
 
 
 @pytest.mark.parametrize(

@@ -183,3 +183,22 @@ def test_a_cut_robot_recording_replays_to_a_match_up_to_its_cut(tmp_path: Path) 
     assert report.cut == session.cut
     assert report.match, report.first_divergence
     assert report.replayed.states[: len(session.trace.states)] == session.trace.states
+
+
+def test_the_timed_inputs_taken_at_load_are_those_of_a_decode_of_every_record() -> None:
+    """``load`` decodes each input once and takes what the replay serves it by from that decode; the same
+    facts come out of decoding the streams' records again (``with_streams``)."""
+    session = RecordedSession.load(RIG_RECORDING)
+    again = session.with_streams({})
+    assert set(session.timed) == {"input/joints", "input/force", "input/holding"}
+    for name, timed in session.timed.items():
+        assert timed == again.timed[name], name
+        assert list(timed.read_times) == sorted(timed.read_times)
+        assert len(timed.records) == len(timed.ok) == len(timed.readers)
+    joints = session.timed["input/joints"]
+    assert len(joints.records) == len(session.streams["input/joints"]) + len(
+        session.streams.get("input/joints_failed", ())
+    )
+    holding = session.timed["input/holding"]
+    assert len(holding.holding) == len(holding.records) > 0
+    assert True in holding.holding

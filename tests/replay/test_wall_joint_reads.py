@@ -7,7 +7,6 @@ own read, and diverged)."""
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 from pathlib import Path
 from typing import cast
 
@@ -116,9 +115,7 @@ def _with_readers(session: RecordedSession, job_at: tuple[float, ...]) -> Record
     samples = [sample(at, TELEMETRY_READER, 10.0 + k) for k, at in enumerate(_TELEMETRY_AT)]
     samples += [sample(at, JOB_READER, 20.0 + k) for k, at in enumerate(job_at)]
     samples.sort(key=lambda r: r.t_ns)
-    return dataclasses.replace(
-        session, streams={**session.streams, "input/joints": tuple(samples), "input/joints_failed": ()}
-    )
+    return session.with_streams({"input/joints": tuple(samples), "input/joints_failed": ()})
 
 
 def _read(replayer: Replayer, reader: str) -> float:
