@@ -11,7 +11,7 @@ from collections.abc import Awaitable, Callable
 from daemon.clock import SimulatedClock
 from drivers.dynamixel import BusConfig, ServoChain
 from drivers.dynamixel.bus import DynamixelBus
-from drivers.sim.plant import FirstOrderPlant
+from drivers.sim.plant import FirstOrderPlant, ServoPlant
 from drivers.sim.servo_chain import ServoChainSimulator, default_chain
 
 Body = Callable[[ServoChainSimulator, ServoChain, FirstOrderPlant, SimulatedClock], Awaitable[None]]
@@ -20,6 +20,15 @@ Body = Callable[[ServoChainSimulator, ServoChain, FirstOrderPlant, SimulatedCloc
 def run(body: Body) -> None:
     clock = SimulatedClock()
     plant = FirstOrderPlant(clock=clock.monotonic)
+    run_on(plant, clock, lambda sim, chain: body(sim, chain, plant, clock))
+
+
+def run_on(
+    plant: ServoPlant,
+    clock: SimulatedClock,
+    body: Callable[[ServoChainSimulator, ServoChain], Awaitable[None]],
+) -> None:
+    """``body`` with the real bus on a simulated chain of ``plant``'s servos, on ``clock``."""
 
     async def main() -> None:
         sim = ServoChainSimulator(default_chain(), plant=plant)
@@ -29,7 +38,7 @@ def run(body: Body) -> None:
             async with ServoChain(
                 config, default_chain(), clock=clock, read_timeout_s=0.005, open_serial=sim.open_serial
             ) as chain:
-                await body(sim, chain, plant, clock)
+                await body(sim, chain)
         finally:
             sim.stop()
 
@@ -118,31 +127,21 @@ class _HeldPlant:
 def test_a_servo_moved_by_less_than_a_tick_reads_alike_and_registers_written_over_read_the_plant_again() -> (
     None
 ):
-    clock = SimulatedClock()
     plant = _HeldPlant()
     plant.state[1] = (0.3, 0.2, 0.1)
 
-    async def main() -> None:
-        sim = ServoChainSimulator(default_chain(), plant=plant)
-        sim.start_in_process(clock)
-        try:
-            config = BusConfig(sim.device_path, protocol=1)
-            async with ServoChain(
-                config, default_chain(), clock=clock, read_timeout_s=0.005, open_serial=sim.open_serial
-            ) as chain:
-                first = (await chain.call(lambda bus: bus.read_states([1])))[1]
-                plant.state[1] = (0.3 + 1e-7, 0.2 + 1e-7, 0.1 + 1e-7)  # well under a tick of each
-                assert (await chain.call(lambda bus: bus.read_states([1])))[1] == first
-                # Something else writes over the present registers: the next read is the plant's again,
-                # though the plant moved by less than a tick since the registers were last synced.
-                sim.servo(1).set("present_position", 7)
-                sim.servo(1).set("present_speed", 9)
-                plant.state[1] = (0.3, 0.2, 0.1)
-                assert (await chain.call(lambda bus: bus.read_states([1])))[1] == first
-                plant.state[1] = (0.5, 0.2, 0.1)
-                moved = (await chain.call(lambda bus: bus.read_states([1])))[1]
-                assert math.isclose(moved.position_rad, 0.5, abs_tol=0.01)
-        finally:
-            sim.stop()
+    async def body(sim: ServoChainSimulator, chain: ServoChain) -> None:
+        first = (await chain.call(lambda bus: bus.read_states([1])))[1]
+        plant.state[1] = (0.3 + 1e-7, 0.2 + 1e-7, 0.1 + 1e-7)  # well under a tick of each
+        assert (await chain.call(lambda bus: bus.read_states([1])))[1] == first
+        # Something else writes over the present registers: the next read is the plant's again,
+        # though the plant moved by less than a tick since the registers were last synced.
+        sim.servo(1).set("present_position", 7)
+        sim.servo(1).set("present_speed", 9)
+        plant.state[1] = (0.3, 0.2, 0.1)
+        assert (await chain.call(lambda bus: bus.read_states([1])))[1] == first
+        plant.state[1] = (0.5, 0.2, 0.1)
+        moved = (await chain.call(lambda bus: bus.read_states([1])))[1]
+        assert math.isclose(moved.position_rad, 0.5, abs_tol=0.01)
 
-    clock.run(main())
+    run_on(plant, SimulatedClock(), body)
