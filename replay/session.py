@@ -524,6 +524,20 @@ class _TimedFacts:
             self.holding.append(m.holding)
 
 
+def _no_facts() -> dict[str, _TimedFacts]:
+    """An empty ``_TimedFacts`` for each topic of ``TIMED_INPUTS``."""
+    return {topic: _TimedFacts() for topics in TIMED_INPUTS.values() for topic in topics}
+
+
+def _timed_of(facts: Mapping[str, _TimedFacts], mono_offset_s: float) -> dict[str, TimedInputs]:
+    """Every stream of ``TIMED_INPUTS`` from its topics' facts (a stream's topics one after the other, as
+    the replay consumed them: a stable sort)."""
+    return {
+        name: _timed_inputs([facts[t] for t in topics], mono_offset_s)
+        for name, topics in TIMED_INPUTS.items()
+    }
+
+
 def _timed_inputs(facts: Sequence[_TimedFacts], mono_offset_s: float) -> TimedInputs:
     """One stream's ``TimedInputs`` from its topics' facts (in the order of ``TIMED_INPUTS``: a stable
     sort keeps the order the replay consumed them in)."""
@@ -608,17 +622,13 @@ class RecordedSession:
         """This session with ``streams`` in place of its own (the others kept), its ``timed`` inputs taken
         from them anew (each of their records decoded)."""
         merged = {**self.streams, **streams}
-        facts = {topic: _TimedFacts() for topics in TIMED_INPUTS.values() for topic in topics}
+        facts = _no_facts()
         for topic, f in facts.items():
             for r in merged.get(topic, ()):
                 m = r.message
                 if m is not None:
                     f.add(r, m)
-        timed = {
-            name: _timed_inputs([facts[t] for t in topics], self.mono_offset_s)
-            for name, topics in TIMED_INPUTS.items()
-        }
-        return dataclasses.replace(self, streams=merged, timed=timed)
+        return dataclasses.replace(self, streams=merged, timed=_timed_of(facts, self.mono_offset_s))
 
     @property
     def world(self) -> str:
@@ -752,7 +762,7 @@ class RecordedSession:
         start_ns = start.log_time_ns
         streams: dict[str, list[Recorded]] = {}
         # The timed inputs as decoded here (once: the check, and what they are served by).
-        timed_facts = {topic: _TimedFacts() for topics in TIMED_INPUTS.values() for topic in topics}
+        timed_facts = _no_facts()
         suffixes: dict[str, str] = {}  # one string per topic, not one per record
         for m in messages[1:]:
             suffix = suffixes.get(m.topic) or suffixes.setdefault(m.topic, topic_suffix(m.topic))
@@ -857,11 +867,7 @@ class RecordedSession:
             transition_monos=tuple(transitions),
             device_command_monos=tuple(commands),
             device_events=tuple(r for r in (recorded_events or derived_events) if r.t_ns >= start_ns),
-            timed={
-                # (a stream's topics one after the other, as the replay consumed them: a stable sort)
-                name: _timed_inputs([timed_facts[t] for t in topics], mono_offset)
-                for name, topics in TIMED_INPUTS.items()
-            },
+            timed=_timed_of(timed_facts, mono_offset),
         )
 
 
