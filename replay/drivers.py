@@ -97,11 +97,10 @@ _SAME_S = 1e-7
 # How far ahead of a wall-clock recording's read time the next joint sample not served yet may be and still
 # be the one the robot's reader took (it read later than the replay, its computation taking time).
 _WALL_READ_S = 0.1
-# Streams served by time (a read that failed then fails now), and those served by order (several
-# recorded topics make one stream).
-_TIMED: Mapping[str, tuple[str, ...]] = TIMED_INPUTS
+# Streams served by time (a read that failed then fails now): ``replay.session.TIMED_INPUTS``.
 # Reads of which only the failures are recorded: each served once, at the first read at or after it.
 _FAILURES: Final = ("input/health_failed", "input/gripper_failed")
+# Streams served by order (several recorded topics make one stream).
 _ORDERED: Mapping[str, tuple[str, ...]] = {
     "follow": ("output/follow",),
     "open": ("output/gripper",),
@@ -155,7 +154,7 @@ class Replayer:
         # Per timed stream, whether each record is a read that worked (``_wall_joint_read`` looks ahead at
         # it for every joint read).
         self._timed_ok: dict[str, Sequence[bool]] = {}
-        for name in _TIMED:
+        for name in TIMED_INPUTS:
             timed = session.timed.get(name, TimedInputs())
             self._timed[name] = timed.records
             self._timed_t[name] = timed.read_times
