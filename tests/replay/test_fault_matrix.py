@@ -3,8 +3,9 @@
 ``test_each_fault_kind_ends_alike_on_both_cells`` runs the same fault file for every device and world fault
 kind on the kinematic and on the MuJoCo cell (one daemon each, a one-mug job; the MuJoCo side is slow): both
 cells put the same device simulators behind the same drivers, so both must end in the state docs/faults.md
-gives and publish the same key events. The replay rows run one recorded job again with each row's faults and
-check the state the daemon ends in, the events it published and what the replay's recording holds.
+gives and publish the same key events. The replay rows run one recorded two-mug job again with each row's
+faults and check the state the daemon ends in, the events it published and what the replay's recording
+holds.
 
 Rows that need a process to kill, a disk or a Zenoh client live with the daemon's own tests; docs/faults.md
 says which test holds each row.
@@ -141,8 +142,11 @@ TWO_MUGS = THREE_MUGS[:2]
 
 
 @pytest.fixture(scope="module")
-def recorded_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return DishbotReplay(tmp_path_factory.mktemp("matrix"), {}).record(world="kinematic", mugs=THREE_MUGS)
+def recorded_job(two_mug_job: Path) -> Path:
+    """The kinematic cell's two-mug job, recorded once for the test session (``tests/replay/conftest.py``);
+    module-scoped so that the rows replaying it run on one worker (``tests/conftest.py``) and it is recorded
+    once, not on every worker."""
+    return two_mug_job
 
 
 @pytest.fixture(scope="module")
