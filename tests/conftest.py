@@ -43,6 +43,7 @@ def pytest_configure(config: pytest.Config) -> None:
     controller read from the cache and sent to every worker (so they agree even if another run writes the
     cache meanwhile). Every run but a worker's notes the tests' times in the cache for the next run."""
     if hasattr(config, "workerinput"):
+        config.pluginmanager.register(_GroupIds(), "dishbot-group-ids")
         return
     if getattr(config.option, "dist", "no") == "loadgroup":
         config.option.loadscopereorder = False
@@ -111,14 +112,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.xdist_group(item.nodeid.partition("::")[0]))
     known: dict[str, float] = config.workerinput.get(DURATIONS_KEY, {})
     units: dict[str, list[pytest.Item]] = {}
-    for item in items:  # the work units pytest-xdist's loadgroup makes (its group names, joined as it does)
-        groups = sorted(
-            {
-                str(m.args[0] if m.args else m.kwargs.get("name", "default"))
-                for m in item.iter_markers("xdist_group")
-            }
-        )
-        units.setdefault("@" + "_".join(groups) if groups else item.nodeid, []).append(item)
+    for item in items:  # the work units pytest-xdist's loadgroup makes
+        units.setdefault(_group_suffix(item) or item.nodeid, []).append(item)
 
     def cost(item: pytest.Item) -> float:
         default = UNKNOWN_SLOW_S if item.get_closest_marker("slow") is not None else UNKNOWN_FAST_S
@@ -126,6 +121,37 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
     ordered = sorted(units.values(), key=lambda unit: -sum(cost(i) for i in unit))
     items[:] = [item for unit in ordered for item in unit]
+
+
+def _group_suffix(item: pytest.Item) -> str:
+    """What pytest-xdist's loadgroup appends to the id of a test in a group: ``@`` and the test's group
+    names, sorted and joined by ``_``; empty for a test in no group."""
+    groups = sorted(
+        {
+            str(m.args[0] if m.args else m.kwargs.get("name", "default"))
+            for m in item.iter_markers("xdist_group")
+        }
+    )
+    return "@" + "_".join(groups) if groups else ""
+
+
+class _GroupIds:
+    """pytest-xdist's worker tells the controller a test's group by the ``@group`` it appends to the test's
+    id, written to the field pytest kept the id in before 9.2 (``_nodeid``). pytest 9.2 reads the id from a
+    structured one (``_id``), so the suffix was lost and ``--dist loadgroup`` silently spread every group
+    over all workers (pytest-xdist issue 1386): each worker built a module's fixture again (a recording, a
+    booted container) and the ``realtime-pty`` tests ran side by side. After pytest-xdist's own hook, this
+    puts the suffix where pytest reads the id, unless it is there already (an older pytest, a fixed
+    pytest-xdist)."""
+
+    @pytest.hookimpl(trylast=True)
+    def pytest_collection_modifyitems(self, config: pytest.Config, items: list[pytest.Item]) -> None:
+        if not config.getvalue("loadgroup"):
+            return
+        for item in items:
+            suffix = _group_suffix(item)
+            if suffix and not item.nodeid.endswith(suffix):
+                item._id = type(item._id).parse(item.nodeid + suffix)
 
 
 @pytest.fixture(autouse=True)

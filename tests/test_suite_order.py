@@ -92,3 +92,34 @@ def test_without_times_a_slow_test_goes_out_before_the_others(
         "fast",
         "known",
     ]
+
+
+# Six tests sharing a module fixture that notes each time it is built.
+SHARED = """
+import pytest
+from pathlib import Path
+
+@pytest.fixture(scope="module")
+def shared():
+    with Path("built.txt").open("a") as f:
+        f.write("built\\n")
+
+@pytest.mark.parametrize("n", range(6))
+def test_shared(shared, n):
+    pass
+"""
+
+
+@pytest.mark.slow
+def test_a_module_fixture_is_built_once_on_two_workers(
+    pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Without the group, pytest-xdist hands the six tests out three and three and both workers build the
+    fixture (as pytest 9.2 with pytest-xdist 3.8 did: the group id was lost)."""
+    monkeypatch.setenv("PYTHONPATH", str(ROOT))
+    pytester.makeconftest("from tests.conftest import pytest_collection_modifyitems, pytest_configure\n")
+    pytester.makepyfile(test_shared=SHARED)
+    result = pytester.runpytest_subprocess("-n", "2", "--dist", "loadgroup", "-v")
+    result.assert_outcomes(passed=6)
+    assert (pytester.path / "built.txt").read_text().split() == ["built"]
+    result.stdout.fnmatch_lines(["*test_shared.py::test_shared?0?@test_shared.py*"])
