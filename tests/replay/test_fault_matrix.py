@@ -189,9 +189,11 @@ def test_each_row_of_the_matrix_ends_in_its_safe_state(
 @pytest.mark.parametrize("row", CAMERA_ROWS, ids=[r.name for r in CAMERA_ROWS])
 @pytest.mark.slow
 def test_each_camera_row_ends_in_its_safe_state(
-    row: Row, world: str, request: pytest.FixtureRequest, dishbot: DishbotReplay
+    row: Row, world: str, recorded_job: Path, recorded_mujoco_job: Path, dishbot: DishbotReplay
 ) -> None:
-    job = request.getfixturevalue("recorded_job" if world == "kinematic" else "recorded_mujoco_job")
+    # Both recordings named as fixtures (not looked up by name): the rows join the module's group, which
+    # records each once (tests/conftest.py groups the tests whose fixtures are module-scoped).
+    job = recorded_job if world == "kinematic" else recorded_mujoco_job
     trace = dishbot.replay(job, faults=row.faults)
     _check(row, trace)
 
