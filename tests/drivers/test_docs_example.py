@@ -12,6 +12,7 @@ DOC = Path(__file__).resolve().parents[2] / "docs" / "drivers.md"
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("realtime-pty")  # simulators on pseudo-terminals in real time: one at a time
 def test_the_drivers_readme_example_runs(capsys: pytest.CaptureFixture[str]) -> None:
     source = re.search(r"```python\n(.*?)```", DOC.read_text(), re.S)
     assert source is not None

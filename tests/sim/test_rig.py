@@ -23,7 +23,8 @@ from tests.daemon.conftest import free_port
 from validation.toml import dumps
 
 # The tests whose devices answer on pseudo-terminals in real time run one at a time (pytest-xdist group).
-REALTIME_PTY = "realtime-pty"  # (tests/bench/test_bus.py and tests/drivers/test_cli.py name it too)
+# tests/bench/test_bus.py, tests/drivers/test_cli.py and tests/drivers/test_docs_example.py name it too.
+REALTIME_PTY = "realtime-pty"
 # Guards against a hang, not measurements: the rig runs in real time and a one-mug job takes about 30 s.
 READY_GUARD_S = 120.0
 JOB_GUARD_S = 300.0
