@@ -210,7 +210,8 @@ def _as_built(
     ids = {p.id for p in placed}
     note = (
         f"{_CHECKED}{len(placed)} of {result.n} planned cycles plan in this order"
-        f" ({checked.checks} cycles planned), {len(left)} counter mugs out of reach left out before packing"
+        f" ({checked.checks} cycles planned{_orders_tried(checked)}), {len(left)} counter mugs out of reach"
+        " left out before packing"
     )
     return replace(
         result,
@@ -229,6 +230,11 @@ def _as_built(
             *(f"{_DROPPED}{mug}: {why}" for mug, why in dropped),
         ),
     )
+
+
+def _orders_tried(checked: Sequenced) -> str:
+    """``, 2 orders tried`` when the check searched for another order (nothing when the first one stood)."""
+    return f", {checked.orders} orders tried" if checked.orders > 1 else ""
 
 
 def _first_line(text: str, limit: int = 110) -> str:
