@@ -2,8 +2,9 @@
 cycle planner in the robot cell: a mug out of reach is left out before packing with one short line, a slot
 whose mug is behind another counter mug is filled after that mug has moved whatever order it was planned in,
 a mug given up stays an obstacle, every cycle of a checked plan plans again as the job asks for it
-(``plan_for_slot``, the slot's own mug first) in the checked order, and a slot the greedy order drops
-because a mug it placed earlier is in the way is built in another order."""
+(``plan_for_slot``, the slot's own mug first) in the checked order, a slot the greedy order drops because a
+mug it placed earlier is in the way is built in another order, and the reasons a plan gives for the mugs it
+leaves speak of that plan."""
 
 from __future__ import annotations
 
@@ -273,3 +274,23 @@ def test_the_order_search_builds_every_slot_the_greedy_order_dropped_on_dataset_
     assert checked.rounds == 1
     assert checked.sequenced.orders == 2
     assert checked.dropped == ()
+    assert checked.summary_lines() == ["not packed: m11: the packing kept fits 11 of its 12 mugs on the tray"]
+
+
+@pytest.mark.slow
+def test_the_reasons_for_the_mugs_left_speak_of_the_plan_kept(
+    planner: CyclePlanner, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Without the order search, three rounds: the first (mug-shaped, 10 built) is kept; the second
+    # (rectangles) packed m11 and dropped it as blocked by m5, which that round left on the counter but the
+    # plan kept places. m11 is left because the kept packing had no slot for it.
+    monkeypatch.setattr(sequence_module, "REORDER_CHECKS", 0)
+    checked = _seen_ds1(planner)
+    placed = {p.id for p in checked.result.placed}
+    assert checked.rounds == 3
+    assert len(placed) == 10
+    assert "m5" in placed
+    assert [mug for mug, _ in checked.dropped] == ["m8"]
+    assert checked.dropped[0][1].startswith("slot for m8: place.retreat: the gripper would hit mug m12")
+    assert checked.unpacked == ("m11",)
+    assert sorted(placed | {"m8", "m11"}) == sorted(_SEEN_DS1)
