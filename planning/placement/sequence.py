@@ -40,9 +40,10 @@ from planning.interfaces import CyclePlan, MotionPlanner, MotionRefused, MugPose
 _TRAY_PHASE = re.compile(r"(^|: )place\.[a-z_]+: ")
 # A short reason stops at this many characters (the recording has the full refusal).
 _SHORT = 110
-# The cycle checks the greedy passes after the first may spend looking for an order that builds more (about
-# three more passes over a robot tray's slots; the cycle planner remembers the cycles they share).
-REORDER_CHECKS = 48
+# The cycle checks the greedy passes after the first may spend looking for an order that builds more: about
+# two more passes over a robot tray's slots on a crowded counter (a pass there plans 50-70 cycles; the cycle
+# planner remembers the ones passes share).
+REORDER_CHECKS = 100
 # The target's coordinates in a refusal, which the short line already gives as the mug's.
 _POINT = re.compile(r"\([-\d.]+, [-\d.]+, [-\d.]+\) m ")
 

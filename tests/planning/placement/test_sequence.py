@@ -217,7 +217,7 @@ def test_the_search_for_an_order_spends_at_most_its_budget_of_cycle_checks(
     # A chain: each slot's descent would hit the mug of the slot before it in the placement's order (one
     # mug of each type, so none takes another's slot): each pass learns precedences the next one breaks
     # further down the chain, until the budget is spent.
-    n = 40
+    n = 100
     slots = [TraySlot(f"m{i}", f"t{i}", 0.45 + 0.001 * i, 0.0) for i in range(n)]
     counter = [MugPose(f"m{i}", f"t{i}", 0.3, 0.4 + 0.001 * i) for i in range(n)]
     hit_by = {f"m{i}": {f"m{i - 1}"} for i in range(1, n)}
@@ -227,7 +227,7 @@ def test_the_search_for_an_order_spends_at_most_its_budget_of_cycle_checks(
     motion = _Scripted(hit_by)
     done = sequence(motion, START_Q, slots, counter)  # type: ignore[arg-type]
     assert greedy.orders == 1
-    assert done.orders > 2
+    assert done.orders >= 2
     assert done.checks == len(motion.asked)
     assert greedy.checks + REORDER_CHECKS <= done.checks <= greedy.checks + REORDER_CHECKS + 1
     assert len(done.cycles) >= len(greedy.cycles)
