@@ -3,7 +3,9 @@ can take (``sequence.reach``), packs the rest with the chosen method and footpri
 assignment and the order cycle by cycle with the cycle planner (``sequence.sequence``). The result lists
 only the checked cycles, in the order they were checked; when slots had to be dropped, the mugs planned for
 them are left out and the tray is packed once more (mug-shaped footprints: first a round with rectangles and
-the same mugs), and the round that builds more wins.
+the same mugs), and the round that builds more wins. What the plan says of each reachable mug it leaves on
+the counter speaks of that round: its own dropped slots, an earlier round's drop that kept the mug out of its
+packing (named as that round's), or no slot in its packing.
 
 Only ``planning.interfaces`` is needed from the arm's side: the caller passes its ``MotionPlanner`` (the
 daemon's, possibly in another process; a bench's ``CyclePlanner``).
@@ -35,6 +37,8 @@ _T = TypeVar("_T")
 # How the notes of a checked plan start.
 _CHECKED = "checked with the arm: "
 _DROPPED = "slot dropped: "
+# How a reason from an earlier packing round names that round's packing.
+_KIND = {"mug": "mug-shaped packing", "rect": "rectangle packing"}
 # A refusal that says the arm cannot get there (IK, joint limits, beyond the side-grasp ring).
 _REACH = re.compile(r"unreachable|out of reach")
 
@@ -50,8 +54,11 @@ class CheckedPlan:
     sequenced: Sequenced
     planned: int
     rounds: int
-    # (mug id, why) of every mug whose slot a round dropped and which the result leaves on the counter.
+    # (mug id, why) of every mug whose slot was dropped and which the result leaves on the counter, in words
+    # about this plan (see ``_left_on_counter``).
     dropped: tuple[tuple[str, str], ...] = ()
+    # The mugs the kept round's packing gave no slot (the tray held no more of them).
+    unpacked: tuple[str, ...] = ()
 
     def summary_lines(self) -> list[str]:
         """One short line per counter mug left out before packing (out of reach, or no cycle takes it for
@@ -61,6 +68,11 @@ class CheckedPlan:
             for m in self.left_out
         ]
         lines += [f"slot dropped: {mug}: {_first_line(why)}" for mug, why in self.dropped]
+        if self.unpacked:
+            lines.append(
+                f"not packed: {', '.join(self.unpacked)}: the packing kept fits {self.planned} of its"
+                f" {self.planned + len(self.unpacked)} mugs on the tray"
+            )
         return lines
 
 
@@ -101,43 +113,70 @@ async def plan_checked(
     gone = {m.mug_id for m in left}
     stays = (*fixed, *(poses[m] for m in sorted(gone)))
     pickable = [m for m in movable if m.mug_id not in gone]
-    best: tuple[PlanResult, Sequenced] | None = None
-    rounds = 0
+    tried: list[_Round] = []
     excluded = set(gone)
-    dropped: dict[str, str] = {}
     # A mug-shaped round that dropped slots is followed by one with the thesis's rectangles and the same
     # mugs: their footprints leave the gripper more room around the mugs on the tray (a replan after a mug
     # came to the counter dropped its only slot, which the rectangle layout had room for).
     rect_next = False
     limit = ROUNDS + 1 if problem.footprint_kind == "mug" else ROUNDS
-    while rounds < limit:
-        rounds += 1
+    while len(tried) < limit:
         packed = replace(problem, mugs=tuple(m for m in problem.mugs if m.id not in excluded))
         if rect_next:
             packed = replace(packed, footprint_kind="rect")
         result = await pack(packed, options)
-        for mug, why in _dropped_notes(result.notes):  # a plan checked before (a replay's recorded one)
-            dropped.setdefault(mug, why)
         slots = result.slots(packed)
         checked = await off_loop(
             functools.partial(sequence, motion, start_q, slots, pickable, on_tray, fixed=stays)
         )
-        for mug, why in checked.dropped:
-            dropped.setdefault(mug, why)
-        if best is None or len(checked.cycles) > len(best[1].cycles):
-            best = (result, checked)
+        # A plan checked before (a replay's recorded one) lists in its notes the slots its check dropped.
+        why = (*_dropped_notes(result.notes), *checked.dropped)
+        tried.append(_Round(len(tried) + 1, packed, result, checked, why))
         if not checked.dropped or not packed.mugs:
             break
-        rect_next = problem.footprint_kind == "mug" and rounds == 1
+        rect_next = problem.footprint_kind == "mug" and len(tried) == 1
         if not rect_next:
             excluded |= {mug for mug, _ in checked.dropped}
-    assert best is not None
-    result, checked = best
+    kept = max(tried, key=lambda r: len(r.checked.cycles))  # the first of those that build the most
     reachable = replace(problem, mugs=tuple(m for m in problem.mugs if m.id not in gone))
-    placed = {c.slot.mug_id for c in checked.cycles}
-    still = tuple((mug, why) for mug, why in dropped.items() if mug not in placed)
-    built = _as_built(reachable, options, result, checked, time.perf_counter() - started, left, still)
-    return CheckedPlan(built, left, checked, result.n, rounds, still)
+    still, unpacked = _left_on_counter(kept, tried)
+    wall_s = time.perf_counter() - started
+    built = _as_built(reachable, options, kept.result, kept.checked, wall_s, left, still)
+    return CheckedPlan(built, left, kept.checked, kept.result.n, len(tried), still, unpacked)
+
+
+@dataclass(frozen=True, slots=True)
+class _Round:
+    """One packing round: its number (from 1), the problem packed (the mugs left in, the footprint), the
+    packing, its check, and (mug id, why) of every slot dropped in it."""
+
+    number: int
+    packed: Problem
+    result: PlanResult
+    checked: Sequenced
+    dropped: tuple[tuple[str, str], ...]
+
+
+def _left_on_counter(
+    kept: _Round, tried: Sequence[_Round]
+) -> tuple[tuple[tuple[str, str], ...], tuple[str, ...]]:
+    """Why the plan of the ``kept`` round leaves each reachable mug on the counter, in words about that plan:
+    a slot the round dropped, with its own reason; a mug an earlier round's dropped slot kept out of this
+    round's packing, with that reason named as that round's (it speaks of that round's plan); and the mugs
+    the round packed no slot for (returned apart, by id)."""
+    placed = {c.slot.mug_id for c in kept.checked.cycles}
+    why: dict[str, str] = {}
+    for mug, reason in kept.dropped:
+        if mug not in placed:
+            why.setdefault(mug, reason)
+    packed = {m.id for m in kept.packed.mugs}
+    for earlier in reversed(tried[: kept.number - 1]):
+        kind = _KIND[earlier.packed.footprint_kind]
+        for mug, reason in earlier.dropped:
+            if mug not in packed and mug not in placed:
+                why.setdefault(mug, f"in round {earlier.number} ({kind}): {reason}")
+    unpacked = tuple(m.id for m in kept.packed.mugs if m.id not in placed and m.id not in why)
+    return tuple(why.items()), unpacked
 
 
 def _dropped_notes(notes: Sequence[str]) -> list[tuple[str, str]]:
@@ -210,7 +249,8 @@ def _as_built(
     ids = {p.id for p in placed}
     note = (
         f"{_CHECKED}{len(placed)} of {result.n} planned cycles plan in this order"
-        f" ({checked.checks} cycles planned), {len(left)} counter mugs out of reach left out before packing"
+        f" ({checked.checks} cycles planned{_orders_tried(checked)}), {len(left)} counter mugs out of reach"
+        " left out before packing"
     )
     return replace(
         result,
@@ -229,6 +269,11 @@ def _as_built(
             *(f"{_DROPPED}{mug}: {why}" for mug, why in dropped),
         ),
     )
+
+
+def _orders_tried(checked: Sequenced) -> str:
+    """``, 2 orders tried`` when the check searched for another order (nothing when the first one stood)."""
+    return f", {checked.orders} orders tried" if checked.orders > 1 else ""
 
 
 def _first_line(text: str, limit: int = 110) -> str:

@@ -20,7 +20,10 @@ loads the arm):
    has moved; one refused by nothing movable (out of reach, the tray's walls, mugs on the tray, mugs that
    stay on the counter) is dropped for good. What is left when no slot plans is dropped, each with the mugs
    that blocked it: mugs the plan leaves on the counter, or mugs whose own slots are blocked in turn (no
-   order frees them). The plan promises only the cycles it checked.
+   order frees them). A slot dropped because mugs this order placed before it are in the way may plan in
+   another order: the refusal says it must come before their slots, and the greedy pass runs again with
+   every precedence learned so far (a bounded search, ``REORDER_CHECKS``); the pass that builds the most
+   is kept. The plan promises only the cycles it checked.
 """
 
 from __future__ import annotations
@@ -37,6 +40,10 @@ from planning.interfaces import CyclePlan, MotionPlanner, MotionRefused, MugPose
 _TRAY_PHASE = re.compile(r"(^|: )place\.[a-z_]+: ")
 # A short reason stops at this many characters (the recording has the full refusal).
 _SHORT = 110
+# The cycle checks the greedy passes after the first may spend looking for an order that builds more: about
+# two more passes over a robot tray's slots on a crowded counter (a pass there plans 50-70 cycles; the cycle
+# planner remembers the ones passes share).
+REORDER_CHECKS = 100
 # The target's coordinates in a refusal, which the short line already gives as the mug's.
 _POINT = re.compile(r"\([-\d.]+, [-\d.]+, [-\d.]+\) m ")
 
@@ -62,12 +69,13 @@ class Cycle:
 
 @dataclass(frozen=True, slots=True)
 class Sequenced:
-    """The slots in the order the arm builds them, the slots dropped (the mug each named then, reason) and how
-    many cycles were planned to find out."""
+    """The slots in the order the arm builds them, the slots dropped (the mug each named then, reason), how
+    many cycles were planned to find out and how many orders (greedy passes) were tried."""
 
     cycles: tuple[Cycle, ...]
     dropped: tuple[tuple[str, str], ...]
     checks: int
+    orders: int = 1
 
 
 def reach(
@@ -103,27 +111,95 @@ def sequence(
     """The slots (in the placement's order, each naming the mug planned for it) in an order whose every
     cycle plans (see the module). ``counter`` holds the mugs that may be moved (every one, planned or not,
     is an obstacle until it is moved), ``fixed`` mugs that stay on the counter (obstacles only),
-    ``on_tray`` the mugs already placed."""
+    ``on_tray`` the mugs already placed.
+
+    A slot the greedy pass drops because mugs it placed earlier are in the way might plan in another
+    order: each such refusal says the slot must come before the slots of those mugs, and the greedy pass
+    runs again keeping every precedence learned so far, until a pass learns nothing new or the passes
+    after the first have spent ``REORDER_CHECKS`` cycle checks. The pass that builds the most wins (the
+    first on a tie), so the search never builds fewer."""
+    first = _greedy(motion, start_q, slots, counter, on_tray, fixed, {}, limit=None)
+    best, last, checks, orders = first, first, first.checks, 1
+    before: dict[str, frozenset[str]] = {}
+    while len(best.cycles) < len(slots) and last.finished and checks - first.checks < REORDER_CHECKS:
+        learned = _learn(before, last.order_blocked)
+        if learned == before:
+            break
+        before = learned
+        last = _greedy(
+            motion,
+            start_q,
+            slots,
+            counter,
+            on_tray,
+            fixed,
+            before,
+            limit=REORDER_CHECKS + first.checks - checks,
+        )
+        checks += last.checks
+        orders += 1
+        if last.finished and len(last.cycles) > len(best.cycles):
+            best = last
+    return Sequenced(best.cycles, best.dropped, checks, orders)
+
+
+@dataclass(frozen=True, slots=True)
+class _Pass:
+    """One greedy pass: its cycles and drops, the cycles it planned, and for each slot it dropped because
+    mugs it had placed were in the way, the slot and the slots of those mugs (planned-for ids);
+    ``finished`` is false when the pass ran out of checks (its result is not used)."""
+
+    cycles: tuple[Cycle, ...]
+    dropped: tuple[tuple[str, str], ...]
+    checks: int
+    order_blocked: tuple[tuple[str, frozenset[str]], ...]
+    finished: bool
+
+
+def _greedy(
+    motion: MotionPlanner,
+    start_q: Sequence[float],
+    slots: Sequence[TraySlot],
+    counter: Sequence[MugPose],
+    on_tray: Sequence[TraySlot],
+    fixed: Sequence[MugPose],
+    before: Mapping[str, frozenset[str]],
+    *,
+    limit: int | None,
+) -> _Pass:
+    """The greedy pass of the module, a slot tried only once the slots that must come ``before`` it (by
+    planned-for id) are built or dropped, unless no other slot is left to try; it gives up (unfinished)
+    once ``limit`` cycles are planned."""
     q = tuple(float(v) for v in start_q)
     remaining = [(s, s.mug_id) for s in slots]
     movable = {m.mug_id: m for m in counter}
     placed = list(on_tray)
     cycles: list[Cycle] = []
     dropped: list[tuple[str, str]] = []
+    order_blocked: list[tuple[str, frozenset[str]]] = []
     waiting: dict[str, frozenset[str]] = {}  # planned-for id -> counter mugs that blocked its last try
     checks = [0]
+    held_back = True
     while remaining:
         progress = False
+        pending = {p for _, p in remaining}
         for i, (slot, planned_for) in enumerate(remaining):
+            if limit is not None and checks[0] >= limit:
+                return _Pass(tuple(cycles), tuple(dropped), checks[0], tuple(order_blocked), False)
             blockers = waiting.get(planned_for)
             if blockers is not None and blockers <= movable.keys():
                 continue  # nothing that blocked it has moved since
+            if held_back and before.get(planned_for, frozenset()) & pending:
+                continue  # a slot that must come first is still to be built
             try:
                 mug, plan = fill_slot(motion, q, slot, movable, placed, fixed, checks=checks)
             except MotionRefused as e:
                 on_counter = e.blockers & movable.keys()
                 if not on_counter:
                     dropped.append((slot.mug_id, str(e)))
+                    by = {c.planned_for for c in cycles if c.slot.mug_id in e.blockers}
+                    if by:
+                        order_blocked.append((planned_for, frozenset(by)))
                     del remaining[i]
                     progress = True
                     break
@@ -144,14 +220,43 @@ def sequence(
             q = _end_q(plan, q)
             progress = True
             break
-        if not progress:
-            pending = {slot.mug_id for slot, _ in remaining}
+        if progress:
+            held_back = True
+        elif held_back and before:
+            held_back = False  # the slots held back are all that is left to try
+        else:
+            names = {slot.mug_id for slot, _ in remaining}
             for slot, planned_for in remaining:
                 dropped.append(
-                    (slot.mug_id, _stuck(slot.mug_id, waiting.get(planned_for, frozenset()), pending))
+                    (slot.mug_id, _stuck(slot.mug_id, waiting.get(planned_for, frozenset()), names))
                 )
             break
-    return Sequenced(tuple(cycles), tuple(dropped), checks[0])
+    return _Pass(tuple(cycles), tuple(dropped), checks[0], tuple(order_blocked), True)
+
+
+def _learn(
+    before: Mapping[str, frozenset[str]], order_blocked: Sequence[tuple[str, frozenset[str]]]
+) -> dict[str, frozenset[str]]:
+    """``before`` with each slot refused by mugs placed earlier put before the slots of those mugs, unless
+    that contradicts a precedence already kept (the slot of the mug in its way must come before it)."""
+    out = dict(before)
+    for slot, by in order_blocked:
+        for other in sorted(by):
+            if other not in _all_before(out, slot):
+                out[other] = out.get(other, frozenset()) | {slot}
+    return out
+
+
+def _all_before(before: Mapping[str, frozenset[str]], slot: str) -> set[str]:
+    """The slots that must come before ``slot``, directly or through others."""
+    seen: set[str] = set()
+    todo = list(before.get(slot, ()))
+    while todo:
+        s = todo.pop()
+        if s not in seen:
+            seen.add(s)
+            todo.extend(before.get(s, ()))
+    return seen
 
 
 def _stuck(mug_id: str, blockers: frozenset[str], pending: set[str]) -> str:
