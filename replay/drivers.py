@@ -6,11 +6,11 @@ cell's device and drives it with every command too, so that the cell stays where
 robot was; while the replay is *replaying* it hands the job what the recording holds instead of what the
 cell says (and does not read the cell):
 
-- joint feedback, force readings and the holding flag by time: the last one recorded at or before the
-  moment the daemon reads (the recording's clock laid over the replay's at the job's start); a joint read
-  that failed then fails now, and so does a gripper read or a health poll (once each). A recording that
-  says who read each joint sample (``reader``) hands each reader its own: the job's own reads by order,
-  the telemetry's by time among its samples;
+- joint feedback, force readings, the holding flag and the telemetry's gripper readings by time: the last
+  one recorded at or before the moment the daemon reads (the recording's clock laid over the replay's at
+  the job's start); a joint read that failed then fails now, and so does a gripper read or a health poll
+  (once each). A recording that says who read each joint sample (``reader``) hands each reader its own:
+  the job's own reads by order, the telemetry's by time among its samples;
 - grasp results, observations, placement plans and motion plans by order: the n-th call gets the n-th
   recorded result, after as long as it took then; a call that failed then fails the same way now (the
   same driver error class, ``recorded_failure``), and the cell's side of it stops where it ended then; a
@@ -546,6 +546,20 @@ class Replayer:
         i = self._latest_index("input/holding")
         return None if i is None else self._holding[i]
 
+    def gripper(self) -> GripperState | None:
+        """The gripper as the recorded telemetry last read it at or before this moment, its time the
+        replay's (``RecordedSession.gripper``); None before the first read recorded. Not counted in
+        ``served``: the telemetry's reads are no input of the job's."""
+        telemetry = self.session.gripper
+        i = bisect.bisect_right(telemetry.read_times, self.recorded_monotonic() + _SAME_S) - 1
+        if i < 0:
+            return None
+        return GripperState(
+            t=self.replay_monotonic(telemetry.read_times[i]),
+            aperture_m=telemetry.aperture_m[i],
+            load=telemetry.load[i],
+        )
+
     def _latest_index(self, stream: str) -> int | None:
         times = self._timed_t[stream]
         now = self.recorded_monotonic()
@@ -856,11 +870,16 @@ class ReplayGripper:
         self._r = replayer
 
     async def read(self) -> GripperState:
-        """The cell's gripper (only the telemetry reads it); a read that failed then fails now."""
+        """The gripper as the recorded telemetry read it while the recording is served (a read that failed
+        then fails now), the cell's after. Only the telemetry reads the gripper: the cell's is not read
+        meanwhile (a read changes nothing in the cell), as the arm is not."""
         if self._r.serving():
             failure = self._r.failure("input/gripper_failed")
             if failure is not None:
                 _raise_recorded(failure)
+            recorded = self._r.gripper()
+            if recorded is not None:
+                return recorded
         return await self._inner.read()
 
     async def open(self, aperture_m: float | None = None) -> None:
