@@ -34,7 +34,6 @@ checks it); ``wall_seconds`` is for measuring how long work took on this machine
 from __future__ import annotations
 
 import asyncio
-import collections
 import concurrent.futures
 import math
 import selectors
@@ -43,10 +42,7 @@ import time
 from collections.abc import Callable, Coroutine
 from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Final, Protocol, TypeVar, TypeVarTuple, runtime_checkable
-
-if TYPE_CHECKING:
-    from _typeshed import FileDescriptorLike
+from typing import Any, Final, Protocol, TypeVar, TypeVarTuple
 
 from drivers.interfaces import Clock
 
@@ -58,9 +54,6 @@ Ts = TypeVarTuple("Ts")
 _BEHIND_S: Final = 0.25
 # How often a loop waiting for executor work looks for input from outside (a signal, a command).
 _EXTERNAL_POLL_S: Final = 0.02
-# How often a busy simulated loop looks for input from outside at most (wall seconds): more often is a system
-# call per loop iteration (a hundred thousand a job) for input that comes a few times a session.
-_OUTSIDE_LOOK_S: Final = 0.001
 SPEED_RANGE: Final = (0.1, 1000.0)
 
 
@@ -256,8 +249,7 @@ class SimulatedClock:
         try:
             await woken
         finally:
-            if not woken.done() or woken.cancelled():  # cancelled before its time: the timer goes too
-                handle.cancel()  # (after the timer ran there is nothing to undo: most waits end so)
+            handle.cancel()
 
     def timeout(self, seconds: float | None) -> asyncio.Timeout:
         self._check_loop()
@@ -392,20 +384,20 @@ class SimulatedClock:
         for p in parked:
             p.woken.set()
 
-    def _select(self, selector: _Selector, timeout: float | None) -> list[tuple[selectors.SelectorKey, int]]:
+    def _select(
+        self, select: Callable[[float | None], list[tuple[selectors.SelectorKey, int]]], timeout: float | None
+    ) -> list[tuple[selectors.SelectorKey, int]]:
         """The loop's wait for I/O, where simulated time is made: ``timeout`` is 0 when callbacks are ready,
         the time to the next timer, or None when no timer is set.
 
         I/O that is ready is handled first, at the current time (the in-process devices write from this
-        thread, so what they sent is always there by the next look: ``_Selector.glance``). Then executor work
-        in flight is waited for and handed back; only when there is neither, and no thread handed the loop
-        a callback meanwhile, does time move on. From then on no thread can start waiting on the clock
-        (only executor work in flight does, and all of it has finished or is waiting already), so
-        ``_parked`` may be looked at without the lock."""
-        ready = selector.glance()
+        thread, so what they sent is always there by the next look). Then executor work in flight is waited
+        for and handed back; only when there is neither does time move on. From then on no thread can
+        start waiting on the clock (only executor work in flight does, and all of it has finished or is
+        waiting already), so ``_parked`` may be looked at without the lock."""
+        ready = select(0)
         if ready or timeout == 0:
             return ready
-        select = selector.look
         if self._work:
             in_flight = len(self._work)
             outside = self._finish_work(select)
@@ -434,8 +426,6 @@ class SimulatedClock:
             ready = select(0)  # what a helper handed back as it caught up (a callback) comes at this time
             if ready:
                 return ready
-        if selector.handed_callbacks():
-            return []  # a thread handed the loop a callback since the glance: it runs at this time
         self._advance(target)
         if self._wake_parked(target):
             # The threads whose time came go on first: until they finish or wait again, nothing else runs.
@@ -524,104 +514,33 @@ def _as_work_of(clock: SimulatedClock, fn: Callable[..., T], *args: Any) -> T:
         _this_thread.work_of = None
 
 
-@runtime_checkable
-class _Pending(Protocol):
-    """A file object that says itself whether a read would return at once (``drivers.sim.inprocess``'s
-    port), and can be told its owner asks that instead of waiting on its descriptor."""
-
-    def fileno(self) -> int: ...
-
-    def pending(self) -> bool: ...
-
-    def watched_by_pending(self) -> None: ...
-
-
 def _wake(future: asyncio.Future[None]) -> None:
     if not future.done():
         future.set_result(None)
 
 
 class _Selector(selectors.DefaultSelector):
-    """The platform's selector, whose ``select`` lets the simulated clock decide how time passes.
+    """The platform's selector, whose ``select`` lets the simulated clock decide how time passes."""
 
-    A file object that says itself whether it is readable (``pending``; ``watched_by_pending`` tells it
-    so: an in-process serial port, written from the loop's own thread) is asked at every look, without a
-    system call. The platform's selector is then only needed for input from outside (a signal, a socket),
-    which a busy loop looks for at most every ``_OUTSIDE_LOOK_S`` of wall time (``glance``)."""
-
-    def __init__(self, clock: SimulatedClock, loop: _SimulatedLoop) -> None:
+    def __init__(self, clock: SimulatedClock) -> None:
         super().__init__()
         self._clock = clock
-        self._loop = loop
-        # By descriptor: the file objects asked through ``pending``, with their keys (kept as they change).
-        self._asked: dict[int, tuple[selectors.SelectorKey, _Pending]] = {}
-        self._outside_at = -math.inf  # the wall clock at the last look for input from outside
-
-    def register(self, fileobj: FileDescriptorLike, events: int, data: Any = None) -> selectors.SelectorKey:
-        key = super().register(fileobj, events, data)
-        if isinstance(fileobj, _Pending):
-            fileobj.watched_by_pending()
-            self._asked[key.fd] = (key, fileobj)
-        return key
-
-    def modify(self, fileobj: FileDescriptorLike, events: int, data: Any = None) -> selectors.SelectorKey:
-        key = super().modify(fileobj, events, data)
-        if key.fd in self._asked:
-            self._asked[key.fd] = (key, self._asked[key.fd][1])
-        return key
-
-    def unregister(self, fileobj: FileDescriptorLike) -> selectors.SelectorKey:
-        key = super().unregister(fileobj)
-        self._asked.pop(key.fd, None)
-        return key
 
     def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
-        return self._clock._select(self, timeout)
-
-    def look(self, timeout: float | None) -> list[tuple[selectors.SelectorKey, int]]:
-        """What is readable: the file objects asked through ``pending``, and what the platform's selector
-        finds within ``timeout`` (none when one of those is readable: the loop does not wait then)."""
-        ready = self._pending() if self._asked else []
-        found = super().select(0 if ready else timeout)
-        self._outside_at = time.monotonic()
-        if self._asked:
-            found = [(key, events) for key, events in found if key.fd not in self._asked]
-        return ready + found
-
-    def glance(self) -> list[tuple[selectors.SelectorKey, int]]:
-        """``look(0)``, asking the platform's selector only when ``_OUTSIDE_LOOK_S`` passed since it was
-        last asked."""
-        if time.monotonic() - self._outside_at >= _OUTSIDE_LOOK_S:
-            return self.look(0)
-        return self._pending() if self._asked else []
-
-    def handed_callbacks(self) -> bool:
-        """Whether callbacks wait to run on the loop (a thread hands them over with
-        ``call_soon_threadsafe``, which a look finds as its wake-up byte)."""
-        return self._loop.has_callbacks()
-
-    def _pending(self) -> list[tuple[selectors.SelectorKey, int]]:
-        read = selectors.EVENT_READ
-        return [(key, read) for key, port in self._asked.values() if key.events & read and port.pending()]
+        return self._clock._select(super().select, timeout)
 
 
 class _SimulatedLoop(asyncio.SelectorEventLoop):
     """asyncio's selector loop with the simulated clock's time and its executor bookkeeping."""
 
-    _ready: collections.deque[asyncio.Handle]  # asyncio's: the callbacks ready to run
-
     def __init__(self, clock: SimulatedClock) -> None:
-        super().__init__(selector=_Selector(clock, self))
+        super().__init__(selector=_Selector(clock))
         self._clock = clock
         self._pool = ThreadPoolExecutor(thread_name_prefix="simulated-executor")
         self.set_default_executor(self._pool)
 
     def time(self) -> float:
         return self._clock.monotonic()
-
-    def has_callbacks(self) -> bool:
-        """Whether callbacks are ready to run."""
-        return bool(self._ready)
 
     def close(self) -> None:
         self._clock._loop_closed()

@@ -177,9 +177,7 @@ class FsrReader:
         self._serial = ser
         self._buf.clear()
         assert self._loop is not None
-        # The port itself, not its descriptor: a simulated clock's loop asks an in-process port whether it
-        # has bytes without a system call (``daemon.clock``).
-        self._loop.add_reader(ser, self._on_readable)
+        self._loop.add_reader(ser.fileno(), self._on_readable)
 
     def _close(self) -> None:
         ser, self._serial = self._serial, None
@@ -187,7 +185,7 @@ class FsrReader:
             return
         if self._loop is not None:
             with contextlib.suppress(ValueError, OSError):
-                self._loop.remove_reader(ser)
+                self._loop.remove_reader(ser.fileno())
         with contextlib.suppress(serial.SerialException, OSError):
             ser.close()
 

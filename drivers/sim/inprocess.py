@@ -49,7 +49,6 @@ class InProcessPort:
         os.set_blocking(self._read_fd, False)
         os.set_blocking(self._write_fd, False)
         self._watched = False  # fileno() was asked for: keep the pipe's readiness up to date
-        self._asks_pending = False  # the host's selector asks ``pending`` itself: the pipe stays quiet
         self._rung = False  # the pipe holds its byte
         self._closed = False
         self._hung_up = False
@@ -87,7 +86,7 @@ class InProcessPort:
 
     def fileno(self) -> int:
         self._check_open()
-        if not self._watched and not self._asks_pending:
+        if not self._watched:
             with self._lock:
                 self._watched = True
                 if self._buf and not self._rung and not self._hung_up:
@@ -98,17 +97,6 @@ class InProcessPort:
         """Whether a read would return at once (bytes wait, or end-of-file once the cable is pulled): what
         ``select`` on ``fileno`` says, without a system call."""
         return bool(self._buf) or self._hung_up
-
-    def watched_by_pending(self) -> None:
-        """The host's selector asks ``pending`` before every look instead of waiting on ``fileno``, and never
-        blocks while it says yes (a simulated clock's loop, on the thread the device writes from): the
-        readiness pipe is not kept up to date from now on (two system calls saved per delivery). The
-        descriptor still reads end-of-file once the cable is pulled."""
-        with self._lock:
-            self._asks_pending = True
-            self._watched = False
-            if self._rung:
-                self._quiet()
 
     def answers_at_once(self) -> bool:
         """Whether the device has answered whatever is written before the write returns, and withholds
