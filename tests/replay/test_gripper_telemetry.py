@@ -39,6 +39,7 @@ def _shifted(suffix: str, payload: dict[str, object]) -> dict[str, object]:
     return payload
 
 
+@pytest.mark.slow  # records a job and replays it
 def test_a_replays_gripper_telemetry_is_the_recorded_one_while_it_follows_the_recording(
     one_mug_job: Path, tmp_path: Path
 ) -> None:
