@@ -162,6 +162,11 @@ class _GripContacts:
     finger_mugs: set[int] = field(default_factory=set)
 
 
+# What a contact's geom pair means while a mug is held (bits of a ``SimWorld._holding_table``): a possible
+# collision, reported to the listeners; a push on the held mug from anything but the gripper.
+_WATCHED: Final = np.uint8(1)
+_SUPPORTING: Final = np.uint8(2)
+
 # What a monitor tick without a watched contact sees (most ticks): read, never changed.
 _NO_CONTACTS: Final = _GripContacts()
 
@@ -205,10 +210,14 @@ class SimWorld:
         self._qpos_adr = np.array([sv.qpos_adr for sv in ordered], dtype=np.int64)
         self._dof_adr = np.array([sv.dof_adr for sv in ordered], dtype=np.int64)
         self._stall = [sv.stall_torque for sv in ordered]
-        # The servos' slices of ``data.ctrl`` (written every step while a servo moves) and of the positions,
+        # The servos' slices of ``data.ctrl`` (all set-points written at once) and of the positions,
         # velocities and actuator forces (read after every batch) when they are consecutive, as they are in
         # the cell's arm: a slice is cheaper than a fancy index, and selects the same numbers.
         self._ctrl_index = _as_slice(self._actuators)
+        # ``data.ctrl`` itself (a view of MuJoCo's memory, as long-lived as ``data``) and each servo's element
+        # of it: the set-point walk writes the set-points that moved, one element each.
+        self._ctrl = self.data.ctrl
+        self._actuator_list: list[int] = self._actuators.tolist()
         self._qpos_index = _as_slice(self._qpos_adr)
         self._qvel_index = _as_slice(self._dof_adr)
         # Goals, speeds and set-points as plain float lists: six servos walk faster in Python floats than
@@ -235,10 +244,10 @@ class SimWorld:
         self.geom_gripper = self._geom_gripper_mask()
         self._watched_pairs = self._watched_pair_table()
         # The same table flat, indexed by ``geom1 * ngeom + geom2`` (one lookup instead of a 2-D fancy
-        # index), and for each mug held the table without the gripper's pairs with that mug (by mug index).
+        # index), and for each mug held the table of what a pair means while it is held (by mug index).
         self._ngeom = int(self.model.ngeom)
         self._watched_flat = self._watched_pairs.ravel()
-        self._watched_holding: dict[int, np.ndarray] = {}
+        self._holding_tables: dict[int, np.ndarray] = {}
         self._support_tables: dict[int, np.ndarray] = {}
         # A contact's geom pair (a row of ``data.contact.geom``, int32 as MuJoCo keeps ids) times this is
         # its key in the flat tables; the same integer type on both sides keeps the product one C loop.
@@ -406,7 +415,8 @@ class SimWorld:
         s = self._servo(servo_id)
         with self.lock:
             if on and not s.torque_on:
-                self._setpoint[s.index] = self._goal[s.index] = float(self.data.qpos[s.qpos_adr])
+                held = float(self.data.qpos[s.qpos_adr])
+                self._setpoint[s.index] = self._goal[s.index] = self._ctrl[s.actuator] = held
                 self._goal_gen += 1
                 self.model.actuator_gainprm[s.actuator] = s.gainprm
                 self.model.actuator_biasprm[s.actuator] = s.biasprm
@@ -707,23 +717,32 @@ class SimWorld:
         )
 
     def _drive_servos(self, dt: float) -> None:
-        """Walk each set-point towards its goal at the commanded speed, as the servo firmware does."""
+        """Walk each set-point towards its goal at the commanded speed, as the servo firmware does.
+
+        Only a set-point that moves is written to its control (one element each, no list to convert): every
+        other control holds its set-point already, since whatever sets one (``set_torque``, ``hold``, the
+        settling) writes it too."""
         gen = self._goal_gen
         if self._settled_gen == gen:
             return  # every set-point is at its goal: the controls stay as they are
         setpoint, goal, speed = self._setpoint, self._goal, self._speed
+        ctrl, actuator = self._ctrl, self._actuator_list
         moved = False
         for i, s in enumerate(setpoint):
+            g = goal[i]
+            if s == g:
+                continue
             step = speed[i] * dt
-            delta = goal[i] - s
+            delta = g - s
             if delta > step:
                 delta = step
             elif delta < -step:
                 delta = -step
             if delta != 0.0:
-                setpoint[i] = s + delta
+                s += delta
+                setpoint[i] = s
+                ctrl[actuator[i]] = s
                 moved = True
-        self.data.ctrl[self._ctrl_index] = setpoint
         if not moved:
             self._settled_gen = gen
 
@@ -817,12 +836,14 @@ class SimWorld:
         pairs = geom @ self._pair_key
         held = self._held
         if held is None:
-            looked_at = self._watched_flat[pairs].nonzero()[0]
+            looked_at = self._watched_flat.take(pairs).nonzero()[0]
             if looked_at.size == 0:
                 return _NO_CONTACTS
         else:
-            h = self._mug_index[held]
-            looked_at = self._watched_while_holding(h)[pairs].nonzero()[0]
+            codes = self._holding_table(self._mug_index[held]).take(pairs)
+            if not _count_nonzero(codes):
+                return _NO_CONTACTS  # the grip alone (a carry): nothing to report, nothing under the mug
+            looked_at = (codes & _WATCHED).nonzero()[0]
         grip = _GripContacts()
         efc_address = contact.efc_address
         efc_force = data.efc_force
@@ -834,23 +855,28 @@ class SimWorld:
             if not candidates:
                 return grip
             first, *rest = candidates
-            mine = self._supporting(first)[pairs]
+            mine = self._supporting(first).take(pairs)
             for c in rest:
-                mine |= self._supporting(c)[pairs]
+                mine |= self._supporting(c).take(pairs)
         else:
-            mine = self._supporting(h)[pairs]
+            mine = codes >= _SUPPORTING
         for address in efc_address[mine].tolist():
             grip.support_force_n += float(efc_force[address]) if address >= 0 else 0.0
         return grip
 
-    def _watched_while_holding(self, mug: int) -> np.ndarray:
-        """The flat watched-pair table while mug number ``mug`` is held: without the gripper's pairs with it
-        (the grasp itself), worked out the first time that mug is held."""
-        table = self._watched_holding.get(mug)
+    def _holding_table(self, mug: int) -> np.ndarray:
+        """The flat pair table while mug number ``mug`` is held, both questions in one lookup: ``_WATCHED``
+        for the watched pairs without the gripper's pairs with that mug (the grasp itself), plus
+        ``_SUPPORTING`` for the pairs that push on it from anything but the gripper; worked out the first
+        time that mug is held."""
+        table = self._holding_tables.get(mug)
         if table is None:
             held = self.geom_mug == mug
             grasp = held[:, None] & self.geom_gripper[None, :]
-            table = self._watched_holding[mug] = (self._watched_pairs & ~(grasp | grasp.T)).ravel()
+            watched = (self._watched_pairs & ~(grasp | grasp.T)).ravel()
+            supporting = self._supporting(mug)
+            table = watched.astype(np.uint8) * _WATCHED | supporting.astype(np.uint8) * _SUPPORTING
+            self._holding_tables[mug] = table
         return table
 
     def _supporting(self, mug: int) -> np.ndarray:
@@ -945,6 +971,9 @@ class SimWorld:
 
 # ``ndarray.sum`` without its Python wrapper (the divergence check runs after every batch of steps).
 _sum = np.add.reduce
+# Whether any entry is set, as a count (``ndarray.any`` goes through a Python wrapper; the contact scan asks
+# on most ticks of a carry).
+_count_nonzero = np.count_nonzero
 
 
 def _as_slice(index: np.ndarray) -> slice | np.ndarray:
