@@ -80,6 +80,7 @@ class SimServo:
     moving_at: int = -1
     hardware_error_at: int = -1
     torque_at: int = -1  # Torque Enable's address (one byte on both protocols)
+    id_at: int = -1  # the id's address (one byte on both protocols)
     limit_at: int = -1  # 1.0: Torque Limit's address (two bytes, unsigned); -1 on 2.0
 
     def __post_init__(self) -> None:
@@ -91,6 +92,7 @@ class SimServo:
         self.present = tuple(layout[n] for n in ("present_position", speed, load, "goal_position"))
         self.moving_at = layout["moving"][0]
         self.torque_at = layout["torque_enable"][0]
+        self.id_at = layout["id"][0]
         if "torque_limit" in layout:
             self.limit_at = layout["torque_limit"][0]
         if self.spec.protocol == 2:
@@ -98,7 +100,7 @@ class SimServo:
 
     @property
     def servo_id(self) -> int:
-        return self.table[self.layout["id"][0]]  # one byte on both protocols
+        return self.table[self.id_at]  # one byte on both protocols
 
     def torque_enable(self) -> int:
         """``get("torque_enable")`` without the lookup by name (asked several times per write)."""
@@ -108,6 +110,11 @@ class SimServo:
         """``get("torque_limit")`` (1.0) without the lookup by name."""
         at = self.limit_at
         return self.table[at] | self.table[at + 1] << 8
+
+    def goal_position(self) -> int:
+        """``get("goal_position")`` without the lookup by name (asked twice per goal written)."""
+        address, size, signed = self.present[3]
+        return int.from_bytes(self.table[address : address + size], "little", signed=signed)
 
     def get(self, name: str) -> int:
         try:
@@ -586,11 +593,11 @@ class ServoChainSimulator(SimulatedDevice):
         if end > len(servo.table):
             return self._range_error()
         span = _span(spec, address, len(data))
-        written = span.names
         if self.protocol == 2 and span.eeprom and servo.torque_enable():
             return 7  # access error: EEPROM is locked while the torque is on
-        before_torque = servo.torque_enable()
-        limp_before = self.protocol == 1 and servo.torque_limit() == 0
+        # What the write may change that matters after it (only looked at when it can change).
+        before_torque = servo.torque_enable() if span.torque_enable else 0
+        limp_before = self.protocol == 1 and span.torque_limit and servo.torque_limit() == 0
         checked = span.goal or span.id
         saved = bytes(servo.table[address:end]) if checked else b""  # all the write changes
         servo.table[address:end] = data
@@ -602,12 +609,12 @@ class ServoChainSimulator(SimulatedDevice):
         if span.hearing:
             self._heard = None
         if checked and (
-            (span.goal and not 0 <= servo.get("goal_position") <= spec.max_tick)
+            (span.goal and not 0 <= servo.goal_position() <= spec.max_tick)
             or (span.id and servo.get("id") > p.MAX_ID)
         ):
             servo.table[address:end] = saved
             return self._range_error()
-        if self.protocol == 1 and "torque_limit" in written and servo.torque_limit() > 0:
+        if self.protocol == 1 and span.torque_limit and servo.torque_limit() > 0:
             # Restoring the torque limit clears a latched shutdown on the 1.0 servos and powers them again;
             # a servo still too hot trips again at once (a lasting overload trips when next driven).
             # A shutdown for a live condition (heat that has passed) latches no bit but left the torque
@@ -617,7 +624,7 @@ class ServoChainSimulator(SimulatedDevice):
                 self.plant.set_torque(servo.servo_id, True)
             servo.hardware_error &= ~latched
             self._apply_conditions(servo)  # a cause still present (still too hot) shuts it down again
-        if "torque_enable" in written:
+        if span.torque_enable:
             on = bool(servo.torque_enable())
             if on and (self.protocol == 2 and servo.hardware_error & servo.get("shutdown")):
                 servo.set("torque_enable", 0)  # a 2.0 servo in shutdown refuses torque until rebooted
@@ -633,7 +640,7 @@ class ServoChainSimulator(SimulatedDevice):
             speed_ticks = servo.get(speed_reg) or 1023
             self.plant.set_goal(
                 servo.servo_id,
-                spec.rad_from_ticks(servo.get("goal_position")),
+                spec.rad_from_ticks(servo.goal_position()),
                 spec.velocity_from_ticks(speed_ticks & 0x3FF if self.protocol == 1 else speed_ticks),
             )
         return 0
@@ -744,6 +751,8 @@ class _Span:
     conditions: bool  # a register the live error conditions are read from
     hearing: bool  # the id or the baud rate: which servos hear the host
     motion: bool  # the goal position or the speed: the plant is given a new goal
+    torque_enable: bool  # Torque Enable (the plant's torque follows it)
+    torque_limit: bool  # 1.0 Torque Limit (restoring it clears a latched shutdown)
 
 
 _SPANS: dict[tuple[str, int, int], _Span] = {}
@@ -767,6 +776,8 @@ def _span(spec: ModelSpec, address: int, length: int) -> _Span:
             conditions=not _CONDITION_REGISTERS.isdisjoint(names),
             hearing="baud_rate" in names or "id" in names,
             motion=bool(names & {"goal_position", "moving_speed", "profile_velocity"}),
+            torque_enable="torque_enable" in names,
+            torque_limit="torque_limit" in names,
         )
     return span
 

@@ -65,6 +65,11 @@ def _solve_linear(a: FloatArray, b: FloatArray) -> FloatArray:
     return np.asarray(_SOLVE1(a, b, signature="dd->d"), dtype=np.float64)
 
 
+# ``ndarray.max`` without its Python wrapper (numpy's ``_methods._amax``): the same reduction, asked twice
+# per IK iteration, where the wrapper cost as much as the reduction.
+_largest = np.maximum.reduce
+
+
 def _norm(v: FloatArray) -> float:
     """``np.linalg.norm`` of a vector, as it works it out (the square root of v . v), without its wrapper."""
     return math.sqrt(float(v.dot(v)))
@@ -402,11 +407,11 @@ class ArmModel:
             J[3:] *= _ROTATION_WEIGHT_M
             e = err[:n_rows]
             dq = J.T @ _solve_linear(J @ J.T + damped, e)
-            step = float(abs(dq).max())
+            step = float(_largest(abs(dq)))
             if step > 0.5:
                 dq *= 0.5 / step
             q_next = np.minimum(np.maximum(q + dq, lower), upper)
-            if float(abs(q_next - q).max()) < 1e-10:
+            if float(_largest(abs(q_next - q))) < 1e-10:
                 return q, pos_err, rot_err, it
             q = q_next
             total = pos_err + rot_err * _ROTATION_WEIGHT_M

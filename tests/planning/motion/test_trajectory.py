@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -12,7 +14,7 @@ from scipy.interpolate import PchipInterpolator
 
 from planning.interfaces import MotionRefused
 from planning.motion import plan_path
-from planning.motion.trajectory import Trapezoid, _Straight
+from planning.motion.trajectory import Trapezoid, _Pchip, _Straight
 
 NAMES = ("a", "b", "c")
 VMAX = np.array([1.0, 2.0, 0.5])
@@ -121,5 +123,41 @@ def test_a_two_waypoint_path_is_the_pchip_scipy_builds_to_the_last_bit(
     pchip = PchipInterpolator(np.array([0.0, 1.0]), np.array([a, b]), axis=0)
     straight = _Straight(a, b)
     s = np.concatenate([np.linspace(0.0, 1.0, 97), [1e-300, 0.5 + 1e-16]])
-    for nu in (0, 1, 2):
-        assert straight(s, nu).tobytes() == np.asarray(pchip(s, nu)).tobytes()
+    for nu, ours in enumerate(straight.at(s)):
+        assert ours.tobytes() == np.asarray(pchip(s, nu)).tobytes()
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    rows=st.lists(
+        st.lists(st.floats(-3.0, 3.0).map(lambda v: round(v, 6)) | st.just(1.0), min_size=5, max_size=5),
+        min_size=3,
+        max_size=9,
+    ),
+    gaps=st.lists(st.floats(1e-3, 1.0), min_size=8, max_size=8),
+)
+def test_a_path_of_three_or_more_waypoints_is_the_pchip_scipy_builds_to_the_last_bit(
+    rows: list[list[float]], gaps: list[float]
+) -> None:
+    """A Cartesian move's path (many waypoints, flat, turning and repeated joints among them) is scipy's
+    PCHIP without SciPy: the same numbers at the knots, between them and past both ends."""
+    waypoints = np.array(rows)
+    knots = np.concatenate([[0.0], np.cumsum(gaps[: len(rows) - 1])])
+    knots /= knots[-1]
+    pchip = PchipInterpolator(knots, waypoints, axis=0)
+    s = np.concatenate([np.linspace(-0.1, 1.1, 131), knots, knots + 1e-16, [1e-300, 0.5 + 1e-16]])
+    for nu, ours in enumerate(_Pchip(knots, waypoints).at(s)):
+        assert ours.tobytes() == np.asarray(pchip(s, nu)).tobytes()
+
+
+def test_the_motion_planner_and_its_paths_load_no_scipy() -> None:
+    """Every process that plans (the daemon, its planning worker) would pay SciPy's import, 0.4 s of CPU."""
+    probe = (
+        "import sys, numpy as np\n"
+        "from planning.motion import CyclePlanner, plan_path\n"
+        "plan_path(np.array([[0.0, 0.0], [0.5, 0.2], [1.0, 0.1]]), names=('a', 'b'),\n"
+        "          max_velocity=np.ones(2), max_acceleration=np.ones(2), rate_hz=50.0, label='t')\n"
+        "print(sorted(m for m in sys.modules if m.partition('.')[0] == 'scipy'))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "[]"
