@@ -27,8 +27,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from perception.assignment import least_cost_assignment
 from planning.placement import cache
-from planning.placement.assignment import least_cost_assignment
 from planning.placement.context import Candidate, Context, Layout
 from planning.placement.order import execution_order
 from planning.placement.problem import Problem

@@ -27,7 +27,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from planning.placement.assignment import least_cost_assignment
+from perception.assignment import least_cost_assignment
 from planning.placement.context import Candidate, Context, Layout
 from planning.placement.cost import Metrics
 from planning.placement.errors import InvalidProblem

@@ -11,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
 
-from perception.association import associate, min_cost_assignment
+from perception.assignment import least_cost_assignment
+from perception.association import associate
 from perception.interfaces import Detection
 
 
@@ -141,4 +142,4 @@ def test_the_assignment_is_scipys_to_the_pair_ties_and_tall_matrices_included(
     rows, cols = shape
     cost = np.array(values[: rows * cols]).reshape(rows, cols)
     expected = linear_sum_assignment(cost)
-    assert min_cost_assignment(cost.tolist()) == list(zip(*(a.tolist() for a in expected), strict=True))
+    assert least_cost_assignment(cost.tolist()) == list(zip(*(a.tolist() for a in expected), strict=True))

@@ -14,6 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from shapely.geometry import LineString, Point, box
 
+from perception.assignment import least_cost_assignment
 from planning.placement import (
     CounterMug,
     InvalidProblem,
@@ -24,7 +25,6 @@ from planning.placement import (
     dataset_problem,
     plan,
 )
-from planning.placement.assignment import least_cost_assignment
 from planning.placement.mugpack import SCANS, MugPacker
 from planning.placement.mugshaped import area_bound
 from planning.placement.problem import default_mug_types
