@@ -25,9 +25,8 @@ def kinematic_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="session")
 def two_mug_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A finished job on the kinematic cell: the first two of the three mugs, seed 0. The fault matrix's
-    replays fire their faults on the first mug; the second is the counter mug a fault can move and the job's
-    second look at the counter, and a third would only add a cycle to every replay."""
+    """A finished job on the kinematic cell: the first two of the three mugs, seed 0 (the fault matrix's row
+    that moves a counter mug while the arm holds the other)."""
     directory = tmp_path_factory.mktemp("kinematic-two-mugs")
     return record_job(directory, world="kinematic", mugs=THREE_MUGS[:2]).path
 
