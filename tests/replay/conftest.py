@@ -1,9 +1,12 @@
-"""Fixtures for the replay tests: small simulated jobs recorded once per test session, and a way to copy a
-recording with some messages changed (a recording of what did not happen, to see the replay notice)."""
+"""Fixtures for the replay tests: small simulated jobs recorded once per test run (by the first pytest-xdist
+worker that needs one, for all), and a way to copy a recording with some messages changed (a recording of
+what did not happen, to see the replay notice)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+import fcntl
+import os
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import pytest
@@ -20,23 +23,43 @@ Change = Callable[[str, dict[str, object]], dict[str, object] | None]
 @pytest.fixture(scope="session")
 def kinematic_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A finished job on the kinematic cell: three mugs, seed 0."""
-    return record_job(tmp_path_factory.mktemp("kinematic"), world="kinematic", mugs=THREE_MUGS).path
+    return recorded_once(tmp_path_factory, "kinematic", THREE_MUGS)
 
 
 @pytest.fixture(scope="session")
 def two_mug_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A finished job on the kinematic cell: the first two of the three mugs, seed 0 (the fault matrix's row
     that moves a counter mug while the arm holds the other)."""
-    directory = tmp_path_factory.mktemp("kinematic-two-mugs")
-    return record_job(directory, world="kinematic", mugs=THREE_MUGS[:2]).path
+    return recorded_once(tmp_path_factory, "kinematic-two-mugs", THREE_MUGS[:2])
 
 
 @pytest.fixture(scope="session")
 def one_mug_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A finished job on the kinematic cell: the first of the three mugs, seed 0 (read only: a test that
     changes it writes a copy, ``copy_recording``)."""
-    directory = tmp_path_factory.mktemp("kinematic-one-mug")
-    return record_job(directory, world="kinematic", mugs=THREE_MUGS[:1]).path
+    return recorded_once(tmp_path_factory, "kinematic-one-mug", THREE_MUGS[:1])
+
+
+def recorded_once(
+    tmp_path_factory: pytest.TempPathFactory, name: str, mugs: Sequence[tuple[str, str, float, float]]
+) -> Path:
+    """The kinematic cell's job of ``mugs`` (seed 0), recorded once for the whole test run: a session
+    fixture is built once per pytest-xdist worker, and each worker recorded the same job again (the same
+    file, seeded and on simulated time). The workers of a run share their base temporary directory's
+    parent: the first to need the job records it there while it holds a lock, the others wait for it and
+    take its file (read only, as every test takes these jobs)."""
+    shared = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = shared.parent  # the run's own (a serial run's parent is shared by other runs)
+    directory = shared / f"recorded-{name}"
+    with open(shared / f"recorded-{name}.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released as the file closes
+        done = directory / "job-path.txt"
+        if done.exists():
+            return Path(done.read_text(encoding="utf-8"))
+        path = record_job(directory, world="kinematic", mugs=mugs).path
+        done.write_text(str(path), encoding="utf-8")
+        return path
 
 
 def copy_recording(
