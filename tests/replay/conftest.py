@@ -21,15 +21,17 @@ Change = Callable[[str, dict[str, object]], dict[str, object] | None]
 
 
 @pytest.fixture(scope="session")
-def kinematic_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A finished job on the kinematic cell: three mugs, seed 0."""
-    return recorded_once(tmp_path_factory, "kinematic", THREE_MUGS)
+def three_mug_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A finished job on the kinematic cell: three mugs, seed 0 (read only; for a test whose changed
+    recording must leave the job more than one mug to place)."""
+    return recorded_once(tmp_path_factory, "kinematic-three-mugs", THREE_MUGS)
 
 
 @pytest.fixture(scope="session")
 def two_mug_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A finished job on the kinematic cell: the first two of the three mugs, seed 0 (the fault matrix's row
-    that moves a counter mug while the arm holds the other)."""
+    """A finished job on the kinematic cell: the first two of the three mugs, seed 0 (read only). Two mugs
+    make a job with a second cycle after a first, and a counter mug the arm does not hold (the fault matrix's
+    row that moves it); a third mug would only make every replay of it longer."""
     return recorded_once(tmp_path_factory, "kinematic-two-mugs", THREE_MUGS[:2])
 
 

@@ -339,11 +339,11 @@ def test_a_bad_resim_world_is_one_line_and_exit_2(capsys: pytest.CaptureFixture[
 
 
 @pytest.mark.slow
-def test_a_simulated_recordings_header_world_is_a_cross_check(kinematic_job: Path) -> None:
+def test_a_simulated_recordings_header_world_is_a_cross_check(two_mug_job: Path) -> None:
     """A simulated recording builds the stand-in from its header's scene; at the fault the stand-in is set to
     what the recording saw all the same, and the report says how far the header's world was from it (the
     detection noise: millimetres)."""
-    report = with_faults(RecordedSession.load(kinematic_job), SLIP)
+    report = with_faults(RecordedSession.load(two_mug_job), SLIP)
     assert report.resim is not None
     assert report.resim.from_header
     check = report.resim.check
