@@ -175,13 +175,13 @@ def test_resimulation_ends_as_the_live_fault_run(
     """The same fault, live on a simulated cell with the rig's mugs, and re-simulated from the rig's
     recording in a stand-in of that world (``--resim``): the same final state class."""
     injector = FaultInjector(parse_faults(fault_text([fault]), source="test"))
-    live = RecordedSession.load(record_job(tmp_path, world=world, mugs=RIG_MUGS, hooks=injector.hooks()).path)
+    live = record_job(tmp_path, world=world, mugs=RIG_MUGS, hooks=injector.hooks()).result
     assert [o.fired for o in injector.outcomes()] == [True]
     report = with_faults(rig, fault, resim=world)
     assert report.resim is not None
     assert report.resim.world == world
     assert report.resimulated_from_s is not None
-    assert report.replayed.final_state == live.trace.final_state
+    assert report.replayed.final_state == live.end_state
     assert (
         report.replayed.final_state
         == {"fsr_drop": "done", "servo_overload": "fault", "mug_slip": "done"}[str(fault["kind"])]
