@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -21,10 +22,16 @@ from replay.session import Divergence, RecordedSession, TraceEvent
 
 @dataclass(frozen=True)
 class ReplayTrace:
-    """What a replay did: the report and the replay's own recording."""
+    """What a replay did: the report and the replay's own recording (its file; read when first looked at,
+    only counted for ``topics``)."""
 
     report: ReplayReport
-    recording: RecordingRead
+    path: Path
+
+    @cached_property
+    def recording(self) -> RecordingRead:
+        """The replay's own recording, every message decoded."""
+        return read_messages(self.path)
 
     @property
     def match(self) -> bool:
@@ -72,7 +79,7 @@ class ReplayTrace:
 
     def topics(self) -> dict[str, int]:
         """Messages per topic in the replay's recording."""
-        return dict(self.recording.topic_counts)
+        return dict(read_messages(self.path, keep=_nothing).topic_counts)
 
 
 class DishbotReplay:
@@ -141,4 +148,9 @@ class DishbotReplay:
                 + " (pass may_not_fire=True, or the faults' indices, if that is expected)",
                 pytrace=False,
             )
-        return ReplayTrace(report, read_messages(out))
+        return ReplayTrace(report, out)
+
+
+def _nothing(_topic: str) -> bool:
+    """Decode no message: only count them."""
+    return False

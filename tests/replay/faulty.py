@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -35,13 +36,23 @@ def counter_mugs(config: Config, count: int) -> tuple[SetupMug, ...]:
 
 @dataclass
 class FaultRun:
-    """What a daemon with faults did: its result, the injector's record, what it published and recorded."""
+    """What a daemon with faults did: its result, the injector's record, what it published and recorded.
+    The recording is read when a test first looks at it: its events and logs alone for ``events`` and
+    ``logs`` (what most tests look at), every message for ``recorded``."""
 
     result: RunResult
     injector: FaultInjector
     backend: Backend  # the cell's backend, as opened (its devices and world for the assertions)
     published: list[tuple[str, dict[str, object]]] = field(default_factory=list)
-    recorded: list[tuple[str, dict[str, object]]] = field(default_factory=list)
+
+    @cached_property
+    def recorded(self) -> list[tuple[str, dict[str, object]]]:
+        """Every message of the run's recordings, in order."""
+        return _read(self.result.files)
+
+    @cached_property
+    def _events_and_logs(self) -> list[tuple[str, dict[str, object]]]:
+        return _read(self.result.files, keep=lambda topic: topic.endswith(("/events", "/log")))
 
     @property
     def states(self) -> list[str]:
@@ -50,7 +61,8 @@ class FaultRun:
 
     def events(self, kind: str | None = None) -> list[dict[str, object]]:
         """The recorded ``events`` (the injector's own included), of ``kind`` when given."""
-        return [p for t, p in self.recorded if t.endswith("/events") and (kind is None or p["kind"] == kind)]
+        events = [p for t, p in self._events_and_logs if t.endswith("/events")]
+        return [p for p in events if kind is None or p["kind"] == kind]
 
     def kinds(self) -> list[str]:
         return [str(p["kind"]) for p in self.events()]
@@ -61,7 +73,13 @@ class FaultRun:
         return found[0]
 
     def logs(self, event: str) -> list[dict[str, object]]:
-        return [p for t, p in self.recorded if t.endswith("/log") and p.get("event") == event]
+        return [p for t, p in self._events_and_logs if t.endswith("/log") and p.get("event") == event]
+
+
+def _read(
+    files: tuple[Path, ...], keep: Callable[[str], bool] | None = None
+) -> list[tuple[str, dict[str, object]]]:
+    return [(m.topic, m.payload) for path in files for m in read_messages(path, keep=keep)]
 
 
 def run_with_faults(
@@ -144,6 +162,4 @@ def run_with_faults(
         finally:
             injector.close()
 
-    result = clock.run(run())
-    recorded = [(m.topic, m.payload) for path in result.files for m in read_messages(path)]
-    return FaultRun(result, injector, opened[0], published, recorded)
+    return FaultRun(clock.run(run()), injector, opened[0], published)

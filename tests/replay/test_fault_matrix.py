@@ -3,9 +3,9 @@
 ``test_each_fault_kind_ends_alike_on_both_cells`` runs the same fault file for every device and world fault
 kind on the kinematic and on the MuJoCo cell (one daemon each, a one-mug job; the MuJoCo side is slow): both
 cells put the same device simulators behind the same drivers, so both must end in the state docs/faults.md
-gives and publish the same key events. The replay rows run one recorded two-mug job again with each row's
-faults and check the state the daemon ends in, the events it published and what the replay's recording
-holds.
+gives and publish the same key events. The replay rows run a recorded one-mug job again with each row's
+faults (a two-mug job for the row that moves a counter mug meanwhile: it needs a mug the arm does not hold)
+and check the state the daemon ends in, the events it published and what the replay's recording holds.
 
 Rows that need a process to kill, a disk or a Zenoh client live with the daemon's own tests; docs/faults.md
 says which test holds each row.
@@ -27,7 +27,8 @@ from tests.replay.faulty import FaultRun, run_with_faults
 @dataclass(frozen=True)
 class Row:
     """One row of the matrix: the faults, the state the job must end in, events it must publish (kinds, or
-    ``kind:text`` where the fault's reason must contain ``text``) and topics the recording must hold."""
+    ``kind:text`` where the fault's reason must contain ``text``), topics the recording must hold and how
+    many mugs the replayed job has."""
 
     name: str
     faults: Sequence[Mapping[str, object]]
@@ -35,6 +36,7 @@ class Row:
     events: Sequence[str] = ()
     recorded: Sequence[str] = ("events", "state", "input/joints")
     not_events: Sequence[str] = field(default_factory=tuple)
+    mugs: int = 1
 
 
 ROWS = (
@@ -98,6 +100,7 @@ ROWS = (
         [{"kind": "mug_moved", "at_state": "side_grasp.lift", "dx_m": 0.03, "dy_m": 0.0}],
         "done",
         ("fault_injected",),
+        mugs=2,
     ),
 )
 
@@ -138,20 +141,22 @@ CAMERA_ROWS = (
         ("fault_injected", "fault:camera: no frame within"),
     ),
 )
-TWO_MUGS = THREE_MUGS[:2]
 
 
 @pytest.fixture(scope="module")
-def recorded_job(two_mug_job: Path) -> Path:
-    """The kinematic cell's two-mug job, recorded once for the test session (``tests/replay/conftest.py``);
-    module-scoped so that the rows replaying it run on one worker (``tests/conftest.py``) and it is recorded
-    once, not on every worker."""
-    return two_mug_job
+def recorded_jobs(one_mug_job: Path, two_mug_job: Path) -> Mapping[int, Path]:
+    """The kinematic cell's one- and two-mug jobs by their number of mugs, each recorded once for the test
+    session (``tests/replay/conftest.py``); module-scoped so that the rows replaying them run on one worker
+    (``tests/conftest.py``) and they are recorded once, not on every worker. The rows fire their faults on
+    the first mug: a second mug would only add a cycle to the replays of all but the row that moves it."""
+    return {1: one_mug_job, 2: two_mug_job}
 
 
 @pytest.fixture(scope="module")
 def recorded_mujoco_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return DishbotReplay(tmp_path_factory.mktemp("matrix-mujoco"), {}).record(world="mujoco", mugs=TWO_MUGS)
+    """The MuJoCo cell's one-mug job (the camera rows'), recorded once for the module."""
+    directory = tmp_path_factory.mktemp("matrix-mujoco")
+    return DishbotReplay(directory, {}).record(world="mujoco", mugs=THREE_MUGS[:1])
 
 
 def _check(row: Row, trace: ReplayTrace) -> None:
@@ -179,9 +184,9 @@ def _check(row: Row, trace: ReplayTrace) -> None:
 @pytest.mark.parametrize("row", ROWS, ids=[r.name for r in ROWS])
 @pytest.mark.slow
 def test_each_row_of_the_matrix_ends_in_its_safe_state(
-    row: Row, recorded_job: Path, dishbot: DishbotReplay
+    row: Row, recorded_jobs: Mapping[int, Path], dishbot: DishbotReplay
 ) -> None:
-    trace = dishbot.replay(recorded_job, faults=row.faults)
+    trace = dishbot.replay(recorded_jobs[row.mugs], faults=row.faults)
     _check(row, trace)
 
 
@@ -189,20 +194,21 @@ def test_each_row_of_the_matrix_ends_in_its_safe_state(
 @pytest.mark.parametrize("row", CAMERA_ROWS, ids=[r.name for r in CAMERA_ROWS])
 @pytest.mark.slow
 def test_each_camera_row_ends_in_its_safe_state(
-    row: Row, world: str, recorded_job: Path, recorded_mujoco_job: Path, dishbot: DishbotReplay
+    row: Row, world: str, recorded_jobs: Mapping[int, Path], recorded_mujoco_job: Path, dishbot: DishbotReplay
 ) -> None:
     # Both recordings named as fixtures (not looked up by name): the rows join the module's group, which
     # records each once (tests/conftest.py groups the tests whose fixtures are module-scoped).
-    job = recorded_job if world == "kinematic" else recorded_mujoco_job
+    job = recorded_jobs[row.mugs] if world == "kinematic" else recorded_mujoco_job
     trace = dishbot.replay(job, faults=row.faults)
     _check(row, trace)
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("mugs", [1, 2])
 def test_a_replay_without_faults_of_the_matrix_job_matches(
-    recorded_job: Path, dishbot: DishbotReplay
+    mugs: int, recorded_jobs: Mapping[int, Path], dishbot: DishbotReplay
 ) -> None:
-    trace = dishbot.replay(recorded_job)
+    trace = dishbot.replay(recorded_jobs[mugs])
     assert trace.match
     assert trace.final_state == "done"
 

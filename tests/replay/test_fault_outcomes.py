@@ -93,42 +93,43 @@ def test_occurrence_counts_entries_into_the_state_not_a_resume_after_a_pause(tmp
 
 @pytest.mark.slow
 def test_replay_check_exits_1_when_a_fault_did_not_fire_and_json_lists_every_fault(
-    kinematic_job: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    one_mug_job: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
+    # The fault that fires does so as the arm leaves the tray (the job goes on in the simulated cell from
+    # there: the rest of the job is all it re-simulates); the one that does not asks for a third look at the
+    # counter of a one-mug job, which looks twice.
     faults = tmp_path / "faults.toml"
     faults.write_text(
-        '[[fault]]\nkind = "fsr_spike"\nat_state = "detect"\n\n'
-        '[[fault]]\nkind = "fsr_spike"\nat_state = "place"\noccurrence = 7\n'
+        '[[fault]]\nkind = "fsr_spike"\nat_state = "place.retreat"\n\n'
+        '[[fault]]\nkind = "fsr_spike"\nat_state = "detect"\noccurrence = 3\n'
     )
     capsys.readouterr()
-    code = main(["replay", str(kinematic_job), "--faults", str(faults), "--check", "--json"])
+    code = main(["replay", str(one_mug_job), "--faults", str(faults), "--check", "--json"])
     out = without_logs(capsys.readouterr().out)
     assert code == 1
     report = json.loads(out)
     assert report["unfired"] == 1
     assert [(f["index"], f["fired"]) for f in report["fault_outcomes"]] == [(1, True), (2, False)]
-    assert report["fault_outcomes"][1]["reason"] == "occurrence 7 not reached: the job entered place 3 times"
-    code = main(["replay", str(kinematic_job), "--faults", str(faults)])
+    assert report["fault_outcomes"][1]["reason"] == "occurrence 3 not reached: the job entered detect 2 times"
+    code = main(["replay", str(one_mug_job), "--faults", str(faults)])
     lines = without_logs(capsys.readouterr().out).splitlines()
     assert code == 0  # without --check: the replay ran
-    assert (
-        "fault 2 (fsr_spike at place #7): NOT FIRED: occurrence 7 not reached: the job entered place 3 times"
-        in lines
-    )
+    unfired = "fault 2 (fsr_spike at detect #3): NOT FIRED: occurrence 3 not reached: the job entered detect"
+    assert f"{unfired} 2 times" in lines
 
 
 @pytest.mark.slow
 def test_the_fixture_fails_a_test_whose_fault_did_not_fire_unless_it_says_it_may_not(
-    kinematic_job: Path, tmp_path: Path
+    one_mug_job: Path, tmp_path: Path
 ) -> None:
     dishbot = DishbotReplay(tmp_path, {})
     faults = [{"kind": "fsr_spike", "at_s": 9000.0}]
     with pytest.raises(pytest.fail.Exception) as failed:
-        dishbot.replay(kinematic_job, faults=faults)
+        dishbot.replay(one_mug_job, faults=faults)
     assert str(failed.value).startswith(
         "fault 1 (fsr_spike at 9000 s): NOT FIRED: past the end of the run: due at 9000 s, the run ended at "
     )
-    trace = dishbot.replay(kinematic_job, faults=faults, may_not_fire=[1])
+    trace = dishbot.replay(one_mug_job, faults=faults, may_not_fire=[1])
     assert [(o.index, o.fired) for o in trace.unfired] == [(1, False)]
     assert trace.final_state == "done"
 

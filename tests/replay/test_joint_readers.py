@@ -72,9 +72,9 @@ def test_a_read_is_recorded_as_the_jobs_unless_its_reader_says_otherwise() -> No
 
 @pytest.mark.slow
 def test_a_recorded_job_says_who_read_each_sample_and_its_replay_serves_the_job_its_own(
-    kinematic_job: Path,
+    two_mug_job: Path,
 ) -> None:
-    session = RecordedSession.load(kinematic_job)
+    session = RecordedSession.load(two_mug_job)
     samples = [r.message for r in session.streams["input/joints"]]
     assert all(isinstance(m, InputJoints) for m in samples)
     readers = Counter(m.reader for m in samples if isinstance(m, InputJoints))

@@ -20,8 +20,8 @@ from tests.replay.conftest import copy_recording
 
 
 @pytest.mark.slow
-def test_a_kinematic_job_replays_exactly_from_its_recording(kinematic_job: Path, tmp_path: Path) -> None:
-    session = RecordedSession.load(kinematic_job)
+def test_a_kinematic_job_replays_exactly_from_its_recording(two_mug_job: Path, tmp_path: Path) -> None:
+    session = RecordedSession.load(two_mug_job)
     report = replay(session, ReplayOptions(record=tmp_path / "again.mcap"))
     assert report.first_divergence is None
     assert report.match
@@ -39,11 +39,12 @@ def test_a_kinematic_job_replays_exactly_from_its_recording(kinematic_job: Path,
 
 @pytest.mark.slow
 def test_a_different_observation_diverges_at_the_plan_and_the_simulated_cell_finishes_the_job(
-    kinematic_job: Path, tmp_path: Path
+    three_mug_job: Path, tmp_path: Path
 ) -> None:
     """The recording says the camera saw one mug fewer at first: the daemon plans for the mugs it was given,
     the plan differs from the recorded one, and from there the simulated cell (which has all three mugs)
-    carries on."""
+    carries on. (Of two mugs, the one planned alone took the other's place: a job of three places them
+    all.)"""
     seen = {"first": True}
 
     def one_mug_fewer(topic: str, payload: dict[str, object]) -> dict[str, object]:
@@ -54,7 +55,7 @@ def test_a_different_observation_diverges_at_the_plan_and_the_simulated_cell_fin
             return {**payload, "mugs": mugs[1:]}
         return payload
 
-    changed = copy_recording(kinematic_job, tmp_path / "changed-job.mcap", one_mug_fewer)
+    changed = copy_recording(three_mug_job, tmp_path / "changed-job.mcap", one_mug_fewer)
     report = replay(RecordedSession.load(changed))
     assert not report.match
     d = report.first_divergence
@@ -77,10 +78,10 @@ _SAME_INSTANT_S = 1e-6
 @pytest.mark.parametrize("fraction", [0.3, 0.5, 0.8])
 @pytest.mark.slow
 def test_a_recording_cut_by_a_crash_replays_up_to_the_cut_and_says_so(
-    fraction: float, kinematic_job: Path, tmp_path: Path
+    fraction: float, two_mug_job: Path, tmp_path: Path
 ) -> None:
-    whole = RecordedSession.load(kinematic_job)
-    data = kinematic_job.read_bytes()
+    whole = RecordedSession.load(two_mug_job)
+    data = two_mug_job.read_bytes()
     cut = tmp_path / "cut-job.mcap"
     cut.write_bytes(data[: int(len(data) * fraction)])
     session = RecordedSession.load(cut)
@@ -104,9 +105,9 @@ def test_a_recording_cut_by_a_crash_replays_up_to_the_cut_and_says_so(
 
 @pytest.mark.slow
 def test_replay_json_has_the_documented_fields_and_check_passes(
-    kinematic_job: Path, capsys: pytest.CaptureFixture[str]
+    two_mug_job: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert main(["--log-level", "warning", "replay", str(kinematic_job), "--json", "--check"]) == 0
+    assert main(["--log-level", "warning", "replay", str(two_mug_job), "--json", "--check"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["match"] is True
     assert doc["first_divergence"] is None
@@ -122,14 +123,14 @@ def test_replay_json_has_the_documented_fields_and_check_passes(
 
 @pytest.mark.slow
 def test_check_exits_1_when_a_replay_without_faults_does_not_match(
-    kinematic_job: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    two_mug_job: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     def lost_grasp(topic: str, payload: dict[str, object]) -> dict[str, object]:
         if topic == "input/grasp":
             return {**payload, "held": False, "reason": "force stayed below the threshold"}
         return payload
 
-    changed = copy_recording(kinematic_job, tmp_path / "lost-job.mcap", lost_grasp)
+    changed = copy_recording(two_mug_job, tmp_path / "lost-job.mcap", lost_grasp)
     assert main(["--log-level", "warning", "replay", str(changed), "--check"]) == 1
     out = capsys.readouterr().out
     assert "diverged at" in out
@@ -186,20 +187,20 @@ def test_a_file_that_is_not_a_job_recording_is_one_line_and_exit_2(
     ],
 )
 def test_bad_flags_are_one_line_and_exit_2(
-    flags: list[str], needle: str, kinematic_job: Path, capsys: pytest.CaptureFixture[str]
+    flags: list[str], needle: str, two_mug_job: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert main(["replay", str(kinematic_job), *flags]) == 2
+    assert main(["replay", str(two_mug_job), *flags]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0
     assert needle in err
 
 
 def test_record_to_an_existing_file_is_refused_and_the_file_is_kept(
-    kinematic_job: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    two_mug_job: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     existing = tmp_path / "keep.mcap"
     existing.write_bytes(b"mine")
-    assert main(["replay", str(kinematic_job), "--record", str(existing)]) == 2
+    assert main(["replay", str(two_mug_job), "--record", str(existing)]) == 2
     assert "exists" in capsys.readouterr().err
     assert existing.read_bytes() == b"mine"
 
@@ -212,8 +213,8 @@ def test_the_replay_verb_is_on_the_command_line_with_help() -> None:
         assert flag in out
 
 
-def test_the_recording_keeps_what_a_replay_needs(kinematic_job: Path) -> None:
-    read = read_messages(kinematic_job)
+def test_the_recording_keeps_what_a_replay_needs(two_mug_job: Path) -> None:
+    read = read_messages(two_mug_job)
     topics = {m.topic.split("/", 2)[-1] for m in read.messages}
     assert {
         "input/joints",
@@ -235,7 +236,7 @@ def test_the_recording_keeps_what_a_replay_needs(kinematic_job: Path) -> None:
 
 
 @pytest.mark.slow
-def test_with_listen_the_replay_publishes_on_zenoh_as_the_daemon_does(kinematic_job: Path) -> None:
+def test_with_listen_the_replay_publishes_on_zenoh_as_the_daemon_does(two_mug_job: Path) -> None:
     """A monitor connected to ``--listen`` sees the replayed job's state, joints and events, as from a
     daemon (the replay runs at 20x real time so that the subscriber is there before the job ends)."""
     import threading
@@ -266,7 +267,7 @@ def test_with_listen_the_replay_publishes_on_zenoh_as_the_daemon_does(kinematic_
     watcher = threading.Thread(target=monitor)
     watcher.start()
     try:
-        report = replay(RecordedSession.load(kinematic_job), ReplayOptions(speed=20.0, listen=(endpoint,)))
+        report = replay(RecordedSession.load(two_mug_job), ReplayOptions(speed=20.0, listen=(endpoint,)))
     finally:
         stop.set()
         watcher.join()

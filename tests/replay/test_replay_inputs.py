@@ -57,19 +57,19 @@ def replay_error(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, s
     ],
 )
 def test_a_recording_with_a_bad_clock_in_its_header_is_one_line_and_exit_2(
-    kinematic_job: Path,
+    two_mug_job: Path,
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
     clock: dict[str, object],
     message: str,
 ) -> None:
-    forged = copy_recording(kinematic_job, tmp_path / "forged-job.mcap", lambda _t, p: p, clock=clock)
+    forged = copy_recording(two_mug_job, tmp_path / "forged-job.mcap", lambda _t, p: p, clock=clock)
     code, err = replay_error(capsys, str(forged))
     assert (code, err) == (2, f"dishbot replay: error: {forged}: {message}\n")
 
 
 def test_record_is_checked_before_the_replay_starts(
-    kinematic_job: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    two_mug_job: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     existing = tmp_path / "taken.mcap"
     existing.write_bytes(b"")
@@ -82,19 +82,19 @@ def test_record_is_checked_before_the_replay_starts(
     not_a_dir = tmp_path / "file.txt"
     not_a_dir.write_text("x")
     target = not_a_dir / "out.mcap"
-    code, err = replay_error(capsys, str(kinematic_job), "--record", str(target))
+    code, err = replay_error(capsys, str(two_mug_job), "--record", str(target))
     assert (code, err) == (2, f"dishbot replay: error: --record {target}: {not_a_dir} is not a directory\n")
 
 
 @pytest.mark.slow
 def test_the_working_directory_of_a_killed_replay_is_swept_and_a_stopped_one_cleans_up(
-    kinematic_job: Path, tmp_path: Path
+    two_mug_job: Path, tmp_path: Path
 ) -> None:
     env = {**os.environ, "TMPDIR": str(tmp_path)}
 
     def start() -> tuple[subprocess.Popen[bytes], Path]:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "cli.main", "replay", str(kinematic_job), "--speed", "1"],
+            [sys.executable, "-m", "cli.main", "replay", str(two_mug_job), "--speed", "1"],
             cwd=Path(__file__).resolve().parents[2],
             env=env,
             stdout=subprocess.DEVNULL,
@@ -143,9 +143,9 @@ def test_publishing_after_the_session_closed_is_recorded_only_and_closing_twice_
 
 @pytest.mark.slow
 def test_a_disk_full_replay_reports_what_the_daemon_did_not_what_its_recording_kept(
-    kinematic_job: Path, tmp_path: Path
+    two_mug_job: Path, tmp_path: Path
 ) -> None:
-    session = RecordedSession.load(kinematic_job)
+    session = RecordedSession.load(two_mug_job)
     faults = FaultInjector(
         parse_faults(
             '[[fault]]\nkind = "disk_full"\nat_state = "side_grasp.approach"\nduration_s = 5\n',

@@ -2,9 +2,10 @@
 stand-in cell, kinematic and MuJoCo, has the earlier jobs' mugs on its tray where the header's
 ``job.carried`` says they were placed, not an empty tray.
 
-The robot's recording is the kinematic daemon's continued job (``record_continued_job``) written again
-with the header a robot's recording has: the hardware backend, a scene that says nothing of the mugs, the
-wall clock. Then nothing but ``job.carried`` says where the earlier job's mug stands."""
+The robot's recording is the kinematic daemon's continued job (``record_continued_job`` in
+``tests/replay/conftest.py``) written again with the header a robot's recording has: the hardware backend,
+a scene that says nothing of the mugs, the wall clock. Then nothing but ``job.carried`` says where the
+earlier job's mug stands."""
 
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ from recorder import HEADER_TOPIC, Recorder, read_messages
 from replay.engine import ReplayOptions, replay
 from replay.resim import Resimulation, cell_truth, continues_earlier_job, first_look_s, world_at
 from replay.session import RecordedSession
-from tests.replay.test_resim_replay import SLIP, record_continued_job, with_faults
+from tests.replay.test_resim_replay import SLIP, with_faults
 
 # How far a restaged tray mug may stand from its slot: the MuJoCo stand-in lets it settle on the tray.
 SETTLED_M = 0.01
@@ -56,10 +57,9 @@ def _mapping(value: object) -> Mapping[str, object]:
 
 
 @pytest.fixture(scope="module")
-def robot_continued(tmp_path_factory: pytest.TempPathFactory) -> RecordedSession:
+def robot_continued(tmp_path_factory: pytest.TempPathFactory, continued_job: Path) -> RecordedSession:
     directory = tmp_path_factory.mktemp("robot-continued")
-    source = record_continued_job(directory / "recorded")
-    return RecordedSession.load(as_the_robot_records_it(source, directory / "robot-job.mcap"))
+    return RecordedSession.load(as_the_robot_records_it(continued_job, directory / "robot-job.mcap"))
 
 
 def carried_slots(session: RecordedSession) -> dict[str, Mapping[str, object]]:

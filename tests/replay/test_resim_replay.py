@@ -10,29 +10,20 @@ on a simulated cell of the stand-in's world with the same mugs
 
 from __future__ import annotations
 
-import asyncio
 import json
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import pytest
 
 from cli.main import main
-from daemon.app import ServeContext
-from daemon.backend import SimOptions
-from daemon.cell import open_backend
-from daemon.clock import SimulatedClock
-from daemon.config import load_config
-from recorder.files import is_job_file
 from replay.engine import ReplayOptions, ReplayReport, fault_text, replay
 from replay.faults import FaultInjector, parse_faults
 from replay.harness import DishbotReplay
 from replay.record import record_job
 from replay.resim import continues_earlier_job
 from replay.session import RecordedSession
-from tests.fakes.daemon import serve_daemon
 
 RIG_RECORDING = Path(__file__).parents[1] / "data" / "rig-2mugs-job.mcap"
 # The rig recording's mugs (its README says how it was made), for the live runs to compare with.
@@ -175,13 +166,13 @@ def test_resimulation_ends_as_the_live_fault_run(
     """The same fault, live on a simulated cell with the rig's mugs, and re-simulated from the rig's
     recording in a stand-in of that world (``--resim``): the same final state class."""
     injector = FaultInjector(parse_faults(fault_text([fault]), source="test"))
-    live = RecordedSession.load(record_job(tmp_path, world=world, mugs=RIG_MUGS, hooks=injector.hooks()).path)
+    live = record_job(tmp_path, world=world, mugs=RIG_MUGS, hooks=injector.hooks()).result
     assert [o.fired for o in injector.outcomes()] == [True]
     report = with_faults(rig, fault, resim=world)
     assert report.resim is not None
     assert report.resim.world == world
     assert report.resimulated_from_s is not None
-    assert report.replayed.final_state == live.trace.final_state
+    assert report.replayed.final_state == live.end_state
     assert (
         report.replayed.final_state
         == {"fsr_drop": "done", "servo_overload": "fault", "mug_slip": "done"}[str(fault["kind"])]
@@ -190,57 +181,10 @@ def test_resimulation_ends_as_the_live_fault_run(
 
 # --- a job that continued an earlier job's tray -------------------------------------------------------------
 
-THREE_MUGS = [
-    {"id": "m1", "type": "small", "x_m": 0.22, "y_m": 0.415},
-    {"id": "m2", "type": "big", "x_m": 0.064, "y_m": 0.415},
-    {"id": "m3", "type": "small", "x_m": -0.092, "y_m": 0.529},
-]
-
-
-def record_continued_job(record_dir: Path) -> Path:
-    """A kinematic daemon whose first job (three mugs, started over Zenoh) is stopped after its first
-    placement, and a second job, ``start {}``, that goes on with the tray and counter the first left."""
-
-    async def run() -> tuple[Path, ...]:
-        config = load_config(overrides={"backend": "sim", "sim": {"world": "kinematic", "seed": 0}})
-        backend = await open_backend(config, sim=SimOptions(), clock=clock)
-        placed = asyncio.Event()
-        tasks: list[asyncio.Task[None]] = []
-
-        def on_publish(topic: str, payload: Mapping[str, Any]) -> None:
-            if topic == "events" and payload.get("kind") == "mug_placed":
-                placed.set()
-
-        async def drive(ctx: ServeContext) -> None:
-            assert (await ctx.handle("start", json.dumps({"mugs": THREE_MUGS}).encode(), False))["ok"]
-            await placed.wait()
-            await ctx.clock.sleep(4.0)
-            assert (await ctx.handle("stop", b"", False))["ok"]
-            await ctx.job.finished.wait()
-            await ctx.clock.sleep(3.0)
-            assert (await ctx.handle("start", b"{}", False))["ok"]
-            await ctx.clock.sleep(1.0)
-            await ctx.job.finished.wait()
-            await ctx.clock.sleep(3.0)
-            ctx.stop.set()
-
-        def on_ready(ctx: ServeContext) -> None:
-            tasks.append(asyncio.create_task(drive(ctx)))
-
-        result = await serve_daemon(
-            config, backend, record_dir, listen=(), on_publish=(on_publish,), on_ready=on_ready
-        )
-        return result.files
-
-    clock = SimulatedClock()
-    jobs = [p for p in clock.run(run()) if is_job_file(p)]
-    assert len(jobs) == 2
-    return jobs[1]
-
 
 @pytest.fixture(scope="module")
-def continued(tmp_path_factory: pytest.TempPathFactory) -> RecordedSession:
-    return RecordedSession.load(record_continued_job(tmp_path_factory.mktemp("continued")))
+def continued(continued_job: Path) -> RecordedSession:
+    return RecordedSession.load(continued_job)
 
 
 @pytest.mark.slow
@@ -339,11 +283,11 @@ def test_a_bad_resim_world_is_one_line_and_exit_2(capsys: pytest.CaptureFixture[
 
 
 @pytest.mark.slow
-def test_a_simulated_recordings_header_world_is_a_cross_check(kinematic_job: Path) -> None:
+def test_a_simulated_recordings_header_world_is_a_cross_check(two_mug_job: Path) -> None:
     """A simulated recording builds the stand-in from its header's scene; at the fault the stand-in is set to
     what the recording saw all the same, and the report says how far the header's world was from it (the
     detection noise: millimetres)."""
-    report = with_faults(RecordedSession.load(kinematic_job), SLIP)
+    report = with_faults(RecordedSession.load(two_mug_job), SLIP)
     assert report.resim is not None
     assert report.resim.from_header
     check = report.resim.check
