@@ -40,20 +40,14 @@ def first_mug(tmp_path: Path) -> Path:
     return path
 
 
-def patient(config_path: Path, world: str) -> Path:
+def patient(config_path: Path) -> Path:
     """The rig's config with the waits of a loaded machine: the rig's devices answer on pseudo-terminals in
     real time, and a test machine that shares its cores (a parallel suite, CI) can keep the rig process
     from answering within the robot's 20 ms status wait or its FSR's 0.2 s stale limit. This test drives the
-    hardware path end to end; the status timeout and the stale limit have tests of their own.
-
-    In the kinematic world a set-down has no slow part: the slow part lets a mug held by MuJoCo's pads hang
-    straight before it is let go (docs/simulation.md), and a kinematic mug hangs straight at any speed, so it
-    would add 5 s of real time to the job and nothing to what the test shows."""
+    hardware path end to end; the status timeout and the stale limit have tests of their own."""
     document = tomllib.loads(config_path.read_text())
     document["hardware"] |= {"read_timeout_s": 0.25, "retries": 4}
     document["hardware"]["fsr"] = {**document["hardware"].get("fsr", {}), "stale_after_s": 2.0}
-    if world == "kinematic":
-        document["arm"] = {**document.get("arm", {}), "set_down_slow_m": 0.0}
     patient = config_path.with_name("robot-patient.toml")
     patient.write_text(dumps(document))
     return patient
@@ -102,7 +96,7 @@ def test_dishbot_run_drives_the_rig_through_the_hardware_backend(tmp_path: Path,
         assert config.hardware.camera == "zenoh"
         assert config.hardware.zenoh_camera.connect == rig_endpoint
         assert config.hardware.servo_port == str(config_path.parent / "dishbot-servos")
-        config_path = patient(config_path, world)
+        config_path = patient(config_path)
         record_dir = tmp_path / "recordings"
         daemon_endpoint = f"tcp/127.0.0.1:{free_port()}"
         run = subprocess.run(
