@@ -6,6 +6,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import signal
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -192,30 +194,46 @@ def test_a_daemon_that_reaches_no_router_at_start_says_so_once(tmp_path: Path) -
 
 
 @pytest.mark.slow
-def test_monitor_shows_every_robot_and_says_when_one_is_gone(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_monitor_shows_every_robot_and_says_when_one_is_gone(tmp_path: Path) -> None:
+    """``dishbot monitor --robot '*'`` as a user runs it (its own process, output piped), stopped with
+    Ctrl-C once it has said what it should: it waits for each line, not for fixed seconds."""
     hub = f"tcp/127.0.0.1:{free_port()}"
+    idle = ["r1: state idle  placed 0", "r2: state idle  placed 0"]
 
-    async def scenario() -> None:
+    async def scenario() -> list[str]:
         with router(hub):
             async with daemon(tmp_path, robot_config("r1"), listen=[], connect=[hub]):
-                async with daemon(tmp_path, robot_config("r2"), listen=[], connect=[hub]):
-                    await _until(lambda: len(ask(hub, "dishbot/*/cmd/status")) == 2)
-                    watch = asyncio.create_task(
-                        asyncio.to_thread(
-                            main, ["monitor", "--connect", hub, "--robot", "*", "--duration", "4"]
-                        )
-                    )
-                    await asyncio.sleep(1.5)
-                assert await watch == 0
+                monitor = await asyncio.create_subprocess_exec(
+                    *(sys.executable, "-m", "cli.main", "monitor", "--connect", hub, "--robot", "*"),
+                    stdout=asyncio.subprocess.PIPE,
+                )
+                try:
+                    async with daemon(tmp_path, robot_config("r2"), listen=[], connect=[hub]):
+                        await _until(lambda: len(ask(hub, "dishbot/*/cmd/status")) == 2)
+                        lines = await _printed(monitor, *idle)
+                    lines += await _printed(monitor, "r2: daemon gone (liveliness token dropped)")
+                finally:
+                    monitor.send_signal(signal.SIGINT)
+                    async with asyncio.timeout(60):
+                        assert await monitor.wait() == 0  # Ctrl-C ends the monitor quietly
+                assert monitor.stdout is not None
+                return lines + (await monitor.stdout.read()).decode().splitlines()
 
-    asyncio.run(scenario())
-    lines = capsys.readouterr().out.splitlines()
-    assert "r1: state idle  placed 0" in lines
-    assert "r2: state idle  placed 0" in lines
-    assert "r2: daemon gone (liveliness token dropped)" in lines
+    lines = asyncio.run(scenario())
     assert "r1: daemon gone (liveliness token dropped)" not in lines
+
+
+async def _printed(process: asyncio.subprocess.Process, *expected: str, timeout_s: float = 60.0) -> list[str]:
+    """The lines ``process`` prints until it has printed every one of ``expected``; the test fails if it
+    ends first or takes longer than ``timeout_s`` (a hang, not a measurement)."""
+    assert process.stdout is not None
+    lines: list[str] = []
+    async with asyncio.timeout(timeout_s):
+        while not set(expected) <= set(lines):
+            line = await process.stdout.readline()
+            assert line, f"the monitor ended before printing {expected}: {lines}"
+            lines.append(line.decode().rstrip("\n"))
+    return lines
 
 
 def test_the_monitor_screen_keeps_the_last_events_and_fits_80_columns() -> None:

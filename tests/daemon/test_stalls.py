@@ -332,6 +332,11 @@ class _SlowRecorder(Recorder):
         return super()._handle(item)
 
 
+# The slow recorder's flip bound: about 1 300 messages during the stall, twenty times its queue, each
+# written 0.5 ms of wall time late (20 s made 5 100 messages a run and most of the test's wall time).
+SLOW_RECORDER_FLIP_BOUND_S = 5.0
+
+
 def _stalled_job_recorded(tmp_path: Path) -> tuple[list[tuple[str, str, float]], int]:
     """A ``once`` job whose flip never ends, on a simulated clock from a fixed start: the events of its
     recording (kind, state, t) and the messages the recording lost."""
@@ -342,7 +347,7 @@ def _stalled_job_recorded(tmp_path: Path) -> tuple[list[tuple[str, str, float]],
         overrides={
             "robot_id": "slowrec",
             "planner": {"method": "bh"},
-            "daemon": {"state_bounds_s": {"flip": 20.0}},
+            "daemon": {"state_bounds_s": {"flip": SLOW_RECORDER_FLIP_BOUND_S}},
         }
     )
     result = clock.run(serve_daemon(config, make_backend(world, clock=clock), tmp_path, once=StartRequest()))
@@ -366,4 +371,4 @@ def test_on_simulated_time_a_slow_recorder_loses_nothing_and_a_stalled_job_recor
     assert events == again
     faults = [t for kind, _, t in events if kind == "fault"]
     flip = next(t for _, state, t in events if state.startswith("flip"))
-    assert faults == [pytest.approx(flip + 20.0)]  # at the bound, once
+    assert faults == [pytest.approx(flip + SLOW_RECORDER_FLIP_BOUND_S)]  # at the bound, once

@@ -10,7 +10,7 @@ import asyncio
 import contextlib
 import dataclasses
 import json
-from collections.abc import AsyncIterator, Callable, Sequence
+from collections.abc import AsyncIterator, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -93,11 +93,15 @@ class CounterStandIn:
 
 class ShortMoves:
     """A motion planner test double: each move turns the shoulder 0.05 rad and back, briefly; moves while a
-    mug is carried last longer so a test can act during them."""
+    mug is carried last longer so a test can act during them, and the phases of ``phase_s`` last as long as
+    it says (a test that acts in one phase need not wait through the others)."""
 
-    def __init__(self, *, move_s: float = 0.1, carry_s: float = 0.4) -> None:
+    def __init__(
+        self, *, move_s: float = 0.1, carry_s: float = 0.4, phase_s: Mapping[str, float] | None = None
+    ) -> None:
         self.move_s = move_s
         self.carry_s = carry_s
+        self.phase_s = dict(phase_s or {})
 
     def plan_cycle(
         self,
@@ -119,7 +123,7 @@ class ShortMoves:
             elif leaf != "verify":
                 goal = q.copy()
                 goal[0] = 0.05 * (k % 2)
-                seconds = self.carry_s if phase in CARRYING else self.move_s
+                seconds = self.phase_s.get(phase, self.carry_s if phase in CARRYING else self.move_s)
                 steps.append(Step(phase, StepKind.MOVE, _line(q, goal, seconds, f"{phase}:{mug.mug_id}")))
                 q = goal
         return CyclePlan(mug.mug_id, tuple(steps), duration_s=1.0, energy_j=1.0)
@@ -190,12 +194,14 @@ class RigDaemon:
 
 
 @contextlib.asynccontextmanager
-async def running_daemon(r: Rig, tmp_path: Path, *, carry_s: float = 0.4) -> AsyncIterator[RigDaemon]:
+async def running_daemon(
+    r: Rig, tmp_path: Path, *, carry_s: float = 0.4, phase_s: Mapping[str, float] | None = None
+) -> AsyncIterator[RigDaemon]:
     """The harness's daemon (``tests.fakes.daemon``) on the hardware backend of ``r`` over a real loopback
     Zenoh session, with a second session subscribed to ``events`` and ``state`` (what a monitor on another
     machine sees)."""
     backend = await open_hardware_backend(r.config)
-    d = RigDaemon(backend, ShortMoves(carry_s=carry_s))
+    d = RigDaemon(backend, ShortMoves(carry_s=carry_s, phase_s=phase_s))
     backend = dataclasses.replace(
         backend, observer=CounterStandIn(lambda: "mug_placed" in d.kinds()), motion=d.motion
     )

@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import base64
 import collections
+import contextlib
 import json
 import struct
 import time
@@ -54,7 +55,17 @@ class FoxgloveClient:
         return cls(ws)
 
     async def close(self) -> None:
+        """The closing handshake, reading (and dropping) what the server still sends meanwhile: websockets
+        stops reading the socket while its queue of unread messages is full, so a server that goes on
+        sending would hold its close frame back until websockets gives up after 10 s."""
+        drain = asyncio.create_task(self._drop_until_closed())
         await self.ws.close()
+        await drain
+
+    async def _drop_until_closed(self) -> None:
+        with contextlib.suppress(websockets.ConnectionClosed):
+            while True:
+                await self.ws.recv()
 
     def topics(self) -> set[str]:
         return {c["topic"] for c in self.channels.values()}

@@ -33,11 +33,12 @@ ROBOT = "live"
 # header (every trial lost it before). Those are the two cases: a third client (the suite ran three, and ten
 # for docs/recording.md's measurement) joins as the second did and shows nothing the second does not.
 TRIALS = 2
-# Simulated time at 5x: about 1 500 messages a second, which a Python client on a busy machine reads with a
-# wide margin (the server keeps up to 65 536 per client). At ``--speed max`` the simulator writes tens of
-# thousands a second, more than any client reads: the SDK then drops the oldest for the client behind
-# (docs/recording.md).
-SPEED = "5"
+# Simulated time at 20x: about 6 000 messages a second, and a one-mug job's file holds about 6 800 (a
+# 30 s cycle), so the whole job fits in what the server keeps for a client that reads slower (65 536) and
+# a Python client on a busy machine loses nothing even if it reads at a fraction of that rate. At
+# ``--speed max`` the simulator writes tens of thousands a second, idle or not, more than any client reads:
+# the SDK then drops the oldest for the client behind (docs/recording.md).
+SPEED = "20"
 HEADER = "session/header"
 
 
