@@ -164,10 +164,12 @@ def test_a_plan_without_pictures_loads_no_picture_recorder_nor_zenoh_library(
     assert not unused & set(result["new"])
     layers = {m.partition(".")[0] for m in result["ours"]}
     assert not {"wire", "sim", "replay", "bench"} & layers
-    # The config's [recording] section only (daemon.config declares it), not the MCAP writer or views;
-    # and of perception the camera's frame limits ([camera] is that type), not the detector.
+    # The config's [recording] section only (daemon.config declares it), not the MCAP writer or views; and
+    # of perception the camera's frame limits ([camera] is that type) and the least-cost assignment (the
+    # packer's, plain Python), not the detector.
     assert {m for m in result["ours"] if m.startswith("recorder")} <= {"recorder", "recorder.settings"}
-    assert {m for m in result["ours"] if m.startswith("perception")} <= {"perception", "perception.frames"}
+    perception = {"perception", "perception.frames", "perception.assignment"}
+    assert {m for m in result["ours"] if m.startswith("perception")} <= perception
     assert not {m for m in result["ours"] if m.startswith("planning.motion")}
     [drawn] = run_cli(
         tmp_path,
