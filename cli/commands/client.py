@@ -417,13 +417,9 @@ def _start_body(args: argparse.Namespace) -> dict[str, object]:
             raise UsageError(f"--dataset {args.dataset}: choose a dataset 1-{len(thesis.DATASETS)}")
         body["dataset"] = args.dataset
     if args.mugs is not None:
-        try:
-            with open(args.mugs, encoding="utf-8") as f:
-                body["mugs"] = json.load(f)
-        except OSError as e:
-            raise UsageError(f"--mugs {args.mugs}: cannot read it: {e.strerror}") from e
-        except json.JSONDecodeError as e:
-            raise UsageError(f"--mugs {args.mugs}: not valid JSON: {e.msg} at line {e.lineno}") from e
+        from cli.mugs_file import read_mugs_file
+
+        body["mugs"] = read_mugs_file(args.mugs)
     if args.time_limit is not None and not 0.01 <= args.time_limit <= 600:
         raise UsageError(f"--time-limit {args.time_limit:g}: choose 0.01-600 seconds")
     _check_planner_names(args)

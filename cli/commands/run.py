@@ -29,6 +29,7 @@ if TYPE_CHECKING:
     from daemon.backend import Backend
     from daemon.clock import SessionClock
     from daemon.config import Config
+    from daemon.job import StartRequest
     from daemon.log_relay import RecordQueue
     from daemon.sdnotify import SdNotifier
     from perception.interfaces import Associate
@@ -67,6 +68,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="N",
         help=f"simulation: put the mugs of placement dataset N (1-{len(thesis.DATASETS)}) on the counter "
         "(default 1)",
+    )
+    parser.add_argument(
+        "--mugs",
+        type=Path,
+        metavar="FILE",
+        help="simulation, with --once: put these mugs on the counter for the job instead of a dataset, "
+        'a JSON list [{"id", "type", "x_m", "y_m"}] as `dishbot start --mugs` takes (a daemon waiting for '
+        "start gets them from `dishbot start --mugs`)",
     )
     parser.add_argument(
         "--once", action="store_true", help="start at once, run one job, print a summary, exit"
@@ -132,7 +141,6 @@ def _run(args: argparse.Namespace) -> int:
 
 def _run_guarded(args: argparse.Namespace) -> int:
     from daemon.app import RunOptions
-    from daemon.job import StartRequest
     from daemon.sdnotify import SdNotifier
 
     config = load_config(args.config)
@@ -141,6 +149,7 @@ def _run_guarded(args: argparse.Namespace) -> int:
     if args.dataset is not None and not 1 <= args.dataset <= len(thesis.DATASETS):
         raise UsageError(f"--dataset {args.dataset}: choose a dataset 1-{len(thesis.DATASETS)}")
     clock = session_clock(args, config)
+    once = once_request(args, config)
     injector = fault_injector(args, config)
     if args.seed is not None:  # the recording's header shows the seed the simulated cell really used
         config = dataclasses.replace(config, sim=dataclasses.replace(config.sim, seed=args.seed))
@@ -150,7 +159,7 @@ def _run_guarded(args: argparse.Namespace) -> int:
         listen=listen,
         connect=connect,
         record_dir=args.record_dir or config.recording.dir,
-        once=StartRequest() if args.once else None,
+        once=once,
         foxglove=foxglove,
         worker_logs=worker_logs,
         insecure=args.insecure,
@@ -196,6 +205,7 @@ def session_clock(args: argparse.Namespace, config: Config) -> SessionClock:
         for flag, value in (
             ("--world", args.world),
             ("--dataset", args.dataset),
+            ("--mugs", args.mugs),
             ("--seed", args.seed),
             ("--speed", args.speed),
             ("--transport", args.transport),
@@ -217,6 +227,29 @@ def session_clock(args: argparse.Namespace, config: Config) -> SessionClock:
     if args.speed is None:
         speed = None if args.once else config.sim.speed
     return SimulatedClock(speed=speed)
+
+
+def once_request(args: argparse.Namespace, config: Config) -> StartRequest | None:
+    """The ``--once`` job's ``start`` (None without ``--once``). With ``--mugs`` it carries the file's mugs,
+    checked now as the daemon checks ``start --mugs`` (a bad file is a usage error): the job sets the
+    counter up with them as a ``start`` command does, and its recording's header lists them, so it replays.
+    Without ``--once`` the mugs are refused: the cell starts with a dataset's counter, the one a recording
+    of the waiting daemon's first job names."""
+    from daemon.job import StartRequest
+
+    if args.mugs is not None:
+        if args.dataset is not None:
+            raise UsageError("--dataset and --mugs both set the counter up: give one of them")
+        if not args.once:
+            raise UsageError(
+                "--mugs sets up the counter of the --once job; a daemon waiting for start takes the mugs "
+                "from `dishbot start --mugs FILE`"
+            )
+    if not args.once:
+        return None
+    from cli.mugs_file import listed_mugs
+
+    return StartRequest(mugs=listed_mugs(args.mugs, config) if args.mugs is not None else None)
 
 
 def fault_injector(args: argparse.Namespace, config: Config) -> FaultInjector | None:

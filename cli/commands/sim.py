@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import signal
 import sys
 import threading
@@ -273,11 +272,13 @@ def _check_writable(target: Path) -> None:
 
 def _counter(args: argparse.Namespace, config: Any) -> list[Any]:
     """The rig's counter mugs: the listed ones, else the dataset's (default 1), on the config's cell."""
+    from cli.mugs_file import listed_mugs
     from sim.counter import dataset_counter, listed_counter, require_cell_tray
 
-    entries = _listed_mugs(args.mugs, config) if args.mugs is not None else None
+    listed = listed_mugs(args.mugs, config) if args.mugs is not None else None
     try:
-        if entries is not None:
+        if listed is not None:
+            entries = [(m.mug_id, m.type, m.x_m, m.y_m) for m in listed]
             counter = listed_counter(entries, config.cell, config.mug_catalogue())
         else:
             counter = dataset_counter(args.dataset or 1, config.cell, config.mug_catalogue())
@@ -285,25 +286,6 @@ def _counter(args: argparse.Namespace, config: Any) -> list[Any]:
     except (KeyError, ValueError) as e:
         raise UsageError(f"sim rig: {e}") from e
     return list(counter.mugs)
-
-
-def _listed_mugs(path: str, config: Any) -> list[tuple[str, str, float, float]]:
-    """A ``dishbot start --mugs`` file's mugs, checked as the daemon checks a ``start`` command's."""
-    from daemon.commands_handler import BadCommand, parse
-
-    try:
-        listed = json.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as e:
-        raise UsageError(f"--mugs {path}: cannot read it: {e.strerror}") from e
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise UsageError(f"--mugs {path}: not valid JSON: {e}") from e
-    try:
-        request = parse("start", json.dumps({"mugs": listed}).encode(), config)
-    except BadCommand as e:
-        raise UsageError(f"--mugs {path}: {e}") from e
-    if request is None or request.mugs is None:
-        raise UsageError(f"--mugs {path}: lists no mugs")
-    return [(m.mug_id, m.type, m.x_m, m.y_m) for m in request.mugs]
 
 
 def _rig_config(
