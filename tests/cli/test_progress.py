@@ -14,6 +14,7 @@ import pytest
 from cli.commands.run import MugProgress
 from cli.progress import Progress
 from tests.daemon.conftest import free_port
+from tests.fakes.counter import mugs_file
 
 
 class Wall:
@@ -113,6 +114,7 @@ def test_on_the_wall_clock_no_simulated_time_is_shown() -> None:
 def test_a_once_run_prints_mug_k_of_n_on_stderr_and_nothing_of_it_on_stdout(tmp_path: Path) -> None:
     cmd = [sys.executable, "-m", "cli.main", "run", "--sim", "--world", "kinematic", "--once"]
     cmd += ["--listen", f"tcp/127.0.0.1:{free_port()}", "--record-dir", str(tmp_path)]
+    cmd += ["--mugs", str(mugs_file(tmp_path, 2))]  # two mugs show k of N counting up as the dataset does
     done = subprocess.run(
         cmd, capture_output=True, text=True, timeout=540, cwd=Path(__file__).parents[2], check=False
     )

@@ -3,7 +3,6 @@ replays to a match; a bad file or flag is one line on stderr and exit 2, before 
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 from pathlib import Path
@@ -11,40 +10,23 @@ from pathlib import Path
 import pytest
 
 from cli.main import main
-from daemon.config import load_config
-from planning.placement import cell_dataset_problem
 from recorder import read_messages
 from tests.daemon.conftest import free_port
-
-
-def dataset_mugs(count: int) -> list[dict[str, object]]:
-    """The first ``count`` mugs of dataset 1 where the dataset puts them, as a ``--mugs`` file lists them."""
-    problem = cell_dataset_problem(load_config().cell, 1)
-    return [
-        {"id": m.id, "type": m.type, "x_m": m.x_mm / 1000.0, "y_m": m.y_mm / 1000.0}
-        for m in problem.mugs[:count]
-    ]
-
-
-def mugs_file(tmp_path: Path, mugs: object) -> Path:
-    path = tmp_path / "mugs.json"
-    path.write_text(json.dumps(mugs))
-    return path
+from tests.fakes.counter import dataset_mugs, mugs_file
 
 
 @pytest.mark.slow
 def test_a_once_job_on_one_listed_mug_places_it_and_its_recording_replays(tmp_path: Path) -> None:
-    mugs = dataset_mugs(1)
     record_dir = tmp_path / "recordings"
     cmd = [sys.executable, "-B", "-m", "cli.main", "run", "--sim", "--world", "kinematic", "--once"]
-    cmd += ["--mugs", str(mugs_file(tmp_path, mugs)), "--record-dir", str(record_dir)]
+    cmd += ["--mugs", str(mugs_file(tmp_path, 1)), "--record-dir", str(record_dir)]
     cmd += ["--listen", f"tcp/127.0.0.1:{free_port()}"]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=300, check=False)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     assert "detected 1, planned 1, placed 1, failed 0\n" in done.stdout
     (job,) = record_dir.glob("*-job.mcap")
     header = next(m.payload for m in read_messages(job) if m.topic == "session/header")
-    assert header["job"]["mugs"] == mugs  # type: ignore[index]
+    assert header["job"]["mugs"] == dataset_mugs(1)  # type: ignore[index]
     assert main(["--log-level", "warning", "replay", str(job), "--check"]) == 0
 
 
@@ -101,7 +83,7 @@ def test_mugs_with_a_flag_that_contradicts_it_is_one_line_and_exit_2(
     hardware.write_text('backend = "hardware"\n')
     extra = [str(hardware) if a == "HARDWARE" else a for a in extra]
     record_dir = tmp_path / "recordings"
-    path = mugs_file(tmp_path, dataset_mugs(1))
+    path = mugs_file(tmp_path, 1)
     assert main(["run", *extra, "--mugs", str(path), "--record-dir", str(record_dir)]) == 2
     assert capsys.readouterr().err == f"dishbot run: error: {message}\n"
     assert not record_dir.exists()

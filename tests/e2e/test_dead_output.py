@@ -21,6 +21,7 @@ import pytest
 
 from recorder import read_messages
 from tests.daemon.conftest import free_port
+from tests.fakes.counter import mugs_file
 
 TIMEOUT_STOP_S = 45.0  # systemd/dishbot.service: TimeoutStopSec
 JOB_HANG_S = 600.0  # far above a kinematic dataset-1 job on a loaded machine: only a hang gets there
@@ -60,7 +61,8 @@ def _end_state(path: Path) -> str:
 
 @pytest.mark.slow
 def test_a_once_job_whose_output_reader_left_after_3_lines_runs_to_its_end_and_exits(tmp_path: Path) -> None:
-    daemon = _start(tmp_path, "--once")
+    # Two mugs: the reader leaves at the first lines, long before the job ends.
+    daemon = _start(tmp_path, "--once", "--mugs", str(mugs_file(tmp_path, 2)))
     assert daemon.stdout is not None
     for _ in range(3):  # `| head -n 3`
         daemon.stdout.readline()

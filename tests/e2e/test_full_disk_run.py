@@ -15,6 +15,7 @@ import pytest
 
 from recorder import read_messages
 from tests.daemon.conftest import free_port
+from tests.fakes.counter import mugs_file
 
 LIMIT_BYTES = 60_000
 
@@ -28,7 +29,9 @@ def _limited() -> None:
 @pytest.mark.slow
 def test_a_once_job_on_a_full_disk_ends_done_and_counts_the_lost_messages(tmp_path: Path) -> None:
     cmd = [sys.executable, "-B", "-m", "cli.main", "run", "--sim", "--world", "kinematic", "--once"]
-    cmd += ["--dataset", "1", "--record-dir", str(tmp_path), "--listen", f"tcp/127.0.0.1:{free_port()}"]
+    # Two mugs: the recording outgrows the limit within the first; the whole dataset only takes longer.
+    cmd += ["--mugs", str(mugs_file(tmp_path, 2)), "--record-dir", str(tmp_path)]
+    cmd += ["--listen", f"tcp/127.0.0.1:{free_port()}"]
     result = subprocess.run(
         cmd, capture_output=True, text=True, timeout=300, preexec_fn=_limited, check=False
     )

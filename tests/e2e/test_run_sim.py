@@ -1,7 +1,7 @@
 """End to end: ``dishbot run --sim`` as a subprocess, commanded and followed over loopback Zenoh.
 
 The test starts the daemon on a free port, waits for it to answer, subscribes to ``state``, starts a job on
-four mugs of dataset 1, follows ``state`` until the job is done with the planned mugs placed, sends SIGTERM,
+two mugs of dataset 1, follows ``state`` until the job is done with the planned mugs placed, sends SIGTERM,
 and checks that the process exits 0 and that its MCAP recording holds the same sequence of states the
 subscriber saw.
 """
@@ -20,11 +20,10 @@ from typing import Any
 import pytest
 import zenoh
 
-from daemon.config import load_config
 from daemon.zenoh_session import session_config
-from planning.placement import cell_dataset_problem
 from recorder import read_messages
 from tests.daemon.conftest import free_port
+from tests.fakes.counter import dataset_mugs
 
 ROBOT = "e2e"
 SPEED = 60.0
@@ -34,14 +33,6 @@ JOB_S = 600.0
 
 def _dedupe(states: list[str]) -> list[str]:
     return [s for i, s in enumerate(states) if i == 0 or states[i - 1] != s]
-
-
-def _four_mugs() -> list[dict[str, object]]:
-    """Four mugs of dataset 1 where the dataset puts them (a short job keeps the test fast)."""
-    problem = cell_dataset_problem(load_config().cell, 1)
-    return [
-        {"id": m.id, "type": m.type, "x_m": m.x_mm / 1000.0, "y_m": m.y_mm / 1000.0} for m in problem.mugs[:4]
-    ]
 
 
 def _query(session: zenoh.Session, verb: str, body: dict[str, Any] | None = None) -> dict[str, Any] | None:
@@ -95,7 +86,7 @@ def test_run_sim_places_the_planned_mugs_and_records_what_it_published(tmp_path:
             subscriber = session.declare_subscriber(f"dishbot/{ROBOT}/state", on_state)
             while not seen and time.monotonic() < deadline:
                 time.sleep(0.05)
-            assert _query(session, "start", {"mugs": _four_mugs(), "planner": {"method": "bh"}}) == {
+            assert _query(session, "start", {"mugs": dataset_mugs(2), "planner": {"method": "bh"}}) == {
                 "robot_id": ROBOT,
                 "ok": True,
                 "state": "detect",
@@ -130,7 +121,7 @@ def test_run_sim_places_the_planned_mugs_and_records_what_it_published(tmp_path:
     assert all(r.header is not None for r in reads)
     job = reads[1].header
     assert job is not None
-    assert [m["id"] for m in job["job"]["mugs"]] == [m["id"] for m in _four_mugs()]  # type: ignore[index]
+    assert [m["id"] for m in job["job"]["mugs"]] == [m["id"] for m in dataset_mugs(2)]  # type: ignore[index]
     recorded = [str(m.payload["state"]) for r in reads for m in r if m.topic == f"dishbot/{ROBOT}/state"]
     with lock:
         subscribed = [str(s["state"]) for s in seen]
