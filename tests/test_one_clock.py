@@ -67,6 +67,9 @@ ALLOWED: Final[dict[tuple[str, str], str]] = {
     ("drivers/sim/servo_chain.py", "ServoChainSimulator._wire_delay"): (
         "the pty transport's wire time: a chain on a pty answers in wall-clock time"
     ),
+    ("drivers/sim/servo_chain.py", "ServoChainSimulator._serve"): (
+        "when the pty transport heard an instruction: its answers' wire time counts from there"
+    ),
     ("drivers/sim/servo_chain.py", "_wall"): "the default plant of a chain on a pty (dishbot sim bus)",
     ("drivers/sim/fsr.py", "FsrSimulator._serve"): "the pty transport's thread streams in wall-clock time",
     ("sim/mujoco/world.py", "SimWorld._run"): (

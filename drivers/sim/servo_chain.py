@@ -189,6 +189,9 @@ class ServoChainSimulator(SimulatedDevice):
         self._heard: tuple[int | None, list[SimServo], dict[int, SimServo]] | None = None
         self.packets_seen = 0
         self.packets_corrupted = 0
+        # On a pty, when the line is free for the next answer (wall clock): the instruction heard, or the
+        # previous answer's last byte gone (see ``_wire_delay``).
+        self._line_free_at = 0.0
 
     @staticmethod
     def _new_servo(spec: ModelSpec, servo_id: int, baudrate: int, return_delay: int) -> SimServo:
@@ -363,6 +366,7 @@ class ServoChainSimulator(SimulatedDevice):
                 was_plugged = link.plugged
                 self._unplugged()
             if data:
+                self._line_free_at = time.monotonic()  # the answers' wire time counts from here
                 self._received(data)
 
     def _received(self, data: bytes) -> None:
@@ -443,10 +447,17 @@ class ServoChainSimulator(SimulatedDevice):
         return self._rng.random() < self._corrupt_rate
 
     def _wire_delay(self, servo: SimServo, nbytes: int) -> None:
-        """On a pty, sleep (never spin: the driver may share this interpreter) for the return delay and the
-        bytes. In-process the answer is there at once: it takes no simulated time."""
-        if self.wire_timing and not self.in_process:
-            time.sleep(servo.get("return_delay") * 2e-6 + nbytes * 10 / self.baudrate)
+        """On a pty, hold an answer until a real bus would have carried it: its return delay and its bytes
+        after the line was free (the instruction heard, or the answer before it sent). It sleeps (never
+        spins: the driver may share this interpreter) only until then, so a thread that a loaded machine
+        ran late sends at once rather than adding each answer's wire time to its lateness (a chain's bulk
+        read is five answers). In-process the answer is there at once: it takes no simulated time."""
+        if not self.wire_timing or self.in_process:
+            return
+        self._line_free_at += servo.get("return_delay") * 2e-6 + nbytes * 10 / self.baudrate
+        wait = self._line_free_at - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
 
     def _dispatch(
         self, frame: p.Frame, servos: list[SimServo], by_id: dict[int, SimServo] | None = None
