@@ -17,7 +17,8 @@ cell says (and does not read the cell):
   motion plan only while the job asks with the same arguments;
 - device events (``ReplayEvents``): the recorded ones, handed over by ``replay.engine`` where they fell in
   the job (``Replayer.reach``: after as many transitions and device commands), the cell's own held back;
-- the device commands (moves, openings, closes) are compared with the recorded ones as they are given.
+- the device commands (moves, openings, closes) are compared with the recorded ones as they are given;
+- the stand-in's FSR samples reach its reader without their serial lines (``hand_force_samples``).
 
 The first difference — a device command other than the recorded one, a state the recording did not enter,
 an operator command answered otherwise, a motion plan asked for other arguments, an injected fault, or the
@@ -44,6 +45,7 @@ from daemon.backend import Backend, EventListener, MotionCalls, PlanPlacement
 from daemon.clock import SessionClock, SimulatedClock
 from daemon.recorded import JOB_READER, current_joint_reader
 from drivers.errors import BusLost, DriverError
+from drivers.fsr.protocol import Sample
 from drivers.interfaces import (
     ArmDriver,
     DeviceHealth,
@@ -708,6 +710,7 @@ class Replayer:
 def replay_backend(backend: Backend, replayer: Replayer) -> Backend:
     """``backend`` (the simulated cell) with its devices, observer, health, device events, placement and
     motion planning behind ``replayer``."""
+    hand_force_samples(backend, replayer)
     motion_for = backend.motion_for
     health: DeviceHealth | None = backend.health
     if health is not None or replayer.session.streams.get("input/health_failed"):
@@ -724,6 +727,29 @@ def replay_backend(backend: Backend, replayer: Replayer) -> Backend:
         on_event=ReplayEvents(backend.on_event, replayer).register,
         health=health,
     )
+
+
+def hand_force_samples(backend: Backend, replayer: Replayer) -> None:
+    """While the replay follows a started job, the stand-in's FSR simulator hands each sample to its reader
+    at its tick instead of sending the line (``FsrSimulator.tap_samples``): the job is served the recorded
+    force, but the stand-in's own grasps close on its reader, the kinematic world is moved on at every
+    tick by the force it is asked for, and after a divergence the reader must be where its stream would
+    have left it (its median window, holding flag and debounce, sequence and counters). Only the bytes
+    are skipped; the lines flow again from the divergence on (faults act after it)."""
+    from daemon.sim_backend import KinematicCounter, MujocoCounter
+
+    counter = backend.counter
+    if not isinstance(counter, KinematicCounter | MujocoCounter):
+        return
+    reader = counter.cell.force
+
+    def take(sample: Sample) -> bool:
+        if not (replayer.replaying and replayer.started):
+            return False
+        reader.take_sample(sample)
+        return True
+
+    counter.cell.fsr_sim.tap_samples(take)
 
 
 def _error_classes() -> dict[str, type[BaseException]]:

@@ -168,6 +168,11 @@ class FsrReader:
             seen = "no sample yet" if age is None else f"the last one is {age:.2f} s old"
             raise SensorFault(f"no valid FSR sample from {self.port} ({seen}); check the Arduino")
 
+    def take_sample(self, sample: protocol.Sample) -> None:
+        """A sample handed over without its line (``drivers.sim.FsrSimulator.tap_samples``): the reader
+        ends as it would have after reading the line, valid as every simulated sample's is."""
+        self._sample(sample)
+
     # ------------------------------------------------------------------------------------------ internals
 
     def _open(self) -> None:

@@ -5,6 +5,10 @@ pseudo-terminal (``start()``) a thread streams in wall-clock time; in-process (`
 an asyncio task streams on the clock, so on a simulated clock every sample carries the world's force at
 exactly its 10 ms tick. Fault hooks silence the stream, inject garbage or torn lines, corrupt checksums,
 force a drop to zero or a one-sample spike, and unplug the adapter.
+
+In-process, a tap (``tap_samples``) may take a sample instead of its line: a replay's stand-in hands the
+reader each sample at its tick while the replay serves the recorded force, skipping the bytes (formatting,
+the cable, parsing) but not the world's force at each tick nor the reader's state.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from collections.abc import Callable
 
 from drivers.fsr import protocol
 from drivers.interfaces import Clock
-from drivers.sim.device import SimulatedDevice
+from drivers.sim.device import DeviceLink, SimulatedDevice
 from drivers.sim.pty_link import PtyLink
 
 
@@ -45,7 +49,9 @@ class FsrSimulator(SimulatedDevice):
         self._bad_checksums = 0
         self._torn = 0
         self._query = bytearray()
+        self._tap: Callable[[protocol.Sample], bool] | None = None
         self.lines_sent = 0
+        self.samples_tapped = 0  # samples a tap took instead of their lines
 
     # ------------------------------------------------------------------------------------------ fault hooks
 
@@ -104,23 +110,52 @@ class FsrSimulator(SimulatedDevice):
         if link is not None and any(line.strip() == b"?V" for line in lines[:-1]):
             link.write(protocol.version_line(self.version))
 
+    def tap_samples(self, take: Callable[[protocol.Sample], bool] | None) -> None:
+        """In-process: offer each sample to ``take`` first; the line goes out only when it returns False
+        (None: every sample as its line again). The sample is the one the line would carry, taken at the
+        same tick, with the same force and sequence number; line faults (garbage, checksums, torn lines)
+        wait for the next line sent."""
+        self._tap = take
+
     async def _run_on(self, clock: Clock) -> None:
         next_t = clock.monotonic()
         while True:
             await clock.sleep_until(next_t)
             if self._link is not None:
-                self._link.write(self._next_line())
+                self._send(self._link, self._next_sample())
             next_t += self.period_s
 
+    def _send(self, link: DeviceLink, sample: protocol.Sample | None) -> None:
+        """``sample`` to the tap when it takes it, else its line on ``link`` (nothing while silent)."""
+        if sample is None:
+            return
+        tap = self._tap
+        if tap is not None and tap(sample):
+            self.samples_tapped += 1
+            return
+        link.write(self._framed(sample))
+
     def _next_line(self) -> bytes:
+        sample = self._next_sample()
+        return b"" if sample is None else self._framed(sample)
+
+    def _next_sample(self) -> protocol.Sample | None:
+        """The sketch's next reading of the world's force (None while it is silent)."""
         with self._lock:
             if self._silent:
-                return b""
+                return None
             force = 0.0 if self._dropped else self._force_n()
             if self._spikes:
                 force = self._spikes.pop(0)
-            line = protocol.sample_line(self._seq, protocol.raw_from_force(force))
+            sample = protocol.Sample(self._seq % protocol.SEQ_MODULO, protocol.raw_from_force(force))
             self._seq += 1
+            return sample
+
+    def _framed(self, sample: protocol.Sample) -> bytes:
+        """``sample``'s line as sent, with whatever line faults are due."""
+        with self._lock:
+            line = protocol.sample_line(sample.seq, sample.raw)
+            self.lines_sent += 1
             garbage, self._garbage = self._garbage, b""
             if self._bad_checksums:
                 self._bad_checksums -= 1
@@ -129,5 +164,4 @@ class FsrSimulator(SimulatedDevice):
             if self._torn:
                 self._torn -= 1
                 line = line[: len(line) // 2]
-            self.lines_sent += 1
             return garbage + line
