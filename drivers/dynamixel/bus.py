@@ -506,8 +506,9 @@ class DynamixelBus:
             while len(got) < len(expected):
                 remaining = deadline - waits.now()
                 if remaining <= 0:
-                    return
-                if not waits.readable(ser, remaining):
+                    if not ser.in_waiting:  # a host scheduled late may find the answer already read in
+                        return
+                elif not waits.readable(ser, remaining):
                     return
                 data = ser.read(ser.in_waiting or 1)
                 if not data:
