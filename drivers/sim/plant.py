@@ -15,6 +15,11 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 
+class PlantStopped(RuntimeError):
+    """The physical side of the servos is gone (its simulation died): they answer nothing from then on, as
+    servos whose power was cut."""
+
+
 @runtime_checkable
 class ServoPlant(Protocol):
     """The physical side of a servo chain, addressed by servo id; radians and rad/s."""
@@ -22,7 +27,8 @@ class ServoPlant(Protocol):
     def set_goal(self, servo_id: int, position_rad: float, speed_rad_s: float) -> None: ...
 
     def present(self, servo_id: int) -> tuple[float, float, float]:
-        """(position_rad, velocity_rad_s, load as a signed fraction of full torque)."""
+        """(position_rad, velocity_rad_s, load as a signed fraction of full torque); ``PlantStopped`` once
+        the plant is gone."""
         ...
 
     def set_torque(self, servo_id: int, on: bool) -> None: ...

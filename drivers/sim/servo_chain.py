@@ -35,7 +35,7 @@ from drivers.dynamixel import protocol as p
 from drivers.dynamixel.tables import ModelSpec, baud_code, baud_from_code, model
 from drivers.interfaces import Clock
 from drivers.sim.device import SimulatedDevice
-from drivers.sim.plant import FirstOrderPlant, ServoPlant
+from drivers.sim.plant import FirstOrderPlant, PlantStopped, ServoPlant
 from drivers.sim.pty_link import PtyLink
 
 log = structlog.get_logger("drivers.sim.servo_chain")
@@ -188,6 +188,7 @@ class ServoChainSimulator(SimulatedDevice):
         # out since an id or a baud rate changed).
         self._heard: tuple[int | None, list[SimServo], dict[int, SimServo]] | None = None
         self.packets_seen = 0
+        self._plant_stopped = False  # the plant raised PlantStopped: no servo answers anything from then on
         self.packets_corrupted = 0
         # On a pty, when the line is free for the next answer (wall clock): the instruction heard, or the
         # previous answer's last byte gone (see ``_wire_delay``).
@@ -374,8 +375,14 @@ class ServoChainSimulator(SimulatedDevice):
             frames = list(self._framer.feed(data))
         for frame in frames:
             self.packets_seen += 1
+            if self._plant_stopped:
+                continue
             try:
                 self._handle(frame)
+            except PlantStopped as e:  # the servos' physical side is gone: silent, as without power
+                if not self._plant_stopped:
+                    self._plant_stopped = True
+                    log.error("sim_servos_silent", reason=str(e))
             except Exception:  # the simulator must keep serving whatever the host sends
                 log.exception("sim_packet_failed", servo_id=frame.servo_id, code=frame.code)
 

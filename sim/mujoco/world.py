@@ -199,8 +199,13 @@ class SimWorld:
         self.speed = speed
         self.arm = arm
         self.mug_ids = tuple(mug_ids)
+        _log_mujoco_warnings()
         self.model = self._compile(mjcf_xml)
         self.data = mujoco.MjData(self.model)
+        # MuJoCo's counts of bad positions, velocities and accelerations (consecutive in mjtWarning): a state
+        # it finds bad stops the world after the batch of steps, as non-finite positions do.
+        first = int(mujoco.mjtWarning.mjWARN_BADQPOS)
+        self._bad_state_counts = self.data.warning.number[first : first + 3]  # a live view
         # Held by the physics thread while it steps; take it to read or render a consistent state.
         self.lock = threading.RLock()
         self._servos = self._bind_servos()
@@ -291,6 +296,10 @@ class SimWorld:
         # Mugs at rest on the counter sleep (no contacts solved) until something touches them: a dozen
         # resting mugs otherwise cost most of the step.
         spec.option.enableflags |= mujoco.mjtEnableBit.mjENBL_SLEEP
+        # By default MuJoCo answers a bad state by resetting the data (time back to 0, every body back at its
+        # start) and stepping on, which would hide a divergence behind finite positions; without the reset
+        # the state stays as it went bad and the world stops, saying when (``_run_steps``).
+        spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
         # Torsional and rolling friction on the mugs: without them a mug rocking on its rim walks across the
         # tray and a tipped one rolls off the table forever.
         for geom in spec.geoms:
@@ -403,7 +412,10 @@ class SimWorld:
         """Present position (rad), velocity (rad/s) and load (signed fraction of the stall torque), as of
         the last physics step. Lock-free, like ``set_goal``, while the world steps in its own thread; stepped
         by a clock or ``step_for``, the first read after a batch of steps takes the snapshot (under the lock,
-        which nobody else holds then)."""
+        which nobody else holds then). Once the physics died, ``SimWorldStopped``: its last state is not a
+        reading."""
+        if self._failure is not None:
+            self.check_alive()
         if self._present_due:
             with self.lock:
                 if self._present_due:
@@ -688,8 +700,18 @@ class SimWorld:
             self._present_due = True
         else:
             self._publish_present()
-        if not math.isfinite(_sum(data.qpos)):  # a sum is NaN or infinite when any term is
-            raise SimModelError(f"the simulation diverged at t={self.time():.3f} s (non-finite positions)")
+        if _count_nonzero(self._bad_state_counts) or not math.isfinite(_sum(data.qpos)):
+            raise SimModelError(f"the simulation diverged by t={self.time():.3f} s ({self._what_diverged()})")
+
+    def _what_diverged(self) -> str:
+        """What MuJoCo found bad (its warnings), or the positions that are not finite (a sum is NaN or
+        infinite when any term is)."""
+        kinds = ("positions", "velocities", "accelerations")
+        flagged = [k for k, n in zip(kinds, self._bad_state_counts, strict=True) if n]
+        if flagged:
+            listed = " and ".join(filter(None, (", ".join(flagged[:-1]), flagged[-1])))
+            return f"NaN, infinite or huge {listed}"
+        return "non-finite positions"
 
     def _steps_until_monitor(self, most: int, dt: float) -> int:
         """How many steps (1 to ``most``) take the world's time to the next monitor tick. Worked out with
@@ -967,6 +989,18 @@ class SimWorld:
         self._held = None
         self._low_force_since = None
         log.debug("simworld_grasp_released", mug_id=mug, reason=reason, t=round(self.time(), 3))
+
+
+def _log_mujoco_warnings() -> None:
+    """Send MuJoCo's warnings (a diverged state, a full contact buffer) to the log, once per process. By
+    default MuJoCo prints them and appends them to ``MUJOCO_LOG.TXT`` in the working directory, which for
+    a daemon is nobody's and for a test run is the source tree."""
+    if mujoco.get_mju_user_warning() is None:
+        mujoco.set_mju_user_warning(_mujoco_warning)
+
+
+def _mujoco_warning(message: str) -> None:
+    log.warning("mujoco_warning", message=message)
 
 
 # ``ndarray.sum`` without its Python wrapper (the divergence check runs after every batch of steps).

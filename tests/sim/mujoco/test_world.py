@@ -9,10 +9,12 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from structlog.testing import capture_logs
 
 from daemon.clock import SimulatedClock
 from description.arm import BUNDLED_URDF
 from description.thesis import BIG_MUG, SMALL_MUG, MugSpec
+from drivers.sim.plant import PlantStopped
 from planning.arm.grasp import side_grasp
 from planning.arm.model import ArmModel
 from planning.arm.targets import GraspKind
@@ -249,6 +251,41 @@ def test_a_world_that_dies_on_the_clock_stops_and_says_so_while_the_clock_goes_o
     assert clock.monotonic() == pytest.approx(0.2)
     with pytest.raises(SimWorldStopped, match=r"^the physics died: the simulation diverged at t=0\.000 s"):
         world.check_alive()
+
+
+def test_a_real_divergence_stops_the_world_and_says_when(
+    make_world: WorldFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A NaN in the physics stops the world after the batch of steps it came in, and says by when: MuJoCo
+    does not reset the state to its start and step on (its default), which would hide the divergence. Its
+    warnings go to the log, not to a file in the working directory."""
+    monkeypatch.chdir(tmp_path)
+    world = make_world([mug_facing_arm("a", BIG_MUG, 0.0, 0.35)])
+    clock = SimulatedClock()
+
+    async def main() -> None:
+        world.attach(clock)
+        await clock.sleep(0.1)
+        world.check_alive()
+        with world.paused():
+            world.data.qvel[0] = math.nan
+        await clock.sleep(0.1)
+        await clock.sleep(0.1)  # the clock goes on; the dead world is no longer stepped
+
+    with capture_logs() as logs:
+        clock.run(main())
+    warned = [e["message"] for e in logs if e["event"] == "mujoco_warning"]
+    assert warned
+    assert all("The simulation is unstable" in m for m in warned)
+    assert list(tmp_path.iterdir()) == []  # no MUJOCO_LOG.TXT
+    with pytest.raises(
+        SimWorldStopped,
+        match=r"^the physics died: the simulation diverged by t=0\.200 s \(NaN, infinite or huge positions, "
+        r"velocities and accelerations\)$",
+    ):
+        world.check_alive()
+    with pytest.raises(PlantStopped, match=r"^the physics died: "):  # the servos read no state from it
+        world.present(1)
 
 
 def test_a_fast_carry_reads_a_steady_squeeze_not_a_drop(one_mug: OneMugFactory) -> None:
