@@ -114,7 +114,9 @@ def test_sigkill_mid_job_leaves_no_helper_process_alive(tmp_path: Path) -> None:
 def test_sigkill_of_a_bench_with_worker_processes_leaves_none_of_them_alive() -> None:
     """``bench placement --layouts N --jobs 2`` checks layouts in worker processes forked by the forkserver:
     killed with SIGKILL, it takes them and the forkserver along (they used to keep running to the end)."""
-    bench = ["bench", "placement", "--layouts", "6", "--datasets", "4", "--jobs", "2", "--no-unchecked"]
+    # Two dataset-1 layouts, one per worker: the bench draws them in a fraction of a second (six of
+    # dataset 4 took it over 4 CPU-s before any worker started), and each keeps its worker busy for seconds.
+    bench = ["bench", "placement", "--layouts", "2", "--datasets", "1", "--jobs", "2", "--no-unchecked"]
     proc = subprocess.Popen(
         [sys.executable, "-m", "cli.main", *bench],
         stdout=subprocess.DEVNULL,

@@ -10,31 +10,29 @@ from typing import Any
 import pytest
 
 from daemon.app import RunResult
-from daemon.backend import SetupMug, SimOptions
+from daemon.backend import SimOptions
 from daemon.cell import open_backend
 from daemon.clock import SimulatedClock
 from daemon.config import load_config
 from daemon.job import StartRequest
-from planning.placement import cell_dataset_problem
 from recorder import read_messages
 from recorder.foxglove_arm import ArmFrames
+from tests.fakes.counter import setup_mugs
 from tests.fakes.daemon import serve_daemon
 from tests.recorder.foxglove_decode import Decoded, decode_all
 
 ROBOT = "fox"
-
-
-def four_mugs() -> tuple[SetupMug, ...]:
-    problem = cell_dataset_problem(load_config().cell, 1)
-    return tuple(SetupMug(m.id, m.type, m.x_mm / 1000.0, m.y_mm / 1000.0) for m in problem.mugs[:4])
+# Two mugs: a plan of two slots, a mug carried while the other waits on the counter, two on the tray at the
+# end; each further mug only repeats the channels' messages.
+MUGS = 2
 
 
 @pytest.fixture(scope="module")
 def job(tmp_path_factory: pytest.TempPathFactory) -> RunResult:
-    """One ``--once`` job of four dataset-1 mugs on the kinematic cell, recorded with Foxglove channels."""
+    """One ``--once`` job of two dataset-1 mugs on the kinematic cell, recorded with Foxglove channels."""
     directory = tmp_path_factory.mktemp("fox")
     config = load_config(overrides={"robot_id": ROBOT, "planner": {"method": "bh"}})
-    request = StartRequest(mugs=four_mugs())
+    request = StartRequest(mugs=setup_mugs(MUGS))
     clock = SimulatedClock()
 
     async def run() -> RunResult:
@@ -63,7 +61,7 @@ def test_a_once_job_is_one_finished_job_file_whose_header_names_what_it_ran(job:
     assert header is not None
     assert header["job"] == {
         "dataset": None,
-        "mugs": [{"id": m.mug_id, "type": m.type, "x_m": m.x_m, "y_m": m.y_m} for m in four_mugs()],
+        "mugs": [{"id": m.mug_id, "type": m.type, "x_m": m.x_m, "y_m": m.y_m} for m in setup_mugs(MUGS)],
         "planner": {"method": "bh", "cost": "upc", "fitness": "rf", "time_limit_s": 1.0, "seed": 0},
         "planner_overrides": {},
         "sim_seed": 0,

@@ -20,10 +20,9 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from daemon.config import load_config
-from planning.placement import cell_dataset_problem
 from recorder.foxglove_server import known_channels
 from tests.daemon.conftest import free_port
+from tests.fakes.counter import dataset_mugs
 from tests.recorder.foxglove_client import FoxgloveClient
 
 ROBOT = "live"
@@ -40,13 +39,6 @@ TRIALS = 2
 # the SDK then drops the oldest for the client behind (docs/recording.md).
 SPEED = "20"
 HEADER = "session/header"
-
-
-def _mugs(n: int) -> list[dict[str, object]]:
-    problem = cell_dataset_problem(load_config().cell, 1)
-    return [
-        {"id": m.id, "type": m.type, "x_m": m.x_mm / 1000.0, "y_m": m.y_mm / 1000.0} for m in problem.mugs[:n]
-    ]
 
 
 def _recorded(path: Path) -> collections.Counter[tuple[str, int, bytes]]:
@@ -102,7 +94,7 @@ def test_two_live_clients_in_turn_receive_every_message_their_job_recorded(tmp_p
     clients: list[FoxgloveClient] = []
     try:
         for _ in range(TRIALS):
-            clients.append(asyncio.run(_trial(f"ws://127.0.0.1:{port}", topics, _mugs(1))))
+            clients.append(asyncio.run(_trial(f"ws://127.0.0.1:{port}", topics, dataset_mugs(1))))
         daemon.send_signal(signal.SIGTERM)
         assert daemon.wait(timeout=60) == 0
     finally:
