@@ -24,6 +24,8 @@ from planning.motion.scene import Scene
 from planning.motion.trajectory import JointPath
 
 _MAX_JOINT_STEP_RAD = 0.35
+# ``np.max`` of a vector without its Python wrapper (the same reduction, asked once per IK waypoint).
+_largest = np.maximum.reduce
 _POSE_SUFFIX = re.compile(r" \(pose \d+ of \d+\)$")
 
 # Mugs a move may touch: one mug id, or several (a gripper lifting off the mugs it straddles).
@@ -202,7 +204,7 @@ class Builder:
         qs = [self.q]
         for t in targets:
             q = self._solve(t, qs[-1], phase)
-            jump = float(np.max(np.abs(q - qs[-1])))
+            jump = float(_largest(abs(q - qs[-1])))
             if jump > _MAX_JOINT_STEP_RAD:
                 raise MotionRefused(
                     f"{phase}: the arm would jump {jump:.2f} rad between close waypoints near {fmt_point(t)}"

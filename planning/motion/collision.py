@@ -38,6 +38,7 @@ _BOX_SLACK_M = 1e-6
 # A collision found at one pose of a motion: the pose's index, why, and the obstacle's name.
 _Finding = tuple[int, str, str]
 IntArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
 
 
 @dataclass(frozen=True, slots=True)
@@ -211,6 +212,7 @@ class CollisionWorld:
         self._cyl = np.array([[c.x, c.y, c.radius, c.z_lo, c.z_hi] for c in self.cylinders]).reshape(-1, 5)
         self._box_lo = np.array([b.lo for b in self.boxes]).reshape(-1, 3)
         self._box_hi = np.array([b.hi for b in self.boxes]).reshape(-1, 3)
+        self._actives: dict[frozenset[str], BoolArray] = {}
 
     def first_collision(
         self,
@@ -223,10 +225,7 @@ class CollisionWorld:
         """The first colliding pose's collision (None when every pose is clear). Poses are checked at the
         given samples and between them wherever the grasp point moved more than 1 cm."""
         spheres, radii = _gripper_spheres(self.arm.gripper, float(aperture_m))
-        active = np.array(
-            [c.name not in ignore and c.name.removesuffix(" handle") not in ignore for c in self.cylinders],
-            dtype=bool,
-        )
+        active = self._active(ignore)
         samples = np.ascontiguousarray(q_samples, dtype=np.float64)
         if self.sweeps is None:
             sweep = self._sweep(samples, spheres, radii)
@@ -252,7 +251,8 @@ class CollisionWorld:
                 i = int(near_floor[bad[0]])
                 why = f"the gripper would touch the counter (z={low[bad[0]]:.3f} m)"
                 findings.append((i, why, _COUNTER))
-        hit_pose, name = self._near_vs_obstacles(sweep.lo, sweep.hi, centres_at, radii, active)
+        near = active & self._overlapping(sweep.lo, sweep.hi)
+        hit_pose, name = self._near_vs_obstacles(sweep.lo, sweep.hi, centres_at, radii, near)
         if name:
             findings.append((hit_pose, f"the gripper would hit {name}", name))
         if held is not None:
@@ -261,6 +261,36 @@ class CollisionWorld:
             return None
         pose, why, obstacle = min(findings, key=lambda f: f[0])
         return Collision(f"{why} (pose {pose} of {len(positions)})", obstacle)
+
+    def _active(self, ignore: frozenset[str]) -> BoolArray:
+        """Which cylinders count (not a mug of ``ignore``, nor its handle); worked out once per set ignored,
+        as a world is checked against many motions with the same few (read-only, as it is shared)."""
+        active = self._actives.get(ignore)
+        if active is None:
+            names = (c.name for c in self.cylinders)
+            counted = [n not in ignore and n.removesuffix(" handle") not in ignore for n in names]
+            active = np.array(counted, dtype=bool)
+            active.flags.writeable = False
+            self._actives[ignore] = active
+        return active
+
+    def _overlapping(self, lo: FloatArray, hi: FloatArray) -> BoolArray:
+        """Which cylinders the box around all the boxes ``lo``, ``hi`` (N, 3) overlaps, by the tests
+        ``_near_vs_obstacles`` makes pose by pose: a cylinder outside it is near no pose, so the pose by
+        pose test (N by cylinders) need not look at it."""
+        cyl = self._cyl
+        if not len(lo):
+            return np.zeros(len(cyl), dtype=bool)
+        low, high = np.minimum.reduce(lo, axis=0), np.maximum.reduce(hi, axis=0)
+        overlapping: BoolArray = (
+            (low[0] < cyl[:, 0] + cyl[:, 2])
+            & (high[0] > cyl[:, 0] - cyl[:, 2])
+            & (low[1] < cyl[:, 1] + cyl[:, 2])
+            & (high[1] > cyl[:, 1] - cyl[:, 2])
+            & (low[2] < cyl[:, 4])
+            & (high[2] > cyl[:, 3])
+        )
+        return overlapping
 
     def mugs_around(self, q: FloatArray, *, aperture_m: float) -> frozenset[str]:
         """Ids of the mugs (named ``mug <id>``) the gripper overlaps at joint angles ``q``: after a failed or
@@ -318,7 +348,7 @@ class CollisionWorld:
         return positions, rotations, origins[:, 1:, 2]
 
     def _spheres_vs_obstacles(
-        self, centres: FloatArray, radii: FloatArray, active: FloatArray
+        self, centres: FloatArray, radii: FloatArray, active: BoolArray
     ) -> tuple[int, str]:
         """First pose (axis 0 of ``centres`` (N, S, 3)) where a sphere meets an obstacle, and its name."""
         lo, hi = _bounds(centres, radii)
@@ -330,7 +360,7 @@ class CollisionWorld:
         hi: FloatArray,
         centres_at: Callable[[IntArray], FloatArray],
         radii: FloatArray,
-        active: FloatArray,
+        active: BoolArray,
     ) -> tuple[int, str]:
         """First pose where a sphere meets an obstacle, and its name: ``lo``, ``hi`` (N, 3) bound each pose's
         spheres, ``centres_at(poses)`` gives the spheres' centres (len(poses), S, 3) at those poses.
@@ -382,7 +412,7 @@ class CollisionWorld:
         return first, name
 
     def _held_collisions(
-        self, positions: FloatArray, rotations: FloatArray, held: HeldMug, active: FloatArray
+        self, positions: FloatArray, rotations: FloatArray, held: HeldMug, active: BoolArray
     ) -> list[_Finding]:
         findings: list[_Finding] = []
         axis = rotations[:, :, 0]
@@ -431,7 +461,7 @@ class CollisionWorld:
         return findings
 
     def _held_cylinders_vs_obstacles(
-        self, xy: FloatArray, radius: float, z_lo: FloatArray, z_hi: FloatArray, active: FloatArray
+        self, xy: FloatArray, radius: float, z_lo: FloatArray, z_hi: FloatArray, active: BoolArray
     ) -> tuple[FloatArray, FloatArray]:
         """A held, upright mug must keep ``clearance_m`` above anything it overlaps in plan view. For mugs
         at ``xy`` (V, 2) spanning ``z_lo``-``z_hi`` (V,): which cylinders (V, C) and boxes (V, B) each
