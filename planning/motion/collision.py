@@ -251,8 +251,7 @@ class CollisionWorld:
                 i = int(near_floor[bad[0]])
                 why = f"the gripper would touch the counter (z={low[bad[0]]:.3f} m)"
                 findings.append((i, why, _COUNTER))
-        near = active & self._overlapping(sweep.lo, sweep.hi)
-        hit_pose, name = self._near_vs_obstacles(sweep.lo, sweep.hi, centres_at, radii, near)
+        hit_pose, name = self._near_vs_obstacles(sweep.lo, sweep.hi, centres_at, radii, active)
         if name:
             findings.append((hit_pose, f"the gripper would hit {name}", name))
         if held is not None:
@@ -274,14 +273,12 @@ class CollisionWorld:
             self._actives[ignore] = active
         return active
 
-    def _overlapping(self, lo: FloatArray, hi: FloatArray) -> BoolArray:
-        """Which cylinders the box around all the boxes ``lo``, ``hi`` (N, 3) overlaps, by the tests
-        ``_near_vs_obstacles`` makes pose by pose: a cylinder outside it is near no pose, so the pose by
-        pose test (N by cylinders) need not look at it."""
+    def _overlapping(self, low: FloatArray, high: FloatArray) -> tuple[BoolArray, IntArray]:
+        """Which cylinders (a mask) and which boxes (their indices) the box ``low``, ``high`` (3,) around
+        all of a sweep's boxes overlaps, by the tests ``_near_vs_obstacles`` makes pose by pose: an
+        obstacle outside it is near no pose, so the pose by pose tests need not look at it."""
         cyl = self._cyl
-        if not len(lo):
-            return np.zeros(len(cyl), dtype=bool)
-        low, high = np.minimum.reduce(lo, axis=0), np.maximum.reduce(hi, axis=0)
+        boxes = np.flatnonzero(np.logical_and.reduce((low < self._box_hi) & (high > self._box_lo), axis=1))
         overlapping: BoolArray = (
             (low[0] < cyl[:, 0] + cyl[:, 2])
             & (high[0] > cyl[:, 0] - cyl[:, 2])
@@ -290,7 +287,7 @@ class CollisionWorld:
             & (low[2] < cyl[:, 4])
             & (high[2] > cyl[:, 3])
         )
-        return overlapping
+        return overlapping, boxes
 
     def mugs_around(self, q: FloatArray, *, aperture_m: float) -> frozenset[str]:
         """Ids of the mugs (named ``mug <id>``) the gripper overlaps at joint angles ``q``: after a failed or
@@ -366,11 +363,14 @@ class CollisionWorld:
         spheres, ``centres_at(poses)`` gives the spheres' centres (len(poses), S, 3) at those poses.
 
         Only the (pose, obstacle) pairs whose bounding boxes overlap are checked sphere by sphere: a pose's
-        spheres are near a few obstacles at most."""
+        spheres are near a few obstacles at most, and the obstacles outside the box around all of them are
+        left out first."""
         first = len(lo)
         name = ""
         if not len(lo):
             return first, name
+        near_all, boxes = self._overlapping(np.minimum.reduce(lo, axis=0), np.maximum.reduce(hi, axis=0))
+        active = active & near_all
         cyl = self._cyl[active]
         if len(cyl):
             near = (
@@ -395,12 +395,13 @@ class CollisionWorld:
                     # Pairs are in (pose, obstacle) order: the first hit is the first pose's first obstacle.
                     first = int(pose[hit[0]])
                     name = self.cylinders[int(np.flatnonzero(active)[which[hit[0]]])].name
-        if len(self._box_lo):
+        if len(boxes):
+            box_lo, box_hi = self._box_lo[boxes], self._box_hi[boxes]
             near = np.all(
-                (lo[:, None, :] < self._box_hi[None, :, :]) & (hi[:, None, :] > self._box_lo[None, :, :]),
-                axis=2,
+                (lo[:, None, :] < box_hi[None, :, :]) & (hi[:, None, :] > box_lo[None, :, :]), axis=2
             )
             pose, which = np.nonzero(near[:first])
+            which = boxes[which]
             if len(pose):
                 c = _centres_once(centres_at, pose)
                 nearest = np.clip(c, self._box_lo[which][:, None, :], self._box_hi[which][:, None, :])
@@ -462,19 +463,31 @@ class CollisionWorld:
 
     def _held_cylinders_vs_obstacles(
         self, xy: FloatArray, radius: float, z_lo: FloatArray, z_hi: FloatArray, active: BoolArray
-    ) -> tuple[FloatArray, FloatArray]:
+    ) -> tuple[BoolArray, BoolArray]:
         """A held, upright mug must keep ``clearance_m`` above anything it overlaps in plan view. For mugs
         at ``xy`` (V, 2) spanning ``z_lo``-``z_hi`` (V,): which cylinders (V, C) and boxes (V, B) each
-        comes too close to."""
+        comes too close to. Only the cylinders within reach of the box around all the mugs' axes (widened
+        by far more than rounding) are looked at pose by pose: no other can be that close to any."""
         gap = self.clearance_m
         cyl = self._cyl
-        dxy = np.hypot(xy[:, None, 0] - cyl[None, :, 0], xy[:, None, 1] - cyl[None, :, 1])
-        cyl_hits = (
-            active[None, :]
-            & (dxy < radius + cyl[None, :, 2])
-            & (z_lo[:, None] < cyl[None, :, 4] + gap)
-            & (z_hi[:, None] > cyl[None, :, 3] - gap)
+        reach = radius + cyl[:, 2] + _BOX_SLACK_M
+        low, high = np.minimum.reduce(xy, axis=0), np.maximum.reduce(xy, axis=0)
+        near = np.flatnonzero(
+            active
+            & (low[0] < cyl[:, 0] + reach)
+            & (high[0] > cyl[:, 0] - reach)
+            & (low[1] < cyl[:, 1] + reach)
+            & (high[1] > cyl[:, 1] - reach)
         )
+        cyl_hits = np.zeros((len(xy), len(cyl)), dtype=bool)
+        if len(near):
+            c = cyl[near]
+            dxy = np.hypot(xy[:, None, 0] - c[None, :, 0], xy[:, None, 1] - c[None, :, 1])
+            cyl_hits[:, near] = (
+                (dxy < radius + c[None, :, 2])
+                & (z_lo[:, None] < c[None, :, 4] + gap)
+                & (z_hi[:, None] > c[None, :, 3] - gap)
+            )
         lo, hi = self._box_lo, self._box_hi
         dx = np.maximum(np.maximum(lo[None, :, 0] - xy[:, None, 0], 0.0), xy[:, None, 0] - hi[None, :, 0])
         dy = np.maximum(np.maximum(lo[None, :, 1] - xy[:, None, 1], 0.0), xy[:, None, 1] - hi[None, :, 1])
