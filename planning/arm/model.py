@@ -10,6 +10,7 @@ fixed fan of seeds. An ``ArmModel`` owns one Pinocchio ``Data`` and is not threa
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -73,6 +74,14 @@ _largest = np.maximum.reduce
 def _norm(v: FloatArray) -> float:
     """``np.linalg.norm`` of a vector, as it works it out (the square root of v . v), without its wrapper."""
     return math.sqrt(float(v.dot(v)))
+
+
+@functools.lru_cache(maxsize=8)
+def _damping_matrix(damping: float, n_rows: int) -> FloatArray:
+    """``damping**2`` times the identity, made once per damping and size (read-only, as it is shared)."""
+    damped = (damping * damping) * np.eye(n_rows)
+    damped.flags.writeable = False
+    return damped
 
 
 @dataclass(frozen=True, slots=True)
@@ -385,7 +394,7 @@ class ArmModel:
         lower, upper = self.lower, self.upper
         q = np.clip(seed, lower, upper)
         n_rows = 3 if goal_r is None else 6
-        damped = (damping * damping) * np.eye(n_rows)
+        damped = _damping_matrix(damping, n_rows)
         model, data, tool_id = self.model, self.data, self._tool_id
         placement = data.oMf[tool_id]
         pos_err = rot_err = math.inf
@@ -404,7 +413,9 @@ class ArmModel:
                 e = np.concatenate((e_p, e_r))
             if pos_err < _CONVERGED_M and rot_err < _CONVERGED_M / _ROTATION_WEIGHT_M:
                 return q, pos_err, rot_err, it
-            J = pin.getFrameJacobian(model, data, tool_id, pin.LOCAL_WORLD_ALIGNED)[:n_rows].copy()
+            # A new C-ordered array each time: its rows can be weighted in place (the three of a position
+            # target are a view of its first rows, laid out as a copy of them would be).
+            J = pin.getFrameJacobian(model, data, tool_id, pin.LOCAL_WORLD_ALIGNED)[:n_rows]
             J[3:] *= _ROTATION_WEIGHT_M
             dq = J.T @ _solve_linear(J @ J.T + damped, e)
             step = float(_largest(abs(dq)))
