@@ -125,9 +125,9 @@ class Builder:
         end_p = np.asarray(goal.position_m)
         length = float(np.linalg.norm(end_p - start_p))
         n = max(2, math.ceil(length / 0.01) + 1)
-        targets = [
-            GraspTarget(point(start_p + (end_p - start_p) * f), goal.kind) for f in np.linspace(0, 1, n)[1:]
-        ]
+        # Every waypoint as ``start_p + (end_p - start_p) * f`` worked out one by one: the same numbers.
+        points = start_p + (end_p - start_p) * np.linspace(0, 1, n)[1:, None]
+        targets = [GraspTarget((x, y, z), goal.kind) for x, y, z in points.tolist()]
         self._follow(phase, targets, _Checks(world, **carrying, fine=True, length=length, speed=speed_m_s))
 
     def arc(self, phase: str, goal: GraspTarget, world: CollisionWorld, **carrying: Unpack[Carrying]) -> None:
@@ -253,10 +253,6 @@ def at_z(target: GraspTarget, z: float) -> GraspTarget:
 def xy_at(target: GraspTarget, z: float) -> tuple[float, float, float]:
     """The point above or below ``target`` at height ``z``."""
     return (target.position_m[0], target.position_m[1], z)
-
-
-def point(p: FloatArray) -> tuple[float, float, float]:
-    return float(p[0]), float(p[1]), float(p[2])
 
 
 def fmt_point(target: GraspTarget) -> str:
