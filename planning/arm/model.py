@@ -10,6 +10,7 @@ fixed fan of seeds. An ``ArmModel`` owns one Pinocchio ``Data`` and is not threa
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -73,6 +74,14 @@ _largest = np.maximum.reduce
 def _norm(v: FloatArray) -> float:
     """``np.linalg.norm`` of a vector, as it works it out (the square root of v . v), without its wrapper."""
     return math.sqrt(float(v.dot(v)))
+
+
+@functools.lru_cache(maxsize=8)
+def _damping_matrix(damping: float, n_rows: int) -> FloatArray:
+    """``damping**2`` times the identity, made once per damping and size (read-only, as it is shared)."""
+    damped = (damping * damping) * np.eye(n_rows)
+    damped.flags.writeable = False
+    return damped
 
 
 @dataclass(frozen=True, slots=True)
@@ -242,7 +251,7 @@ class ArmModel:
             raise InvalidTarget(
                 f"expected {self.dof} joint angles ({', '.join(self.joint_names)}), got {arr.size}"
             )
-        if not np.all(np.isfinite(arr)):
+        if not np.isfinite(arr).all():
             raise InvalidTarget(f"joint angles must be finite, got {[float(v) for v in arr]}")
         return arr
 
@@ -344,7 +353,7 @@ class ArmModel:
             )
             total_iters += iters
             ok = pos_err <= _POSITION_TOL_M and rot_err <= _ROTATION_TOL_RAD
-            result = IkResult(ok, tuple(float(v) for v in q), pos_err, "", rot_err, total_iters)
+            result = IkResult(ok, tuple(q.tolist()), pos_err, "", rot_err, total_iters)
             if ok:
                 return result
             if best is None or pos_err + rot_err * _ROTATION_WEIGHT_M < best.residual_m + (
@@ -379,33 +388,35 @@ class ArmModel:
     ) -> tuple[FloatArray, float, float, int]:
         # Damped least squares. The arithmetic is that of ``np.clip``, ``np.linalg.norm`` and
         # ``np.linalg.solve`` (the same LAPACK solve), called without their Python wrappers: an iteration
-        # costs a few microseconds of numerical work and the wrappers cost more than that.
+        # costs a few microseconds of numerical work and the wrappers cost more than that. Only the tool
+        # frame's placement is brought up to date (``placement`` is a live view of it in ``data``), and the
+        # position-only error has no rotation rows to fill.
         lower, upper = self.lower, self.upper
         q = np.clip(seed, lower, upper)
         n_rows = 3 if goal_r is None else 6
-        damped = (damping * damping) * np.eye(n_rows)
+        damped = _damping_matrix(damping, n_rows)
         model, data, tool_id = self.model, self.data, self._tool_id
+        placement = data.oMf[tool_id]
         pos_err = rot_err = math.inf
         best_total, best_it = math.inf, 0
         for it in range(1, max_iters + 1):
             pin.computeJointJacobians(model, data, q)
-            pin.updateFramePlacements(model, data)
-            placement = data.oMf[tool_id]
-            err = np.empty(6)
-            err[:3] = goal_p - placement.translation
-            if goal_r is None:
-                err[3:] = 0.0
-            else:
-                err[3:] = pin.log3(goal_r @ placement.rotation.T) * _ROTATION_WEIGHT_M
-            e_p, e_r = err[:3], err[3:]
+            pin.updateFramePlacement(model, data, tool_id)
+            e_p = goal_p - placement.translation
             pos_err = _norm(e_p)
-            rot_err = _norm(e_r) / _ROTATION_WEIGHT_M
+            if goal_r is None:
+                e = e_p
+                rot_err = 0.0
+            else:
+                e_r = pin.log3(goal_r @ placement.rotation.T) * _ROTATION_WEIGHT_M
+                rot_err = _norm(e_r) / _ROTATION_WEIGHT_M
+                e = np.concatenate((e_p, e_r))
             if pos_err < _CONVERGED_M and rot_err < _CONVERGED_M / _ROTATION_WEIGHT_M:
                 return q, pos_err, rot_err, it
-            J = pin.getFrameJacobian(model, data, tool_id, pin.LOCAL_WORLD_ALIGNED)
-            J = J[:n_rows].copy()
+            # A new C-ordered array each time: its rows can be weighted in place (the three of a position
+            # target are a view of its first rows, laid out as a copy of them would be).
+            J = pin.getFrameJacobian(model, data, tool_id, pin.LOCAL_WORLD_ALIGNED)[:n_rows]
             J[3:] *= _ROTATION_WEIGHT_M
-            e = err[:n_rows]
             dq = J.T @ _solve_linear(J @ J.T + damped, e)
             step = float(_largest(abs(dq)))
             if step > 0.5:

@@ -24,6 +24,8 @@ from planning.motion.scene import Scene
 from planning.motion.trajectory import JointPath
 
 _MAX_JOINT_STEP_RAD = 0.35
+# ``np.max`` of a vector without its Python wrapper (the same reduction, asked once per IK waypoint).
+_largest = np.maximum.reduce
 _POSE_SUFFIX = re.compile(r" \(pose \d+ of \d+\)$")
 
 # Mugs a move may touch: one mug id, or several (a gripper lifting off the mugs it straddles).
@@ -123,9 +125,9 @@ class Builder:
         end_p = np.asarray(goal.position_m)
         length = float(np.linalg.norm(end_p - start_p))
         n = max(2, math.ceil(length / 0.01) + 1)
-        targets = [
-            GraspTarget(point(start_p + (end_p - start_p) * f), goal.kind) for f in np.linspace(0, 1, n)[1:]
-        ]
+        # Every waypoint as ``start_p + (end_p - start_p) * f`` worked out one by one: the same numbers.
+        points = start_p + (end_p - start_p) * np.linspace(0, 1, n)[1:, None]
+        targets = [GraspTarget((x, y, z), goal.kind) for x, y, z in points.tolist()]
         self._follow(phase, targets, _Checks(world, **carrying, fine=True, length=length, speed=speed_m_s))
 
     def arc(self, phase: str, goal: GraspTarget, world: CollisionWorld, **carrying: Unpack[Carrying]) -> None:
@@ -202,7 +204,7 @@ class Builder:
         qs = [self.q]
         for t in targets:
             q = self._solve(t, qs[-1], phase)
-            jump = float(np.max(np.abs(q - qs[-1])))
+            jump = float(_largest(abs(q - qs[-1])))
             if jump > _MAX_JOINT_STEP_RAD:
                 raise MotionRefused(
                     f"{phase}: the arm would jump {jump:.2f} rad between close waypoints near {fmt_point(t)}"
@@ -251,10 +253,6 @@ def at_z(target: GraspTarget, z: float) -> GraspTarget:
 def xy_at(target: GraspTarget, z: float) -> tuple[float, float, float]:
     """The point above or below ``target`` at height ``z``."""
     return (target.position_m[0], target.position_m[1], z)
-
-
-def point(p: FloatArray) -> tuple[float, float, float]:
-    return float(p[0]), float(p[1]), float(p[2])
 
 
 def fmt_point(target: GraspTarget) -> str:

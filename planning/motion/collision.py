@@ -38,6 +38,7 @@ _BOX_SLACK_M = 1e-6
 # A collision found at one pose of a motion: the pose's index, why, and the obstacle's name.
 _Finding = tuple[int, str, str]
 IntArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
 
 
 @dataclass(frozen=True, slots=True)
@@ -211,6 +212,7 @@ class CollisionWorld:
         self._cyl = np.array([[c.x, c.y, c.radius, c.z_lo, c.z_hi] for c in self.cylinders]).reshape(-1, 5)
         self._box_lo = np.array([b.lo for b in self.boxes]).reshape(-1, 3)
         self._box_hi = np.array([b.hi for b in self.boxes]).reshape(-1, 3)
+        self._actives: dict[frozenset[str], BoolArray] = {}
 
     def first_collision(
         self,
@@ -223,10 +225,7 @@ class CollisionWorld:
         """The first colliding pose's collision (None when every pose is clear). Poses are checked at the
         given samples and between them wherever the grasp point moved more than 1 cm."""
         spheres, radii = _gripper_spheres(self.arm.gripper, float(aperture_m))
-        active = np.array(
-            [c.name not in ignore and c.name.removesuffix(" handle") not in ignore for c in self.cylinders],
-            dtype=bool,
-        )
+        active = self._active(ignore)
         samples = np.ascontiguousarray(q_samples, dtype=np.float64)
         if self.sweeps is None:
             sweep = self._sweep(samples, spheres, radii)
@@ -261,6 +260,34 @@ class CollisionWorld:
             return None
         pose, why, obstacle = min(findings, key=lambda f: f[0])
         return Collision(f"{why} (pose {pose} of {len(positions)})", obstacle)
+
+    def _active(self, ignore: frozenset[str]) -> BoolArray:
+        """Which cylinders count (not a mug of ``ignore``, nor its handle); worked out once per set ignored,
+        as a world is checked against many motions with the same few (read-only, as it is shared)."""
+        active = self._actives.get(ignore)
+        if active is None:
+            names = (c.name for c in self.cylinders)
+            counted = [n not in ignore and n.removesuffix(" handle") not in ignore for n in names]
+            active = np.array(counted, dtype=bool)
+            active.flags.writeable = False
+            self._actives[ignore] = active
+        return active
+
+    def _overlapping(self, low: FloatArray, high: FloatArray) -> tuple[BoolArray, IntArray]:
+        """Which cylinders (a mask) and which boxes (their indices) the box ``low``, ``high`` (3,) around
+        all of a sweep's boxes overlaps, by the tests ``_near_vs_obstacles`` makes pose by pose: an
+        obstacle outside it is near no pose, so the pose by pose tests need not look at it."""
+        cyl = self._cyl
+        boxes = np.flatnonzero(np.logical_and.reduce((low < self._box_hi) & (high > self._box_lo), axis=1))
+        overlapping: BoolArray = (
+            (low[0] < cyl[:, 0] + cyl[:, 2])
+            & (high[0] > cyl[:, 0] - cyl[:, 2])
+            & (low[1] < cyl[:, 1] + cyl[:, 2])
+            & (high[1] > cyl[:, 1] - cyl[:, 2])
+            & (low[2] < cyl[:, 4])
+            & (high[2] > cyl[:, 3])
+        )
+        return overlapping, boxes
 
     def mugs_around(self, q: FloatArray, *, aperture_m: float) -> frozenset[str]:
         """Ids of the mugs (named ``mug <id>``) the gripper overlaps at joint angles ``q``: after a failed or
@@ -318,7 +345,7 @@ class CollisionWorld:
         return positions, rotations, origins[:, 1:, 2]
 
     def _spheres_vs_obstacles(
-        self, centres: FloatArray, radii: FloatArray, active: FloatArray
+        self, centres: FloatArray, radii: FloatArray, active: BoolArray
     ) -> tuple[int, str]:
         """First pose (axis 0 of ``centres`` (N, S, 3)) where a sphere meets an obstacle, and its name."""
         lo, hi = _bounds(centres, radii)
@@ -330,17 +357,20 @@ class CollisionWorld:
         hi: FloatArray,
         centres_at: Callable[[IntArray], FloatArray],
         radii: FloatArray,
-        active: FloatArray,
+        active: BoolArray,
     ) -> tuple[int, str]:
         """First pose where a sphere meets an obstacle, and its name: ``lo``, ``hi`` (N, 3) bound each pose's
         spheres, ``centres_at(poses)`` gives the spheres' centres (len(poses), S, 3) at those poses.
 
         Only the (pose, obstacle) pairs whose bounding boxes overlap are checked sphere by sphere: a pose's
-        spheres are near a few obstacles at most."""
+        spheres are near a few obstacles at most, and the obstacles outside the box around all of them are
+        left out first."""
         first = len(lo)
         name = ""
         if not len(lo):
             return first, name
+        near_all, boxes = self._overlapping(np.minimum.reduce(lo, axis=0), np.maximum.reduce(hi, axis=0))
+        active = active & near_all
         cyl = self._cyl[active]
         if len(cyl):
             near = (
@@ -365,12 +395,13 @@ class CollisionWorld:
                     # Pairs are in (pose, obstacle) order: the first hit is the first pose's first obstacle.
                     first = int(pose[hit[0]])
                     name = self.cylinders[int(np.flatnonzero(active)[which[hit[0]]])].name
-        if len(self._box_lo):
+        if len(boxes):
+            box_lo, box_hi = self._box_lo[boxes], self._box_hi[boxes]
             near = np.all(
-                (lo[:, None, :] < self._box_hi[None, :, :]) & (hi[:, None, :] > self._box_lo[None, :, :]),
-                axis=2,
+                (lo[:, None, :] < box_hi[None, :, :]) & (hi[:, None, :] > box_lo[None, :, :]), axis=2
             )
             pose, which = np.nonzero(near[:first])
+            which = boxes[which]
             if len(pose):
                 c = _centres_once(centres_at, pose)
                 nearest = np.clip(c, self._box_lo[which][:, None, :], self._box_hi[which][:, None, :])
@@ -382,7 +413,7 @@ class CollisionWorld:
         return first, name
 
     def _held_collisions(
-        self, positions: FloatArray, rotations: FloatArray, held: HeldMug, active: FloatArray
+        self, positions: FloatArray, rotations: FloatArray, held: HeldMug, active: BoolArray
     ) -> list[_Finding]:
         findings: list[_Finding] = []
         axis = rotations[:, :, 0]
@@ -431,20 +462,32 @@ class CollisionWorld:
         return findings
 
     def _held_cylinders_vs_obstacles(
-        self, xy: FloatArray, radius: float, z_lo: FloatArray, z_hi: FloatArray, active: FloatArray
-    ) -> tuple[FloatArray, FloatArray]:
+        self, xy: FloatArray, radius: float, z_lo: FloatArray, z_hi: FloatArray, active: BoolArray
+    ) -> tuple[BoolArray, BoolArray]:
         """A held, upright mug must keep ``clearance_m`` above anything it overlaps in plan view. For mugs
         at ``xy`` (V, 2) spanning ``z_lo``-``z_hi`` (V,): which cylinders (V, C) and boxes (V, B) each
-        comes too close to."""
+        comes too close to. Only the cylinders within reach of the box around all the mugs' axes (widened
+        by far more than rounding) are looked at pose by pose: no other can be that close to any."""
         gap = self.clearance_m
         cyl = self._cyl
-        dxy = np.hypot(xy[:, None, 0] - cyl[None, :, 0], xy[:, None, 1] - cyl[None, :, 1])
-        cyl_hits = (
-            active[None, :]
-            & (dxy < radius + cyl[None, :, 2])
-            & (z_lo[:, None] < cyl[None, :, 4] + gap)
-            & (z_hi[:, None] > cyl[None, :, 3] - gap)
+        reach = radius + cyl[:, 2] + _BOX_SLACK_M
+        low, high = np.minimum.reduce(xy, axis=0), np.maximum.reduce(xy, axis=0)
+        near = np.flatnonzero(
+            active
+            & (low[0] < cyl[:, 0] + reach)
+            & (high[0] > cyl[:, 0] - reach)
+            & (low[1] < cyl[:, 1] + reach)
+            & (high[1] > cyl[:, 1] - reach)
         )
+        cyl_hits = np.zeros((len(xy), len(cyl)), dtype=bool)
+        if len(near):
+            c = cyl[near]
+            dxy = np.hypot(xy[:, None, 0] - c[None, :, 0], xy[:, None, 1] - c[None, :, 1])
+            cyl_hits[:, near] = (
+                (dxy < radius + c[None, :, 2])
+                & (z_lo[:, None] < c[None, :, 4] + gap)
+                & (z_hi[:, None] > c[None, :, 3] - gap)
+            )
         lo, hi = self._box_lo, self._box_hi
         dx = np.maximum(np.maximum(lo[None, :, 0] - xy[:, None, 0], 0.0), xy[:, None, 0] - hi[None, :, 0])
         dy = np.maximum(np.maximum(lo[None, :, 1] - xy[:, None, 1], 0.0), xy[:, None, 1] - hi[None, :, 1])

@@ -270,7 +270,11 @@ def _worst_limit_ratio(times: FloatArray, q: FloatArray, vmax: FloatArray, amax:
 
 
 def _dedupe(waypoints: FloatArray) -> FloatArray:
-    """Drop consecutive duplicate waypoints (a zero-length step would break the path parameter)."""
+    """Drop consecutive duplicate waypoints (a zero-length step would break the path parameter). Most paths
+    have none: when every step moves more than the tolerance, each waypoint's kept predecessor is the one
+    before it and all are kept, which one vectorised test shows."""
+    if len(waypoints) < 2 or bool(np.all(np.max(np.abs(np.diff(waypoints, axis=0)), axis=1) > 1e-9)):
+        return waypoints.copy()
     keep = [0]
     for i in range(1, len(waypoints)):
         if float(np.max(np.abs(waypoints[i] - waypoints[keep[-1]]))) > 1e-9:
