@@ -155,7 +155,11 @@ def recorded_jobs(one_mug_job: Path, two_mug_job: Path) -> Mapping[int, Path]:
     """The kinematic cell's one- and two-mug jobs by their number of mugs, each recorded once for the test
     session (``tests/replay/conftest.py``); module-scoped so that the rows replaying them run on one worker
     (``tests/conftest.py``) and they are recorded once, not on every worker. The rows fire their faults on
-    the first mug: a second mug would only add a cycle to the replays of all but the row that moves it."""
+    the first mug: a second mug would only add a cycle to the replays of all but the row that moves it.
+    Without faults both replay to a match, so what a row's replay does otherwise is its faults' doing: the
+    two-mug job in ``test_replay_engine::test_a_kinematic_job_replays_exactly_from_its_recording``, the
+    one-mug job twenty times in ``test_replay_faithful::test_twenty_replays_of_one_recording_...`` (this
+    module replayed each once more to see it)."""
     return {1: one_mug_job, 2: two_mug_job}
 
 
@@ -208,16 +212,6 @@ def test_each_camera_row_ends_in_its_safe_state(
     job = recorded_jobs[row.mugs] if world == "kinematic" else recorded_mujoco_job
     trace = dishbot.replay(job, faults=row.faults)
     _check(row, trace)
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("mugs", [1, 2])
-def test_a_replay_without_faults_of_the_matrix_job_matches(
-    mugs: int, recorded_jobs: Mapping[int, Path], dishbot: DishbotReplay
-) -> None:
-    trace = dishbot.replay(recorded_jobs[mugs])
-    assert trace.match
-    assert trace.final_state == "done"
 
 
 @dataclass(frozen=True)
