@@ -75,8 +75,6 @@ from wire.messages import (
 
 log = structlog.get_logger("replay")
 
-# How long a replay may run on after the recorded job's duration before it is given up (simulated s).
-_OVERRUN_S = 600.0
 # How far past a cut recording's end the replay goes on before it stops (simulated s).
 _PAST_CUT_S = 1.0
 # The kinematic stand-in's joint speed cap for a robot's recording (the highest ``sim.joint_speed_rad_s``).
@@ -114,6 +112,9 @@ class ReplayOptions:
     # The stand-in world after a divergence (``replay.resim``): kinematic or mujoco; None: the recording's
     # own simulated world, the kinematic one for a hardware recording.
     resim: str | None = None
+    # How long a replay may run on after the recorded job's duration before it is given up (simulated s):
+    # a job that never ends (a resume the recording lost) idles that long; a test of the limit takes less.
+    overrun_s: float = 600.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -475,7 +476,7 @@ async def _replay(
         tee.install(ctx)
         if faults is not None:
             faults.attach(ctx)
-        drive.append(asyncio.create_task(_drive(session, replayer, ctx), name="replay"))
+        drive.append(asyncio.create_task(_drive(session, replayer, ctx, options.overrun_s), name="replay"))
 
     hooks = ServeHooks(
         on_publish=(on_publish,) if faults is None else (on_publish, faults.on_publish), on_ready=on_ready
@@ -511,7 +512,7 @@ def stand_in_world(session: RecordedSession, asked: str | None) -> str:
     return session.world if session.world in STAND_INS else "kinematic"
 
 
-async def _drive(session: RecordedSession, replayer: Replayer, ctx: ServeContext) -> None:
+async def _drive(session: RecordedSession, replayer: Replayer, ctx: ServeContext, overrun_s: float) -> None:
     """The operator's side: the recorded start, the later commands where they fell in the job (at the
     same transition and device command, as long after them: ``RecordedSession.anchor``) and the recorded
     device events likewise (a task of their own); once the replay no longer follows the recording, the
@@ -550,7 +551,7 @@ async def _drive(session: RecordedSession, replayer: Replayer, ctx: ServeContext
             left = max(0.0, session.end_s - replayer.t_s()) + _PAST_CUT_S
             await clock.wait(asyncio.ensure_future(ctx.job.finished.wait()), left)
         else:
-            limit = session.trace.duration_s + _OVERRUN_S
+            limit = session.trace.duration_s + overrun_s
             left = max(0.0, limit - replayer.t_s())
             finished = await clock.wait(asyncio.ensure_future(ctx.job.finished.wait()), left)
             if not finished:
