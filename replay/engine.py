@@ -102,6 +102,11 @@ class FaultSource(Protocol):
 
     def outcomes(self) -> tuple[FaultOutcome, ...]: ...
 
+    @property
+    def acts_on_recording(self) -> bool:
+        """Whether a fault acts on the recording (a full disk), so the replay must write one."""
+        ...
+
 
 @dataclass(frozen=True, slots=True)
 class ReplayOptions:
@@ -227,7 +232,7 @@ def replay(
     wall_start = _wall_start(session)
     clock = SimulatedClock(speed=options.speed, wall_start=wall_start)
     started = wall_seconds()
-    tee = _Tee(forward=options.record is not None or faults is not None)
+    tee = _Tee(forward=options.record is not None or (faults is not None and faults.acts_on_recording))
     with _terminated_as_exit(), tempfile.TemporaryDirectory(prefix=f"{_TMP_PREFIX}{os.getpid()}-") as tmp:
         replayer, resim, result_files = clock.run(_replay(session, options, clock, Path(tmp), faults, tee))
         wall_s = wall_seconds() - started
@@ -341,8 +346,9 @@ class _Tee:
     before the recorder's queue and disk, so a dropped or unwritten message is still in the trace.
 
     Not ``forward``ed, nothing reaches the recorder: a replay whose recording nobody keeps and no fault
-    acts on (a full disk acts on the recorder) does not write one; encoding, deriving Foxglove's views of
-    and compressing what would be thrown away was a sixth of a kinematic replay's time."""
+    acts on (a full disk acts on the recorder; no other fault kind touches it) does not write one;
+    encoding, deriving Foxglove's views of and compressing what would be thrown away was a sixth of a
+    kinematic replay's time."""
 
     def __init__(self, *, forward: bool = True) -> None:
         self.messages: list[RecordedMessage] = []

@@ -166,6 +166,9 @@ FAULT_KINDS: Final[Mapping[str, KindSpec]] = {
 }
 
 SERVO_KINDS: Final = frozenset({"servo_overload", "servo_overheat", "servo_voltage", "servo_silent"})
+# The kinds that act on the daemon's recording itself (its disk): a replay with one of them must write the
+# recording it would otherwise not keep.
+RECORDING_KINDS: Final = frozenset(k for k, spec in FAULT_KINDS.items() if spec.target == "the recording")
 CAMERA_KINDS: Final[Mapping[str, CameraFaultKind]] = {
     "camera_no_frame": "no_frame",
     "camera_stale": "stale",
@@ -575,6 +578,11 @@ class FaultInjector:
             self._peer = None
 
     # --- what became of each fault -------------------------------------------------------------------------
+
+    @property
+    def acts_on_recording(self) -> bool:
+        """Whether a fault of the plan acts on the recording (a full disk): the replay must write it."""
+        return any(f.kind in RECORDING_KINDS for f in self.faults)
 
     def outcomes(self) -> tuple[FaultOutcome, ...]:
         """Every fault of the file, fired or not, and why not (past the end of the run, the state never

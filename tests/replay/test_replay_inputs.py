@@ -167,6 +167,30 @@ def test_a_disk_full_replay_reports_what_the_daemon_did_not_what_its_recording_k
 
 
 @pytest.mark.slow
+def test_a_disk_full_replay_writes_the_recording_nobody_keeps_so_that_the_fault_acts(
+    one_mug_job: Path,
+) -> None:
+    """A replay writes no recording nobody keeps, unless a fault acts on it: the full disk must meet the
+    recorder's writes for the daemon to see them fail."""
+    session = RecordedSession.load(one_mug_job)
+    faults = FaultInjector(
+        parse_faults('[[fault]]\nkind = "disk_full"\nat_state = "detect"\nduration_s = 5\n', source="f.toml")
+    )
+    assert faults.acts_on_recording
+    report = replay(session, ReplayOptions(), faults=faults)
+    assert report.recording is None
+    assert [o.fired for o in report.fault_outcomes] == [True]
+    kinds = [e.kind for e in report.replayed.events]
+    # Failed at the full disk, and restored at the first write once there is room: without writes, the
+    # daemon would never learn the disk had room again.
+    assert kinds.index("recording_failed") < kinds.index("recording_restored")
+    slip = FaultInjector(
+        parse_faults('[[fault]]\nkind = "mug_slip"\nat_state = "flip.transit"\n', source="f.toml")
+    )
+    assert not slip.acts_on_recording
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "fault",
     [
