@@ -692,6 +692,9 @@ class SimWorld:
             if data.time >= self._next_monitor:
                 self._next_monitor = data.time + self.physics.monitor_period_s
                 self._monitor()
+        # A diverged state is never published: the world stops before a reader could take it.
+        if _count_nonzero(self._bad_state_counts) or not math.isfinite(_sum(data.qpos)):
+            raise SimModelError(f"the simulation diverged by t={self.time():.3f} s ({self._what_diverged()})")
         # Once per batch: stepped by a clock, nobody reads between the steps of a batch (they run on the
         # reader's thread), so the snapshot is taken when it is first read (most batches end at an FSR
         # sample, with no servo read before the next one); in the world's own thread a batch is at most
@@ -700,8 +703,6 @@ class SimWorld:
             self._present_due = True
         else:
             self._publish_present()
-        if _count_nonzero(self._bad_state_counts) or not math.isfinite(_sum(data.qpos)):
-            raise SimModelError(f"the simulation diverged by t={self.time():.3f} s ({self._what_diverged()})")
 
     def _what_diverged(self) -> str:
         """What MuJoCo found bad (its warnings), or the positions that are not finite (a sum is NaN or
