@@ -8,11 +8,8 @@ from __future__ import annotations
 
 import itertools
 
-from daemon.clock import RealClock
-from drivers.dynamixel import BusConfig, DynamixelBus
 from drivers.dynamixel.bus import WallWaits
-from drivers.sim.servo_chain import ServoChainSimulator, default_chain
-from tests.fakes.devices import serving
+from tests.fakes.devices import inprocess_chain
 
 
 class LateHost(WallWaits):
@@ -28,16 +25,10 @@ class LateHost(WallWaits):
 
 
 def test_an_answer_waiting_in_the_buffer_after_the_deadline_is_read_not_timed_out() -> None:
-    clock = RealClock()
-    with serving(ServoChainSimulator(default_chain()), "inprocess", clock) as sim:
-        bus = DynamixelBus(
-            BusConfig(sim.device_path), clock=clock, read_timeout_s=0.01, open_serial=sim.open_serial
-        )
-        with bus:
-            bus.verify(default_chain())
-            bus.waits = LateHost()
-            assert bus.ping(1) is not None
-            assert bus.read_register(1, "present_position") == bus.read_register(1, "present_position")
-            readings = bus.read_states([1, 2, 3])
-            assert sorted(readings) == [1, 2, 3]
-            assert all(bus.counters[i].timeouts == 0 and bus.counters[i].retries == 0 for i in (1, 2, 3))
+    with inprocess_chain(read_timeout_s=0.01) as (_, bus):
+        bus.waits = LateHost()
+        assert bus.ping(1) is not None
+        assert bus.read_register(1, "present_position") == bus.read_register(1, "present_position")
+        readings = bus.read_states([1, 2, 3])
+        assert sorted(readings) == [1, 2, 3]
+        assert all(bus.counters[i].timeouts == 0 and bus.counters[i].retries == 0 for i in (1, 2, 3))

@@ -7,10 +7,9 @@ import pytest
 from structlog.testing import capture_logs
 
 from daemon.clock import RealClock
-from drivers.dynamixel import BusConfig, BusTimeout, DynamixelBus
+from drivers.dynamixel import BusTimeout
 from drivers.sim.plant import FirstOrderPlant, PlantStopped
-from drivers.sim.servo_chain import ServoChainSimulator, default_chain
-from tests.fakes.devices import serving
+from tests.fakes.devices import inprocess_chain
 
 
 class DyingPlant(FirstOrderPlant):
@@ -27,22 +26,14 @@ class DyingPlant(FirstOrderPlant):
 
 
 def test_servos_whose_plant_died_answer_nothing_and_the_simulator_says_why_once() -> None:
-    clock = RealClock()
-    plant = DyingPlant(clock)
-    with serving(ServoChainSimulator(default_chain(), plant=plant), "inprocess", clock) as sim:
-        bus = DynamixelBus(
-            BusConfig(sim.device_path), clock=clock, read_timeout_s=0.005, open_serial=sim.open_serial
-        )
-        with bus:
-            bus.verify(default_chain())
-            assert sorted(bus.read_states([1, 2, 3])) == [1, 2, 3]
-            plant.dead = True
-            with capture_logs() as logs:
-                with pytest.raises(BusTimeout, match=r"^servo\(s\) 1, 2, 3 did not answer"):
-                    bus.read_states([1, 2, 3])
-                assert bus.ping(1) is None  # not even a ping, once the plant is gone
-            silent = [e for e in logs if e["event"] == "sim_servos_silent"]
-            assert [e["reason"] for e in silent] == [
-                "the physics died: the simulation diverged by t=20.014 s"
-            ]
-            assert not [e for e in logs if e["event"] == "sim_packet_failed"]
+    plant = DyingPlant(RealClock())
+    with inprocess_chain(read_timeout_s=0.005, plant=plant) as (_, bus):
+        assert sorted(bus.read_states([1, 2, 3])) == [1, 2, 3]
+        plant.dead = True
+        with capture_logs() as logs:
+            with pytest.raises(BusTimeout, match=r"^servo\(s\) 1, 2, 3 did not answer"):
+                bus.read_states([1, 2, 3])
+            assert bus.ping(1) is None  # not even a ping, once the plant is gone
+        silent = [e for e in logs if e["event"] == "sim_servos_silent"]
+        assert [e["reason"] for e in silent] == ["the physics died: the simulation diverged by t=20.014 s"]
+        assert not [e for e in logs if e["event"] == "sim_packet_failed"]

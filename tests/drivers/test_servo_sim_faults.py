@@ -11,8 +11,8 @@ import pytest
 from daemon.clock import RealClock
 from drivers.dynamixel import BusConfig, BusTimeout, DeviceEvent, DynamixelBus
 from drivers.errors import ServoFault
-from drivers.sim.servo_chain import ServoChainSimulator, default_chain
-from tests.fakes.devices import serving
+from drivers.sim.servo_chain import ServoChainSimulator
+from tests.fakes.devices import inprocess_chain, serving
 
 IDS = [1, 2, 3, 4, 5, 6]
 CHAIN_2 = ((1, "XL430-W250"), (2, "XM430-W350"))
@@ -21,18 +21,8 @@ CHAIN_2 = ((1, "XL430-W250"), (2, "XM430-W350"))
 @pytest.fixture
 def chain_1() -> Iterator[tuple[ServoChainSimulator, DynamixelBus, list[DeviceEvent]]]:
     events: list[DeviceEvent] = []
-    clock = RealClock()
-    with serving(ServoChainSimulator(default_chain()), "inprocess", clock) as sim:
-        bus = DynamixelBus(
-            BusConfig(sim.device_path),
-            clock=clock,
-            on_event=events.append,
-            read_timeout_s=0.01,
-            open_serial=sim.open_serial,
-        )
-        with bus:
-            bus.verify(default_chain())
-            yield sim, bus, events
+    with inprocess_chain(read_timeout_s=0.01, on_event=events.append) as (sim, bus):
+        yield sim, bus, events
 
 
 @pytest.fixture
@@ -145,17 +135,11 @@ def test_a_lasting_overload_trips_whenever_the_servo_is_driven_until_it_ends(
 
 
 def corrupt_counts(rate: float, seed: int) -> tuple[int, int]:
-    clock = RealClock()
-    with serving(ServoChainSimulator(default_chain()), "inprocess", clock) as sim:
-        bus = DynamixelBus(
-            BusConfig(sim.device_path), clock=clock, read_timeout_s=0.005, open_serial=sim.open_serial
-        )
-        with bus:
-            bus.verify(default_chain())
-            sim.corrupt_fraction(rate, seed=seed)
-            for _ in range(10):
-                assert set(bus.read_states(IDS)) == set(IDS)
-            return sim.packets_corrupted, sum(c.corrupt for c in bus.counters.values())
+    with inprocess_chain(read_timeout_s=0.005) as (sim, bus):
+        sim.corrupt_fraction(rate, seed=seed)
+        for _ in range(10):
+            assert set(bus.read_states(IDS)) == set(IDS)
+        return sim.packets_corrupted, sum(c.corrupt for c in bus.counters.values())
 
 
 def test_a_corrupt_fraction_is_retried_and_counted_the_same_way_every_run() -> None:

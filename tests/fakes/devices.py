@@ -15,10 +15,13 @@ from typing import Any, Final, ParamSpec, TypeVar
 import numpy as np
 
 from daemon.clock import RealClock, SessionClock, SimulatedClock
+from drivers.dynamixel import BusConfig, DynamixelBus
+from drivers.dynamixel.bus import EventSink
 from drivers.interfaces import Clock, ForceReading, RGBDFrame
 from drivers.serial_port import OpenSerial, open_pyserial
 from drivers.sim.device import SimulatedDevice
-from drivers.sim.plant import FirstOrderPlant
+from drivers.sim.plant import FirstOrderPlant, ServoPlant
+from drivers.sim.servo_chain import ServoChainSimulator, default_chain
 
 P = ParamSpec("P")
 T = TypeVar("T")
@@ -49,6 +52,26 @@ def serving(device: D, transport: str, clock: Clock) -> Iterator[D]:
         yield device
     finally:
         device.stop()
+
+
+@contextlib.contextmanager
+def inprocess_chain(
+    *, read_timeout_s: float, plant: ServoPlant | None = None, on_event: EventSink | None = None
+) -> Iterator[tuple[ServoChainSimulator, DynamixelBus]]:
+    """The default servo chain (on ``plant``) simulated in-process on the wall clock, and an open bus that
+    has verified it: where a bus test starts."""
+    clock = RealClock()
+    with serving(ServoChainSimulator(default_chain(), plant=plant), "inprocess", clock) as sim:
+        bus = DynamixelBus(
+            BusConfig(sim.device_path),
+            clock=clock,
+            on_event=on_event,
+            read_timeout_s=read_timeout_s,
+            open_serial=sim.open_serial,
+        )
+        with bus:
+            bus.verify(default_chain())
+            yield sim, bus
 
 
 def opener(device: SimulatedDevice) -> OpenSerial:
