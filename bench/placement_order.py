@@ -23,7 +23,7 @@ import os
 import statistics
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -77,22 +77,27 @@ def order_table(
     """The table (see the module). The layouts are drawn here, in one process and in order, so the same seed
     gives the same layouts and the same rows whatever ``jobs`` is; each layout is then planned and run in one
     of ``jobs`` worker processes (each keeps one cycle planner per dataset, with what it remembers of the
-    tray's shared motions, across layouts). ``unchecked=False`` skips the unchecked baseline (a second
+    tray's shared motions, across layouts), handed over as soon as it is drawn so the workers start on the
+    first layout while the rest are drawn. ``unchecked=False`` skips the unchecked baseline (a second
     packing and job run per layout), which the order target does not need. The workers log at
     ``log_level`` to stderr, as the command line does; they and the forkserver they come from die with
     the bench, even by SIGKILL (``daemon.lifeline``)."""
     config = load_config()
-    tasks: list[tuple[int, int, Problem]] = []
-    mugs: dict[int, int] = {}
-    for n in datasets:
-        base = dataclasses.replace(cell_dataset_problem(config.cell, n), footprint_kind="mug")
-        mugs[n] = len(base.mugs)
-        rng = np.random.default_rng([seed, n])
-        tasks += [(n, k, random_layout(base, rng)) for k in range(layouts)]
+    bases = {
+        n: dataclasses.replace(cell_dataset_problem(config.cell, n), footprint_kind="mug") for n in datasets
+    }
+    mugs = {n: len(base.mugs) for n, base in bases.items()}
+
+    def drawn() -> Iterator[tuple[int, int, Problem]]:
+        for n, base in bases.items():
+            rng = np.random.default_rng([seed, n])
+            for k in range(layouts):
+                yield n, k, random_layout(base, rng)
+
     runs: dict[int, list[LayoutRun]] = {n: [] for n in datasets}
     started = time.perf_counter()
     if jobs == 1:
-        for n, k, problem in tasks:
+        for n, k, problem in drawn():
             progress(f"dataset {n}: layout {k + 1} of {layouts}")
             runs[n].append(run_layout(n, problem, unchecked))
     else:
@@ -105,11 +110,22 @@ def order_table(
         with concurrent.futures.ProcessPoolExecutor(
             jobs, mp_context=context, initializer=_worker, initargs=(log_level, os.getpid())
         ) as pool:
-            futures = {pool.submit(run_layout, n, problem, unchecked): (n, k) for n, k, problem in tasks}
-            for future in concurrent.futures.as_completed(futures):
-                n, k = futures[future]
-                progress(f"dataset {n}: layout {k + 1} of {layouts} done")
-                runs[n].append(future.result())
+            pending: dict[concurrent.futures.Future[LayoutRun], tuple[int, int]] = {}
+
+            def collect(timeout: float | None) -> None:
+                done, _ = concurrent.futures.wait(
+                    pending, timeout=timeout, return_when=concurrent.futures.FIRST_COMPLETED
+                )
+                for future in done:
+                    n, k = pending.pop(future)
+                    progress(f"dataset {n}: layout {k + 1} of {layouts} done")
+                    runs[n].append(future.result())
+
+            for n, k, problem in drawn():
+                pending[pool.submit(run_layout, n, problem, unchecked)] = (n, k)
+                collect(0)
+            while pending:
+                collect(None)
     wall_s = time.perf_counter() - started
     rows: list[list[object]] = []
     total_checked_collisions = 0
