@@ -52,7 +52,7 @@ from daemon.log_relay import LogRelay, LostLines, RecordQueue, output_guarded, p
 from daemon.messages import gripper_message, joints_message
 from daemon.recorded import TELEMETRY_READER, JobPosition, joint_reader, recorded
 from daemon.sdnotify import SdNotifier
-from daemon.security import exposure_error
+from daemon.security import endpoint_protocol, exposure_error
 from daemon.zenoh_session import ZenohSession, error_text
 from drivers.dynamixel import BusTimeout
 from drivers.dynamixel.health import ServoHealthFault
@@ -171,6 +171,43 @@ def tolerated_exposure(config: Config, options: RunOptions) -> str | None:
     if exposed is not None and not (options.insecure or config.zenoh.insecure):
         raise UsageError(exposed)
     return exposed
+
+
+def listen_in_use(listen: Sequence[str]) -> str | None:
+    """Why one of the ``tcp/`` or ``tls/`` endpoints to listen on is already taken (another daemon on this
+    machine, most often: the default port is the same for every job), or None. Checked before any device
+    or simulator starts, so a second ``dishbot run`` on one machine turns no servo's torque on before it
+    fails; the Zenoh session, opened later, still reports whatever else goes wrong."""
+    import errno
+    import socket
+
+    for endpoint in listen:
+        if endpoint_protocol(endpoint) not in ("tcp", "tls"):
+            continue
+        address = endpoint.split("/", 1)[1].split("?", 1)[0].split("#", 1)[0]
+        host, _, port = address.rpartition(":")
+        host = host[1:-1] if host.startswith("[") else host
+        if not port.isdigit() or int(port) == 0:
+            continue
+        try:
+            family, kind, proto, _, where = socket.getaddrinfo(
+                host or None, int(port), type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+            )[0]
+        except OSError:
+            continue  # a host that does not resolve: the session's own error says so
+        with socket.socket(family, kind, proto) as probe:
+            # As a listener binds: a port left in TIME_WAIT by an earlier run is free, one listened on is not.
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                probe.bind(where)
+            except OSError as e:
+                if e.errno != errno.EADDRINUSE:
+                    continue
+                return (
+                    f"cannot listen on {endpoint}: the address is in use (another dishbot running on this "
+                    "machine? give this one a free port with --listen tcp/127.0.0.1:PORT)"
+                )
+    return None
 
 
 async def serve(

@@ -166,9 +166,12 @@ def _run_guarded(args: argparse.Namespace) -> int:
     )
     if injector is not None:
         options = injector.prepare(options)
-    from daemon.app import tolerated_exposure
+    from daemon.app import listen_in_use, tolerated_exposure
 
     tolerated_exposure(config, options)  # refused before any simulator or device starts
+    taken = listen_in_use(options.listen)
+    if taken is not None:
+        raise UsageError(taken)
     associate = association()
     hooks = injector.hooks() if injector is not None else None
     if args.once:  # one finite job: say which mug it is at, on stderr

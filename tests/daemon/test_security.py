@@ -7,6 +7,7 @@ import asyncio
 import json
 import os
 import shutil
+import socket
 import stat
 import subprocess
 import sys
@@ -19,7 +20,7 @@ from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from bench.remote import python_env
 from cli.main import main
-from daemon.app import RunOptions, tolerated_exposure
+from daemon.app import RunOptions, listen_in_use, tolerated_exposure
 from daemon.config import load_config
 from daemon.errors import ConfigError, UsageError
 from daemon.security import exposure_error, load_profile, parse_zenoh
@@ -346,6 +347,34 @@ def test_run_refuses_an_exposed_endpoint_before_starting_anything(
     )
     assert err.count("\n") == 1
     assert not any(tmp_path.iterdir())  # no recording: nothing started
+
+
+def test_run_refuses_a_listen_port_in_use_before_starting_anything(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A second daemon on one machine (the default port is the same for every run) fails before any
+    servo's torque is on, with the fix named."""
+    with socket.create_server(("127.0.0.1", 0)) as other:
+        port = other.getsockname()[1]
+        argv = ["run", "--sim", "--world", "kinematic", "--record-dir", str(tmp_path)]
+        assert main([*argv, "--listen", f"tcp/127.0.0.1:{port}"]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"dishbot run: error: cannot listen on tcp/127.0.0.1:{port}: the address is in use (another dishbot "
+        "running on this machine? give this one a free port with --listen tcp/127.0.0.1:PORT)\n"
+    )
+    assert not any(tmp_path.iterdir())  # no recording: nothing started
+
+
+def test_a_listen_port_is_in_use_only_while_something_listens_on_it() -> None:
+    with socket.create_server(("127.0.0.1", 0)) as other:
+        port = other.getsockname()[1]
+        assert listen_in_use([f"tcp/127.0.0.1:{port}"]) is not None
+        assert listen_in_use([f"tls/127.0.0.1:{port}?x=1"]) is not None  # options after the address
+        assert listen_in_use([f"tcp/0.0.0.0:{port}"]) is not None  # every interface takes loopback's too
+        assert listen_in_use([f"udp/127.0.0.1:{port}", "tcp/127.0.0.1:0"]) is None  # not checked
+    # Closed (a connection's port may still be in TIME_WAIT, which a listener may take): free again.
+    assert listen_in_use([f"tcp/127.0.0.1:{port}"]) is None
 
 
 def test_insecure_tolerates_the_exposure_and_names_it_for_the_warning() -> None:
