@@ -280,11 +280,18 @@ def _apart_all(
         return np.ones(len(cand), dtype=bool)
     d = np.linalg.norm(cand[:, None, :] - at[None, :, :], axis=2)
     ok = d >= r + r_at[None, :] + _BRIM_GAP_MM
-    k = len(cand)
-    # The candidate's handle against the brims set out, then their handles against the candidate's brim.
-    theirs = _handle_gap(at, r_at, len_at, cand, base_xy).T
-    ok &= _handle_gap(cand, np.full(k, r), np.full(k, length), at, base_xy) >= r_at[None, :] + _HANDLE_GAP_MM
-    ok &= theirs >= r + _HANDLE_GAP_MM
+    # A handle test can fail only for a brim within both mugs' reach (brim and handle) and the gap of the
+    # other: 1 mm beyond that every handle keeps its gap by a millimetre, far beyond rounding, so only the
+    # candidates within it are tested (each candidate's test is the same arithmetic as for all of them).
+    reach = r + length + r_at + len_at + _HANDLE_GAP_MM + 1.0
+    near = np.flatnonzero(np.all(ok, axis=1) & np.any(d < reach[None, :], axis=1))
+    if near.size:
+        sub = cand[near]
+        k = len(sub)
+        # The candidate's handle against the brims set out, then their handles against the candidate's brim.
+        theirs = _handle_gap(at, r_at, len_at, sub, base_xy).T
+        mine = _handle_gap(sub, np.full(k, r), np.full(k, length), at, base_xy)
+        ok[near] &= (mine >= r_at[None, :] + _HANDLE_GAP_MM) & (theirs >= r + _HANDLE_GAP_MM)
     return np.asarray(np.all(ok, axis=1))
 
 
