@@ -172,6 +172,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Runs the verb of ``argv`` (None: the process's own command line) and returns its exit code; with
     ``argv`` None a ``quick_exit`` verb ends the process instead (``Verb``)."""
     args = parse(argv)
+    # MuJoCo's OpenGL backend, for a verb that imports MuJoCo before ``sim`` (which sets the same default):
+    # without a display only offscreen EGL renders here. A MUJOCO_GL of the user's own wins.
+    os.environ.setdefault("MUJOCO_GL", "egl")
     code = _run(args)
     if argv is None and VERBS[args.command].quick_exit:
         _exit_now(code)

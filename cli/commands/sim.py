@@ -273,8 +273,11 @@ def _check_writable(target: Path) -> None:
 def _counter(args: argparse.Namespace, config: Any) -> list[Any]:
     """The rig's counter mugs: the listed ones, else the dataset's (default 1), on the config's cell."""
     from cli.mugs_file import listed_mugs
+    from description import thesis
     from sim.counter import dataset_counter, listed_counter, require_cell_tray
 
+    if args.dataset is not None and not 1 <= args.dataset <= len(thesis.DATASETS):
+        raise UsageError(f"--dataset {args.dataset}: choose a dataset 1-{len(thesis.DATASETS)}")
     listed = listed_mugs(args.mugs, config) if args.mugs is not None else None
     try:
         if listed is not None:

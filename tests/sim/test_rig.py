@@ -144,6 +144,8 @@ def run_cli(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, s
         (["--listen", "127.0.0.1:7460"], "--listen: '127.0.0.1:7460' is not a Zenoh endpoint"),
         (["--camera-key", "cam/*"], "--camera-key: 'cam/*' is not a plain Zenoh key (no wildcards)"),
         (["--dataset", "5"], "sim rig: "),
+        (["--dataset", "0"], "--dataset 0: choose a dataset 1-6"),  # before: taken for the default, 1
+        (["--dataset", "7"], "--dataset 7: choose a dataset 1-6"),
     ],
 )
 def test_bad_rig_arguments_are_refused_in_one_line_before_anything_starts(
