@@ -65,6 +65,10 @@ class PtyLink:
             master, slave = os.openpty()
             tty.setraw(master)
             tty.setraw(slave)
+            # Writes never wait for the host: with nobody reading (a rig no daemon has connected to yet, a
+            # host that died) the pty's buffer fills in seconds, and a blocking write would hold the lock
+            # for ever, so that neither ``unplug`` nor ``close`` could return (the rig ignored SIGTERM).
+            os.set_blocking(master, False)
             self._master, self._slave = master, slave
             tmp = self.device_path + ".new"
             with contextlib.suppress(FileNotFoundError):
@@ -100,7 +104,8 @@ class PtyLink:
         return b""
 
     def write(self, data: bytes) -> None:
-        """Send to the host; silently lost when unplugged, as on a real cable."""
+        """Send to the host; silently lost when unplugged, as on a real cable, and what does not fit in a
+        buffer the host has stopped reading is lost too, as from a serial adapter's full buffer."""
         with self._lock:
             if self._master < 0:
                 return
