@@ -188,8 +188,8 @@ class ServoChainSimulator(SimulatedDevice):
         # out since an id or a baud rate changed).
         self._heard: tuple[int | None, list[SimServo], dict[int, SimServo]] | None = None
         self.packets_seen = 0
-        self._plant_stopped = False  # the plant raised PlantStopped: no servo answers anything from then on
         self.packets_corrupted = 0
+        self._plant_stopped = False  # the plant raised PlantStopped: no servo answers anything from then on
         # On a pty, when the line is free for the next answer (wall clock): the instruction heard, or the
         # previous answer's last byte gone (see ``_wire_delay``).
         self._line_free_at = 0.0
@@ -380,9 +380,8 @@ class ServoChainSimulator(SimulatedDevice):
             try:
                 self._handle(frame)
             except PlantStopped as e:  # the servos' physical side is gone: silent, as without power
-                if not self._plant_stopped:
-                    self._plant_stopped = True
-                    log.error("sim_servos_silent", reason=str(e))
+                self._plant_stopped = True  # the frames after this one are skipped above: said once
+                log.error("sim_servos_silent", reason=str(e))
             except Exception:  # the simulator must keep serving whatever the host sends
                 log.exception("sim_packet_failed", servo_id=frame.servo_id, code=frame.code)
 
